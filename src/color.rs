@@ -1,0 +1,58 @@
+//! Transfer functions between encoded pixel values and linear light.
+
+/// How 8/16-bit pixel values relate to linear light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Transfer {
+    /// The exact sRGB (IEC 61966-2-1) piecewise curve.
+    Srgb,
+    /// The official Dr.Bokeh "naive gamma": linear = encoded^g.
+    Gamma(f32),
+    /// Values are already linear.
+    Linear,
+}
+
+impl Transfer {
+    /// Encoded value in [0, 1] (or beyond, for HDR) to linear light.
+    #[inline]
+    pub fn decode(self, v: f32) -> f32 {
+        match self {
+            Transfer::Srgb => srgb_to_linear(v),
+            Transfer::Gamma(g) => v.max(0.0).powf(g),
+            Transfer::Linear => v,
+        }
+    }
+
+    /// Linear light to encoded value (not clipped).
+    #[inline]
+    pub fn encode(self, v: f32) -> f32 {
+        match self {
+            Transfer::Srgb => linear_to_srgb(v),
+            Transfer::Gamma(g) => v.max(0.0).powf(1.0 / g),
+            Transfer::Linear => v,
+        }
+    }
+}
+
+#[inline]
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+}
+
+#[inline]
+pub fn linear_to_srgb(v: f32) -> f32 {
+    if v <= 0.003_130_8 { v.max(0.0) * 12.92 } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trip() {
+        for i in 0..=255 {
+            let v = i as f32 / 255.0;
+            assert!((linear_to_srgb(srgb_to_linear(v)) - v).abs() < 1e-5, "{v}");
+        }
+        assert!((srgb_to_linear(0.5) - 0.214_041).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,101 @@
+//! `Image`: the one pixel container of the library.
+//!
+//! Row-major, interleaved `f32` channels, row 0 at the top. Values are whatever the producer
+//! says (linear radiance, alpha, disparity...); the type carries no colour space. Every stage,
+//! loader and kernel works on this one type so that nothing is written twice per pixel type.
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    /// `height * width * channels` values, interleaved.
+    pub data: Vec<f32>,
+}
+
+impl Image {
+    /// A zero-filled image. Allocates `width * height * channels` floats.
+    pub fn new(width: usize, height: usize, channels: usize) -> Self {
+        Self::filled(width, height, channels, 0.0)
+    }
+
+    pub fn filled(width: usize, height: usize, channels: usize, value: f32) -> Self {
+        Image { width, height, channels, data: vec![value; width * height * channels] }
+    }
+
+    /// Wraps `data`; returns `None` if its length does not match the shape.
+    pub fn from_vec(width: usize, height: usize, channels: usize, data: Vec<f32>) -> Option<Self> {
+        (data.len() == width * height * channels).then_some(Image { width, height, channels, data })
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.width * self.height
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.width == 0 || self.height == 0
+    }
+
+    /// Index of the first channel of pixel (x, y) in `data`.
+    #[inline]
+    pub fn index(&self, x: usize, y: usize) -> usize {
+        (y * self.width + x) * self.channels
+    }
+
+    #[inline]
+    pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
+        let i = self.index(x, y);
+        &self.data[i..i + self.channels]
+    }
+
+    #[inline]
+    pub fn pixel_mut(&mut self, x: usize, y: usize) -> &mut [f32] {
+        let i = self.index(x, y);
+        let c = self.channels;
+        &mut self.data[i..i + c]
+    }
+
+    /// Copies channel `c` out as a one-channel image.
+    pub fn channel(&self, c: usize) -> Image {
+        assert!(c < self.channels, "channel {c} out of range");
+        let data = self.data.iter().skip(c).step_by(self.channels).copied().collect();
+        Image { width: self.width, height: self.height, channels: 1, data }
+    }
+
+    /// Picks channels by index (in the given order) into a new image.
+    pub fn select_channels(&self, which: &[usize]) -> Image {
+        let mut out = Image::new(self.width, self.height, which.len());
+        for (dst, src) in out.data.chunks_exact_mut(which.len()).zip(self.data.chunks_exact(self.channels)) {
+            for (d, &c) in dst.iter_mut().zip(which) {
+                *d = src[c];
+            }
+        }
+        out
+    }
+
+    /// Stacks images of equal size channel-wise (e.g. RGB + A + D into RGBAD).
+    pub fn stack(parts: &[&Image]) -> Image {
+        let (w, h) = (parts[0].width, parts[0].height);
+        assert!(parts.iter().all(|p| p.width == w && p.height == h), "stack: size mismatch");
+        let channels = parts.iter().map(|p| p.channels).sum();
+        let mut out = Image::new(w, h, channels);
+        for (i, dst) in out.data.chunks_exact_mut(channels).enumerate() {
+            let mut o = 0;
+            for p in parts {
+                dst[o..o + p.channels].copy_from_slice(&p.data[i * p.channels..(i + 1) * p.channels]);
+                o += p.channels;
+            }
+        }
+        out
+    }
+
+    /// Applies `f` to every value in place.
+    pub fn map_inplace(&mut self, f: impl Fn(f32) -> f32 + Sync) {
+        self.data.iter_mut().for_each(|v| *v = f(*v));
+    }
+
+    /// True if every value is finite.
+    pub fn all_finite(&self) -> bool {
+        self.data.iter().all(|v| v.is_finite())
+    }
+}

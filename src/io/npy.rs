@@ -1,0 +1,97 @@
+//! NPY arrays (`numpy.save` format) as [`Image`]s.
+//!
+//! Shape `H x W` reads as one channel, `H x W x C` as C interleaved channels. Accepted dtypes:
+//! float32, float64 (narrowed to f32), uint8, uint16 (values kept, not rescaled), either byte
+//! order, C order. The declared size is checked against the file length before anything is
+//! allocated, so a lying header cannot exhaust memory.
+
+use crate::error::{Error, Result};
+use crate::image::Image;
+use npyz::{TypeChar, WriterBuilder};
+use std::io::Write;
+use std::path::Path;
+
+/// Reads an NPY file into an image (see the module doc for what is accepted).
+pub fn read_npy(path: &Path, max_pixels: u64) -> Result<Image> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_npy(&bytes, max_pixels).map_err(|msg| Error::input(path, msg))
+}
+
+/// Decodes NPY bytes; the error is a message without the file name.
+pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, String> {
+    let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a valid NPY file ({e})"))?;
+    let shape = npy.shape().to_vec();
+    let (h, w, c) = match shape[..] {
+        [h, w] => (h, w, 1),
+        [h, w, c] => (h, w, c),
+        _ => return Err(format!("NPY array has shape {shape:?}; expected H x W or H x W x C")),
+    };
+    if h == 0 || w == 0 || c == 0 {
+        return Err(format!("NPY array is empty (shape {shape:?})"));
+    }
+    if h.saturating_mul(w) > max_pixels {
+        return Err(format!("NPY array of {w}x{h} exceeds the pixel limit of {max_pixels}"));
+    }
+    if c > 64 {
+        return Err(format!("NPY array has {c} channels; at most 64 are supported"));
+    }
+    if npy.order() != npyz::Order::C {
+        return Err("NPY array is in Fortran order; save it in C order (numpy.ascontiguousarray)".into());
+    }
+    let npyz::DType::Plain(ts) = npy.dtype() else {
+        return Err("NPY array has a structured dtype; expected a plain numeric array".into());
+    };
+    let count = h * w * c;
+    let item = ts.num_bytes().unwrap_or(0) as u64;
+    // The data must be in the file: refuse before allocating `count` values.
+    if (bytes.len() as u64) < count.saturating_mul(item) {
+        return Err(format!("NPY file is truncated: shape {shape:?} needs {} bytes of data", count * item));
+    }
+    let data: Vec<f32> = match (ts.type_char(), item) {
+        (TypeChar::Float, 4) => npy.into_vec::<f32>().map_err(|e| e.to_string())?,
+        (TypeChar::Float, 8) => npy.into_vec::<f64>().map_err(|e| e.to_string())?.into_iter().map(|v| v as f32).collect(),
+        (TypeChar::Uint, 1) => npy.into_vec::<u8>().map_err(|e| e.to_string())?.into_iter().map(f32::from).collect(),
+        (TypeChar::Uint, 2) => npy.into_vec::<u16>().map_err(|e| e.to_string())?.into_iter().map(f32::from).collect(),
+        _ => return Err(format!("NPY dtype '{ts}' is not supported; use float32, float64, uint8 or uint16")),
+    };
+    Image::from_vec(w as usize, h as usize, c as usize, data).ok_or_else(|| "NPY data length does not match its shape".into())
+}
+
+/// Writes `img` as little-endian float32, shape `H x W` (one channel) or `H x W x C`.
+pub fn write_npy<W: Write>(w: &mut W, img: &Image) -> std::io::Result<()> {
+    let shape: Vec<u64> = if img.channels == 1 {
+        vec![img.height as u64, img.width as u64]
+    } else {
+        vec![img.height as u64, img.width as u64, img.channels as u64]
+    };
+    let mut writer = npyz::WriteOptions::new().default_dtype().shape(&shape).writer(w).begin_nd()?;
+    writer.extend(img.data.iter().copied())?;
+    writer.finish()
+}
+
+/// Writes `img` to `path` as NPY, atomically.
+pub fn save_npy(path: &Path, img: &Image) -> Result<()> {
+    super::atomic::write_atomic(path, |w| write_npy(w, img).map_err(|e| Error::io(path, e)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip() {
+        let img = Image::from_vec(3, 2, 2, (0..12).map(|v| v as f32 * 0.5).collect()).unwrap();
+        let mut buf = Vec::new();
+        write_npy(&mut buf, &img).unwrap();
+        assert_eq!(decode_npy(&buf, u64::MAX).unwrap(), img);
+    }
+
+    #[test]
+    fn truncated_is_refused() {
+        let img = Image::new(64, 64, 1);
+        let mut buf = Vec::new();
+        write_npy(&mut buf, &img).unwrap();
+        buf.truncate(buf.len() / 2);
+        assert!(decode_npy(&buf, u64::MAX).unwrap_err().contains("truncated"));
+    }
+}

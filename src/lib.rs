@@ -1,0 +1,16 @@
+//! drbokeh: occlusion-aware lens blur (Dr.Bokeh) from one photo and its depth.
+//!
+//! Data flow (see DESIGN.md): `io` reads image, depth and matte; `stages` build the layered
+//! scene (segment → fill depth → inpaint → layers); `render` scatters each layer through the
+//! lens model and composites front to back; `pipeline` ties it together for the CLI and for
+//! library users.
+
+pub mod color;
+pub mod error;
+pub mod image;
+pub mod io;
+pub mod render;
+pub mod stages;
+
+pub use error::{Error, Result};
+pub use image::Image;

@@ -1,0 +1,67 @@
+//! The exact per-layer kernel: the official Dr.Bokeh forward formula, tap by tap.
+//!
+//! This is the oracle every faster kernel is measured against. It reproduces the official
+//! implementation's quirks on purpose (see README "Fidelity to the official renderer"):
+//! the `+1` in the scatter radius, the strict disk mask, the soft step giving a same-depth
+//! neighbour a small weight even at K = 0, and replicate padding (implemented as clamped
+//! reads, so no padded copy is allocated).
+//!
+//! Cost: O(W·H·taps) with taps ≈ π·(lens/2)²; one transcendental pair (exp, tanh) per tap.
+
+use super::aperture::Tap;
+use super::layer::{Layer, A, D};
+use super::lens::{energy, focal_defocus, occlusion, scatter_radius, visibility_half_size};
+use super::{RawLayer, RenderSettings};
+use rayon::prelude::*;
+
+/// Renders one layer into its raw sums: per pixel `[ΣR, ΣG, ΣB, W, o]` where the colour sums
+/// are weighted by `w·O·α`, `W` is the total weight and `o` the non-focal visibility (eq. 4).
+/// Allocates the 5-channel output and two planes of per-pixel terms.
+pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLayer {
+    let img = layer.image();
+    let (w, h) = (img.width, img.height);
+    let p = s.lens / 2;
+    // Per-pixel terms that every tap reads: relative disparity and scatter radius.
+    let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
+    let sigma: Vec<f32> = d.iter().map(|&d| scatter_radius(d, s.blur)).collect();
+
+    let mut out = vec![0f32; w * h * 5];
+    out.par_chunks_mut(w * 5).enumerate().for_each(|(y, row)| {
+        for x in 0..w {
+            let i = y * w + x;
+            let dp = d[i];
+            let q = if s.occlusion { focal_defocus(dp, s.blur) } else { 1.0 };
+            let (mut sr, mut sg, mut sb, mut sw) = (0f32, 0f32, 0f32, 0f32);
+            for t in taps {
+                let yy = (y as i64 + t.di as i64).clamp(0, h as i64 - 1) as usize;
+                let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
+                let j = yy * w + xx;
+                let px = &img.data[j * 5..j * 5 + 5];
+                let wt = energy(sigma[j], t.r);
+                let v = if t.di == 0 && t.dj == 0 { 1.0 } else { occlusion(q, d[j], dp) };
+                let k = wt * v * px[A];
+                sr += k * px[0];
+                sg += k * px[1];
+                sb += k * px[2];
+                sw += k;
+            }
+            let o = box_alpha(img, x, y, visibility_half_size(sigma[i], p));
+            row[x * 5..x * 5 + 5].copy_from_slice(&[sr, sg, sb, sw, o]);
+        }
+    });
+    RawLayer::from_vec(w, h, out)
+}
+
+/// Mean alpha over the `(2n+1)²` box centred on (x, y), replicate-padded (eq. 4).
+fn box_alpha(img: &crate::Image, x: usize, y: usize, n: usize) -> f32 {
+    let (w, h) = (img.width as i64, img.height as i64);
+    let n = n as i64;
+    let mut sum = 0f64;
+    for yy in (y as i64 - n)..=(y as i64 + n) {
+        let row = yy.clamp(0, h - 1) * w;
+        for xx in (x as i64 - n)..=(x as i64 + n) {
+            sum += img.data[((row + xx.clamp(0, w - 1)) * 5) as usize + A] as f64;
+        }
+    }
+    (sum / ((2 * n + 1) * (2 * n + 1)) as f64) as f32
+}

@@ -1,0 +1,104 @@
+//! The lens and occlusion terms of Dr.Bokeh, defined once.
+//!
+//! Every kernel (exact, fast) and the backward pass call these functions, so the model has a
+//! single definition. Units: `d` is relative disparity (normalized disparity minus focus),
+//! `k` the blur strength in pixels per unit of disparity, distances in pixels.
+//!
+//! Each function is written in a form that cannot overflow to NaN for any finite input
+//! (see the numerical notes in DESIGN.md).
+
+/// Steepness of the soft step (official `g`).
+pub const STEP_GAIN: f32 = 3.0;
+/// `ln(1/0.1)`: the soft step's offset, from the official `s = 0.1`.
+pub const STEP_LN_OFFSET: f32 = std::f32::consts::LN_10;
+
+/// Scatter radius of a pixel at relative disparity `d`: `|d|·k + 1` pixels (the `+1` is the
+/// official model's; it keeps the `1/σ²` energy term bounded at the focal plane).
+#[inline(always)]
+pub fn scatter_radius(d: f32, k: f32) -> f32 {
+    d.abs() * k + 1.0
+}
+
+/// Soft "a > b": `0.1 / (0.1 + exp(-3(a - b)))`, evaluated as the logistic function of
+/// `3(a - b) - ln 10`, which never produces inf/inf. Returns 0.0909 at `a == b`.
+#[inline(always)]
+pub fn soft_step(a: f32, b: f32) -> f32 {
+    let x = STEP_GAIN * (a - b) - STEP_LN_OFFSET;
+    // 1/(1+e^-x) is already stable: e^-x → inf gives 0, never NaN.
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// Energy weight of a neighbour with scatter radius `sigma` at distance `r` from the target,
+/// before the aperture mask and alpha: `step(σ, r) / σ²`.
+#[inline(always)]
+pub fn energy(sigma: f32, r: f32) -> f32 {
+    soft_step(sigma, r) / (sigma * sigma)
+}
+
+/// The on-focal "defocus" factor of a target pixel: `q = 1 - exp(-3 (|d|·k)²)`.
+/// 0 for an in-focus target (full on-focal occlusion), → 1 when it is defocused.
+#[inline(always)]
+pub fn focal_defocus(d_target: f32, k: f32) -> f32 {
+    let c = d_target.abs() * k;
+    // -expm1 keeps precision for tiny c (q ≈ 3c²) and saturates to 1 without overflow.
+    -(-3.0 * c * c).exp_m1()
+}
+
+/// Soft "neighbour is in front": `0.5 + 0.5·tanh(10·(d_y - d_x - 0.1))`.
+#[inline(always)]
+pub fn in_front(d_neighbour: f32, d_target: f32) -> f32 {
+    0.5 + 0.5 * (10.0 * (d_neighbour - d_target - 0.1)).tanh()
+}
+
+/// On-focal occlusion of neighbour `y` seen from target `x` (not the centre tap, whose
+/// occlusion is 1): `q(x) + (1 - q(x))·in_front(d_y, d_x)`, with `q = focal_defocus(d_x)`.
+#[inline(always)]
+pub fn occlusion(q_target: f32, d_neighbour: f32, d_target: f32) -> f32 {
+    (1.0 - q_target) * in_front(d_neighbour, d_target) + q_target
+}
+
+/// Half-size of the visibility box (eq. 4) of a pixel with scatter radius `sigma`, capped by
+/// the window half-size `p`: `min(trunc(σ/2), p)`.
+#[inline(always)]
+pub fn visibility_half_size(sigma: f32, p: usize) -> usize {
+    let h = (sigma / 2.0).trunc();
+    if h.is_finite() && h < p as f32 { h as usize } else { p }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn soft_step_f64(a: f64, b: f64) -> f64 {
+        // High-precision reference of the literal official formula.
+        0.1 / (0.1 + (-3.0 * (a - b)).exp())
+    }
+
+    #[test]
+    fn soft_step_matches_official_values_and_f64() {
+        assert!((soft_step(0.0, 0.0) - 0.090_909).abs() < 1e-6);
+        assert!((soft_step(1.0, 0.0) - 0.6676).abs() < 1e-4);
+        for i in -2000..=2000 {
+            let a = i as f32 * 0.37;
+            let got = soft_step(a, 0.0) as f64;
+            let want = soft_step_f64(a as f64, 0.0);
+            assert!(got.is_finite());
+            assert!((got - want).abs() <= 1e-6 * want.max(1e-30) + 1e-7, "a={a} got={got} want={want}");
+        }
+        // Where the naive f32 form overflows (exp(3·40) = inf), the stable form is 0.
+        assert_eq!(soft_step(0.0, 40.0), 0.0);
+        assert_eq!(soft_step(f32::MAX, 0.0), 1.0);
+        assert_eq!(soft_step(0.0, f32::MAX), 0.0);
+    }
+
+    #[test]
+    fn occlusion_terms() {
+        // Same-depth neighbour of an in-focus target: 0.5 - 0.5 tanh(1).
+        assert!((occlusion(0.0, 0.3, 0.3) - 0.119_203).abs() < 1e-6);
+        assert_eq!(focal_defocus(0.0, 30.0), 0.0);
+        assert_eq!(focal_defocus(1.0, 1e6), 1.0);
+        assert!(in_front(1e30, -1e30) == 1.0 && in_front(-1e30, 1e30) == 0.0);
+        assert_eq!(visibility_half_size(7.9, 10), 3);
+        assert_eq!(visibility_half_size(f32::INFINITY, 10), 10);
+    }
+}

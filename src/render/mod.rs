@@ -1,0 +1,144 @@
+//! The renderer: lens model, per-layer kernels and front-to-back compositing.
+//!
+//! `lens` holds the model's terms (written once), `aperture` the window's taps, `exact` the
+//! literal kernel, `composite` eq. 2. [`render`] is the entry point.
+
+pub mod aperture;
+pub mod composite;
+pub mod exact;
+pub mod layer;
+pub mod lens;
+
+use crate::error::{Error, Result};
+use crate::image::Image;
+pub use layer::Layer;
+
+/// Which per-layer kernel runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kernel {
+    /// The official formula, tap by tap (the oracle).
+    Exact,
+}
+
+/// Lens and model parameters of one render.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Blur strength K: CoC radius in pixels per unit of relative disparity.
+    pub blur: f32,
+    /// Normalized disparity of the focal plane.
+    pub focus: f32,
+    /// Odd side of the square lens window, in pixels.
+    pub lens: usize,
+    /// `false` gives the classical scatter baseline (O ≡ 1).
+    pub occlusion: bool,
+}
+
+/// A layer's raw render: per pixel `[ΣR, ΣG, ΣB, W, o]` (weighted colour sums, total weight,
+/// non-focal visibility), the same channels as the official renderer's output.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawLayer(Image);
+
+impl RawLayer {
+    pub fn from_vec(width: usize, height: usize, data: Vec<f32>) -> Self {
+        RawLayer(Image::from_vec(width, height, 5, data).expect("raw layer size"))
+    }
+    pub fn width(&self) -> usize {
+        self.0.width
+    }
+    pub fn height(&self) -> usize {
+        self.0.height
+    }
+    #[inline]
+    pub fn pixel(&self, i: usize) -> &[f32] {
+        &self.0.data[i * 5..i * 5 + 5]
+    }
+    pub fn image(&self) -> &Image {
+        &self.0
+    }
+}
+
+/// Largest scatter radius `|D - focus|·K + 1` over the pixels a layer actually shows
+/// (alpha > 0), over all layers. 1.0 for an all-transparent scene.
+pub fn max_scatter_radius(layers: &[Layer], blur: f32, focus: f32) -> f32 {
+    layers
+        .iter()
+        .flat_map(|l| (0..l.image().pixel_count()).filter(move |&i| l.alpha(i) > 0.0).map(move |i| l.disparity(i)))
+        .map(|d| lens::scatter_radius(d - focus, blur))
+        .fold(1.0, f32::max)
+}
+
+/// The lens window the scene needs: half-size `ceil(σ_max) + 2`, so every tap whose soft step
+/// is above ~0.5% of its plateau is inside, capped at the image's larger side (beyond that
+/// the window only reads replicated border pixels). Always odd.
+pub fn auto_lens(layers: &[Layer], blur: f32, focus: f32) -> usize {
+    let (w, h) = (layers[0].width(), layers[0].height());
+    let sigma = max_scatter_radius(layers, blur, focus);
+    let p = (sigma.ceil() as f64 + 2.0).min(w.max(h) as f64).max(1.0) as usize;
+    2 * p + 1
+}
+
+/// Checks that the layers agree in size and that the settings are usable.
+pub fn validate(layers: &[Layer], s: &RenderSettings) -> Result<()> {
+    let Some(first) = layers.first() else {
+        return Err(Error::usage("nothing to render: no layers"));
+    };
+    for (n, l) in layers.iter().enumerate() {
+        if (l.width(), l.height()) != (first.width(), first.height()) {
+            return Err(Error::usage(format!(
+                "layer {} is {}x{} but layer 1 is {}x{}: all layers must have the same size",
+                n + 1,
+                l.width(),
+                l.height(),
+                first.width(),
+                first.height()
+            )));
+        }
+    }
+    if !s.blur.is_finite() || s.blur < 0.0 {
+        return Err(Error::usage(format!("--blur must be a finite number >= 0, got {}", s.blur)));
+    }
+    if !s.focus.is_finite() {
+        return Err(Error::usage(format!("--focus must be finite, got {}", s.focus)));
+    }
+    if s.lens % 2 == 0 {
+        return Err(Error::usage(format!("--lens must be odd and >= 1, got {}", s.lens)));
+    }
+    Ok(())
+}
+
+/// Renders each layer with `kernel` and composites them front to back. Returns linear RGB.
+pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Image> {
+    validate(layers, s)?;
+    let raws = render_raw(layers, s, kernel);
+    Ok(composite::composite(&raws))
+}
+
+/// The per-layer raw renders, front first (exposed for tests against the official raws).
+pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<RawLayer> {
+    let taps = aperture::disk_taps(s.lens);
+    layers
+        .iter()
+        .map(|l| match kernel {
+            Kernel::Exact => exact::scatter_layer(l, s, &taps),
+        })
+        .collect()
+}
+
+/// Front-to-back "over" composite of the layers' own colours, with no blur: what the renderer
+/// would show if nothing were out of focus.
+pub fn alpha_composite(layers: &[Layer]) -> Image {
+    let (w, h) = (layers[0].width(), layers[0].height());
+    let mut out = Image::new(w, h, 3);
+    for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
+        let mut t = 1f32;
+        for l in layers {
+            let src = &l.image().data[i * 5..i * 5 + 5];
+            for c in 0..3 {
+                px[c] += t * src[layer::A] * src[c];
+            }
+            t *= 1.0 - src[layer::A];
+        }
+    }
+    out
+}

@@ -1,0 +1,1 @@
+//! Telea (2004) fast-marching inpainting.
