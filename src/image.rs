@@ -99,3 +99,14 @@ impl Image {
         self.data.iter().all(|v| v.is_finite())
     }
 }
+
+impl Image {
+    /// Bilinear (triangle-filter) resize of a one-channel image; allocates the result.
+    pub fn resized(&self, width: usize, height: usize) -> Image {
+        assert_eq!(self.channels, 1, "resized: one channel only");
+        let buf = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(self.width as u32, self.height as u32, self.data.clone())
+            .expect("image size");
+        let out = image::imageops::resize(&buf, width as u32, height as u32, image::imageops::FilterType::Triangle);
+        Image::from_vec(width, height, 1, out.into_raw()).expect("image size")
+    }
+}

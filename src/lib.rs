@@ -5,12 +5,17 @@
 //! lens model and composites front to back; `pipeline` ties it together for the CLI and for
 //! library users.
 
+pub mod bench;
 pub mod color;
+pub mod config;
 pub mod error;
 pub mod image;
 pub mod io;
+pub mod pipeline;
 pub mod render;
 pub mod stages;
 
 pub use error::{Error, Result};
 pub use image::Image;
+pub use config::Config;
+pub use pipeline::{Focus, Outcome, Pipeline, Scene};

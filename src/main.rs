@@ -1,3 +1,338 @@
-fn main() {
-    println!("Hello, world!");
+//! The `drbokeh` command line: parses flags, calls the library, maps errors to exit codes
+//! (0 success, 2 bad input or usage, 1 internal error).
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use drbokeh::color::Transfer;
+use drbokeh::config::{Config, KernelChoice};
+use drbokeh::io::{self, ReadLimits};
+use drbokeh::pipeline::{Focus, Outcome, Pipeline, Scene, StageReport};
+use drbokeh::render::Layer;
+use drbokeh::stages::depth::{self, DepthKind};
+use drbokeh::{Error, Image};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(name = "drbokeh", version, about = "Occlusion-aware lens blur (Dr.Bokeh) from one photo and its depth")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render lens blur for one photo + depth (+ matte), or for given layers.
+    Render(RenderArgs),
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum KernelArg {
+    /// The official formula, tap by tap; always run, even when nothing is out of focus.
+    Exact,
+    /// The best kernel available; skips rendering when nothing is out of focus.
+    Auto,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum DepthKindArg {
+    Depth,
+    Disparity,
+}
+
+#[derive(Args)]
+#[command(group = clap::ArgGroup::new("focus_spec").required(true).args(["focus", "focus_at", "focus_depth"]))]
+struct RenderArgs {
+    /// The photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR (linear).
+    #[arg(required_unless_present = "layer", conflicts_with = "layer")]
+    image: Option<PathBuf>,
+    /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W).
+    #[arg(long, required_unless_present = "layer", conflicts_with = "layer")]
+    depth: Option<PathBuf>,
+    /// Foreground matte: grey image or the alpha of an RGBA image, in [0, 1].
+    #[arg(long, conflicts_with = "layer")]
+    matte: Option<PathBuf>,
+    /// A layer (5-channel EXR R,G,B,A,D or NPY H x W x 5, linear colours); repeat, front first.
+    #[arg(long, value_name = "PATH")]
+    layer: Vec<PathBuf>,
+    /// Focal plane as normalized disparity (0 far … 1 near).
+    #[arg(long, allow_hyphen_values = true)]
+    focus: Option<f32>,
+    /// Focus on the surface under pixel X,Y (median disparity of a small window).
+    #[arg(long, value_name = "X,Y", value_parser = parse_xy)]
+    focus_at: Option<(i64, i64)>,
+    /// Focus at metric depth Z (with --depth-kind depth).
+    #[arg(long, value_name = "Z")]
+    focus_depth: Option<f64>,
+    /// Blur strength K: CoC radius in pixels per unit of normalized disparity
+    /// [default: 30 × sqrt(megapixels)].
+    #[arg(long, value_name = "K", allow_hyphen_values = true)]
+    blur: Option<f32>,
+    /// Output: .png (8/16-bit sRGB), .exr or .npy (linear float32) [default: IMAGE_bokeh.png].
+    #[arg(short, long, value_name = "OUT")]
+    output: Option<PathBuf>,
+    /// Pipeline configuration (TOML); flags override it.
+    #[arg(long, value_name = "TOML")]
+    config: Option<PathBuf>,
+    /// What the depth file holds.
+    #[arg(long, value_enum)]
+    depth_kind: Option<DepthKindArg>,
+    /// Odd side of the square lens window [default: from the largest CoC in the scene].
+    #[arg(long, value_name = "N")]
+    lens: Option<usize>,
+    /// Official "naive gamma": render on rgb^G and output ^(1/G) instead of exact sRGB.
+    #[arg(long, value_name = "G")]
+    gamma: Option<f32>,
+    /// Which kernel renders the layers.
+    #[arg(long, value_enum)]
+    kernel: Option<KernelArg>,
+    /// Classical scatter without occlusion terms, one layer (a baseline for comparisons).
+    #[arg(long)]
+    no_occlusion: bool,
+    /// PNG bit depth (8 or 16).
+    #[arg(long, value_name = "BITS", value_parser = clap::builder::PossibleValuesParser::new(["8", "16"]))]
+    bit_depth: Option<String>,
+    /// Write the layers (EXR R,G,B,A,D, usable with --layer) and PNG previews to DIR.
+    #[arg(long, value_name = "DIR")]
+    save_layers: Option<PathBuf>,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Print per-stage timings to stderr.
+    #[arg(short, long)]
+    verbose: bool,
+    /// Print a machine-readable summary (JSON) to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_xy(s: &str) -> Result<(i64, i64), String> {
+    let (x, y) = s.split_once(',').ok_or_else(|| format!("expected X,Y (two integers), got '{s}'"))?;
+    let p = |v: &str| v.trim().parse::<i64>().map_err(|_| format!("expected X,Y (two integers), got '{s}'"));
+    Ok((p(x)?, p(y)?))
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = std::panic::catch_unwind(|| match cli.command {
+        Command::Render(args) => render(args),
+    });
+    match result {
+        Ok(Ok(())) => ExitCode::SUCCESS,
+        Ok(Err(e)) => {
+            // Library errors already name their cause; other errors show their chain.
+            let user = match e.downcast_ref::<Error>() {
+                Some(err) => {
+                    eprintln!("error: {err}");
+                    err.is_user_error()
+                }
+                None => {
+                    eprintln!("error: {e:#}");
+                    false
+                }
+            };
+            ExitCode::from(if user { 2 } else { 1 })
+        }
+        Err(_) => {
+            eprintln!("error: internal error (a bug): please report it with the command line");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn config_from(args: &RenderArgs) -> Result<Config, Error> {
+    let mut cfg = match &args.config {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    };
+    let r = &mut cfg.render;
+    r.blur = args.blur.or(r.blur);
+    r.lens = args.lens.or(r.lens);
+    r.gamma = args.gamma.or(r.gamma);
+    if let Some(k) = args.kernel {
+        r.kernel = match k {
+            KernelArg::Exact => KernelChoice::Exact,
+            KernelArg::Auto => KernelChoice::Auto,
+        };
+    }
+    if args.no_occlusion {
+        r.occlusion = false;
+    }
+    if let Some(b) = &args.bit_depth {
+        cfg.output.bit_depth = b.parse().expect("validated by clap");
+    }
+    if let Some(k) = args.depth_kind {
+        cfg.input.depth_kind = match k {
+            DepthKindArg::Depth => DepthKind::Depth,
+            DepthKindArg::Disparity => DepthKind::Disparity,
+        };
+    }
+    let flag = |e: Error| match e {
+        Error::Usage(m) => Error::Usage(m.replace("render.blur", "--blur").replace("render.lens", "--lens").replace("render.gamma", "--gamma")),
+        other => other,
+    };
+    cfg.validate().map_err(flag)?;
+    Ok(cfg)
+}
+
+fn render(args: RenderArgs) -> anyhow::Result<()> {
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
+    }
+    let t0 = Instant::now();
+    let cfg = config_from(&args)?;
+    let limits = ReadLimits { max_pixels: cfg.input.max_pixels };
+    let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
+    let focus = match (args.focus, args.focus_at, args.focus_depth) {
+        (Some(f), _, _) => Focus::Disparity(f),
+        (_, Some((x, y)), _) => Focus::At(x, y),
+        (_, _, Some(z)) => Focus::Depth(z),
+        _ => unreachable!("clap requires one focus flag"),
+    };
+
+    let inputs: Vec<PathBuf> = args.image.iter().chain(&args.depth).chain(&args.matte).chain(&args.layer).cloned().collect();
+    let output = match &args.output {
+        Some(p) => p.clone(),
+        None => {
+            let stem = inputs[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+            PathBuf::from(format!("{stem}_bokeh.png"))
+        }
+    };
+    check_output(&output, &inputs)?;
+    let format = io::OutputFormat::from_path(&output)?;
+
+    let pipeline = Pipeline::from_config(cfg.clone())?;
+    let t_read = Instant::now();
+    let mut read_warnings = Vec::new();
+    let outcome: Outcome = if !args.layer.is_empty() {
+        let layers = args
+            .layer
+            .iter()
+            .map(|p| {
+                let mut l = Layer::new(io::read_layer(p, &limits)?, &p.display().to_string())?;
+                if let Some(g) = cfg.render.gamma {
+                    // The official inference raises colours in double precision.
+                    l.map_colors(|c| (c.max(0.0) as f64).powf(g as f64) as f32);
+                }
+                Ok(l)
+            })
+            .collect::<Result<Vec<_>, Error>>()?;
+        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
+        let mut out = pipeline.render_layers(layers, focus)?;
+        out.report.stages.insert(0, stage("read", read_ms));
+        out
+    } else {
+        let image_path = args.image.as_ref().expect("clap requires IMAGE");
+        let depth_path = args.depth.as_ref().expect("clap requires --depth");
+        let rgb = io::read_photo(image_path, transfer, &limits)?;
+        let raw_depth = io::read_depth(depth_path, &limits)?;
+        let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
+        let disparity = depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?;
+        let matte = match &args.matte {
+            Some(p) => Some(fit_to(io::read_matte(p, &limits)?, &rgb, p, image_path, &mut read_warnings)?),
+            None => None,
+        };
+        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
+        let mut out = pipeline.run(&Scene { rgb, disparity, matte }, focus)?;
+        out.report.stages.insert(0, stage("read", read_ms));
+        out
+    };
+    let Outcome { mut image, layers, mut report } = outcome;
+    report.warnings.splice(0..0, read_warnings);
+
+    if let Some(dir) = &args.save_layers {
+        let t = Instant::now();
+        save_layers(dir, &layers)?;
+        report.stages.push(stage("save_layers", t.elapsed().as_secs_f64() * 1e3));
+    }
+
+    let t_write = Instant::now();
+    let png_transfer = match cfg.render.gamma {
+        Some(g) => {
+            image.map_inplace(|v| v.max(0.0).powf(1.0 / g));
+            Transfer::Linear
+        }
+        None => Transfer::Srgb,
+    };
+    let _ = format;
+    io::write_output(&output, &image, cfg.output.bit_depth, png_transfer)?;
+    report.stages.push(stage("write", t_write.elapsed().as_secs_f64() * 1e3));
+    report.output = Some(output.display().to_string());
+    report.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
+    if args.verbose {
+        for s in &report.stages {
+            match &s.reason {
+                Some(r) => eprintln!("{:>12}  skipped: {r}", s.name),
+                None => eprintln!("{:>12}  {:9.1} ms", s.name, s.ms),
+            }
+        }
+        let p = &report.params;
+        eprintln!(
+            "{:>12}  {:9.1} ms  ({}x{}, K = {}, focus = {}, lens = {}, {} layer(s), {} threads)",
+            "total", report.total_ms, p.width, p.height, p.blur, p.focus, p.lens, p.layers, p.threads
+        );
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report).context("cannot serialize the report")?);
+    } else if !args.verbose {
+        eprintln!("wrote {}", output.display());
+    }
+    Ok(())
+}
+
+fn stage(name: &'static str, ms: f64) -> StageReport {
+    StageReport { name, status: "ran", reason: None, ms, detail: None }
+}
+
+/// Refuses an output that would overwrite an input.
+fn check_output(output: &Path, inputs: &[PathBuf]) -> Result<(), Error> {
+    let canon = |p: &Path| std::fs::canonicalize(p).ok();
+    if let Some(out) = canon(output) {
+        for i in inputs {
+            if canon(i).as_deref() == Some(out.as_path()) {
+                return Err(Error::usage(format!("output {} is also an input; choose another -o", output.display())));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Brings a depth map or matte to the photo's size: an equal aspect ratio is resized with a
+/// warning, a different one is an error naming both files.
+fn fit_to(map: Image, rgb: &Image, path: &Path, image_path: &Path, warnings: &mut Vec<String>) -> Result<Image, Error> {
+    if (map.width, map.height) == (rgb.width, rgb.height) {
+        return Ok(map);
+    }
+    let (a, b) = (map.width as f64 / map.height as f64, rgb.width as f64 / rgb.height as f64);
+    if (a / b - 1.0).abs() > 0.01 {
+        return Err(Error::input(
+            path,
+            format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.width, map.height, image_path.display(), rgb.width, rgb.height),
+        ));
+    }
+    warnings.push(format!("{} is {}x{}; resized to the image's {}x{}", path.display(), map.width, map.height, rgb.width, rgb.height));
+    Ok(map.resized(rgb.width, rgb.height))
+}
+
+/// Writes each layer as `layerN.exr` (R,G,B,A,D; feed back with --layer) plus PNG previews.
+fn save_layers(dir: &Path, layers: &[Layer]) -> Result<(), Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let names: Vec<String> = match layers.len() {
+        2 => vec!["fg".into(), "bg".into()],
+        1 => vec!["bg".into()],
+        n => (0..n).map(|i| format!("layer{i}")).collect(),
+    };
+    for (name, l) in names.iter().zip(layers) {
+        let img = l.image();
+        io::write_exr(&dir.join(format!("{name}.exr")), img, &["R", "G", "B", "A", "D"])?;
+        io::write_png(&dir.join(format!("{name}_color.png")), &img.select_channels(&[0, 1, 2]), 8, Transfer::Srgb)?;
+        io::write_png(&dir.join(format!("{name}_alpha.png")), &img.channel(3), 8, Transfer::Linear)?;
+        io::write_png(&dir.join(format!("{name}_disparity.png")), &img.channel(4), 16, Transfer::Linear)?;
+    }
+    Ok(())
 }

@@ -41,11 +41,16 @@ pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, S
     let npyz::DType::Plain(ts) = npy.dtype() else {
         return Err("NPY array has a structured dtype; expected a plain numeric array".into());
     };
-    let count = h * w * c;
+    // Checked: with an unlimited `max_pixels` a hostile header could overflow `h * w * c`.
+    let count = h
+        .checked_mul(w)
+        .and_then(|n| n.checked_mul(c))
+        .filter(|&n| usize::try_from(n).is_ok())
+        .ok_or_else(|| format!("NPY array shape {shape:?} is too large"))?;
     let item = ts.num_bytes().unwrap_or(0) as u64;
     // The data must be in the file: refuse before allocating `count` values.
     if (bytes.len() as u64) < count.saturating_mul(item) {
-        return Err(format!("NPY file is truncated: shape {shape:?} needs {} bytes of data", count * item));
+        return Err(format!("NPY file is truncated: shape {shape:?} needs {} bytes of data", count.saturating_mul(item)));
     }
     let data: Vec<f32> = match (ts.type_char(), item) {
         (TypeChar::Float, 4) => npy.into_vec::<f32>().map_err(|e| e.to_string())?,

@@ -37,8 +37,13 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLaye
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
                 let j = yy * w + xx;
                 let px = &img.data[j * 5..j * 5 + 5];
+                // Both skips are exact: a transparent tap adds +0, and at q == 1 the
+                // occlusion is exactly 1 whatever the tanh gives.
+                if px[A] == 0.0 {
+                    continue;
+                }
                 let wt = energy(sigma[j], t.r);
-                let v = if t.di == 0 && t.dj == 0 { 1.0 } else { occlusion(q, d[j], dp) };
+                let v = if (t.di == 0 && t.dj == 0) || q == 1.0 { 1.0 } else { occlusion(q, d[j], dp) };
                 let k = wt * v * px[A];
                 sr += k * px[0];
                 sg += k * px[1];

@@ -6,8 +6,10 @@
 pub mod aperture;
 pub mod composite;
 pub mod exact;
+pub mod fast;
 pub mod layer;
 pub mod lens;
+pub mod splat;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -19,6 +21,8 @@ pub use layer::Layer;
 pub enum Kernel {
     /// The official formula, tap by tap (the oracle).
     Exact,
+    /// The same model at near-constant cost per pixel; quality 1 (fastest) … 8.
+    Fast { quality: u32 },
 }
 
 /// Lens and model parameters of one render.
@@ -121,6 +125,7 @@ pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<R
         .iter()
         .map(|l| match kernel {
             Kernel::Exact => exact::scatter_layer(l, s, &taps),
+            Kernel::Fast { quality } => fast::scatter_layer(l, s, fast::FastParams::from_quality(quality)).0,
         })
         .collect()
 }

@@ -1,1 +1,549 @@
 //! Telea (2004) fast-marching inpainting.
+//!
+//! Follows OpenCV's `cv::inpaint(.., INPAINT_TELEA)` (modules/photo/src/inpaint.cpp) step by
+//! step, because OpenCV is the oracle the tests compare against:
+//!
+//! 1. The known pixels 4-adjacent to the hole form the band (T = 0).
+//! 2. A first march runs *outwards* from the band over the known pixels within Chebyshev
+//!    distance `radius` of the hole; those distances are stored negated, so that T increases
+//!    monotonically across the hole boundary and its gradient is meaningful there.
+//! 3. The main march runs inwards. Each hole pixel gets its T from OpenCV's 4-neighbour eikonal
+//!    solve the first time a neighbour is popped, and its value at that same moment from the
+//!    known pixels (original or already filled) inside a disc of `radius`, weighted by
+//!    `dir · dst · lev` (alignment with ∇T, inverse cube distance, similarity of T).
+//!
+//! Like OpenCV, a T value is computed once and never revised, and ties in the queue are popped
+//! first-in first-out; both matter for reproducing OpenCV's fill order and thus its values.
+//!
+//! OpenCV's finish is not scale free: to the weighted mean it adds a "nudge", the component sum
+//! of a unit vector built from image gradients (between -√2 and √2 code values), and integer
+//! types round `value + 0.5`. [`OpenCvCompat`] reproduces that finish for data whose code value
+//! is `unit` image units (checked bit-exact against OpenCV 4.12 in tests/telea_opencv.rs);
+//! without it (the default) the fill is the plain weighted mean, which is what float data
+//! (radiance, disparity) wants. Older OpenCV releases also added +0.5 to float results.
+
+use crate::error::{Error, Result};
+use crate::image::Image;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+/// Options of the Telea fill.
+#[derive(Clone, Copy, Debug)]
+pub struct TeleaOptions {
+    /// Neighbourhood radius in pixels (OpenCV's `inpaintRadius`). Like OpenCV, rounded to the
+    /// nearest integer (ties to even) and clamped to `1..=100`. NaN or negative is an error.
+    pub radius: f32,
+    /// Stop the fast march once the distance to the known region exceeds this many pixels;
+    /// pixels beyond it are not computed (they keep their input value). `None` = fill everything.
+    /// A hole pixel 4-adjacent to a known pixel is at distance 1. NaN is an error.
+    pub max_distance: Option<f32>,
+    /// Reproduce OpenCV's per-type finish (offset, nudge, rounding; see [`OpenCvCompat`]).
+    /// `None` (the default): the filled value is the plain weighted mean, scale independent.
+    pub compat: Option<OpenCvCompat>,
+}
+
+impl TeleaOptions {
+    /// The given radius, no distance limit, no OpenCV finish.
+    pub fn new(radius: f32) -> Self {
+        TeleaOptions { radius, max_distance: None, compat: None }
+    }
+}
+
+/// How OpenCV finishes a filled value, in terms of the data's code values.
+///
+/// OpenCV computes `mean + nudge`, where `nudge ∈ [-√2, √2]` code values is the component sum of
+/// a unit vector built from image gradients. For CV_8U / CV_16U it then stores
+/// `round(mean + nudge + 0.5)` (ties to even) clamped to `0..=max_code`, and later pixels use the
+/// rounded value; CV_32F stores `mean + nudge` as is. `unit` is the size of one code value in
+/// image units: 8-bit data normalized to 0..1 uses `unit = 1/255`, raw codes use `unit = 1`.
+/// With `max_code`, known values are read as the nearest code (as converting the image to that
+/// integer type would); they are not modified.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OpenCvCompat {
+    /// Size of one code value in image units (finite, > 0).
+    pub unit: f32,
+    /// Largest code; `Some` rounds and clamps like an integer type, `None` keeps the value (CV_32F).
+    pub max_code: Option<f32>,
+}
+
+impl OpenCvCompat {
+    /// `cv::inpaint` on `CV_8U`/`CV_8UC3` data; `unit` = one code value in image units.
+    pub fn u8(unit: f32) -> Self {
+        OpenCvCompat { unit, max_code: Some(255.0) }
+    }
+    /// `cv::inpaint` on `CV_16U` data; `unit` = one code value in image units.
+    pub fn u16(unit: f32) -> Self {
+        OpenCvCompat { unit, max_code: Some(65535.0) }
+    }
+    /// `cv::inpaint` on `CV_32F` data holding the image values as they are: the nudge is added in
+    /// absolute units (up to ±1.41, huge for 0..1 data), no rounding.
+    pub fn f32() -> Self {
+        OpenCvCompat { unit: 1.0, max_code: None }
+    }
+}
+
+/// Fills, in place, every pixel where `mask[y*width + x]` is true from the pixels where it is false.
+/// Any channel count (RGB, single-channel depth/disparity), any value scale.
+///
+/// The fill uses OpenCV's fill order, distance field and weights, so it matches
+/// cv2.inpaint(..., INPAINT_TELEA) up to OpenCV's per-type finish (a nudge of at most ±√2 code
+/// values, `+0.5` and rounding for integer types), which `opts.compat` reproduces exactly when set.
+/// Without it each filled value is a convex combination of known (or earlier filled) values: it
+/// never leaves their range. Values are in the image's own units; distances in pixels.
+///
+/// Returns the number of pixels filled. Pixels that stay unfilled keep their input value: all of
+/// them when the mask covers the whole image (nothing to fill from; OpenCV does the same), and
+/// those beyond `max_distance`. Non-finite known values propagate into the fill.
+///
+/// Errors (the image is not modified): `mask.len() != width * height`, `img.data` not matching
+/// its shape, a NaN or negative radius, a NaN `max_distance`, a `compat.unit` that is not finite
+/// and positive, a negative or NaN `compat.max_code`, an image too large to index (more than 2³²
+/// cells once padded by the radius).
+///
+/// Allocates O(pixels) working memory once per call (flags and distances over the image padded
+/// by the radius, the queue); nothing per pixel.
+pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Result<usize> {
+    let (w, h, c) = (img.width, img.height, img.channels);
+    let pixels = w.checked_mul(h).ok_or_else(|| Error::usage("inpaint: image size overflows"))?;
+    if mask.len() != pixels {
+        return Err(Error::usage(format!(
+            "inpaint: mask has {} values but the image is {w}x{h} ({pixels} pixels)",
+            mask.len()
+        )));
+    }
+    if pixels.checked_mul(c) != Some(img.data.len()) {
+        return Err(Error::usage(format!(
+            "inpaint: image data has {} values, expected {w}x{h}x{c}",
+            img.data.len()
+        )));
+    }
+    if !(opts.radius >= 0.0) {
+        return Err(Error::usage(format!("inpaint: radius must be >= 0, got {}", opts.radius)));
+    }
+    if opts.max_distance.is_some_and(f32::is_nan) {
+        return Err(Error::usage("inpaint: max_distance is NaN"));
+    }
+    if let Some(cv) = opts.compat {
+        if !(cv.unit.is_finite() && cv.unit > 0.0) {
+            return Err(Error::usage(format!("inpaint: compat unit must be finite and > 0, got {}", cv.unit)));
+        }
+        if cv.max_code.is_some_and(|m| !(m >= 0.0)) {
+            return Err(Error::usage("inpaint: compat max_code must be >= 0"));
+        }
+    }
+    if pixels == 0 || !mask.contains(&true) {
+        return Ok(0);
+    }
+    // `as` saturates (+inf becomes i64::MAX), so every radius lands in 1..=100 as in OpenCV.
+    let radius = (opts.radius.round_ties_even() as i64).clamp(1, 100) as usize;
+    let pad = radius;
+    let (gw, gh) = (w + 2 * pad, h + 2 * pad);
+    if gw.checked_mul(gh).is_none_or(|n| n > u32::MAX as usize) {
+        return Err(Error::usage(format!("inpaint: image of {w}x{h} is too large")));
+    }
+    let mut m = March::new(w, h, pad, mask);
+    m.outside_distances(radius);
+    let max_distance = opts.max_distance.unwrap_or(f32::INFINITY);
+    let filled = match opts.compat {
+        None => m.fill::<PLAIN>(img, radius, max_distance, OpenCvCompat::f32()),
+        Some(cv) if cv.max_code.is_none() => m.fill::<CV_FLOAT>(img, radius, max_distance, cv),
+        Some(cv) => m.fill::<CV_INT>(img, radius, max_distance, cv),
+    };
+    Ok(filled)
+}
+
+// Cell states, as in OpenCV. VOID is the padding around the image: never unknown (so the eikonal
+// solve and ∇T treat it like OpenCV's known border with T = FAR), never a source of colour.
+const KNOWN: u8 = 0;
+const BAND: u8 = 1;
+const INSIDE: u8 = 2;
+const VOID: u8 = 3;
+/// OpenCV's initial T of every cell that is not band.
+const FAR: f32 = 1.0e6;
+
+// Kernel modes: the plain weighted mean, OpenCV's CV_32F finish, OpenCV's integer finish.
+const PLAIN: u8 = 0;
+const CV_FLOAT: u8 = 1;
+const CV_INT: u8 = 2;
+
+/// Min-queue of grid cells keyed by T, ties first-in first-out (OpenCV's sorted list behaves so).
+/// T is never negative while queued, so its bit pattern orders like the value.
+struct Queue {
+    heap: BinaryHeap<Reverse<(u64, u32)>>,
+    seq: u32,
+}
+
+impl Queue {
+    fn with_capacity(n: usize) -> Self {
+        Queue { heap: BinaryHeap::with_capacity(n), seq: 0 }
+    }
+    fn push(&mut self, t: f32, cell: usize) {
+        debug_assert!(t >= 0.0);
+        let key = ((t.to_bits() as u64) << 32) | self.seq as u64;
+        // At most one push per cell per march and cells < 2^32, so `seq` cannot wrap.
+        self.seq = self.seq.wrapping_add(1);
+        self.heap.push(Reverse((key, cell as u32)));
+    }
+    fn pop(&mut self) -> Option<usize> {
+        self.heap.pop().map(|Reverse((_, cell))| cell as usize)
+    }
+}
+
+/// Working state on the image padded by `pad` cells on each side.
+struct March {
+    w: usize,
+    h: usize,
+    pad: usize,
+    gw: usize,
+    flags: Vec<u8>,
+    t: Vec<f32>,
+    /// Band cells in raster order (both marches start from them).
+    band: Vec<u32>,
+}
+
+/// One cell of the disc around the filled pixel, precomputed once per call.
+#[derive(Clone, Copy)]
+struct Tap {
+    dy: isize,
+    dx: isize,
+    /// Offset in the padded grid.
+    grid: isize,
+    /// Offset in the image data (already times channels).
+    data: isize,
+    /// r = p - q (OpenCV's `r`), as floats.
+    rx: f32,
+    ry: f32,
+    /// 1 / |r|³.
+    dst: f32,
+}
+
+/// Round half to even without a libm call (baseline x86-64 has no rounding instruction):
+/// adding and subtracting 1.5·2²³ leaves the nearest integer under IEEE round-to-nearest-even.
+#[inline(always)]
+fn round_even_f32(v: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0;
+    if v.abs() < 4_194_304.0 { (v + MAGIC) - MAGIC } else { v.round_ties_even() }
+}
+
+/// [`round_even_f32`] for f64 (1.5·2⁵²).
+#[inline(always)]
+fn round_even_f64(v: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0;
+    if v.abs() < 2_251_799_813_685_248.0 { (v + MAGIC) - MAGIC } else { v.round_ties_even() }
+}
+
+#[inline]
+fn solve(flags: &[u8], t: &[f32], a: usize, b: usize) -> f32 {
+    let (ta, tb) = (t[a] as f64, t[b] as f64);
+    let sol = match (flags[a] != INSIDE, flags[b] != INSIDE) {
+        (true, true) => {
+            let d = ta - tb;
+            if d.abs() >= 1.0 { 1.0 + ta.min(tb) } else { (ta + tb + (2.0 - d * d).sqrt()) * 0.5 }
+        }
+        (true, false) => 1.0 + ta,
+        (false, true) => 1.0 + tb,
+        (false, false) => 1.0 + ta.min(tb),
+    };
+    sol as f32
+}
+
+/// T at `n` from its 4 neighbours (OpenCV's four one-quadrant solves, smallest wins).
+#[inline]
+fn eikonal(flags: &[u8], t: &[f32], n: usize, gw: usize) -> f32 {
+    let (up, down, left, right) = (n - gw, n + gw, n - 1, n + 1);
+    let a = solve(flags, t, up, left).min(solve(flags, t, down, left));
+    let b = solve(flags, t, up, right).min(solve(flags, t, down, right));
+    a.min(b)
+}
+
+/// One-sided or central difference of `v` along one axis, using only non-unknown neighbours.
+#[inline]
+fn known_diff(flags: &[u8], t: &[f32], n: usize, step: usize) -> f32 {
+    match (flags[n + step] != INSIDE, flags[n - step] != INSIDE) {
+        (true, true) => (t[n + step] - t[n - step]) * 0.5,
+        (true, false) => t[n + step] - t[n],
+        (false, true) => t[n] - t[n - step],
+        (false, false) => 0.0,
+    }
+}
+
+impl March {
+    fn new(w: usize, h: usize, pad: usize, mask: &[bool]) -> Self {
+        let gw = w + 2 * pad;
+        let gh = h + 2 * pad;
+        let mut flags = vec![VOID; gw * gh];
+        for y in 0..h {
+            let row = &mut flags[(y + pad) * gw + pad..][..w];
+            for (f, &m) in row.iter_mut().zip(&mask[y * w..(y + 1) * w]) {
+                *f = if m { INSIDE } else { KNOWN };
+            }
+        }
+        let mut t = vec![FAR; gw * gh];
+        let mut band = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let n = (y + pad) * gw + x + pad;
+                if flags[n] == KNOWN && [n - gw, n - 1, n + 1, n + gw].iter().any(|&q| flags[q] == INSIDE) {
+                    flags[n] = BAND;
+                    t[n] = 0.0;
+                    band.push(n as u32);
+                }
+            }
+        }
+        March { w, h, pad, gw, flags, t, band }
+    }
+
+    /// The outward march: negated distances from the band over the known pixels within
+    /// Chebyshev distance `radius` of the hole (OpenCV's dilation by a square).
+    fn outside_distances(&mut self, radius: usize) {
+        let (w, h, pad, gw) = (self.w, self.h, self.pad, self.gw);
+        // Row pass: within `radius` columns of a hole pixel on the same row.
+        let mut near = vec![false; w * h];
+        for y in 0..h {
+            let row = &self.flags[(y + pad) * gw + pad..][..w];
+            let out = &mut near[y * w..(y + 1) * w];
+            let mut last = None::<usize>;
+            for x in 0..w {
+                if row[x] == INSIDE {
+                    last = Some(x);
+                }
+                out[x] = last.is_some_and(|l| x - l <= radius);
+            }
+            last = None;
+            for x in (0..w).rev() {
+                if row[x] == INSIDE {
+                    last = Some(x);
+                }
+                out[x] |= last.is_some_and(|l| l - x <= radius);
+            }
+        }
+        // Column pass on the row result, row by row to stay cache friendly; cells of the ring
+        // (near, known, not band) become INSIDE in a separate state grid.
+        let mut state = vec![KNOWN; self.flags.len()];
+        let mut seen = vec![usize::MAX; w];
+        let mark = |state: &mut [u8], y: usize, x: usize| {
+            let n = (y + pad) * gw + x + pad;
+            if self.flags[n] == KNOWN {
+                state[n] = INSIDE;
+            }
+        };
+        for y in 0..h {
+            for x in 0..w {
+                if near[y * w + x] {
+                    seen[x] = y;
+                }
+                if seen[x] != usize::MAX && y - seen[x] <= radius {
+                    mark(&mut state, y, x);
+                }
+            }
+        }
+        seen.fill(usize::MAX);
+        for y in (0..h).rev() {
+            for x in 0..w {
+                if near[y * w + x] {
+                    seen[x] = y;
+                }
+                if seen[x] != usize::MAX && seen[x] - y <= radius {
+                    mark(&mut state, y, x);
+                }
+            }
+        }
+        drop(near);
+
+        let mut queue = Queue::with_capacity(self.band.len() * 2);
+        for &n in &self.band {
+            queue.push(0.0, n as usize);
+        }
+        let mut done = Vec::with_capacity(self.band.len() * 2);
+        while let Some(p) = queue.pop() {
+            // Popped cells must no longer count as unknown; any value other than INSIDE works.
+            state[p] = KNOWN;
+            done.push(p as u32);
+            for q in [p - gw, p - 1, p + gw, p + 1] {
+                if state[q] == INSIDE {
+                    let d = eikonal(&state, &self.t, q, gw);
+                    self.t[q] = d;
+                    state[q] = BAND;
+                    queue.push(d, q);
+                }
+            }
+        }
+        for &p in &done {
+            self.t[p as usize] = -self.t[p as usize];
+        }
+    }
+
+    /// The inward march that fills the hole; returns the number of pixels filled.
+    fn fill<const MODE: u8>(&mut self, img: &mut Image, radius: usize, max_distance: f32, cv: OpenCvCompat) -> usize {
+        let (w, h, pad, gw, ch) = (self.w, self.h, self.pad, self.gw, img.channels);
+        let r = radius as isize;
+        let mut taps = Vec::new();
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if (dx, dy) == (0, 0) || dx * dx + dy * dy > r * r {
+                    continue;
+                }
+                let (rx, ry) = (-dx as f32, -dy as f32);
+                let len = rx * rx + ry * ry;
+                // OpenCV's 3-channel path takes this root in double, its 1-channel path in float.
+                let dst = if ch == 3 { (1.0 / (len as f64 * (len as f64).sqrt())) as f32 } else { (1.0 / (len * len.sqrt()) as f64) as f32 };
+                let grid = dy * gw as isize + dx;
+                let data = (dy * w as isize + dx) * ch as isize;
+                taps.push(Tap { dy, dx, grid, data, rx, ry, dst });
+            }
+        }
+        // Per-channel accumulators: Σ w·I, and the two gradient sums of OpenCV's nudge.
+        let mut acc = vec![0.0f32; 3 * ch];
+        let mut queue = Queue::with_capacity(self.band.len() + self.flags.len() / 8);
+        for &n in &self.band {
+            queue.push(0.0, n as usize);
+        }
+        let mut filled = 0;
+        while let Some(p) = queue.pop() {
+            self.flags[p] = KNOWN;
+            for q in [p - gw, p - 1, p + gw, p + 1] {
+                if self.flags[q] != INSIDE {
+                    continue;
+                }
+                let d = eikonal(&self.flags, &self.t, q, gw);
+                if d > max_distance {
+                    // Left unknown; a later neighbour may still reach it within the limit.
+                    continue;
+                }
+                self.t[q] = d;
+                let (y, x) = ((q / gw - pad) as isize, (q % gw - pad) as isize);
+                // Sources on the image's outer rows/columns need OpenCV's edge handling.
+                let interior = y > r && y + r + 1 < h as isize && x > r && x + r + 1 < w as isize;
+                let ctx = Ctx { flags: &self.flags, t: &self.t, taps: &taps, gw, w, h, ch };
+                if interior {
+                    ctx.pixel::<MODE, false>(&mut img.data, &mut acc, q, y, x, cv);
+                } else {
+                    ctx.pixel::<MODE, true>(&mut img.data, &mut acc, q, y, x, cv);
+                }
+                filled += 1;
+                self.flags[q] = BAND;
+                queue.push(d, q);
+            }
+        }
+        filled
+    }
+}
+
+struct Ctx<'a> {
+    flags: &'a [u8],
+    t: &'a [f32],
+    taps: &'a [Tap],
+    gw: usize,
+    w: usize,
+    h: usize,
+    ch: usize,
+}
+
+impl Ctx<'_> {
+    /// Computes the value of hole pixel (x, y) (grid cell `n`) from the known cells of its disc.
+    /// `EDGE`: some tap may lie on the image's first/last row or column (or outside it).
+    #[inline(always)]
+    fn pixel<const MODE: u8, const EDGE: bool>(
+        &self,
+        data: &mut [f32],
+        acc: &mut [f32],
+        n: usize,
+        y: isize,
+        x: isize,
+        cv: OpenCvCompat,
+    ) {
+        let (flags, t, ch, gw) = (self.flags, self.t, self.ch, self.gw);
+        let gtx = known_diff(flags, t, n, 1);
+        let gty = known_diff(flags, t, n, gw);
+        let tn = t[n];
+        let (wi, hi) = (self.w as isize, self.h as isize);
+        let at = |yy: isize, xx: isize| (yy.clamp(0, hi - 1) * wi + xx.clamp(0, wi - 1)) as usize * ch;
+        // OpenCV's integer path works on codes: read values as the nearest code, as converting
+        // the image to that type would, so that rounding ties fall exactly as in OpenCV.
+        let inv_unit = 1.0 / cv.unit;
+        let read = |v: f32| if MODE == CV_INT { round_even_f32(v * inv_unit) } else { v };
+        let centre = (y * wi + x) as usize * ch;
+        let row = self.w * ch;
+        acc.fill(0.0);
+        let (ia, rest) = acc.split_at_mut(ch);
+        let (jx, jy) = rest.split_at_mut(ch);
+        let mut s = 1.0e-20f32;
+        for tap in self.taps {
+            let qc = (n as isize + tap.grid) as usize;
+            // KNOWN or BAND; INSIDE is unknown and VOID is outside the image.
+            if flags[qc] >= INSIDE {
+                continue;
+            }
+            let lev = (1.0 / (1.0 + (t[qc] - tn).abs() as f64)) as f32;
+            let mut dir = tap.rx * gtx + tap.ry * gty;
+            if (dir.abs() as f64) <= 0.01 {
+                dir = 1.0e-6;
+            }
+            let wgt = (tap.dst * lev * dir).abs();
+            s += wgt;
+            let src = if EDGE { at(y + tap.dy, x + tap.dx) } else { (centre as isize + tap.data) as usize };
+            if MODE == PLAIN {
+                for (a, &v) in ia.iter_mut().zip(&data[src..src + ch]) {
+                    *a += wgt * v;
+                }
+                continue;
+            }
+            // The colour comes from the tap itself, but OpenCV reads the image gradient through
+            // indices shifted inwards on the image's first and last rows/columns; reproduce that.
+            let (sy, sx) = (y + tap.dy, x + tap.dx);
+            let (km, kp, lm, lp) = if EDGE {
+                (sy + (sy == 0) as isize, sy - (sy == hi - 1) as isize, sx + (sx == 0) as isize, sx - (sx == wi - 1) as isize)
+            } else {
+                (sy, sy, sx, sx)
+            };
+            let (mid, right, left, down, up) = if EDGE {
+                (at(km, lm), at(km, lp + 1), at(km, lm - 1), at(kp + 1, lm), at(km - 1, lm))
+            } else {
+                (src, src + ch, src - ch, src + row, src - row)
+            };
+            // The centre of a one-sided difference is also read at the shifted indices.
+            let (xc, yc) = if EDGE { (at(km, lp), at(kp, lm)) } else { (src, src) };
+            let rk = flags[qc + 1] != INSIDE;
+            let lk = flags[qc - 1] != INSIDE;
+            let dk = flags[qc + gw] != INSIDE;
+            let uk = flags[qc - gw] != INSIDE;
+            // (plus, minus, factor) of each difference; factor 0 when both sides are unknown.
+            let (xp, xm, xf) = match (rk, lk) {
+                (true, true) => (right, left, 2.0f32),
+                (true, false) => (right, mid, 1.0),
+                (false, true) => (xc, left, 1.0),
+                (false, false) => (mid, mid, 0.0),
+            };
+            let (yp, ym, yf) = match (dk, uk) {
+                (true, true) => (down, up, 2.0f32),
+                (true, false) => (down, mid, 1.0),
+                (false, true) => (yc, up, 1.0),
+                (false, false) => (mid, mid, 0.0),
+            };
+            for c in 0..ch {
+                let gx = if xf == 0.0 { 0.0 } else { (read(data[xp + c]) - read(data[xm + c])) * xf };
+                let gy = if yf == 0.0 { 0.0 } else { (read(data[yp + c]) - read(data[ym + c])) * yf };
+                ia[c] += wgt * read(data[src + c]);
+                jx[c] -= wgt * (gx * tap.rx);
+                jy[c] -= wgt * (gy * tap.ry);
+            }
+        }
+        let out = &mut data[centre..centre + ch];
+        for c in 0..ch {
+            let mean = ia[c] / s;
+            if MODE == PLAIN {
+                out[c] = mean;
+                continue;
+            }
+            // OpenCV's nudge: the component sum of a unit vector, in code values.
+            let nudge = (jx[c] + jy[c]) / ((jx[c] * jx[c] + jy[c] * jy[c]).sqrt() + 1.0e-20);
+            out[c] = if MODE == CV_INT {
+                let max = cv.max_code.unwrap_or(f32::MAX) as f64;
+                // Integer types get +0.5 before rounding (OpenCV's `round_cast`).
+                round_even_f64((mean + nudge) as f64 + 0.5).clamp(0.0, max) as f32 * cv.unit
+            } else {
+                mean + cv.unit * nudge
+            };
+        }
+    }
+}

@@ -1,0 +1,129 @@
+//! Generates the bundled example scene in `examples/scene/`: a synthetic photo (`image.png`,
+//! 8-bit sRGB), its depth (`depth.exr`, z distances) and the subject's matte (`matte.png`).
+//!
+//! The scene is built to show what Dr.Bokeh is for: a near subject with soft and thin edges
+//! (a flower with a stem and leaves) in front of a far, textured wall with small bright lights
+//! that turn into bokeh discs, some of them right behind the subject's edge.
+//!
+//! Run: `cargo run --release --example make_scene` (deterministic; rewrites the files).
+
+use drbokeh::color::Transfer;
+use drbokeh::io::{write_exr, write_png};
+use drbokeh::Image;
+
+const W: usize = 480;
+const H: usize = 320;
+/// Supersampling per axis for antialiased edges.
+const SS: usize = 4;
+
+/// Coverage of the subject at a point (continuous coordinates in pixels) and its colour.
+fn subject(x: f32, y: f32) -> Option<[f32; 3]> {
+    // Flower head: petals as a polar wave around (300, 120).
+    let (cx, cy) = (300.0, 118.0);
+    let (dx, dy) = (x - cx, y - cy);
+    let r = (dx * dx + dy * dy).sqrt();
+    let th = dy.atan2(dx);
+    let petal = 52.0 + 14.0 * (6.0 * th).cos();
+    if r < 18.0 {
+        return Some([0.95, 0.72, 0.12]); // centre
+    }
+    if r < petal {
+        let t = r / petal;
+        return Some([0.85 - 0.25 * t, 0.18 + 0.1 * t, 0.42 + 0.2 * t]);
+    }
+    // Stem: a thin curved line, ~3 px wide.
+    let stem_x = cx - 10.0 * ((y - cy) / 80.0).sin() * 3.0;
+    if y > cy + 40.0 && (x - stem_x).abs() < 1.6 {
+        return Some([0.2, 0.5, 0.15]);
+    }
+    // Two leaves: ellipses along the stem.
+    for (lx, ly, a, sgn) in [(262.0f32, 250.0f32, 0.5f32, 1.0f32), (335.0, 215.0, -0.6, -1.0)] {
+        let (ux, uy) = (x - lx, y - ly);
+        let (c, s) = (a.cos(), a.sin());
+        let (px, py) = (c * ux + s * uy, -s * ux + c * uy);
+        if (px / 34.0).powi(2) + (py / 10.0).powi(2) < 1.0 {
+            return Some([0.16 + 0.05 * sgn, 0.46, 0.12]);
+        }
+    }
+    // Fine hairs on the petals: 1 px lines radiating out of the head.
+    for k in 0..9 {
+        let a = k as f32 * 0.7 + 0.3;
+        let (ex, ey) = (a.cos(), a.sin());
+        let along = dx * ex + dy * ey;
+        let across = (-dx * ey + dy * ex).abs();
+        if along > petal * 0.9 && along < 92.0 && across < 0.5 {
+            return Some([0.9, 0.85, 0.8]);
+        }
+    }
+    None
+}
+
+/// The far wall: a brick-like texture with a colour gradient, linear radiance.
+fn wall(x: f32, y: f32) -> [f32; 3] {
+    // Offset so that no mortar line runs along the frame border (replicate padding would
+    // smear it into a band).
+    let (x, y) = (x + 13.0, y + 11.0);
+    let row = (y / 22.0).floor();
+    let off = if row as i32 % 2 == 0 { 0.0 } else { 24.0 };
+    let mortar = (y % 22.0) < 2.0 || ((x + off) % 48.0) < 2.0;
+    let n = ((x * 0.37).sin() * (y * 0.53).cos() * 0.5 + 0.5) * 0.08;
+    let g = (x / W as f32).min(1.0);
+    let n = n * 0.5;
+    if mortar {
+        [0.12, 0.12, 0.11]
+    } else {
+        [0.16 + 0.14 * g + n, 0.06 + 0.06 * (1.0 - g) + n, 0.04 + 0.08 * g + n]
+    }
+}
+
+/// Small very bright lights on the wall (string lights), radiance above 1 clipped by the PNG.
+fn lights(x: f32, y: f32) -> Option<[f32; 3]> {
+    for k in 0..14 {
+        let lx = 20.0 + k as f32 * 34.0;
+        let ly = 60.0 + 18.0 * (k as f32 * 0.9).sin();
+        if (x - lx).powi(2) + (y - ly).powi(2) < 4.0f32.powi(2) {
+            return Some([1.0, 0.92, 0.7]);
+        }
+    }
+    None
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scene");
+    std::fs::create_dir_all(&dir)?;
+    let mut rgb = Image::new(W, H, 3);
+    let mut matte = Image::new(W, H, 1);
+    let mut depth = Image::new(W, H, 1);
+    for y in 0..H {
+        for x in 0..W {
+            let mut acc = [0f32; 3];
+            let mut cover = 0f32;
+            for sy in 0..SS {
+                for sx in 0..SS {
+                    let (fx, fy) = (x as f32 + (sx as f32 + 0.5) / SS as f32, y as f32 + (sy as f32 + 0.5) / SS as f32);
+                    let c = match subject(fx, fy) {
+                        Some(c) => {
+                            cover += 1.0;
+                            c
+                        }
+                        None => lights(fx, fy).unwrap_or_else(|| wall(fx, fy)),
+                    };
+                    for i in 0..3 {
+                        acc[i] += c[i];
+                    }
+                }
+            }
+            let n = (SS * SS) as f32;
+            rgb.pixel_mut(x, y).copy_from_slice(&[acc[0] / n, acc[1] / n, acc[2] / n]);
+            matte.data[y * W + x] = cover / n;
+            // Depth at the pixel centre: subject at 1.2 m, wall at 6 m receding to the right.
+            let centre = subject(x as f32 + 0.5, y as f32 + 0.5).is_some();
+            depth.data[y * W + x] = if centre { 1.2 } else { 6.0 + 2.0 * x as f32 / W as f32 };
+        }
+    }
+    write_png(&dir.join("image.png"), &rgb, 8, Transfer::Srgb)?;
+    write_png(&dir.join("matte.png"), &matte, 8, Transfer::Linear)?;
+    write_exr(&dir.join("depth.exr"), &depth, &["Y"])?;
+    println!("wrote {}", dir.display());
+    Ok(())
+}

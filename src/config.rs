@@ -1,0 +1,193 @@
+//! `pipeline.toml`: every option of a run in one typed struct, with defaults and validation.
+//!
+//! CLI flags override these values; a key the program does not know is an error that names
+//! it (and the closest valid key), so a typo never silently falls back to a default.
+
+use crate::error::{Error, Result};
+use crate::stages::background::InpaintOptions;
+use crate::stages::depth::DepthKind;
+use crate::stages::fill_depth::FillDepthOptions;
+use crate::stages::segment::SegmentOptions;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub input: InputConfig,
+    pub segment: SegmentOptions,
+    pub fill_depth: FillDepthOptions,
+    pub inpaint: InpaintOptions,
+    pub render: RenderConfig,
+    pub output: OutputConfig,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InputConfig {
+    /// What the depth file holds: "depth" (z distances) or "disparity" (larger = nearer).
+    pub depth_kind: DepthKind,
+    /// Images with more pixels are refused before decoding (decompression-bomb guard).
+    pub max_pixels: u64,
+}
+
+impl Default for InputConfig {
+    fn default() -> Self {
+        InputConfig { depth_kind: DepthKind::Depth, max_pixels: 200_000_000 }
+    }
+}
+
+/// Which kernel renders the layers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum KernelChoice {
+    /// The best available kernel; skips rendering when nothing is out of focus.
+    #[default]
+    Auto,
+    /// The official formula, always run (even at K = 0, where it slightly softens).
+    Exact,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderConfig {
+    pub kernel: KernelChoice,
+    /// Blur strength K (pixels of CoC radius per unit of normalized disparity).
+    /// Unset: 30 × sqrt(megapixels), the official 30 at 1 MP.
+    pub blur: Option<f32>,
+    /// Odd lens window side. Unset: sized from the largest CoC in the scene.
+    pub lens: Option<usize>,
+    /// Official "naive gamma" G (render on rgb^G). Unset: exact sRGB transfer.
+    pub gamma: Option<f32>,
+    /// false: classical scatter without occlusion (one layer), for comparison.
+    pub occlusion: bool,
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        RenderConfig { kernel: KernelChoice::Auto, blur: None, lens: None, gamma: None, occlusion: true }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// PNG bit depth: 8 or 16.
+    pub bit_depth: u8,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        OutputConfig { bit_depth: 8 }
+    }
+}
+
+impl Config {
+    /// Reads and validates a pipeline.toml.
+    pub fn load(path: &Path) -> Result<Config> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let cfg = Config::parse(&text).map_err(|msg| Error::input(path, msg))?;
+        cfg.validate().map_err(|e| match e {
+            Error::Usage(msg) => Error::input(path, msg),
+            other => other,
+        })?;
+        Ok(cfg)
+    }
+
+    /// Parses TOML text; the error message says which key is wrong and why.
+    pub fn parse(text: &str) -> std::result::Result<Config, String> {
+        toml::from_str::<Config>(text).map_err(|e| describe_toml_error(&e))
+    }
+
+    /// Checks value ranges that the types cannot express.
+    pub fn validate(&self) -> Result<()> {
+        let r = &self.render;
+        if let Some(k) = r.blur {
+            if !k.is_finite() || k < 0.0 {
+                return Err(Error::usage(format!("render.blur must be a finite number >= 0, got {k}")));
+            }
+        }
+        if let Some(l) = r.lens {
+            if l == 0 || l % 2 == 0 {
+                return Err(Error::usage(format!("render.lens must be odd and >= 1, got {l}")));
+            }
+        }
+        if let Some(g) = r.gamma {
+            if !(g.is_finite() && g > 0.0) {
+                return Err(Error::usage(format!("render.gamma must be a positive number, got {g}")));
+            }
+        }
+        if !matches!(self.output.bit_depth, 8 | 16) {
+            return Err(Error::usage(format!("output.bit_depth must be 8 or 16, got {}", self.output.bit_depth)));
+        }
+        if self.input.max_pixels == 0 {
+            return Err(Error::usage("input.max_pixels must be > 0"));
+        }
+        for (key, v) in [
+            ("fill_depth.erode", self.fill_depth.erode),
+            ("fill_depth.radius", self.fill_depth.radius),
+            ("inpaint.dilate", self.inpaint.dilate),
+            ("inpaint.radius", self.inpaint.radius),
+            ("segment.edge_softness", self.segment.edge_softness),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::usage(format!("{key} must be a finite number >= 0, got {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Turns a TOML/serde error into one line; for an unknown key, suggests the closest valid key.
+fn describe_toml_error(e: &toml::de::Error) -> String {
+    let msg = e.message().to_string();
+    let mut out = msg.clone();
+    if let Some(rest) = msg.strip_prefix("unknown field `") {
+        let key = rest.split('`').next().unwrap_or("");
+        let expected: Vec<&str> = rest.split("expected ").nth(1).map(|s| s.split('`').filter(|t| t.chars().all(|c| c.is_alphanumeric() || c == '_') && !t.is_empty()).collect()).unwrap_or_default();
+        if let Some(best) = expected.iter().min_by_key(|cand| edit_distance(key, cand)) {
+            if edit_distance(key, best) <= key.len().max(3) / 2 + 1 {
+                out = format!("unknown key `{key}` (did you mean `{best}`?); valid keys here: {}", expected.join(", "));
+            } else {
+                out = format!("unknown key `{key}`; valid keys here: {}", expected.join(", "));
+            }
+        }
+    }
+    match e.span() {
+        Some(span) => format!("{out} (at byte {})", span.start),
+        None => out,
+    }
+}
+
+/// Levenshtein distance, for "did you mean" suggestions.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut prev: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut cur = vec![i + 1];
+        for (j, cb) in b.iter().enumerate() {
+            cur.push((prev[j] + (ca != *cb) as usize).min(prev[j + 1] + 1).min(cur[j] + 1));
+        }
+        prev = cur;
+    }
+    prev[b.len()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_key_suggests_closest() {
+        let e = Config::parse("[render]\nblurr = 3\n").unwrap_err();
+        assert!(e.contains("blurr") && e.contains("did you mean `blur`"), "{e}");
+        let e = Config::parse("[render]\nblur = \"x\"\n").unwrap_err();
+        assert!(e.contains("blur") || e.contains("invalid type"), "{e}");
+    }
+
+    #[test]
+    fn bundled_pipeline_toml_is_the_default() {
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/pipeline.toml")).unwrap();
+        assert_eq!(Config::parse(&text).unwrap(), Config::default());
+    }
+}

@@ -1,0 +1,180 @@
+//! Input format detection and the shared plumbing of every reader: opening files with a plain
+//! error, and running third-party decoders behind a panic guard.
+//!
+//! Detection looks at the file's first bytes (magic numbers) first and falls back to the
+//! extension only when the content is not recognised, so a PNG saved as `depth.tif` still reads,
+//! and garbage named `photo.png` is reported as a corrupt PNG.
+
+use crate::error::{Error, Result};
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::Path;
+
+/// The input formats the readers understand.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum FileFormat {
+    Png,
+    Jpeg,
+    Tiff,
+    Exr,
+    Npy,
+}
+
+/// Extensions accepted for input, as listed in error messages.
+pub const SUPPORTED_INPUT_EXTENSIONS: &str = ".png, .jpg/.jpeg, .tif/.tiff, .exr, .npy";
+
+impl FileFormat {
+    /// Human name used in messages ("PNG", "OpenEXR"...).
+    pub fn name(self) -> &'static str {
+        match self {
+            FileFormat::Png => "PNG",
+            FileFormat::Jpeg => "JPEG",
+            FileFormat::Tiff => "TIFF",
+            FileFormat::Exr => "EXR",
+            FileFormat::Npy => "NPY",
+        }
+    }
+
+    /// Recognises the format from the first bytes of a file.
+    pub fn from_magic(head: &[u8]) -> Option<FileFormat> {
+        if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+            Some(FileFormat::Png)
+        } else if head.starts_with(&[0xFF, 0xD8, 0xFF]) {
+            Some(FileFormat::Jpeg)
+        } else if head.starts_with(b"II*\0") || head.starts_with(b"MM\0*") || head.starts_with(b"II+\0") || head.starts_with(b"MM\0+") {
+            Some(FileFormat::Tiff)
+        } else if head.starts_with(&[0x76, 0x2F, 0x31, 0x01]) {
+            Some(FileFormat::Exr)
+        } else if head.starts_with(b"\x93NUMPY") {
+            Some(FileFormat::Npy)
+        } else {
+            None
+        }
+    }
+
+    /// Recognises the format from the file extension (case-insensitive).
+    pub fn from_extension(path: &Path) -> Option<FileFormat> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "png" => Some(FileFormat::Png),
+            "jpg" | "jpeg" | "jpe" => Some(FileFormat::Jpeg),
+            "tif" | "tiff" => Some(FileFormat::Tiff),
+            "exr" => Some(FileFormat::Exr),
+            "npy" => Some(FileFormat::Npy),
+            _ => None,
+        }
+    }
+}
+
+/// Detects the format of `path`: by content first, by extension second.
+///
+/// Errors: the file cannot be opened or read, is empty, or is neither recognisable by content
+/// nor by extension (the message lists the supported extensions, and names the format when
+/// it is a known but unsupported one such as WebP or BMP).
+pub fn detect_format(path: &Path) -> Result<FileFormat> {
+    let mut head = [0u8; 16];
+    let n = {
+        let mut f = open(path)?;
+        let mut n = 0;
+        while n < head.len() {
+            match f.read(&mut head[n..]) {
+                Ok(0) => break,
+                Ok(k) => n += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(read_error(path, e)),
+            }
+        }
+        n
+    };
+    if n == 0 {
+        return Err(Error::input(path, "file is empty (0 bytes)"));
+    }
+    let head = &head[..n];
+    if let Some(f) = FileFormat::from_magic(head) {
+        return Ok(f);
+    }
+    if let Some(f) = FileFormat::from_extension(path) {
+        return Ok(f);
+    }
+    let known = image::guess_format(head).ok().map(|f| format!("{f:?} files are not supported; "));
+    Err(Error::input(
+        path,
+        format!(
+            "unrecognised file format ({}supported formats: {SUPPORTED_INPUT_EXTENSIONS})",
+            known.unwrap_or_default()
+        ),
+    ))
+}
+
+/// Wraps an I/O error from reading `path` so that the message says what failed:
+/// "<path>: cannot read file: No such file or directory (os error 2)".
+pub(crate) fn read_error(path: &Path, e: std::io::Error) -> Error {
+    Error::io(path, std::io::Error::new(e.kind(), format!("cannot read file: {e}")))
+}
+
+/// Opens `path` for buffered reading; a directory is refused with a plain message.
+pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
+    let file = File::open(path).map_err(|e| read_error(path, e))?;
+    if file.metadata().map(|m| m.is_dir()).unwrap_or(false) {
+        return Err(Error::input(path, "cannot read file: it is a folder"));
+    }
+    Ok(BufReader::new(file))
+}
+
+/// Reads an NPY file ([`super::npy::read_npy`]) behind the same panic guard as the other
+/// decoders.
+pub(crate) fn read_npy_guarded(path: &Path, limits: &super::limits::ReadLimits) -> Result<crate::image::Image> {
+    guarded(path, FileFormat::Npy, || super::npy::read_npy(path, limits.max_pixels))
+}
+
+/// Runs a third-party decoder call behind `catch_unwind`.
+///
+/// Defence in depth: the image, tiff and exr decoders are meant to return errors on malformed
+/// input, but fuzzing has found panics in such crates before. A panic while decoding `path`
+/// becomes an [`Error::Input`] ("decoder failed on malformed data") instead of tearing the
+/// process down. (The default panic hook still prints the panic message to stderr.) Decoders
+/// must run on the calling thread for this to work, which is why EXR files are decoded with
+/// `non_parallel()`.
+pub(crate) fn guarded<T>(path: &Path, format: FileFormat, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(payload) => {
+            let detail = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(Error::input(
+                path,
+                format!("{} decoder failed on malformed data (decoder panicked: {detail})", format.name()),
+            ))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn magic_and_extension() {
+        assert_eq!(FileFormat::from_magic(b"\x89PNG\r\n\x1a\n...."), Some(FileFormat::Png));
+        assert_eq!(FileFormat::from_magic(&[0xFF, 0xD8, 0xFF, 0xE0]), Some(FileFormat::Jpeg));
+        assert_eq!(FileFormat::from_magic(b"II*\0"), Some(FileFormat::Tiff));
+        assert_eq!(FileFormat::from_magic(b"MM\0*"), Some(FileFormat::Tiff));
+        assert_eq!(FileFormat::from_magic(&[0x76, 0x2F, 0x31, 0x01, 2]), Some(FileFormat::Exr));
+        assert_eq!(FileFormat::from_magic(b"\x93NUMPY\x01\x00"), Some(FileFormat::Npy));
+        assert_eq!(FileFormat::from_magic(b"hello"), None);
+        assert_eq!(FileFormat::from_extension(Path::new("a/B.TIFF")), Some(FileFormat::Tiff));
+        assert_eq!(FileFormat::from_extension(Path::new("a.JPEG")), Some(FileFormat::Jpeg));
+        assert_eq!(FileFormat::from_extension(Path::new("a.bmp")), None);
+        assert_eq!(FileFormat::from_extension(Path::new("noext")), None);
+    }
+
+    #[test]
+    fn guard_turns_panic_into_error() {
+        let r: Result<()> = guarded(Path::new("bad.exr"), FileFormat::Exr, || panic!("boom"));
+        let msg = r.unwrap_err().to_string();
+        assert!(msg.contains("bad.exr") && msg.contains("malformed data") && msg.contains("boom"), "{msg}");
+    }
+}

@@ -1,0 +1,63 @@
+//! Renderer layers: 5 channels R, G, B, A, D (linear colour, alpha, normalized disparity).
+//!
+//! Accepted files: EXR with channels named R, G, B, A, D (case-insensitive; exact names win;
+//! other channels are ignored), or NPY `H x W x 5` (float32/float64). Values are returned
+//! unchanged; NaN or infinity anywhere is an error naming the channel and pixel.
+
+use super::exr_file::read_exr_channels;
+use super::format::{detect_format, FileFormat};
+use super::image_file::pixel_of;
+use super::limits::ReadLimits;
+use crate::error::{Error, Result};
+use crate::image::Image;
+use std::path::Path;
+
+/// Channel names of a layer, in [`read_layer`]'s output order.
+pub const LAYER_CHANNELS: [&str; 5] = ["R", "G", "B", "A", "D"];
+
+/// Reads a layer as a 5-channel R,G,B,A,D image (see the module doc).
+pub fn read_layer(path: &Path, limits: &ReadLimits) -> Result<Image> {
+    let img = match detect_format(path)? {
+        FileFormat::Exr => {
+            let exr = read_exr_channels(path, limits)?;
+            let found: Vec<Option<usize>> = LAYER_CHANNELS.iter().map(|n| exr.find(n)).collect();
+            let missing: Vec<&str> = LAYER_CHANNELS.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| *n).collect();
+            if !missing.is_empty() {
+                return Err(Error::input(
+                    path,
+                    format!(
+                        "EXR layer needs channels R, G, B, A, D; missing {} (found: {})",
+                        missing.join(", "),
+                        exr.names()
+                    ),
+                ));
+            }
+            let idx: Vec<usize> = found.into_iter().flatten().collect();
+            exr.to_image(&idx)
+        }
+        FileFormat::Npy => {
+            let image = super::format::read_npy_guarded(path, limits)?;
+            if image.channels != 5 {
+                return Err(Error::input(
+                    path,
+                    format!("NPY layer has {} channel(s); expected shape H x W x 5 (R, G, B, A, D)", image.channels),
+                ));
+            }
+            image
+        }
+        other => {
+            return Err(Error::input(
+                path,
+                format!("a layer must be an EXR with channels R, G, B, A, D or an NPY array H x W x 5; this is a {} file", other.name()),
+            ));
+        }
+    };
+    if let Some(i) = img.data.iter().position(|v| !v.is_finite()) {
+        let (x, y) = pixel_of(&img, i);
+        return Err(Error::input(
+            path,
+            format!("layer channel {} has a non-finite value ({}) at pixel ({x}, {y})", LAYER_CHANNELS[i % 5], img.data[i]),
+        ));
+    }
+    Ok(img)
+}

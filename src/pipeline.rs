@@ -1,0 +1,293 @@
+//! The whole job: image + disparity (+ matte) → layers → rendered image, with a report.
+//!
+//! [`Pipeline`] holds the configuration; [`Pipeline::run`] takes a decoded scene and a focus,
+//! [`Pipeline::render_layers`] takes ready-made layers. Both return an [`Outcome`] with the
+//! linear result, the layers used and a [`Report`] of what ran, what was skipped and why.
+
+use crate::config::{Config, KernelChoice};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::render::{self, Kernel, Layer, RenderSettings};
+use crate::stages::background::inpaint_background;
+use crate::stages::depth::Disparity;
+use crate::stages::fill_depth::foreground_disparity;
+use crate::stages::segment::{self, SegmentMethod, Segmentation};
+use serde::Serialize;
+use std::time::Instant;
+
+/// A decoded input scene.
+pub struct Scene {
+    /// Linear RGB (3 channels).
+    pub rgb: Image,
+    /// Normalized disparity of every pixel.
+    pub disparity: Disparity,
+    /// Optional foreground matte (one channel, [0, 1]).
+    pub matte: Option<Image>,
+}
+
+/// How the focal plane is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Focus {
+    /// Normalized disparity of the focal plane (0 far … 1 near).
+    Disparity(f32),
+    /// The disparity under pixel (x, y), robustly (median of a small window).
+    At(i64, i64),
+    /// A metric depth (depth maps only).
+    Depth(f64),
+}
+
+/// What happened in one stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageReport {
+    pub name: &'static str,
+    /// "ran" or "skipped".
+    pub status: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    pub ms: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub detail: Option<serde_json::Value>,
+}
+
+/// The parameters a render actually used.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct UsedParams {
+    pub width: usize,
+    pub height: usize,
+    pub blur: f32,
+    pub focus: f32,
+    pub lens: usize,
+    pub kernel: String,
+    pub occlusion: bool,
+    pub gamma: Option<f32>,
+    pub layers: usize,
+    pub max_coc_radius_px: f32,
+    pub threads: usize,
+}
+
+/// Machine-readable summary of a run (`--json`).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    pub stages: Vec<StageReport>,
+    pub params: UsedParams,
+    pub warnings: Vec<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub output: Option<String>,
+    pub total_ms: f64,
+}
+
+impl Report {
+    fn ran(&mut self, name: &'static str, t: Instant, detail: Option<serde_json::Value>) {
+        self.stages.push(StageReport { name, status: "ran", reason: None, ms: ms(t), detail });
+    }
+    fn skipped(&mut self, name: &'static str, reason: impl Into<String>) {
+        self.stages.push(StageReport { name, status: "skipped", reason: Some(reason.into()), ms: 0.0, detail: None });
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// The result of a run.
+pub struct Outcome {
+    /// Rendered image, linear RGB (3 channels); in gamma mode, still before the inverse gamma.
+    pub image: Image,
+    /// The layers that were rendered, front first (empty when rendering was skipped).
+    pub layers: Vec<Layer>,
+    pub report: Report,
+}
+
+/// The configured pipeline.
+pub struct Pipeline {
+    config: Config,
+}
+
+/// Default blur strength for an image: the official K = 30 at 1 MP, scaled with the image's
+/// linear size so the look does not change with resolution.
+pub fn default_blur(width: usize, height: usize) -> f32 {
+    30.0 * ((width * height) as f32 / 1.0e6).sqrt()
+}
+
+impl Pipeline {
+    pub fn from_config(config: Config) -> Result<Self> {
+        config.validate()?;
+        Ok(Pipeline { config })
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    fn blur_for(&self, w: usize, h: usize) -> f32 {
+        self.config.render.blur.unwrap_or_else(|| default_blur(w, h))
+    }
+
+    /// Resolves the focus to a normalized disparity, clamping to [0, 1] with a warning.
+    fn resolve_focus(focus: Focus, disparity_at: impl Fn(i64, i64) -> Result<f32>, disp: Option<&Disparity>, report: &mut Report) -> Result<f32> {
+        let f = match focus {
+            Focus::Disparity(f) => {
+                if !f.is_finite() {
+                    return Err(Error::usage(format!("--focus must be a finite number, got {f}")));
+                }
+                f
+            }
+            Focus::At(x, y) => disparity_at(x, y)?,
+            Focus::Depth(z) => match disp {
+                Some(d) => d.disparity_of_depth(z)?,
+                None => return Err(Error::usage("--focus-depth needs a depth map; with --layer inputs use --focus")),
+            },
+        };
+        if !(0.0..=1.0).contains(&f) {
+            let c = f.clamp(0.0, 1.0);
+            report.warnings.push(format!("focus {f} is outside [0, 1] (the scene's disparity range); clamped to {c}"));
+            return Ok(c);
+        }
+        Ok(f)
+    }
+
+    /// Runs segmentation, depth filling, inpainting and rendering on a decoded scene.
+    pub fn run(&self, scene: &Scene, focus: Focus) -> Result<Outcome> {
+        let t0 = Instant::now();
+        let cfg = &self.config;
+        let (w, h) = (scene.rgb.width, scene.rgb.height);
+        let disp = &scene.disparity.map;
+        let mut report = Report::default();
+        if scene.disparity.filled_fraction > 0.0 {
+            report.warnings.push(format!(
+                "{:.2}% of the depth map was invalid (NaN, Inf or <= 0) and was filled from valid neighbours",
+                scene.disparity.filled_fraction * 100.0
+            ));
+        }
+        let focus = Self::resolve_focus(focus, |x, y| scene.disparity.disparity_at(x, y), Some(&scene.disparity), &mut report)?;
+        let blur = self.blur_for(w, h);
+        let max_coc = disp.data.iter().map(|&d| (d - focus).abs() * blur).fold(0.0, f32::max);
+
+        // Nothing is out of focus: the photo is its own answer (unless the exact kernel is asked for).
+        if cfg.render.kernel == KernelChoice::Auto && max_coc < 0.5 {
+            let why = format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px)");
+            for name in ["segment", "fill_depth", "inpaint", "render"] {
+                report.skipped(name, why.clone());
+            }
+            report.params = self.params(w, h, blur, focus, 0, "none", 0, max_coc);
+            report.total_ms = ms(t0);
+            return Ok(Outcome { image: scene.rgb.clone(), layers: Vec::new(), report });
+        }
+
+        let opaque = Image::filled(w, h, 1, 1.0);
+        let single = |report: &mut Report, why: &str| -> Result<Vec<Layer>> {
+            for name in ["fill_depth", "inpaint"] {
+                report.skipped(name, why.to_string());
+            }
+            Ok(vec![Layer::from_parts(&scene.rgb, &opaque, disp, "scene")?])
+        };
+
+        let layers = if !cfg.render.occlusion {
+            report.skipped("segment", "--no-occlusion renders the scene as one layer");
+            single(&mut report, "--no-occlusion renders the scene as one layer")?
+        } else {
+            let t = Instant::now();
+            let seg = match (cfg.segment.method, &scene.matte) {
+                (SegmentMethod::Matte, None) => return Err(Error::usage("segment.method = \"matte\" needs --matte")),
+                (SegmentMethod::Auto | SegmentMethod::Matte, Some(m)) => segment::from_matte(m),
+                _ => segment::from_disparity(disp, &cfg.segment),
+            };
+            let source = if scene.matte.is_some() && cfg.segment.method != SegmentMethod::Depth { "matte" } else { "depth split" };
+            match seg {
+                Segmentation::SingleLayer(why) => {
+                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 1, "why": why})));
+                    single(&mut report, &format!("one layer: {why}"))?
+                }
+                Segmentation::Foreground(alpha) => {
+                    let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
+                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac})));
+                    // How far from the visible region a filled value can still be seen: a
+                    // scatter radius, plus the visibility box, plus the soft-step tail.
+                    let reach = 2.0 * (max_coc + 1.0).ceil() + 4.0;
+                    let t = Instant::now();
+                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, reach)?;
+                    report.ran("fill_depth", t, Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": reach})));
+                    let t = Instant::now();
+                    let bg = inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach)?;
+                    report.ran("inpaint", t, Some(serde_json::json!({"method": "telea", "filled_px": bg.filled, "skipped_unreachable_px": bg.skipped, "reach_px": reach})));
+                    vec![
+                        Layer::from_parts(&scene.rgb, &alpha, &fd.disparity, "foreground layer")?,
+                        Layer::from_parts(&bg.rgb, &opaque, &bg.disparity, "background layer")?,
+                    ]
+                }
+            }
+        };
+        let mut out = self.render_prepared(layers, focus, blur, report, false)?;
+        out.report.total_ms = ms(t0);
+        Ok(out)
+    }
+
+    /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
+    /// caller has already raised them to the gamma.
+    pub fn render_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
+        let t0 = Instant::now();
+        let Some(first) = layers.first() else {
+            return Err(Error::usage("no layers given"));
+        };
+        let (w, h) = (first.width(), first.height());
+        let mut report = Report::default();
+        let at = |x: i64, y: i64| -> Result<f32> {
+            if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+                return Err(Error::usage(format!("--focus-at {x},{y} is outside the {w}x{h} layers")));
+            }
+            let i = y as usize * w + x as usize;
+            // The front-most layer that is mostly opaque there is what the user clicked on.
+            let l = layers.iter().find(|l| l.alpha(i) > 0.5).unwrap_or(layers.last().expect("non-empty"));
+            Ok(l.disparity(i))
+        };
+        let focus = Self::resolve_focus(focus, at, None, &mut report)?;
+        for name in ["segment", "fill_depth", "inpaint"] {
+            report.skipped(name, "layers were given");
+        }
+        let blur = self.blur_for(w, h);
+        let mut layers = layers;
+        if !self.config.render.occlusion && layers.len() > 1 {
+            report.warnings.push("--no-occlusion renders only the back layer of the given layers".into());
+            layers = vec![layers.pop().expect("non-empty")];
+        }
+        let mut out = self.render_prepared(layers, focus, blur, report, true)?;
+        out.report.total_ms = ms(t0);
+        Ok(out)
+    }
+
+    fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, mut report: Report, given: bool) -> Result<Outcome> {
+        let rc = &self.config.render;
+        let (w, h) = (layers[0].width(), layers[0].height());
+        let max_coc = render::max_scatter_radius(&layers, blur, focus) - 1.0;
+        if given && rc.kernel == KernelChoice::Auto && max_coc < 0.5 {
+            report.skipped("render", format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px): front-to-back alpha composite"));
+            report.params = self.params(w, h, blur, focus, 0, "none", layers.len(), max_coc);
+            return Ok(Outcome { image: render::alpha_composite(&layers), layers, report });
+        }
+        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(&layers, blur, focus));
+        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion };
+        let kernel = Kernel::Exact;
+        let t = Instant::now();
+        let image = render::render(&layers, &s, kernel)?;
+        report.ran("render", t, Some(serde_json::json!({"kernel": "exact", "lens": lens, "layers": layers.len()})));
+        report.params = self.params(w, h, blur, focus, lens, "exact", layers.len(), max_coc);
+        Ok(Outcome { image, layers, report })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn params(&self, w: usize, h: usize, blur: f32, focus: f32, lens: usize, kernel: &str, layers: usize, max_coc: f32) -> UsedParams {
+        UsedParams {
+            width: w,
+            height: h,
+            blur,
+            focus,
+            lens,
+            kernel: kernel.into(),
+            occlusion: self.config.render.occlusion,
+            gamma: self.config.render.gamma,
+            layers,
+            max_coc_radius_px: max_coc,
+            threads: rayon::current_num_threads(),
+        }
+    }
+}

@@ -1,0 +1,123 @@
+//! From a raw depth or disparity map to normalized disparity, and focus selection.
+//!
+//! Normalized disparity `D` is 1 at the scene's nearest point and 0 at its farthest:
+//! `D = (1/z - 1/z_max) / (1/z_min - 1/z_max)` for depth, min-max for disparity.
+
+use super::inpaint::{inpaint_telea, TeleaOptions};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use std::path::Path;
+
+/// What the values of a depth map mean.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum DepthKind {
+    /// Distances z (> 0): larger = farther.
+    #[default]
+    Depth,
+    /// Disparity-like values: larger = nearer.
+    Disparity,
+}
+
+/// A normalized disparity map and how it was made.
+#[derive(Clone, Debug)]
+pub struct Disparity {
+    /// One channel, values in [0, 1].
+    pub map: Image,
+    /// `(z_min, z_max)` of the valid depths (depth maps only): needed for `--focus-depth`.
+    pub z_range: Option<(f64, f64)>,
+    /// Fraction of pixels that were invalid and filled from their valid neighbours.
+    pub filled_fraction: f64,
+}
+
+impl Disparity {
+    /// Normalized disparity of metric depth `z` (depth maps only).
+    pub fn disparity_of_depth(&self, z: f64) -> Result<f32> {
+        let Some((zmin, zmax)) = self.z_range else {
+            return Err(Error::usage("--focus-depth needs a depth map (--depth-kind depth), not a disparity map"));
+        };
+        if !(z.is_finite() && z > 0.0) {
+            return Err(Error::usage(format!("--focus-depth must be a positive distance, got {z}")));
+        }
+        let span = 1.0 / zmin - 1.0 / zmax;
+        let span = if span > 0.0 { span } else { 1.0 };
+        Ok(((1.0 / z - 1.0 / zmax) / span) as f32)
+    }
+
+    /// Robust disparity at pixel (x, y): the median of the window of half-size
+    /// `max(2, min(W,H)/200)` around it, so a click on an edge or a noisy pixel still focuses
+    /// on the surface under it.
+    pub fn disparity_at(&self, x: i64, y: i64) -> Result<f32> {
+        let m = &self.map;
+        if x < 0 || y < 0 || x >= m.width as i64 || y >= m.height as i64 {
+            return Err(Error::usage(format!(
+                "--focus-at {x},{y} is outside the {}x{} image (x in 0..{}, y in 0..{})",
+                m.width,
+                m.height,
+                m.width,
+                m.height
+            )));
+        }
+        let r = (m.width.min(m.height) / 200).max(2) as i64;
+        let mut vals: Vec<f32> = Vec::new();
+        for yy in (y - r).max(0)..=(y + r).min(m.height as i64 - 1) {
+            for xx in (x - r).max(0)..=(x + r).min(m.width as i64 - 1) {
+                vals.push(m.data[yy as usize * m.width + xx as usize]);
+            }
+        }
+        vals.sort_by(f32::total_cmp);
+        Ok(vals[vals.len() / 2])
+    }
+}
+
+/// Converts a raw one-channel map to normalized disparity.
+///
+/// Invalid values (non-finite; for depth also ≤ 0) are filled from valid neighbours with
+/// Telea inpainting and reported in `filled_fraction`; a map with no valid value is an error
+/// naming `path`. A flat map (one value) gives D ≡ 0.
+pub fn normalize(raw: &Image, kind: DepthKind, path: &Path) -> Result<Disparity> {
+    if raw.channels != 1 {
+        return Err(Error::input(path, format!("a depth map needs one channel, found {}", raw.channels)));
+    }
+    let valid = |v: f32| v.is_finite() && (kind == DepthKind::Disparity || v > 0.0);
+    // Work in f64: 1/z of large depths loses precision in f32 before the subtraction.
+    let lin: Vec<f64> = raw.data.iter().map(|&v| if valid(v) { if kind == DepthKind::Depth { 1.0 / v as f64 } else { v as f64 } } else { f64::NAN }).collect();
+    let n_valid = lin.iter().filter(|v| !v.is_nan()).count();
+    if n_valid == 0 {
+        let what = if kind == DepthKind::Depth { "finite and > 0" } else { "finite" };
+        return Err(Error::input(path, format!("depth map has no valid value (every value must be {what})")));
+    }
+    let (lo, hi) = lin.iter().filter(|v| !v.is_nan()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let span = hi - lo;
+    let mut map = Image::from_vec(
+        raw.width,
+        raw.height,
+        1,
+        lin.iter().map(|&v| if v.is_nan() { 0.0 } else if span > 0.0 { ((v - lo) / span) as f32 } else { 0.0 }).collect(),
+    )
+    .expect("same size");
+    let invalid: Vec<bool> = lin.iter().map(|v| v.is_nan()).collect();
+    let n_invalid = invalid.len() - n_valid;
+    if n_invalid > 0 {
+        inpaint_telea(&mut map, &invalid, TeleaOptions::new(3.0))?;
+        // Telea's gradient term may overshoot slightly: keep D inside [0, 1].
+        map.map_inplace(|v| v.clamp(0.0, 1.0));
+    }
+    let z_range = (kind == DepthKind::Depth).then(|| (1.0 / hi, 1.0 / lo));
+    Ok(Disparity { map, z_range, filled_fraction: n_invalid as f64 / invalid.len() as f64 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_to_disparity() {
+        let raw = Image::from_vec(3, 1, 1, vec![1.0, 2.0, 4.0]).unwrap();
+        let d = normalize(&raw, DepthKind::Depth, Path::new("d")).unwrap();
+        assert_eq!(d.map.data, vec![1.0, 1.0 / 3.0, 0.0]);
+        assert!((d.disparity_of_depth(2.0).unwrap() - 1.0 / 3.0).abs() < 1e-6);
+        let bad = Image::from_vec(2, 1, 1, vec![f32::NAN, -1.0]).unwrap();
+        assert!(normalize(&bad, DepthKind::Depth, Path::new("d.exr")).unwrap_err().to_string().contains("d.exr"));
+    }
+}

@@ -1,0 +1,160 @@
+//! Segmentation: which pixels belong to the salient foreground layer.
+//!
+//! Classical sources: the user's matte, or a split of the disparity distribution. When there is
+//! no meaningful foreground the scene is rendered as one layer and the later stages are skipped.
+
+use super::mask::gaussian_blur;
+use crate::image::Image;
+
+/// Where the foreground comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SegmentMethod {
+    /// The matte when one is given, else the depth split.
+    #[default]
+    Auto,
+    /// The user's matte (required).
+    Matte,
+    /// The depth split, even when a matte is given.
+    Depth,
+}
+
+/// `[segment]` options: the method and the depth-based split's parameters.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SegmentOptions {
+    pub method: SegmentMethod,
+    /// Smallest foreground, as a fraction of the image.
+    pub min_fraction: f64,
+    /// Largest foreground, as a fraction of the image.
+    pub max_fraction: f64,
+    /// Smallest median disparity jump across the foreground's outline: a split through a
+    /// smooth depth ramp has no jump and is not a foreground.
+    pub min_jump: f32,
+    /// Gaussian sigma (pixels) that softens the hard depth split into an alpha matte.
+    pub edge_softness: f32,
+}
+
+impl Default for SegmentOptions {
+    fn default() -> Self {
+        SegmentOptions { method: SegmentMethod::Auto, min_fraction: 0.002, max_fraction: 0.85, min_jump: 0.05, edge_softness: 0.8 }
+    }
+}
+
+/// Outcome of segmentation.
+#[derive(Clone, Debug)]
+pub enum Segmentation {
+    /// A foreground alpha matte (one channel, [0, 1]).
+    Foreground(Image),
+    /// No meaningful foreground: render one layer. The string says why.
+    SingleLayer(String),
+}
+
+/// Uses a matte as the foreground alpha, unless it is empty or covers everything.
+pub fn from_matte(matte: &Image) -> Segmentation {
+    if matte.data.iter().all(|&a| a < 1e-3) {
+        Segmentation::SingleLayer("the matte is empty".into())
+    } else if matte.data.iter().all(|&a| a > 1.0 - 1e-3) {
+        Segmentation::SingleLayer("the matte covers the whole image: nothing is behind it".into())
+    } else {
+        Segmentation::Foreground(matte.clone())
+    }
+}
+
+/// Splits near from far at Otsu's threshold of the disparity histogram and accepts the split
+/// only if it looks like an occluding object (size bounds and a real depth jump at its edge).
+pub fn from_disparity(disp: &Image, opts: &SegmentOptions) -> Segmentation {
+    let (w, h) = (disp.width, disp.height);
+    let t = otsu_threshold(&disp.data);
+    let hard: Vec<bool> = disp.data.iter().map(|&d| d > t).collect();
+    let frac = hard.iter().filter(|&&m| m).count() as f64 / hard.len() as f64;
+    if frac < opts.min_fraction || frac > opts.max_fraction {
+        return Segmentation::SingleLayer(format!(
+            "no foreground in the depth: the near part ({:.1}% of the image) is outside {:.1}%..{:.1}%",
+            frac * 100.0,
+            opts.min_fraction * 100.0,
+            opts.max_fraction * 100.0
+        ));
+    }
+    let jump = median_edge_jump(&disp.data, &hard, w, h);
+    if jump < opts.min_jump {
+        return Segmentation::SingleLayer(format!(
+            "no foreground in the depth: the disparity changes smoothly (edge jump {jump:.3} < {})",
+            opts.min_jump
+        ));
+    }
+    let hard = Image::from_vec(w, h, 1, hard.iter().map(|&m| m as u8 as f32).collect()).expect("size");
+    let mut alpha = gaussian_blur(&hard, opts.edge_softness);
+    alpha.map_inplace(|a| a.clamp(0.0, 1.0));
+    Segmentation::Foreground(alpha)
+}
+
+/// Otsu's threshold of values in [0, 1] (256 bins): the split maximizing between-class variance.
+pub fn otsu_threshold(values: &[f32]) -> f32 {
+    const BINS: usize = 256;
+    let mut hist = [0u64; BINS];
+    for &v in values {
+        hist[((v.clamp(0.0, 1.0) * (BINS - 1) as f32).round()) as usize] += 1;
+    }
+    let total = values.len() as f64;
+    let sum_all: f64 = hist.iter().enumerate().map(|(i, &c)| i as f64 * c as f64).sum();
+    let (mut w0, mut sum0, mut best, mut best_t) = (0f64, 0f64, -1f64, 0usize);
+    for (t, &c) in hist.iter().enumerate().take(BINS - 1) {
+        w0 += c as f64;
+        sum0 += t as f64 * c as f64;
+        let w1 = total - w0;
+        if w0 == 0.0 || w1 == 0.0 {
+            continue;
+        }
+        let (m0, m1) = (sum0 / w0, (sum_all - sum0) / w1);
+        let between = w0 * w1 * (m0 - m1) * (m0 - m1);
+        if between > best {
+            best = between;
+            best_t = t;
+        }
+    }
+    (best_t as f32 + 0.5) / (BINS - 1) as f32
+}
+
+/// Median of |D(inside) - D(outside)| over 4-neighbour pairs that cross the mask's outline.
+fn median_edge_jump(d: &[f32], mask: &[bool], w: usize, h: usize) -> f32 {
+    let mut jumps = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if x + 1 < w && mask[i] != mask[i + 1] {
+                jumps.push((d[i] - d[i + 1]).abs());
+            }
+            if y + 1 < h && mask[i] != mask[i + w] {
+                jumps.push((d[i] - d[i + w]).abs());
+            }
+        }
+    }
+    if jumps.is_empty() {
+        return 0.0;
+    }
+    let mid = jumps.len() / 2;
+    *jumps.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Image {
+        Image::from_vec(w, h, 1, (0..w * h).map(|i| f(i % w, i / w)).collect()).unwrap()
+    }
+
+    #[test]
+    fn finds_a_disk_and_rejects_a_ramp() {
+        let disk = scene(64, 48, |x, y| if (x as f32 - 30.0).powi(2) + (y as f32 - 24.0).powi(2) < 100.0 { 0.9 } else { 0.2 });
+        match from_disparity(&disk, &SegmentOptions::default()) {
+            Segmentation::Foreground(a) => assert!(a.data[24 * 64 + 30] > 0.99 && a.data[0] < 0.01),
+            other => panic!("{other:?}"),
+        }
+        let ramp = scene(64, 48, |x, _| x as f32 / 63.0);
+        assert!(matches!(from_disparity(&ramp, &SegmentOptions::default()), Segmentation::SingleLayer(_)));
+        let flat = scene(8, 8, |_, _| 0.5);
+        assert!(matches!(from_disparity(&flat, &SegmentOptions::default()), Segmentation::SingleLayer(_)));
+    }
+}

@@ -1,0 +1,934 @@
+//! End-to-end tests of the `drbokeh` binary: every flag of `drbokeh render`, every output
+//! format, the "nothing to render" shortcut, and every bad input (exit code 2, a message naming
+//! the file or flag, and no output file written).
+//!
+//! Inputs are made with the library's own writers in a fresh temporary folder per test; the
+//! binary runs with that folder as its working directory. Images are tiny (32x24) so the whole
+//! file runs in seconds.
+
+use drbokeh::color::Transfer;
+use drbokeh::io::{self, ReadLimits};
+use drbokeh::render::{self, Kernel, Layer, RenderSettings};
+use drbokeh::Image;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const W: usize = 32;
+const H: usize = 24;
+/// The foreground square of the standard scene: x in FG_X, y in FG_Y.
+const FG_X: std::ops::Range<usize> = 10..22;
+const FG_Y: std::ops::Range<usize> = 7..17;
+
+// ---------------------------------------------------------------------------------------------
+// Helpers
+// ---------------------------------------------------------------------------------------------
+
+/// Small deterministic generator (xorshift64*), so tests need no extra crate.
+struct Rng(u64);
+
+impl Rng {
+    fn new(seed: u64) -> Self {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+    fn next_f32(&mut self) -> f32 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+fn in_fg(x: usize, y: usize) -> bool {
+    FG_X.contains(&x) && FG_Y.contains(&y)
+}
+
+/// A textured colour image in [0, 1] (3 channels).
+fn texture(w: usize, h: usize, seed: u64) -> Image {
+    let mut rng = Rng::new(seed);
+    let mut img = Image::new(w, h, 3);
+    for y in 0..h {
+        for x in 0..w {
+            let p = img.pixel_mut(x, y);
+            if in_fg(x, y) {
+                p.copy_from_slice(&[0.9, 0.2 + 0.3 * rng.next_f32(), 0.1]);
+            } else {
+                p.copy_from_slice(&[0.1 + 0.2 * rng.next_f32(), 0.3, 0.5 + 0.4 * (x as f32 / w as f32)]);
+            }
+        }
+    }
+    img
+}
+
+/// Depth (z) of the standard scene at (w, h): foreground square at z = 1, background z = 4.
+fn depth_map(w: usize, h: usize) -> Image {
+    let mut d = Image::filled(w, h, 1, 4.0);
+    for y in 0..h {
+        for x in 0..w {
+            // Scale the square with the image so a half-resolution map stays aligned.
+            if in_fg(x * W / w, y * H / h) {
+                d.data[y * w + x] = 1.0;
+            }
+        }
+    }
+    d
+}
+
+fn matte_map(w: usize, h: usize) -> Image {
+    let mut m = Image::new(w, h, 1);
+    for y in 0..h {
+        for x in 0..w {
+            if in_fg(x * W / w, y * H / h) {
+                m.data[y * w + x] = 1.0;
+            }
+        }
+    }
+    m
+}
+
+/// A temporary folder holding the standard scene: `image.png` (8-bit sRGB), `image.exr`
+/// (linear), `depth.exr` (z, channel Z) and `matte.png` (8-bit grey).
+struct Scene {
+    dir: tempfile::TempDir,
+}
+
+impl Scene {
+    fn new() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path();
+        let rgb = texture(W, H, 1);
+        io::write_png(&p.join("image.png"), &rgb, 8, Transfer::Srgb).unwrap();
+        io::write_exr(&p.join("image.exr"), &rgb, &["R", "G", "B"]).unwrap();
+        io::write_exr(&p.join("depth.exr"), &depth_map(W, H), &["Z"]).unwrap();
+        io::write_png(&p.join("matte.png"), &matte_map(W, H), 8, Transfer::Linear).unwrap();
+        Scene { dir }
+    }
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+    /// Runs `drbokeh ARGS` in the scene folder.
+    fn run(&self, args: &[&str]) -> Output {
+        drbokeh_in(self.dir.path(), args)
+    }
+    /// Runs and asserts success; returns stdout.
+    fn ok(&self, args: &[&str]) -> String {
+        let out = self.run(args);
+        assert!(
+            out.status.success(),
+            "drbokeh {} failed with {:?}\nstderr: {}",
+            args.join(" "),
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    }
+    /// Runs `--json` and parses stdout.
+    fn json(&self, args: &[&str]) -> serde_json::Value {
+        let mut a = args.to_vec();
+        a.push("--json");
+        let s = self.ok(&a);
+        serde_json::from_str(&s).unwrap_or_else(|e| panic!("--json output is not JSON ({e}):\n{s}"))
+    }
+    fn files(&self) -> BTreeSet<String> {
+        list_files(self.dir.path())
+    }
+    /// Runs a command that must fail as bad input: exit 2, stderr naming every `needles`
+    /// entry, and no file created or changed in the folder.
+    fn bad(&self, args: &[&str], needles: &[&str]) -> String {
+        let before = snapshot(self.dir.path());
+        let out = self.run(args);
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert_eq!(out.status.code(), Some(2), "drbokeh {} should exit 2; stderr: {err}", args.join(" "));
+        for n in needles {
+            assert!(err.contains(n), "drbokeh {}: the message should name {n:?}; got: {err}", args.join(" "));
+        }
+        assert!(!err.contains("panicked"), "panic on user input: {err}");
+        let after = snapshot(self.dir.path());
+        assert_eq!(before, after, "drbokeh {} changed the folder (wrote output?)", args.join(" "));
+        err
+    }
+}
+
+fn drbokeh_in(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_drbokeh"))
+        .arg("render")
+        .args(args)
+        .current_dir(dir)
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .expect("cannot run drbokeh")
+}
+
+/// Every file under `dir` (recursive), as relative paths.
+fn list_files(dir: &Path) -> BTreeSet<String> {
+    snapshot(dir).into_iter().map(|(p, _)| p).collect()
+}
+
+/// Every file under `dir` (recursive) with its content.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
+                out.push((rel, std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+fn read_npy(p: &Path) -> Image {
+    io::read_npy(p, u64::MAX).unwrap_or_else(|e| panic!("cannot read {}: {e}", p.display()))
+}
+
+fn read_exr(p: &Path) -> Image {
+    let d = io::read_decoded(p, &ReadLimits::default()).unwrap_or_else(|e| panic!("cannot read {}: {e}", p.display()));
+    d.image
+}
+
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len(), "sizes differ");
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+/// Two RGBAD layers of the standard scene: a front square (alpha 1 inside, 0 outside, soft
+/// 0.5 ring) at disparity 1 and an opaque textured background at disparity 0.
+fn scene_layers() -> (Image, Image) {
+    let rgb = texture(W, H, 7);
+    let mut fg = Image::new(W, H, 5);
+    let mut bg = Image::new(W, H, 5);
+    for y in 0..H {
+        for x in 0..W {
+            let c = rgb.pixel(x, y);
+            let ring = (FG_X.start - 1..FG_X.end + 1).contains(&x) && (FG_Y.start - 1..FG_Y.end + 1).contains(&y);
+            let a = if in_fg(x, y) { 1.0 } else if ring { 0.5 } else { 0.0 };
+            fg.pixel_mut(x, y).copy_from_slice(&[0.9, 0.2, 0.1, a, 1.0]);
+            bg.pixel_mut(x, y).copy_from_slice(&[c[0], c[1], c[2], 1.0, 0.1 * x as f32 / W as f32]);
+        }
+    }
+    (fg, bg)
+}
+
+fn layers_of(imgs: &[&Image]) -> Vec<Layer> {
+    imgs.iter().map(|i| Layer::new((*i).clone(), "test layer").unwrap()).collect()
+}
+
+/// Front-to-back "over" composite of layers, computed here independently of the library.
+fn over(imgs: &[&Image]) -> Image {
+    let (w, h) = (imgs[0].width, imgs[0].height);
+    let mut out = Image::new(w, h, 3);
+    for i in 0..w * h {
+        let mut t = 1.0f32;
+        for l in imgs {
+            let p = &l.data[i * 5..i * 5 + 5];
+            for c in 0..3 {
+                out.data[i * 3 + c] += t * p[3] * p[c];
+            }
+            t *= 1.0 - p[3];
+        }
+    }
+    out
+}
+
+fn stage<'a>(j: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
+    j["stages"]
+        .as_array()
+        .expect("stages is an array")
+        .iter()
+        .find(|s| s["name"] == name)
+        .unwrap_or_else(|| panic!("no stage {name} in {j}"))
+}
+
+fn f64_of(v: &serde_json::Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Flags
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn default_output_name_is_stem_bokeh_png_in_the_working_dir() {
+    let s = Scene::new();
+    let before = s.files();
+    s.ok(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4"]);
+    let new: Vec<String> = s.files().difference(&before).cloned().collect();
+    assert_eq!(new, vec!["image_bokeh.png".to_string()], "exactly one new file");
+    let img = image::open(s.path("image_bokeh.png")).unwrap();
+    assert_eq!((img.width() as usize, img.height() as usize), (W, H));
+    assert_eq!(img.color(), image::ColorType::Rgb8, "default PNG is 8-bit RGB");
+
+    // With an absolute image path elsewhere, the default output still lands in the working dir.
+    let other = tempfile::tempdir().unwrap();
+    let out = drbokeh_in(
+        other.path(),
+        &[s.path("image.png").to_str().unwrap(), "--depth", s.path("depth.exr").to_str().unwrap(), "--focus", "1", "--blur", "4"],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(other.path().join("image_bokeh.png").is_file());
+}
+
+#[test]
+fn default_output_never_overwrites_an_input() {
+    // The depth map happens to be named like the default output of the image.
+    let s = Scene::new();
+    std::fs::copy(s.path("depth.exr"), s.path("image_bokeh.png")).unwrap();
+    s.bad(&["image.png", "--depth", "image_bokeh.png", "--focus", "1", "--blur", "4"], &["image_bokeh.png"]);
+}
+
+#[test]
+fn matte_gives_two_layers_and_focus_keeps_the_subject_sharp() {
+    let s = Scene::new();
+    let j = s.json(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "6", "-o", "out.exr"]);
+    assert_eq!(j["params"]["layers"], 2, "{j}");
+    assert_eq!(stage(&j, "segment")["detail"]["source"], "matte", "{j}");
+    for name in ["segment", "fill_depth", "inpaint", "render"] {
+        assert_eq!(stage(&j, name)["status"], "ran", "{name}: {j}");
+    }
+    // The in-focus subject keeps its own colour well inside (no bleeding of the blue background).
+    let out = read_exr(&s.path("out.exr"));
+    let inp = read_exr(&s.path("image.exr"));
+    let mut worst = 0f32;
+    for y in FG_Y.start + 2..FG_Y.end - 2 {
+        for x in FG_X.start + 2..FG_X.end - 2 {
+            for c in 0..3 {
+                worst = worst.max((out.pixel(x, y)[c] - inp.pixel(x, y)[c]).abs());
+            }
+        }
+    }
+    // The exact kernel's K = 0 softening mixes same-depth neighbours of the textured subject
+    // (green varies by 0.3), so allow a fraction of that, but nowhere near the blue background.
+    assert!(worst < 0.1, "in-focus subject changed by {worst}");
+    // The blurred background differs from the sharp input somewhere.
+    assert!(max_abs_diff(&out.data, &inp.data) > 0.01);
+}
+
+#[test]
+fn focus_at_uses_the_disparity_under_the_pixel() {
+    let s = Scene::new();
+    let base = ["image.png", "--depth", "depth.exr", "--blur", "3"];
+    let mut a = base.to_vec();
+    a.extend(["--focus-at", "15,11"]);
+    let j = s.json(&a);
+    assert!((f64_of(&j["params"]["focus"]) - 1.0).abs() < 1e-6, "foreground pixel: {j}");
+    let mut a = base.to_vec();
+    a.extend(["--focus-at", "0,0"]);
+    let j = s.json(&a);
+    assert!(f64_of(&j["params"]["focus"]).abs() < 1e-6, "background pixel: {j}");
+    // The far corner is legal.
+    let mut a = base.to_vec();
+    a.extend(["--focus-at", "31,23"]);
+    s.json(&a);
+}
+
+#[test]
+fn focus_depth_converts_metric_depth() {
+    let s = Scene::new();
+    for (z, want) in [("1", 1.0), ("4", 0.0), ("2", 1.0 / 3.0)] {
+        let j = s.json(&["image.png", "--depth", "depth.exr", "--focus-depth", z, "--blur", "3"]);
+        assert!((f64_of(&j["params"]["focus"]) - want).abs() < 1e-5, "z = {z}: {j}");
+    }
+}
+
+#[test]
+fn blur_flag_sets_k_and_default_scales_with_size() {
+    let s = Scene::new();
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "7.5"]);
+    assert_eq!(f64_of(&j["params"]["blur"]), 7.5);
+    assert!((f64_of(&j["params"]["max_coc_radius_px"]) - 7.5).abs() < 1e-4, "{j}");
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1"]);
+    let want = 30.0 * ((W * H) as f64 / 1e6).sqrt();
+    assert!((f64_of(&j["params"]["blur"]) - want).abs() < 1e-4, "default K: {j}");
+}
+
+#[test]
+fn lens_flag_and_auto_lens() {
+    let s = Scene::new();
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--lens", "7"]);
+    assert_eq!(j["params"]["lens"], 7);
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4"]);
+    let lens = j["params"]["lens"].as_u64().unwrap();
+    assert!(lens % 2 == 1, "auto lens must be odd: {lens}");
+    assert!(lens as f64 >= 2.0 * 4.0 + 1.0, "auto lens {lens} must cover the CoC of radius 4 (+1)");
+    // --lens changes the picture.
+    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--lens", "3", "-o", "l3.npy"]);
+    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--lens", "15", "-o", "l15.npy"]);
+    assert!(max_abs_diff(&read_npy(&s.path("l3.npy")).data, &read_npy(&s.path("l15.npy")).data) > 1e-3);
+}
+
+#[test]
+fn gamma_renders_on_powered_colours() {
+    // With layers and .npy output the whole gamma path can be checked number for number:
+    // colours ^G, exact render, result ^(1/G).
+    let s = Scene::new();
+    let (fg, bg) = scene_layers();
+    io::save_npy(&s.path("fg.npy"), &fg).unwrap();
+    io::save_npy(&s.path("bg.npy"), &bg).unwrap();
+    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--gamma", "2.2", "-o", "g.npy"]);
+    assert!((f64_of(&j["params"]["gamma"]) - 2.2).abs() < 1e-6, "{j}");
+    let got = read_npy(&s.path("g.npy"));
+    let mut layers = layers_of(&[&fg, &bg]);
+    for l in &mut layers {
+        l.map_colors(|c| (c.max(0.0) as f64).powf(2.2) as f32);
+    }
+    let st = RenderSettings { blur: 5.0, focus: 0.0, lens: render::auto_lens(&layers, 5.0, 0.0), occlusion: true };
+    let mut want = render::render(&layers, &st, Kernel::Exact).unwrap();
+    want.map_inplace(|v| v.max(0.0).powf(1.0 / 2.2));
+    let e = max_abs_diff(&got.data, &want.data);
+    assert!(e < 1e-5, "gamma path differs from the library by {e}");
+    // And it is not the same as the default (exact transfer / linear) result.
+    s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "-o", "lin.npy"]);
+    assert!(max_abs_diff(&got.data, &read_npy(&s.path("lin.npy")).data) > 1e-3);
+    // A photo input also accepts --gamma.
+    s.ok(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--gamma", "2.2", "-o", "g.png"]);
+    assert!(s.path("g.png").is_file());
+}
+
+#[test]
+fn kernel_exact_and_auto() {
+    let s = Scene::new();
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--kernel", "exact"]);
+    assert_eq!(j["params"]["kernel"], "exact");
+    assert_eq!(stage(&j, "render")["status"], "ran");
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--kernel", "auto"]);
+    assert_eq!(stage(&j, "render")["status"], "ran");
+    // auto skips the render when nothing is out of focus; exact still runs it.
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "--kernel", "auto"]);
+    assert_eq!(stage(&j, "render")["status"], "skipped", "{j}");
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "--kernel", "exact"]);
+    assert_eq!(stage(&j, "render")["status"], "ran", "{j}");
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--kernel", "fast"], &["--kernel"]);
+}
+
+#[test]
+fn no_occlusion_renders_one_layer() {
+    let s = Scene::new();
+    let j = s.json(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "6", "--no-occlusion", "-o", "no.npy"]);
+    assert_eq!(j["params"]["occlusion"], false, "{j}");
+    assert_eq!(j["params"]["layers"], 1, "{j}");
+    let seg = stage(&j, "segment");
+    assert_eq!(seg["status"], "skipped");
+    assert!(seg["reason"].as_str().unwrap().contains("no-occlusion"), "{j}");
+    s.ok(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "6", "-o", "occ.npy"]);
+    let (a, b) = (read_npy(&s.path("no.npy")), read_npy(&s.path("occ.npy")));
+    assert!(max_abs_diff(&a.data, &b.data) > 1e-3, "--no-occlusion should differ from Dr.Bokeh");
+
+    // With layers it keeps only the back layer, with a warning.
+    let (fg, bg) = scene_layers();
+    io::save_npy(&s.path("fg.npy"), &fg).unwrap();
+    io::save_npy(&s.path("bg.npy"), &bg).unwrap();
+    let out = s.run(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "3", "--no-occlusion", "--kernel", "exact", "-o", "nl.npy"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("warning"));
+    let layers = layers_of(&[&bg]);
+    let st = RenderSettings { blur: 3.0, focus: 0.0, lens: render::auto_lens(&layers, 3.0, 0.0), occlusion: false };
+    let want = render::render(&layers, &st, Kernel::Exact).unwrap();
+    assert!(max_abs_diff(&read_npy(&s.path("nl.npy")).data, &want.data) < 1e-6);
+}
+
+#[test]
+fn depth_kind_disparity_flips_near_and_far() {
+    let s = Scene::new();
+    // depth.exr holds 1 (square) and 4 (background). Read as disparity, the background is near.
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--depth-kind", "disparity", "--focus-at", "0,0", "--blur", "3"]);
+    assert!((f64_of(&j["params"]["focus"]) - 1.0).abs() < 1e-6, "{j}");
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--depth-kind", "depth", "--focus-at", "0,0", "--blur", "3"]);
+    assert!(f64_of(&j["params"]["focus"]).abs() < 1e-6, "{j}");
+    // A disparity map may hold zeros and negative values.
+    let mut disp = depth_map(W, H);
+    disp.map_inplace(|v| if v == 1.0 { 0.5 } else { -2.0 });
+    io::save_npy(&s.path("disp.npy"), &disp).unwrap();
+    let j = s.json(&["image.png", "--depth", "disp.npy", "--depth-kind", "disparity", "--focus-at", "15,11", "--blur", "3"]);
+    assert!((f64_of(&j["params"]["focus"]) - 1.0).abs() < 1e-6, "{j}");
+    // --focus-depth makes no sense for a disparity map.
+    s.bad(&["image.png", "--depth", "disp.npy", "--depth-kind", "disparity", "--focus-depth", "2", "-o", "x.png"], &["--focus-depth"]);
+}
+
+#[test]
+fn bit_depth_16_writes_a_16_bit_png() {
+    let s = Scene::new();
+    s.ok(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "--bit-depth", "16", "-o", "o16.png"]);
+    s.ok(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "--bit-depth", "8", "-o", "o8.png"]);
+    let i16 = image::open(s.path("o16.png")).unwrap();
+    let i8 = image::open(s.path("o8.png")).unwrap();
+    assert_eq!(i16.color(), image::ColorType::Rgb16);
+    assert_eq!(i8.color(), image::ColorType::Rgb8);
+    // Same picture at two precisions.
+    let a = i16.to_rgb16();
+    let b = i8.to_rgb8();
+    let worst = a.as_raw().iter().zip(b.as_raw()).map(|(&x, &y)| (x as f32 / 65535.0 - y as f32 / 255.0).abs()).fold(0.0, f32::max);
+    assert!(worst <= 0.5 / 255.0 + 1e-6, "8 and 16-bit outputs differ by {worst}");
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--bit-depth", "12", "-o", "o12.png"], &["--bit-depth"]);
+}
+
+#[test]
+fn save_layers_writes_exr_layers_that_feed_back() {
+    let s = Scene::new();
+    s.ok(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "5", "--kernel", "exact", "--save-layers", "layers", "-o", "out.npy"]);
+    for f in ["fg.exr", "bg.exr", "fg_color.png", "fg_alpha.png", "fg_disparity.png", "bg_color.png", "bg_alpha.png", "bg_disparity.png"] {
+        assert!(s.path("layers").join(f).is_file(), "missing layers/{f}; have {:?}", s.files());
+    }
+    let fg = io::read_layer(&s.path("layers/fg.exr"), &ReadLimits::default()).unwrap();
+    assert_eq!((fg.width, fg.height, fg.channels), (W, H, 5));
+    // Alpha of the foreground layer is the matte.
+    assert_eq!(fg.pixel(15, 11)[3], 1.0);
+    assert_eq!(fg.pixel(0, 0)[3], 0.0);
+    // Feeding the saved layers back renders the same picture.
+    s.ok(&["--layer", "layers/fg.exr", "--layer", "layers/bg.exr", "--focus", "1", "--blur", "5", "--kernel", "exact", "-o", "again.npy"]);
+    let e = max_abs_diff(&read_npy(&s.path("out.npy")).data, &read_npy(&s.path("again.npy")).data);
+    assert!(e < 1e-6, "re-rendering the saved layers differs by {e}");
+}
+
+#[test]
+fn verbose_prints_stage_timings() {
+    let s = Scene::new();
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "4", "-v"]);
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    for name in ["read", "segment", "fill_depth", "inpaint", "render", "write", "total"] {
+        let line = err.lines().find(|l| l.trim_start().starts_with(name)).unwrap_or_else(|| panic!("no {name} line in:\n{err}"));
+        assert!(line.contains("ms"), "{name} line has no timing: {line}");
+    }
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "-v", "-o", "z.png"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.lines().any(|l| l.contains("render") && l.contains("skipped")), "skipped render not shown:\n{err}");
+}
+
+#[test]
+fn json_summary() {
+    let s = Scene::new();
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "4", "-o", "o.png"]);
+    assert!(j["output"].as_str().unwrap().ends_with("o.png"), "{j}");
+    let stages = j["stages"].as_array().unwrap();
+    assert!(stages.len() >= 6, "{j}");
+    for st in stages {
+        assert!(st["name"].is_string() && st["status"].is_string() && st["ms"].is_number(), "{st}");
+    }
+    for key in ["width", "height", "blur", "focus", "lens", "kernel", "occlusion", "layers", "threads"] {
+        assert!(!j["params"][key].is_null(), "params.{key} missing: {j}");
+    }
+    assert_eq!((j["params"]["width"].as_u64(), j["params"]["height"].as_u64()), (Some(W as u64), Some(H as u64)));
+    assert!(j["total_ms"].is_number());
+
+    // Skipped stages say why.
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "-o", "z.png"]);
+    let mut skipped = 0;
+    for st in j["stages"].as_array().unwrap() {
+        if st["status"] == "skipped" {
+            skipped += 1;
+            assert!(st["reason"].as_str().is_some_and(|r| !r.is_empty()), "skipped stage without reason: {st}");
+        }
+    }
+    assert!(skipped >= 4, "segment, fill_depth, inpaint and render are skipped at K = 0: {j}");
+    // A single-layer scene (flat depth, no matte) skips fill_depth and inpaint with a reason.
+    io::write_exr(&s.path("flat.exr"), &Image::filled(W, H, 1, 2.0), &["Z"]).unwrap();
+    let j = s.json(&["image.png", "--depth", "flat.exr", "--focus", "0.5", "--blur", "4", "-o", "f.png"]);
+    for name in ["fill_depth", "inpaint"] {
+        let st = stage(&j, name);
+        assert_eq!(st["status"], "skipped", "{j}");
+        assert!(st["reason"].as_str().is_some_and(|r| !r.is_empty()));
+    }
+    // --json stdout holds only the JSON.
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "--json", "-o", "q.png"]);
+    let text = String::from_utf8(out.stdout).unwrap();
+    serde_json::from_str::<serde_json::Value>(&text).unwrap();
+}
+
+#[test]
+fn config_file_is_honoured_and_flags_override_it() {
+    let s = Scene::new();
+    std::fs::write(s.path("p.toml"), "[render]\nblur = 3.5\nlens = 9\n").unwrap();
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "p.toml"]);
+    assert_eq!(f64_of(&j["params"]["blur"]), 3.5, "{j}");
+    assert_eq!(j["params"]["lens"], 9, "{j}");
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "p.toml", "--blur", "2"]);
+    assert_eq!(f64_of(&j["params"]["blur"]), 2.0, "flag overrides config: {j}");
+    // The bundled pipeline.toml parses.
+    let bundled = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline.toml");
+    if bundled.is_file() {
+        s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "--config", bundled.to_str().unwrap()]);
+    }
+}
+
+#[test]
+fn config_unknown_key_exits_2_naming_the_key() {
+    let s = Scene::new();
+    std::fs::write(s.path("bad.toml"), "[render]\nblurr = 3.5\n").unwrap();
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "bad.toml", "-o", "o.png"], &["blurr", "bad.toml"]);
+    std::fs::write(s.path("bad2.toml"), "[rendr]\nblur = 3.5\n").unwrap();
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "bad2.toml", "-o", "o.png"], &["rendr"]);
+    // A bad value in the config names the key.
+    std::fs::write(s.path("bad3.toml"), "[render]\nlens = 4\n").unwrap();
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "bad3.toml", "-o", "o.png"], &["lens", "bad3.toml"]);
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "missing.toml", "-o", "o.png"], &["missing.toml"]);
+}
+
+#[test]
+fn layers_npy_and_exr() {
+    let s = Scene::new();
+    let (fg, bg) = scene_layers();
+    io::save_npy(&s.path("fg.npy"), &fg).unwrap();
+    io::write_exr(&s.path("bg.exr"), &bg, &["R", "G", "B", "A", "D"]).unwrap();
+    io::write_exr(&s.path("fg.exr"), &fg, &["R", "G", "B", "A", "D"]).unwrap();
+    io::save_npy(&s.path("bg.npy"), &bg).unwrap();
+    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.exr", "--focus", "0", "--blur", "4", "-o", "a.npy"]);
+    assert_eq!(j["params"]["layers"], 2);
+    for name in ["segment", "fill_depth", "inpaint"] {
+        assert_eq!(stage(&j, name)["status"], "skipped", "{j}");
+    }
+    s.ok(&["--layer", "fg.exr", "--layer", "bg.npy", "--focus", "0", "--blur", "4", "-o", "b.npy"]);
+    assert_eq!(read_npy(&s.path("a.npy")).data, read_npy(&s.path("b.npy")).data, "EXR and NPY layers give the same result");
+    // --focus-at on layers picks the front-most mostly-opaque layer.
+    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus-at", "15,11", "--blur", "4", "-o", "c.npy"]);
+    assert!((f64_of(&j["params"]["focus"]) - 1.0).abs() < 1e-6, "{j}");
+    // Three layers are allowed.
+    s.ok(&["--layer", "fg.npy", "--layer", "fg.exr", "--layer", "bg.npy", "--focus", "0.5", "--blur", "3", "-o", "three.png"]);
+    // Default output name for layers is the first layer's stem.
+    s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "3"]);
+    assert!(s.path("fg_bokeh.png").is_file(), "{:?}", s.files());
+    // Layer inputs and an image are exclusive; a layer needs 5 channels; sizes must agree.
+    s.bad(&["image.png", "--layer", "fg.npy", "--focus", "0", "-o", "x.png"], &["--layer"]);
+    io::save_npy(&s.path("four.npy"), &Image::new(W, H, 4)).unwrap();
+    s.bad(&["--layer", "four.npy", "--focus", "0", "-o", "x.png"], &["four.npy"]);
+    io::save_npy(&s.path("small.npy"), &Image::new(W / 2, H / 2, 5)).unwrap();
+    s.bad(&["--layer", "fg.npy", "--layer", "small.npy", "--focus", "0", "--blur", "3", "-o", "x.png"], &["layer"]);
+    let mut nan = bg.clone();
+    nan.data[7] = f32::NAN;
+    io::save_npy(&s.path("nan.npy"), &nan).unwrap();
+    s.bad(&["--layer", "nan.npy", "--focus", "0", "-o", "x.png"], &["nan.npy"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Output formats
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn output_formats_agree() {
+    let s = Scene::new();
+    let args = ["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "4"];
+    for out in ["o.png", "o16.png", "o.exr", "o.npy"] {
+        let mut a = args.to_vec();
+        a.extend(["-o", out]);
+        if out == "o16.png" {
+            a.extend(["--bit-depth", "16"]);
+        }
+        s.ok(&a);
+    }
+    let exr = read_exr(&s.path("o.exr"));
+    let npy = read_npy(&s.path("o.npy"));
+    assert_eq!((exr.width, exr.height, exr.channels), (W, H, 3));
+    assert_eq!((npy.width, npy.height, npy.channels), (W, H, 3));
+    assert_eq!(exr.data, npy.data, "EXR and NPY hold the same linear float32 values");
+    assert!(npy.all_finite());
+    // PNGs are the sRGB encoding of the same values.
+    for (name, bits) in [("o.png", 8u8), ("o16.png", 16)] {
+        let d = io::read_decoded(&s.path(name), &ReadLimits::default()).unwrap();
+        assert_eq!(d.bit_depth, bits);
+        let max = if bits == 8 { 255.0 } else { 65535.0 };
+        for (q, &v) in d.image.data.iter().zip(&npy.data) {
+            let want = (drbokeh::color::linear_to_srgb(v).clamp(0.0, 1.0) * max).round() / max;
+            assert!((q - want).abs() <= 1.0 / max + 1e-6, "{name}: {q} vs {want}");
+        }
+    }
+    // An unknown output extension is refused before any work.
+    let mut a = args.to_vec();
+    a.extend(["-o", "o.bmp"]);
+    s.bad(&a, &["o.bmp"]);
+}
+
+#[test]
+fn npy_output_of_layers_equals_the_library_render() {
+    let s = Scene::new();
+    let (fg, bg) = scene_layers();
+    io::save_npy(&s.path("fg.npy"), &fg).unwrap();
+    io::save_npy(&s.path("bg.npy"), &bg).unwrap();
+    for (focus, blur) in [(0.0f32, 4.0f32), (1.0, 6.0), (0.5, 3.0)] {
+        let (fs, bs) = (focus.to_string(), blur.to_string());
+        s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", &fs, "--blur", &bs, "--kernel", "exact", "-o", "r.npy"]);
+        let got = read_npy(&s.path("r.npy"));
+        let layers = layers_of(&[&fg, &bg]);
+        let st = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true };
+        let want = render::render(&layers, &st, Kernel::Exact).unwrap();
+        let e = max_abs_diff(&got.data, &want.data);
+        assert!(e <= 1e-6, "focus {focus}, K {blur}: CLI and library differ by {e}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Nothing to render
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn blur_zero_returns_the_exr_input_unchanged() {
+    let s = Scene::new();
+    // HDR and odd values survive untouched.
+    let mut rgb = texture(W, H, 3);
+    rgb.data[0] = 1234.5;
+    rgb.data[5] = 1e-7;
+    io::write_exr(&s.path("hdr.exr"), &rgb, &["R", "G", "B"]).unwrap();
+    s.ok(&["hdr.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "0.3", "--blur", "0", "-o", "out.exr"]);
+    let out = read_exr(&s.path("out.exr"));
+    assert_eq!(out.data, rgb.data, "K = 0 must return the input exactly");
+    // Also to NPY.
+    s.ok(&["hdr.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "-o", "out.npy"]);
+    assert_eq!(read_npy(&s.path("out.npy")).data, rgb.data);
+}
+
+#[test]
+fn blur_zero_png_round_trips_8_bit_pixels() {
+    let s = Scene::new();
+    s.ok(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "-o", "same.png"]);
+    let a = image::open(s.path("image.png")).unwrap().to_rgb8();
+    let b = image::open(s.path("same.png")).unwrap().to_rgb8();
+    assert_eq!(a.as_raw(), b.as_raw(), "K = 0 must give back the same 8-bit pixels");
+}
+
+#[test]
+fn blur_zero_with_layers_is_the_alpha_composite() {
+    let s = Scene::new();
+    let (fg, bg) = scene_layers();
+    io::save_npy(&s.path("fg.npy"), &fg).unwrap();
+    io::write_exr(&s.path("bg.exr"), &bg, &["R", "G", "B", "A", "D"]).unwrap();
+    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.exr", "--focus", "0.4", "--blur", "0", "-o", "c.npy"]);
+    assert_eq!(stage(&j, "render")["status"], "skipped", "{j}");
+    let got = read_npy(&s.path("c.npy"));
+    let want = over(&[&fg, &bg]);
+    let e = max_abs_diff(&got.data, &want.data);
+    assert!(e <= 1e-6, "K = 0 with layers should be their over composite; differs by {e}");
+}
+
+#[test]
+fn kernel_exact_at_blur_zero_is_not_the_identity() {
+    let s = Scene::new();
+    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "--kernel", "exact", "-o", "e.exr"]);
+    let out = read_exr(&s.path("e.exr"));
+    let inp = read_exr(&s.path("image.exr"));
+    let e = max_abs_diff(&out.data, &inp.data);
+    assert!(e > 1e-3, "--kernel exact at K = 0 softens slightly (official soft step); got max change {e}");
+    // On a single-layer scene (flat depth) it is only a slight softening: the centre keeps
+    // 0.668 of the weight against ~0.06 for all its same-depth neighbours together.
+    io::write_exr(&s.path("flat.exr"), &Image::filled(W, H, 1, 2.0), &["Z"]).unwrap();
+    let j = s.json(&["image.exr", "--depth", "flat.exr", "--focus", "0", "--blur", "0", "--kernel", "exact", "-o", "f.exr"]);
+    assert_eq!(j["params"]["layers"], 1, "{j}");
+    let out = read_exr(&s.path("f.exr"));
+    let e = max_abs_diff(&out.data, &inp.data);
+    // Largest neighbour contrast in the texture is 0.8 (red subject vs background);
+    // 0.8 * 0.06 / 0.73 = 0.066.
+    assert!(e > 1e-3 && e < 0.07, "flat scene, exact kernel at K = 0 changed the image by {e}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bad input: exit 2, a message naming the file or flag, no output
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn missing_files() {
+    let s = Scene::new();
+    s.bad(&["nope.png", "--depth", "depth.exr", "--focus", "1", "-o", "o.png"], &["nope.png"]);
+    s.bad(&["image.png", "--depth", "nodepth.exr", "--focus", "1", "-o", "o.png"], &["nodepth.exr"]);
+    s.bad(&["image.png", "--depth", "depth.exr", "--matte", "nomatte.png", "--focus", "1", "-o", "o.png"], &["nomatte.png"]);
+    s.bad(&["--layer", "nolayer.npy", "--focus", "1", "-o", "o.png"], &["nolayer.npy"]);
+    // Default output name too: nothing written.
+    s.bad(&["nope.png", "--depth", "depth.exr", "--focus", "1"], &["nope.png"]);
+}
+
+#[test]
+fn undecodable_inputs() {
+    let s = Scene::new();
+    std::fs::write(s.path("x.png"), b"this is not a PNG at all, just some garbage bytes").unwrap();
+    s.bad(&["x.png", "--depth", "depth.exr", "--focus", "1", "-o", "o.png"], &["x.png"]);
+    s.bad(&["image.png", "--depth", "x.png", "--focus", "1", "-o", "o.png"], &["x.png"]);
+    s.bad(&["image.png", "--depth", "depth.exr", "--matte", "x.png", "--focus", "1", "-o", "o.png"], &["x.png"]);
+    // A truncated real PNG.
+    let full = std::fs::read(s.path("image.png")).unwrap();
+    std::fs::write(s.path("cut.png"), &full[..full.len() / 2]).unwrap();
+    s.bad(&["cut.png", "--depth", "depth.exr", "--focus", "1", "-o", "o.png"], &["cut.png"]);
+    // An empty file and a folder.
+    std::fs::write(s.path("empty.exr"), b"").unwrap();
+    s.bad(&["image.png", "--depth", "empty.exr", "--focus", "1", "-o", "o.png"], &["empty.exr"]);
+    std::fs::create_dir(s.path("dir.png")).unwrap();
+    s.bad(&["dir.png", "--depth", "depth.exr", "--focus", "1", "-o", "o.png"], &["dir.png"]);
+}
+
+#[test]
+fn depth_size_mismatch_with_another_aspect_ratio() {
+    let s = Scene::new();
+    io::write_exr(&s.path("wide.exr"), &Image::filled(W, H / 3, 1, 2.0), &["Z"]).unwrap();
+    let err = s.bad(&["image.png", "--depth", "wide.exr", "--focus", "1", "-o", "o.png"], &["wide.exr"]);
+    assert!(err.contains("32x8") || err.contains("aspect"), "{err}");
+}
+
+#[test]
+fn depth_same_aspect_at_half_resolution_warns_and_works() {
+    let s = Scene::new();
+    io::write_exr(&s.path("half.exr"), &depth_map(W / 2, H / 2), &["Z"]).unwrap();
+    let out = s.run(&["image.png", "--depth", "half.exr", "--matte", "matte.png", "--focus", "1", "--blur", "4", "-o", "o.png"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("warning") && err.contains("half.exr"), "expected a resize warning naming the file: {err}");
+    let img = image::open(s.path("o.png")).unwrap();
+    assert_eq!((img.width() as usize, img.height() as usize), (W, H));
+}
+
+#[test]
+fn invalid_depth_values() {
+    let s = Scene::new();
+    for (name, v) in [("nan", f32::NAN), ("inf", f32::INFINITY), ("neg", -1.0), ("zero", 0.0)] {
+        let d = Image::filled(W, H, 1, v);
+        let exr = format!("{name}.exr");
+        let npy = format!("{name}.npy");
+        io::write_exr(&s.path(&exr), &d, &["Z"]).unwrap();
+        io::save_npy(&s.path(&npy), &d).unwrap();
+        s.bad(&["image.png", "--depth", &exr, "--focus", "1", "-o", "o.png"], &[&exr]);
+        s.bad(&["image.png", "--depth", &npy, "--focus", "1", "-o", "o.png"], &[&npy]);
+    }
+    // All NaN / Inf is invalid as disparity too.
+    for name in ["nan", "inf"] {
+        let npy = format!("{name}.npy");
+        s.bad(&["image.png", "--depth", &npy, "--depth-kind", "disparity", "--focus", "1", "-o", "o.png"], &[&npy]);
+    }
+    // Partly invalid depth is filled, with a warning.
+    let mut d = depth_map(W, H);
+    d.data[3] = f32::NAN;
+    d.data[40] = -5.0;
+    io::save_npy(&s.path("holes.npy"), &d).unwrap();
+    let out = s.run(&["image.png", "--depth", "holes.npy", "--focus", "1", "--blur", "3", "-o", "o.png"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("warning"));
+}
+
+#[test]
+fn empty_images() {
+    let s = Scene::new();
+    let raw = |name: &str, shape: &[u64]| {
+        use npyz::WriterBuilder;
+        let mut buf = Vec::new();
+        let mut w = npyz::WriteOptions::<f32>::new().default_dtype().shape(shape).writer(&mut buf).begin_nd().unwrap();
+        w.extend(std::iter::empty::<f32>()).unwrap();
+        w.finish().unwrap();
+        std::fs::write(s.path(name), buf).unwrap();
+    };
+    raw("empty_layer.npy", &[0, 0, 5]);
+    raw("empty_img.npy", &[0, 0, 3]);
+    raw("empty_depth.npy", &[0, 4]);
+    s.bad(&["--layer", "empty_layer.npy", "--focus", "0", "-o", "o.npy"], &["empty_layer.npy"]);
+    s.bad(&["empty_img.npy", "--depth", "depth.exr", "--focus", "0", "-o", "o.npy"], &["empty_img.npy"]);
+    s.bad(&["image.png", "--depth", "empty_depth.npy", "--focus", "0", "-o", "o.npy"], &["empty_depth.npy"]);
+    // A PNG header declaring 0x0 pixels.
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let ihdr = [0u8, 0, 0, 0, 0, 0, 0, 0, 8, 2, 0, 0, 0];
+    png.extend_from_slice(&(ihdr.len() as u32).to_be_bytes());
+    let mut chunk = b"IHDR".to_vec();
+    chunk.extend_from_slice(&ihdr);
+    png.extend_from_slice(&chunk);
+    png.extend_from_slice(&crc32(&chunk).to_be_bytes());
+    std::fs::write(s.path("zero.png"), &png).unwrap();
+    s.bad(&["zero.png", "--depth", "depth.exr", "--focus", "0", "-o", "o.npy"], &["zero.png"]);
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
+}
+
+#[test]
+fn matte_with_wrong_size() {
+    let s = Scene::new();
+    io::write_png(&s.path("tall.png"), &Image::filled(H, W, 1, 1.0), 8, Transfer::Linear).unwrap();
+    s.bad(&["image.png", "--depth", "depth.exr", "--matte", "tall.png", "--focus", "1", "--blur", "3", "-o", "o.png"], &["tall.png"]);
+    // Same aspect at half size is resized with a warning.
+    io::write_png(&s.path("halfm.png"), &matte_map(W / 2, H / 2), 8, Transfer::Linear).unwrap();
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--matte", "halfm.png", "--focus", "1", "--blur", "3", "-o", "o.png"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("halfm.png"));
+}
+
+#[test]
+fn bad_flag_values() {
+    let s = Scene::new();
+    let base = ["image.png", "--depth", "depth.exr", "-o", "o.png"];
+    let with = |extra: &[&'static str]| -> Vec<&'static str> {
+        let mut a = base.to_vec();
+        a.extend_from_slice(extra);
+        a
+    };
+    s.bad(&with(&["--focus", "1", "--lens", "4"]), &["--lens"]);
+    s.bad(&with(&["--focus", "1", "--lens", "0"]), &["--lens"]);
+    s.bad(&with(&["--focus", "1", "--blur", "-1"]), &["--blur"]);
+    s.bad(&with(&["--focus", "1", "--blur", "nan"]), &["--blur"]);
+    s.bad(&with(&["--focus", "1", "--blur", "abc"]), &["--blur"]);
+    s.bad(&with(&["--focus", "nan"]), &["--focus"]);
+    s.bad(&with(&["--focus", "1", "--gamma", "0"]), &["--gamma"]);
+    s.bad(&with(&["--focus-at", "32,5"]), &["--focus-at"]);
+    s.bad(&with(&["--focus-at", "5,24"]), &["--focus-at"]);
+    s.bad(&with(&["--focus-at", "3"]), &["--focus-at"]);
+    s.bad(&with(&["--focus-depth", "0"]), &["--focus-depth"]);
+    s.bad(&with(&["--focus-depth", "inf"]), &["--focus-depth"]);
+    // Two focus flags at once.
+    s.bad(&with(&["--focus", "1", "--focus-depth", "2"]), &["--focus"]);
+    // No focus flag at all: clap usage error.
+    s.bad(&base, &["--focus"]);
+    // Missing --depth.
+    s.bad(&["image.png", "--focus", "1", "-o", "o.png"], &["--depth"]);
+    // Focus out of [0, 1] is clamped with a warning, not refused.
+    let out = s.run(&with(&["--focus", "1.5", "--blur", "2"]));
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("clamped"));
+}
+
+/// Negative numbers given to flags that take numbers must be reported against the flag, like
+/// `--blur -1` and `--focus -1` are.
+#[test]
+#[ignore = "BUG: clap treats a negative value of --gamma/--lens/--focus-depth/--focus-at as an unknown flag: 'unexpected argument '-2' found' (names neither the flag nor the problem, and suggests '-- -2')"]
+fn negative_values_name_their_flag() {
+    let s = Scene::new();
+    let base = ["image.png", "--depth", "depth.exr", "-o", "o.png"];
+    for (extra, flag) in [
+        (vec!["--focus", "1", "--gamma", "-2"], "--gamma"),
+        (vec!["--focus", "1", "--lens", "-3"], "--lens"),
+        (vec!["--focus-depth", "-2"], "--focus-depth"),
+        (vec!["--focus-at", "-1,3"], "--focus-at"),
+    ] {
+        let mut a = base.to_vec();
+        a.extend(extra);
+        s.bad(&a, &[flag]);
+    }
+}
+
+#[test]
+fn output_equal_to_an_input_is_refused() {
+    let s = Scene::new();
+    let before = std::fs::read(s.path("image.png")).unwrap();
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "image.png"], &["image.png"]);
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "./image.png"], &["image.png"]);
+    let abs = s.path("image.png");
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", abs.to_str().unwrap()], &["image.png"]);
+    s.bad(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "depth.exr"], &["depth.exr"]);
+    s.bad(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "3", "-o", "matte.png"], &["matte.png"]);
+    let (fg, bg) = scene_layers();
+    io::save_npy(&s.path("fg.npy"), &fg).unwrap();
+    io::save_npy(&s.path("bg.npy"), &bg).unwrap();
+    s.bad(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "3", "-o", "bg.npy"], &["bg.npy"]);
+    assert_eq!(std::fs::read(s.path("image.png")).unwrap(), before, "the input must be unchanged");
+}
+
+#[test]
+fn output_in_a_missing_folder() {
+    let s = Scene::new();
+    let err = s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "nope/out.png"], &["nope"]);
+    assert!(err.contains("out.png"), "{err}");
+    assert!(!s.path("nope").exists());
+}
+

@@ -1,0 +1,433 @@
+//! Invariants of the renderer and of the full pipeline (DESIGN.md, issue 2 "Tests"):
+//! - a uniform-colour scene stays uniform for any depth, focus and K;
+//! - the output is finite and inside the input colours' range when the last layer is opaque;
+//! - no colour bleeding: an in-focus subject keeps its colour in front of a blurred background;
+//! - partial occlusion: a defocused foreground edge turns semi-transparent over a sharp
+//!   background;
+//! - a transparent layer contributes nothing; degenerate sizes (1x1, 1xN, Nx1) are fine.
+//!
+//! Scenes are tiny (at most 40x30) and rendered with the exact kernel.
+
+use drbokeh::config::Config;
+use drbokeh::render::{self, auto_lens, render_raw, Kernel, Layer, RenderSettings};
+use drbokeh::stages::depth::Disparity;
+use drbokeh::{Focus, Image, Pipeline, Scene};
+
+// ---------------------------------------------------------------------------------------------
+// Helpers
+// ---------------------------------------------------------------------------------------------
+
+/// Small deterministic generator (xorshift64*).
+struct Rng(u64);
+
+impl Rng {
+    fn new(seed: u64) -> Self {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+    fn next_f32(&mut self) -> f32 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+/// A one-channel plane from a function of (x, y).
+fn plane(w: usize, h: usize, mut f: impl FnMut(usize, usize) -> f32) -> Image {
+    let mut p = Image::new(w, h, 1);
+    for y in 0..h {
+        for x in 0..w {
+            p.data[y * w + x] = f(x, y);
+        }
+    }
+    p
+}
+
+fn random_plane(w: usize, h: usize, seed: u64) -> Image {
+    let mut rng = Rng::new(seed);
+    plane(w, h, |_, _| rng.next_f32())
+}
+
+/// An RGBAD layer from per-pixel functions.
+fn layer(w: usize, h: usize, rgb: impl Fn(usize, usize) -> [f32; 3], alpha: &Image, disp: &Image) -> Layer {
+    let mut img = Image::new(w, h, 5);
+    for y in 0..h {
+        for x in 0..w {
+            let c = rgb(x, y);
+            let i = y * w + x;
+            img.pixel_mut(x, y).copy_from_slice(&[c[0], c[1], c[2], alpha.data[i], disp.data[i]]);
+        }
+    }
+    Layer::new(img, "test layer").unwrap()
+}
+
+fn settings(layers: &[Layer], blur: f32, focus: f32) -> RenderSettings {
+    RenderSettings { blur, focus, lens: auto_lens(layers, blur, focus), occlusion: true }
+}
+
+fn exact(layers: &[Layer], s: &RenderSettings) -> Image {
+    render::render(layers, s, Kernel::Exact).unwrap()
+}
+
+/// Named depth (disparity) maps in [0, 1] for a w x h image.
+fn depth_maps(w: usize, h: usize) -> Vec<(&'static str, Image)> {
+    vec![
+        ("flat 0.5", Image::filled(w, h, 1, 0.5)),
+        ("step", plane(w, h, |x, _| if x < w / 2 { 0.0 } else { 1.0 })),
+        ("ramp x", plane(w, h, |x, _| x as f32 / (w - 1) as f32)),
+        ("ramp xy", plane(w, h, |x, y| (x + y) as f32 / (w + h - 2) as f32)),
+        ("square", plane(w, h, |x, y| if (w / 4..3 * w / 4).contains(&x) && (h / 4..3 * h / 4).contains(&y) { 1.0 } else { 0.1 })),
+        ("random", random_plane(w, h, 11)),
+    ]
+}
+
+const FOCI: [f32; 3] = [0.0, 0.3, 1.0];
+const BLURS: [f32; 4] = [0.0, 1.0, 10.0, 40.0];
+
+// ---------------------------------------------------------------------------------------------
+// Uniform colour stays uniform
+// ---------------------------------------------------------------------------------------------
+
+const COLOUR: [f32; 3] = [0.25, 0.5, 0.75];
+
+fn worst_deviation(img: &Image, c: [f32; 3]) -> (f32, usize) {
+    let mut worst = (0f32, 0usize);
+    for (i, px) in img.data.chunks_exact(3).enumerate() {
+        for k in 0..3 {
+            let e = (px[k] - c[k]).abs();
+            if !(e <= worst.0) {
+                worst = (if e.is_nan() { f32::INFINITY } else { e }, i);
+            }
+        }
+    }
+    worst
+}
+
+#[test]
+fn uniform_colour_one_opaque_layer_stays_uniform() {
+    let (w, h) = (24, 18);
+    let opaque = Image::filled(w, h, 1, 1.0);
+    let mut overall = 0f32;
+    for (name, d) in depth_maps(w, h) {
+        let layers = vec![layer(w, h, |_, _| COLOUR, &opaque, &d)];
+        for f in FOCI {
+            for k in BLURS {
+                let out = exact(&layers, &settings(&layers, k, f));
+                let (e, i) = worst_deviation(&out, COLOUR);
+                overall = overall.max(e);
+                assert!(e <= 1e-5, "depth {name}, focus {f}, K {k}: pixel {i} deviates by {e}");
+            }
+        }
+    }
+    println!("one layer: worst deviation from the uniform colour {overall:e}");
+}
+
+/// Front-layer alpha patterns: a hard square, a soft disc and random alpha.
+fn alpha_maps(w: usize, h: usize) -> Vec<(&'static str, Image)> {
+    let (cx, cy) = (w as f32 / 2.0, h as f32 / 2.0);
+    vec![
+        ("hard square", plane(w, h, |x, y| if (w / 3..2 * w / 3).contains(&x) && (h / 3..2 * h / 3).contains(&y) { 1.0 } else { 0.0 })),
+        ("soft disc", plane(w, h, |x, y| (1.0 - (((x as f32 - cx).powi(2) + (y as f32 - cy).powi(2)).sqrt() - 4.0) / 3.0).clamp(0.0, 1.0))),
+        ("random", random_plane(w, h, 5)),
+    ]
+}
+
+#[test]
+fn uniform_colour_two_layers_stays_uniform() {
+    let (w, h) = (24, 18);
+    let opaque = Image::filled(w, h, 1, 1.0);
+    let mut overall = 0f32;
+    let mut failures = Vec::new();
+    for (aname, alpha) in alpha_maps(w, h) {
+        for (dname, d) in depth_maps(w, h) {
+            // Front layer nearer than the back one where the depth allows; the back layer
+            // at a shifted depth so the two differ.
+            let front_d = plane(w, h, |x, y| (d.data[y * w + x] + 0.3).min(1.0));
+            let back_d = plane(w, h, |x, y| d.data[y * w + x] * 0.7);
+            let layers = vec![layer(w, h, |_, _| COLOUR, &alpha, &front_d), layer(w, h, |_, _| COLOUR, &opaque, &back_d)];
+            for f in FOCI {
+                for k in BLURS {
+                    let out = exact(&layers, &settings(&layers, k, f));
+                    let (e, i) = worst_deviation(&out, COLOUR);
+                    overall = overall.max(e);
+                    if e > 1e-5 {
+                        failures.push(format!("alpha {aname}, depth {dname}, focus {f}, K {k}: pixel ({}, {}) deviates by {e}", i % w, i / w));
+                    }
+                }
+            }
+        }
+    }
+    println!("two layers: worst deviation from the uniform colour {overall:e}");
+    assert!(failures.is_empty(), "{} cases not uniform:\n{}", failures.len(), failures.join("\n"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Finite and inside the input range
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn output_is_finite_and_inside_the_input_range() {
+    let (w, h) = (20, 16);
+    let opaque = Image::filled(w, h, 1, 1.0);
+    for seed in 0..4u64 {
+        let mut rng = Rng::new(100 + seed);
+        let mut colours = |scale: f32| -> Vec<[f32; 3]> { (0..w * h).map(|_| [rng.next_f32() * scale, rng.next_f32() * scale, rng.next_f32() * scale]).collect() };
+        // HDR values in the back layer for one seed.
+        let front_c = colours(1.0);
+        let back_c = colours(if seed == 3 { 1e4 } else { 1.0 });
+        let front_a = random_plane(w, h, 200 + seed);
+        let front_d = random_plane(w, h, 300 + seed);
+        let back_d = random_plane(w, h, 400 + seed);
+        let front = layer(w, h, |x, y| front_c[y * w + x], &front_a, &front_d);
+        let back = layer(w, h, |x, y| back_c[y * w + x], &opaque, &back_d);
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for c in front_c.iter().chain(&back_c) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(c[k]);
+                hi[k] = hi[k].max(c[k]);
+            }
+        }
+        for layers in [vec![front.clone(), back.clone()], vec![back.clone()]] {
+            for f in FOCI {
+                for k in BLURS {
+                    let out = exact(&layers, &settings(&layers, k, f));
+                    for (i, px) in out.data.chunks_exact(3).enumerate() {
+                        for c in 0..3 {
+                            let v = px[c];
+                            let tol = 1e-5 * hi[c].max(1.0);
+                            assert!(v.is_finite(), "seed {seed}, focus {f}, K {k}: pixel {i} is {v}");
+                            assert!(
+                                v >= lo[c] - tol && v <= hi[c] + tol,
+                                "seed {seed}, {} layer(s), focus {f}, K {k}: pixel {i} channel {c} = {v} outside [{}, {}]",
+                                layers.len(),
+                                lo[c],
+                                hi[c]
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// No colour bleeding
+// ---------------------------------------------------------------------------------------------
+
+const SUBJECT: [f32; 3] = [0.9, 0.15, 0.1];
+const BACKGROUND: [f32; 3] = [0.05, 0.3, 1.0];
+
+/// Worst per-channel deviation from `SUBJECT` over pixels at least `margin` px inside the
+/// square `[x0, x1) x [y0, y1)`.
+fn worst_inside(out: &Image, (x0, x1, y0, y1): (usize, usize, usize, usize), margin: usize) -> f32 {
+    let mut worst = 0f32;
+    for y in y0 + margin..y1 - margin {
+        for x in x0 + margin..x1 - margin {
+            let p = out.pixel(x, y);
+            for c in 0..3 {
+                worst = worst.max((p[c] - SUBJECT[c]).abs());
+            }
+        }
+    }
+    worst
+}
+
+/// Bound on how much background colour may reach an in-focus subject ≥ 2 px from its edge.
+///
+/// Where it comes from: for an in-focus target (q = 0) a background tap is weighted by the
+/// on-focal term `0.5 + 0.5 tanh(10(d_bg - d_fg - 0.1)) ≤ 0.5 - 0.5 tanh(1) ≈ 0.12` and by the
+/// soft step of its own scatter radius, while the centre tap alone weighs 0.668. The renderer
+/// never mixes layers inside the subject anyway (front alpha 1, box visibility 1), so the
+/// subject's own layer decides, and that layer holds only subject colour: measured 0. The
+/// bound leaves room for f32 rounding only.
+const BLEED_TOL: f32 = 1e-3;
+
+#[test]
+fn no_colour_bleeding_into_an_in_focus_subject() {
+    let (w, h) = (40, 30);
+    let sq = (12, 28, 9, 21);
+    let inside = |x: usize, y: usize| (sq.0..sq.1).contains(&x) && (sq.2..sq.3).contains(&y);
+    let alpha = plane(w, h, |x, y| inside(x, y) as u8 as f32);
+    let opaque = Image::filled(w, h, 1, 1.0);
+    let mut overall = 0f32;
+    for focus in [1.0f32, 0.6] {
+        for k in [5.0f32, 20.0, 40.0] {
+            for bg_depth in ["flat", "ramp"] {
+                let fg_d = Image::filled(w, h, 1, focus);
+                let bg_d = match bg_depth {
+                    "flat" => Image::filled(w, h, 1, 0.0),
+                    _ => plane(w, h, |x, _| 0.2 * x as f32 / w as f32),
+                };
+                let layers = vec![layer(w, h, |_, _| SUBJECT, &alpha, &fg_d), layer(w, h, |_, _| BACKGROUND, &opaque, &bg_d)];
+                let out = exact(&layers, &settings(&layers, k, focus));
+                let e = worst_inside(&out, sq, 2);
+                overall = overall.max(e);
+                assert!(e <= BLEED_TOL, "focus {focus}, K {k}, bg {bg_depth}: subject colour changed by {e}");
+                // The background itself is blurred: it is not the subject colour far away.
+                assert!((out.pixel(1, 1)[2] - BACKGROUND[2]).abs() < 0.05);
+            }
+        }
+    }
+    println!("renderer: worst bleeding into the in-focus subject (>= 2 px inside) = {overall:e}");
+}
+
+/// The subject scene as a photo + disparity + matte for the full pipeline.
+fn subject_scene(w: usize, h: usize, sq: (usize, usize, usize, usize), focus: f32, textured_bg: bool) -> Scene {
+    let inside = |x: usize, y: usize| (sq.0..sq.1).contains(&x) && (sq.2..sq.3).contains(&y);
+    let mut rgb = Image::new(w, h, 3);
+    for y in 0..h {
+        for x in 0..w {
+            let c = if inside(x, y) {
+                SUBJECT
+            } else if textured_bg && (x / 3 + y / 3) % 2 == 0 {
+                [0.0, 0.9, 0.3]
+            } else {
+                BACKGROUND
+            };
+            rgb.pixel_mut(x, y).copy_from_slice(&c);
+        }
+    }
+    let map = plane(w, h, |x, y| if inside(x, y) { focus } else { 0.0 });
+    Scene { rgb, disparity: Disparity { map, z_range: None, filled_fraction: 0.0 }, matte: Some(plane(w, h, |x, y| inside(x, y) as u8 as f32)) }
+}
+
+#[test]
+fn no_colour_bleeding_through_the_full_pipeline() {
+    let (w, h) = (40, 30);
+    let sq = (12, 28, 9, 21);
+    let mut overall = 0f32;
+    for textured in [false, true] {
+        for k in [5.0f32, 20.0, 40.0] {
+            let scene = subject_scene(w, h, sq, 1.0, textured);
+            let mut cfg = Config::default();
+            cfg.render.blur = Some(k);
+            let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(1.0)).unwrap();
+            assert_eq!(out.layers.len(), 2, "the matte makes two layers");
+            assert!(out.image.all_finite());
+            let e = worst_inside(&out.image, sq, 2);
+            overall = overall.max(e);
+            assert!(e <= BLEED_TOL, "K {k}, textured {textured}: subject colour changed by {e}");
+            // Without occlusion (the classical baseline) the background does bleed in,
+            // which shows the scene is a real test.
+            let mut cfg = Config::default();
+            cfg.render.blur = Some(k);
+            cfg.render.occlusion = false;
+            let base = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(1.0)).unwrap();
+            let e_base = worst_inside(&base.image, sq, 2);
+            assert!(e_base > 10.0 * BLEED_TOL, "K {k}: the --no-occlusion baseline should bleed ({e_base})");
+        }
+    }
+    println!("pipeline: worst bleeding into the in-focus subject (>= 2 px inside) = {overall:e}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Partial occlusion
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn defocused_foreground_edge_is_semi_transparent() {
+    let (w, h) = (40, 30);
+    let sq = (12, 28, 9, 21);
+    let inside = |x: usize, y: usize| (sq.0..sq.1).contains(&x) && (sq.2..sq.3).contains(&y);
+    let alpha = plane(w, h, |x, y| inside(x, y) as u8 as f32);
+    let opaque = Image::filled(w, h, 1, 1.0);
+    // Background in focus (disparity 0 = focus), foreground near and defocused.
+    let fg_d = Image::filled(w, h, 1, 1.0);
+    let bg_d = Image::filled(w, h, 1, 0.0);
+    let layers = vec![layer(w, h, |_, _| SUBJECT, &alpha, &fg_d), layer(w, h, |_, _| BACKGROUND, &opaque, &bg_d)];
+    let out = exact(&layers, &settings(&layers, 6.0, 0.0));
+    // Mix fraction of the subject colour in the red channel (0.05 background, 0.9 subject).
+    let mix = |x: usize, y: usize| (out.pixel(x, y)[0] - BACKGROUND[0]) / (SUBJECT[0] - BACKGROUND[0]);
+    let y = (sq.2 + sq.3) / 2;
+    let mut row = Vec::new();
+    for x in 0..w {
+        row.push(format!("{:.2}", mix(x, y)));
+    }
+    println!("mix of foreground along row {y}: {}", row.join(" "));
+    // Just outside the left and right edges: a real mix, neither background nor foreground.
+    for x in [sq.0 - 1, sq.0 - 2, sq.1, sq.1 + 1] {
+        let m = mix(x, y);
+        assert!(m > 0.05 && m < 0.95, "pixel ({x}, {y}) outside the edge should be a mix, got {m}");
+    }
+    // Just inside the edge the foreground has turned partly transparent.
+    let m = mix(sq.0, y);
+    assert!(m < 0.95, "pixel ({}, {y}) inside the edge should show some background, got {m}", sq.0);
+    // Far away, pure background; deep inside, pure foreground colour.
+    assert!(mix(1, 1).abs() < 1e-4);
+    assert!((mix((sq.0 + sq.1) / 2, y) - 1.0).abs() < 1e-3);
+    // The background next to the edge stays sharp where it shows: green and blue are mixed
+    // linearly, so the pixel is on the segment between the two colours.
+    for x in [sq.0 - 1, sq.1] {
+        let p = out.pixel(x, y);
+        let m = mix(x, y);
+        for c in 0..3 {
+            let want = BACKGROUND[c] + m * (SUBJECT[c] - BACKGROUND[c]);
+            assert!((p[c] - want).abs() < 1e-3, "pixel ({x}, {y}) channel {c}: {} vs the mix {want}", p[c]);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Transparent layers, degenerate sizes
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn zero_alpha_front_layer_contributes_nothing() {
+    let (w, h) = (20, 14);
+    let mut rng = Rng::new(9);
+    let colours: Vec<[f32; 3]> = (0..w * h).map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()]).collect();
+    let back = layer(w, h, |x, y| colours[y * w + x], &Image::filled(w, h, 1, 1.0), &random_plane(w, h, 21));
+    let ghost = layer(w, h, |_, _| [100.0, -5.0, 7.0], &Image::new(w, h, 1), &random_plane(w, h, 22));
+    for f in FOCI {
+        for k in BLURS {
+            let alone = vec![back.clone()];
+            let with = vec![ghost.clone(), back.clone()];
+            // Same lens window for both (the transparent layer must not change it either).
+            let s = settings(&alone, k, f);
+            assert_eq!(s.lens, auto_lens(&with, k, f), "a transparent layer changed the auto lens");
+            let a = exact(&alone, &s);
+            let b = exact(&with, &s);
+            assert_eq!(a.data, b.data, "focus {f}, K {k}: a zero-alpha front layer changed the output");
+            let raws = render_raw(&with, &s, Kernel::Exact);
+            assert!(raws[0].image().data.iter().all(|&v| v == 0.0), "the transparent layer's raw render is all zero");
+        }
+    }
+}
+
+#[test]
+fn tiny_images_render_finite_output() {
+    for (w, h) in [(1, 1), (1, 9), (9, 1), (2, 1), (1, 2)] {
+        for f in FOCI {
+            for k in BLURS {
+                let colours = |x: usize, y: usize| [0.1 + 0.1 * x as f32, 0.5, 0.9 - 0.1 * y as f32];
+                let d = plane(w, h, |x, y| ((x * 7 + y * 3) % 5) as f32 / 4.0);
+                let alpha = plane(w, h, |x, y| ((x + y) % 3) as f32 / 2.0);
+                let back = layer(w, h, colours, &Image::filled(w, h, 1, 1.0), &d);
+                let front = layer(w, h, |_, _| [1.0, 0.0, 0.0], &alpha, &d);
+                for layers in [vec![back.clone()], vec![front, back]] {
+                    for lens in [1, 3, auto_lens(&layers, k, f), 41] {
+                        let s = RenderSettings { blur: k, focus: f, lens, occlusion: true };
+                        let out = exact(&layers, &s);
+                        assert_eq!((out.width, out.height, out.channels), (w, h, 3));
+                        assert!(out.all_finite(), "{w}x{h}, focus {f}, K {k}, lens {lens}: {:?}", out.data);
+                        assert!(out.data.iter().all(|&v| (-1e-6..=1.0 + 1e-5).contains(&v)), "{w}x{h}: out of range {:?}", out.data);
+                    }
+                }
+            }
+        }
+    }
+    // And through the pipeline (single pixel photo, matte or not).
+    for (w, h) in [(1, 1), (1, 7), (7, 1)] {
+        let rgb = Image::filled(w, h, 3, 0.4);
+        let map = plane(w, h, |x, y| ((x + y) % 2) as f32);
+        for matte in [None, Some(plane(w, h, |x, y| ((x + y) % 2) as f32))] {
+            let scene = Scene { rgb: rgb.clone(), disparity: Disparity { map: map.clone(), z_range: None, filled_fraction: 0.0 }, matte };
+            let mut cfg = Config::default();
+            cfg.render.blur = Some(10.0);
+            let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(0.5)).unwrap();
+            assert!(out.image.all_finite(), "{w}x{h}: {:?}", out.image.data);
+            assert!(out.image.data.iter().all(|&v| (v - 0.4).abs() < 1e-5), "{w}x{h} uniform photo: {:?}", out.image.data);
+        }
+    }
+}

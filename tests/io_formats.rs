@@ -1,0 +1,798 @@
+//! Integration tests of `drbokeh::io`: round trips for every format and channel layout,
+//! colour decoding, depth/matte/layer channel rules, and every error path (missing, garbage,
+//! truncated, empty, oversized files; atomic writes).
+
+use drbokeh::color::Transfer;
+use drbokeh::io::{
+    self, read_decoded, read_depth, read_depth_map, read_layer, read_matte, read_photo, write_exr, write_output,
+    write_png, Encoding, FileFormat, OutputFormat, ReadLimits,
+};
+use drbokeh::Image;
+use std::path::{Path, PathBuf};
+
+fn lim() -> ReadLimits {
+    ReadLimits::default()
+}
+
+fn tmp() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+/// Deterministic test pattern in [0, 1].
+fn pattern(w: usize, h: usize, c: usize) -> Image {
+    let data = (0..w * h * c).map(|i| ((i * 37 + 11) % 101) as f32 / 100.0).collect();
+    Image::from_vec(w, h, c, data).unwrap()
+}
+
+fn assert_close(a: &[f32], b: &[f32], tol: f32) {
+    assert_eq!(a.len(), b.len());
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!((x - y).abs() <= tol, "sample {i}: {x} vs {y} (tol {tol})");
+    }
+}
+
+fn err_of<T: std::fmt::Debug>(r: drbokeh::Result<T>) -> String {
+    r.expect_err("expected an error").to_string()
+}
+
+fn save_npy(path: &Path, img: &Image) {
+    io::save_npy(path, img).unwrap();
+}
+
+/// Writes an NPY file with an arbitrary shape (little-endian float32).
+fn raw_npy(path: &Path, shape: &[u64], data: &[f32]) {
+    use npyz::WriterBuilder;
+    let mut buf = Vec::new();
+    let mut w = npyz::WriteOptions::new().default_dtype().shape(shape).writer(&mut buf).begin_nd().unwrap();
+    w.extend(data.iter().copied()).unwrap();
+    w.finish().unwrap();
+    std::fs::write(path, buf).unwrap();
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
+}
+
+fn png_chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+    out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+    let mut body = kind.to_vec();
+    body.extend_from_slice(data);
+    out.extend_from_slice(&body);
+    out.extend_from_slice(&crc32(&body).to_be_bytes());
+}
+
+/// A PNG with a valid signature and IHDR claiming `w x h` RGB 8-bit, a tiny IDAT and IEND.
+fn png_header_only(w: u32, h: u32) -> Vec<u8> {
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend_from_slice(&w.to_be_bytes());
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+    png_chunk(&mut out, b"IHDR", &ihdr);
+    png_chunk(&mut out, b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]);
+    png_chunk(&mut out, b"IEND", &[]);
+    out
+}
+
+fn write_tiff<C: tiff::encoder::colortype::ColorType>(path: &Path, w: u32, h: u32, data: &[C::Inner])
+where
+    [C::Inner]: tiff::encoder::TiffValue,
+{
+    let f = std::fs::File::create(path).unwrap();
+    let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
+    enc.write_image::<C>(w, h, data).unwrap();
+}
+
+fn list_dir(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    v.sort();
+    v
+}
+
+// ---------------------------------------------------------------------------------------------
+// PNG
+
+#[test]
+fn png_round_trip_all_layouts_8_and_16_bit() {
+    let dir = tmp();
+    for channels in 1..=4 {
+        for bits in [8u8, 16] {
+            let img = pattern(7, 5, channels);
+            let p = dir.path().join(format!("c{channels}_{bits}.png"));
+            write_png(&p, &img, bits, Transfer::Linear).unwrap();
+            let d = read_decoded(&p, &lim()).unwrap();
+            assert_eq!(d.format, FileFormat::Png);
+            assert_eq!(d.encoding, Encoding::Display);
+            assert_eq!(d.bit_depth, bits);
+            assert_eq!(d.has_alpha, matches!(channels, 2 | 4));
+            assert_eq!((d.image.width, d.image.height, d.image.channels), (7, 5, channels));
+            let max = if bits == 8 { 255.0 } else { 65535.0 };
+            assert_close(&d.image.data, &img.data, 0.5 / max + 1e-7);
+        }
+    }
+}
+
+#[test]
+fn png_srgb_round_trip_through_write_and_read_photo() {
+    let dir = tmp();
+    let img = pattern(6, 4, 3);
+    let p = dir.path().join("srgb.png");
+    write_png(&p, &img, 16, Transfer::Srgb).unwrap();
+    let back = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    assert_close(&back.data, &img.data, 2e-4);
+}
+
+#[test]
+fn srgb_decode_of_8_bit_128() {
+    let dir = tmp();
+    let p = dir.path().join("grey128.png");
+    image::GrayImage::from_pixel(3, 2, image::Luma([128u8])).save(&p).unwrap();
+    let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    assert_eq!((photo.width, photo.height, photo.channels), (3, 2, 3), "grey is expanded to RGB");
+    for &v in &photo.data {
+        assert!((v - 0.2158605).abs() < 1e-6, "{v}");
+    }
+    let gamma = read_photo(&p, Transfer::Gamma(2.2), &lim()).unwrap();
+    let expect = (128.0f32 / 255.0).powf(2.2);
+    assert!((gamma.data[0] - expect).abs() < 1e-6);
+    let linear = read_photo(&p, Transfer::Linear, &lim()).unwrap();
+    assert_eq!(linear.data[0], 128.0 / 255.0);
+}
+
+#[test]
+fn photo_drops_alpha() {
+    let dir = tmp();
+    let p = dir.path().join("rgba.png");
+    image::RgbaImage::from_pixel(2, 2, image::Rgba([255, 0, 255, 10])).save(&p).unwrap();
+    let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    assert_eq!(photo.channels, 3);
+    assert_eq!(&photo.data[..3], &[1.0, 0.0, 1.0]);
+}
+
+#[test]
+fn png_16_bit_precision_is_kept() {
+    let dir = tmp();
+    let p = dir.path().join("deep.png");
+    // Neighbouring 16-bit codes that collapse to one value in 8 bits.
+    let codes: Vec<u16> = (0..12).map(|i| 30000 + i).collect();
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(4, 3, codes.clone()).unwrap().save(&p).unwrap();
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!(d.bit_depth, 16);
+    for (v, q) in d.image.data.iter().zip(&codes) {
+        assert_eq!(*v, *q as f32 / 65535.0);
+    }
+    let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    let mut distinct: Vec<f32> = photo.data.iter().step_by(3).copied().collect();
+    distinct.dedup();
+    assert_eq!(distinct.len(), 12, "16-bit codes must stay distinct after sRGB decoding");
+    for (v, q) in photo.data.iter().step_by(3).zip(&codes) {
+        assert!((v - drbokeh::color::srgb_to_linear(*q as f32 / 65535.0)).abs() < 1e-7);
+    }
+    // And as a depth map: value / 65535.
+    let depth = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!(depth.bit_depth, 16);
+    assert_eq!(depth.image.data[5], 30005.0 / 65535.0);
+}
+
+#[test]
+fn eight_bit_depth_exposes_its_bit_depth() {
+    let dir = tmp();
+    let p = dir.path().join("depth8.png");
+    image::GrayImage::from_fn(4, 4, |x, y| image::Luma([(x * 10 + y) as u8])).save(&p).unwrap();
+    let d = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!(d.bit_depth, 8);
+    assert_eq!(d.image.channels, 1);
+    assert_eq!(d.image.data[1], 10.0 / 255.0);
+}
+
+#[test]
+fn depth_from_grey_rgb_is_accepted_but_colour_is_refused() {
+    let dir = tmp();
+    let grey = dir.path().join("grey_rgb.png");
+    image::RgbImage::from_fn(3, 3, |x, _| image::Rgb([x as u8 * 50; 3])).save(&grey).unwrap();
+    let d = read_depth(&grey, &lim()).unwrap();
+    assert_eq!(d.channels, 1);
+    assert_eq!(d.data[2], 100.0 / 255.0);
+    let colour = dir.path().join("colour.png");
+    image::RgbImage::from_fn(3, 3, |x, _| image::Rgb([x as u8, 0, 9])).save(&colour).unwrap();
+    let e = err_of(read_depth(&colour, &lim()));
+    assert!(e.contains("colour.png") && e.contains("single-channel"), "{e}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// JPEG
+
+#[test]
+fn jpeg_reads_as_8_bit_display() {
+    let dir = tmp();
+    let p = dir.path().join("photo.jpg");
+    let rgb = image::RgbImage::from_pixel(16, 16, image::Rgb([200, 100, 50]));
+    let mut f = std::fs::File::create(&p).unwrap();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut f, 100).encode_image(&rgb).unwrap();
+    drop(f);
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!((d.format, d.bit_depth, d.encoding, d.image.channels), (FileFormat::Jpeg, 8, Encoding::Display, 3));
+    assert_close(&d.image.data[..3], &[200.0 / 255.0, 100.0 / 255.0, 50.0 / 255.0], 3.0 / 255.0);
+    let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    assert!((photo.data[0] - drbokeh::color::srgb_to_linear(d.image.data[0])).abs() < 1e-7);
+
+    let gp = dir.path().join("grey.jpeg");
+    image::GrayImage::from_pixel(8, 8, image::Luma([77])).save(&gp).unwrap();
+    let g = read_decoded(&gp, &lim()).unwrap();
+    assert_eq!(g.image.channels, 1);
+    assert!((g.image.data[0] - 77.0 / 255.0).abs() <= 2.0 / 255.0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// TIFF
+
+#[test]
+fn tiff_integer_layouts_round_trip() {
+    use tiff::encoder::colortype::*;
+    let dir = tmp();
+    let (w, h) = (5u32, 3u32);
+    let n = (w * h) as usize;
+    let g8: Vec<u8> = (0..n as u8).map(|v| v * 13).collect();
+    let p = dir.path().join("g8.tif");
+    write_tiff::<Gray8>(&p, w, h, &g8);
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!((d.format, d.bit_depth, d.image.channels, d.has_alpha), (FileFormat::Tiff, 8, 1, false));
+    assert_eq!(d.image.data, g8.iter().map(|&v| v as f32 / 255.0).collect::<Vec<_>>());
+
+    let rgb16: Vec<u16> = (0..3 * n as u16).map(|v| v * 1001 + 7).collect();
+    let p = dir.path().join("rgb16.tiff");
+    write_tiff::<RGB16>(&p, w, h, &rgb16);
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!((d.bit_depth, d.image.channels, d.encoding), (16, 3, Encoding::Display));
+    assert_eq!(d.image.data, rgb16.iter().map(|&v| v as f32 / 65535.0).collect::<Vec<_>>());
+    let photo = read_photo(&p, Transfer::Linear, &lim()).unwrap();
+    assert_eq!(photo.data, d.image.data, "16-bit TIFF photo keeps 16-bit precision");
+
+    let rgba8: Vec<u8> = (0..4 * n).map(|v| (v * 3) as u8).collect();
+    let p = dir.path().join("rgba8.tif");
+    write_tiff::<RGBA8>(&p, w, h, &rgba8);
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!((d.image.channels, d.has_alpha), (4, true));
+    let m = read_matte(&p, &lim()).unwrap();
+    assert_eq!(m.data, rgba8.iter().skip(3).step_by(4).map(|&v| v as f32 / 255.0).collect::<Vec<_>>());
+
+    let g16: Vec<u16> = (0..n as u16).map(|v| v * 4000).collect();
+    let p = dir.path().join("depth16.tif");
+    write_tiff::<Gray16>(&p, w, h, &g16);
+    let depth = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!(depth.bit_depth, 16);
+    assert_eq!(depth.image.data, g16.iter().map(|&v| v as f32 / 65535.0).collect::<Vec<_>>());
+}
+
+#[test]
+fn tiff_float_depth_and_photo() {
+    use tiff::encoder::colortype::*;
+    let dir = tmp();
+    let depth: Vec<f32> = (0..12).map(|i| 0.5 + i as f32 * 1.25).collect();
+    let p = dir.path().join("depth32.tif");
+    write_tiff::<Gray32Float>(&p, 4, 3, &depth);
+    let d = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!((d.bit_depth, d.image.width, d.image.height), (32, 4, 3));
+    assert_eq!(d.image.data, depth, "float TIFF depth is raw");
+
+    let rgb: Vec<f32> = (0..36).map(|i| i as f32 * 0.3 - 1.0).collect();
+    let p = dir.path().join("hdr.tif");
+    write_tiff::<RGB32Float>(&p, 4, 3, &rgb);
+    let dec = read_decoded(&p, &lim()).unwrap();
+    assert_eq!(dec.encoding, Encoding::Linear);
+    let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    assert_eq!(photo.data, rgb, "float TIFF photo is kept linear, no transfer applied");
+}
+
+// ---------------------------------------------------------------------------------------------
+// EXR
+
+#[test]
+fn exr_rgb_rgba_round_trip() {
+    let dir = tmp();
+    let mut img = pattern(9, 4, 3);
+    img.data[0] = 1234.5; // HDR survives
+    img.data[1] = -0.25;
+    let p = dir.path().join("rgb.exr");
+    write_exr(&p, &img, &["R", "G", "B"]).unwrap();
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!((d.format, d.encoding, d.bit_depth, d.has_alpha), (FileFormat::Exr, Encoding::Linear, 32, false));
+    assert_eq!(d.image, img);
+    assert_eq!(read_photo(&p, Transfer::Srgb, &lim()).unwrap(), img);
+
+    let rgba = pattern(3, 5, 4);
+    let p = dir.path().join("rgba.exr");
+    write_exr(&p, &rgba, &["R", "G", "B", "A"]).unwrap();
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert!(d.has_alpha);
+    assert_eq!(d.image, rgba);
+    assert_eq!(read_matte(&p, &lim()).unwrap(), rgba.channel(3));
+}
+
+#[test]
+fn exr_y_channel_depth() {
+    let dir = tmp();
+    let depth = Image::from_vec(4, 2, 1, (0..8).map(|i| 1.0 + i as f32 * 10.0).collect()).unwrap();
+    let p = dir.path().join("depth.exr");
+    write_exr(&p, &depth, &["Y"]).unwrap();
+    let d = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!((d.format, d.bit_depth), (FileFormat::Exr, 32));
+    assert_eq!(d.image, depth);
+    // A grey EXR photo (Y only) expands to RGB.
+    let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+    assert_eq!(photo.channels, 3);
+    assert_eq!(photo.data[3..6], [11.0, 11.0, 11.0]);
+}
+
+#[test]
+fn exr_depth_channel_priority_and_errors() {
+    let dir = tmp();
+    let z = Image::filled(3, 3, 1, 5.0);
+    let y = Image::filled(3, 3, 1, 7.0);
+    let r = Image::filled(3, 3, 1, 9.0);
+    let p = dir.path().join("zyr.exr");
+    write_exr(&p, &Image::stack(&[&r, &y, &z]), &["R", "Y", "Z"]).unwrap();
+    assert_eq!(read_depth(&p, &lim()).unwrap().data[0], 5.0, "Z wins");
+    let p = dir.path().join("yr.exr");
+    write_exr(&p, &Image::stack(&[&r, &y]), &["R", "Y"]).unwrap();
+    assert_eq!(read_depth(&p, &lim()).unwrap().data[0], 7.0, "then Y");
+    let p = dir.path().join("single.exr");
+    write_exr(&p, &r, &["distance"]).unwrap();
+    assert_eq!(read_depth(&p, &lim()).unwrap().data[0], 9.0, "a single channel of any name");
+    let p = dir.path().join("uv.exr");
+    write_exr(&p, &Image::stack(&[&r, &y]), &["U", "V"]).unwrap();
+    let e = err_of(read_depth(&p, &lim()));
+    assert!(e.contains("uv.exr") && e.contains("U, V"), "{e}");
+}
+
+#[test]
+fn exr_half_channel_depth() {
+    use exr::prelude::*;
+    let dir = tmp();
+    let p = dir.path().join("half.exr");
+    let values: Vec<f16> = (0..6).map(|i| f16::from_f32(i as f32 * 0.5)).collect();
+    let ch = AnyChannel::new("Z", FlatSamples::F16(values));
+    let layer = Layer::new((3, 2), LayerAttributes::default(), Encoding::UNCOMPRESSED, AnyChannels::sort(SmallVec::from_vec(vec![ch])));
+    exr::prelude::Image::from_layer(layer).write().to_file(&p).unwrap();
+    let d = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!(d.bit_depth, 16);
+    assert_eq!(d.image.data, vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5]);
+}
+
+#[test]
+fn exr_layer_rgbad() {
+    let dir = tmp();
+    let mut layer = pattern(6, 3, 5);
+    layer.data[4] = 0.75; // D
+    let p = dir.path().join("layer.exr");
+    write_exr(&p, &layer, &["R", "G", "B", "A", "D"]).unwrap();
+    assert_eq!(read_layer(&p, &lim()).unwrap(), layer);
+    // Case-insensitive channel names.
+    let p = dir.path().join("lower.exr");
+    write_exr(&p, &layer, &["r", "g", "b", "a", "d"]).unwrap();
+    assert_eq!(read_layer(&p, &lim()).unwrap(), layer);
+    // Missing D: the error lists what was found.
+    let p = dir.path().join("nod.exr");
+    write_exr(&p, &layer.select_channels(&[0, 1, 2, 3]), &["R", "G", "B", "A"]).unwrap();
+    let e = err_of(read_layer(&p, &lim()));
+    assert!(e.contains("nod.exr") && e.contains("missing D") && e.contains("found: A, B, G, R"), "{e}");
+    // NaN in a layer.
+    let mut bad = layer.clone();
+    bad.data[5 * 4 + 4] = f32::NAN;
+    let p = dir.path().join("nan.exr");
+    write_exr(&p, &bad, &["R", "G", "B", "A", "D"]).unwrap();
+    let e = err_of(read_layer(&p, &lim()));
+    assert!(e.contains("nan.exr") && e.contains("non-finite") && e.contains("channel D") && e.contains("(4, 0)"), "{e}");
+}
+
+#[test]
+fn exr_matte_channel_priority() {
+    let dir = tmp();
+    let a = Image::filled(2, 2, 1, 0.25);
+    let y = Image::filled(2, 2, 1, 0.5);
+    let p = dir.path().join("ya.exr");
+    write_exr(&p, &Image::stack(&[&y, &a]), &["Y", "A"]).unwrap();
+    assert_eq!(read_matte(&p, &lim()).unwrap().data, vec![0.25; 4]);
+    let p = dir.path().join("y.exr");
+    write_exr(&p, &y, &["Y"]).unwrap();
+    assert_eq!(read_matte(&p, &lim()).unwrap().data, vec![0.5; 4]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// NPY
+
+#[test]
+fn npy_depth_matte_layer_photo() {
+    let dir = tmp();
+    let depth = Image::from_vec(3, 2, 1, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.5]).unwrap();
+    let p = dir.path().join("depth.npy");
+    save_npy(&p, &depth);
+    assert_eq!(read_depth(&p, &lim()).unwrap(), depth);
+    // H x W x 1 is accepted too.
+    let p1 = dir.path().join("depth_hw1.npy");
+    raw_npy(&p1, &[2, 3, 1], &depth.data);
+    assert_eq!(read_depth(&p1, &lim()).unwrap(), depth);
+
+    let layer = pattern(4, 3, 5);
+    let p = dir.path().join("layer.npy");
+    save_npy(&p, &layer);
+    assert_eq!(read_layer(&p, &lim()).unwrap(), layer);
+    let e = err_of(read_layer(&dir.path().join("depth.npy"), &lim()));
+    assert!(e.contains("H x W x 5"), "{e}");
+
+    let matte = pattern(4, 3, 1);
+    let p = dir.path().join("matte.npy");
+    save_npy(&p, &matte);
+    assert_eq!(read_matte(&p, &lim()).unwrap(), matte);
+
+    let rgb = pattern(4, 3, 3);
+    let p = dir.path().join("photo.npy");
+    save_npy(&p, &rgb);
+    assert_eq!(read_photo(&p, Transfer::Srgb, &lim()).unwrap(), rgb, "NPY photos are linear");
+
+    let p = dir.path().join("rgb_depth.npy");
+    save_npy(&p, &rgb);
+    let e = err_of(read_depth(&p, &lim()));
+    assert!(e.contains("rgb_depth.npy") && e.contains("3 channels"), "{e}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Mattes
+
+#[test]
+fn matte_from_rgba_la_and_grey() {
+    let dir = tmp();
+    let p = dir.path().join("rgba.png");
+    image::RgbaImage::from_fn(3, 2, |x, y| image::Rgba([255, 0, 0, (x * 60 + y * 7) as u8])).save(&p).unwrap();
+    let m = read_matte(&p, &lim()).unwrap();
+    assert_eq!((m.width, m.height, m.channels), (3, 2, 1));
+    assert_eq!(m.data, vec![0.0, 60.0 / 255.0, 120.0 / 255.0, 7.0 / 255.0, 67.0 / 255.0, 127.0 / 255.0]);
+
+    let p = dir.path().join("la.png");
+    image::GrayAlphaImage::from_pixel(2, 2, image::LumaA([10, 200])).save(&p).unwrap();
+    assert_eq!(read_matte(&p, &lim()).unwrap().data, vec![200.0 / 255.0; 4]);
+
+    let p = dir.path().join("grey.png");
+    image::GrayImage::from_fn(2, 1, |x, _| image::Luma([x as u8 * 255])).save(&p).unwrap();
+    assert_eq!(read_matte(&p, &lim()).unwrap().data, vec![0.0, 1.0], "no transfer function on mattes");
+
+    // An opaque RGBA image whose colour is a grey ramp is a grey matte with a useless alpha.
+    let p = dir.path().join("opaque_grey.png");
+    image::RgbaImage::from_fn(2, 1, |x, _| image::Rgba([x as u8 * 100, x as u8 * 100, x as u8 * 100, 255])).save(&p).unwrap();
+    assert_eq!(read_matte(&p, &lim()).unwrap().data, vec![0.0, 100.0 / 255.0]);
+
+    let p = dir.path().join("colour.png");
+    image::RgbImage::from_pixel(2, 2, image::Rgb([1, 2, 3])).save(&p).unwrap();
+    let e = err_of(read_matte(&p, &lim()));
+    assert!(e.contains("colour.png") && e.contains("colour image"), "{e}");
+}
+
+#[test]
+fn matte_out_of_range_and_nan_are_errors() {
+    let dir = tmp();
+    let p = dir.path().join("matte255.npy");
+    save_npy(&p, &Image::from_vec(2, 1, 1, vec![0.0, 255.0]).unwrap());
+    let e = err_of(read_matte(&p, &lim()));
+    assert!(e.contains("matte255.npy") && e.contains("[0, 255]"), "{e}");
+
+    let p = dir.path().join("neg.exr");
+    write_exr(&p, &Image::from_vec(2, 1, 1, vec![-0.5, 0.5]).unwrap(), &["A"]).unwrap();
+    let e = err_of(read_matte(&p, &lim()));
+    assert!(e.contains("neg.exr") && e.contains("[-0.5, 0.5]"), "{e}");
+
+    let p = dir.path().join("nan.npy");
+    save_npy(&p, &Image::from_vec(2, 1, 1, vec![0.5, f32::NAN]).unwrap());
+    let e = err_of(read_matte(&p, &lim()));
+    assert!(e.contains("nan.npy") && e.contains("NaN") && e.contains("(1, 0)"), "{e}");
+
+    // Within the tolerance: accepted and clamped.
+    let p = dir.path().join("tol.npy");
+    save_npy(&p, &Image::from_vec(2, 1, 1, vec![-0.0005, 1.0009]).unwrap());
+    assert_eq!(read_matte(&p, &lim()).unwrap().data, vec![0.0, 1.0]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writers
+
+#[test]
+fn write_output_picks_format_from_extension() {
+    let dir = tmp();
+    let img = pattern(5, 4, 3);
+    let p = dir.path().join("out.PNG");
+    write_output(&p, &img, 16, Transfer::Srgb).unwrap();
+    assert_close(&read_photo(&p, Transfer::Srgb, &lim()).unwrap().data, &img.data, 2e-4);
+    let p = dir.path().join("out.exr");
+    write_output(&p, &img, 8, Transfer::Srgb).unwrap();
+    assert_eq!(read_photo(&p, Transfer::Srgb, &lim()).unwrap(), img, "EXR is raw float");
+    let p = dir.path().join("out.npy");
+    write_output(&p, &img, 8, Transfer::Srgb).unwrap();
+    assert_eq!(read_decoded(&p, &lim()).unwrap().image, img, "NPY is raw float");
+    // 8-bit sRGB: decoded values within half a code of the original.
+    let p = dir.path().join("out8.png");
+    write_output(&p, &img, 8, Transfer::Srgb).unwrap();
+    let d = read_decoded(&p, &lim()).unwrap();
+    let enc: Vec<f32> = img.data.iter().map(|&v| drbokeh::color::linear_to_srgb(v)).collect();
+    assert_close(&d.image.data, &enc, 0.5 / 255.0 + 1e-6);
+
+    let e = err_of(write_output(&dir.path().join("out.bmp"), &img, 8, Transfer::Srgb));
+    assert!(e.contains("'.bmp'") && e.contains(".png, .exr or .npy"), "{e}");
+    assert_eq!(OutputFormat::from_path(Path::new("x.NpY")).unwrap(), OutputFormat::Npy);
+    // Overwriting an existing output is fine.
+    write_output(&dir.path().join("out.exr"), &pattern(2, 2, 3), 8, Transfer::Srgb).unwrap();
+    assert_eq!(read_decoded(&dir.path().join("out.exr"), &lim()).unwrap().image.width, 2);
+}
+
+#[test]
+fn png_clips_and_rounds() {
+    let dir = tmp();
+    let img = Image::from_vec(4, 1, 1, vec![-1.0, 0.5, 2.0, 100.4 / 255.0]).unwrap();
+    let p = dir.path().join("clip.png");
+    write_png(&p, &img, 8, Transfer::Linear).unwrap();
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!(d.image.data, vec![0.0, 128.0 / 255.0, 1.0, 100.0 / 255.0]);
+    let e = err_of(write_png(&p, &img, 12, Transfer::Linear));
+    assert!(e.contains("8 or 16"), "{e}");
+}
+
+#[test]
+fn atomic_write_success_and_failure() {
+    let dir = tmp();
+    let img = pattern(3, 3, 3);
+    // Missing folder: an error, and nothing is created.
+    let missing = dir.path().join("no_such_folder").join("out.png");
+    let e = err_of(write_png(&missing, &img, 8, Transfer::Srgb));
+    assert!(e.contains("out.png") && e.contains("does not exist"), "{e}");
+    assert!(!missing.exists() && !missing.parent().unwrap().exists());
+    assert!(list_dir(dir.path()).is_empty());
+    // An encoder-side failure (5 channels cannot be a PNG): no file, no temp file left behind.
+    let p = dir.path().join("five.png");
+    assert!(write_png(&p, &pattern(3, 3, 5), 8, Transfer::Srgb).is_err());
+    assert!(list_dir(dir.path()).is_empty(), "{:?}", list_dir(dir.path()));
+    let e = err_of(write_exr(&dir.path().join("bad.exr"), &img, &["R", "G"]));
+    assert!(e.contains("bad.exr") && e.contains("2 channel names"), "{e}");
+    assert!(list_dir(dir.path()).is_empty(), "{:?}", list_dir(dir.path()));
+    // Success: exactly the file, no temp file.
+    for name in ["ok.png", "ok.exr", "ok.npy"] {
+        write_output(&dir.path().join(name), &img, 8, Transfer::Srgb).unwrap();
+    }
+    assert_eq!(list_dir(dir.path()), vec!["ok.exr", "ok.npy", "ok.png"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Errors on bad input
+
+#[test]
+fn missing_file() {
+    let dir = tmp();
+    let p = dir.path().join("nope.png");
+    for e in [
+        err_of(read_photo(&p, Transfer::Srgb, &lim())),
+        err_of(read_depth(&p, &lim())),
+        err_of(read_matte(&p, &lim())),
+        err_of(read_layer(&p, &lim())),
+    ] {
+        assert!(e.contains("nope.png") && e.contains("cannot read") && e.contains("No such file"), "{e}");
+    }
+}
+
+#[test]
+fn garbage_bytes_with_every_extension() {
+    let dir = tmp();
+    let garbage: Vec<u8> = (0..2000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect();
+    for (ext, expect) in [
+        ("png", "PNG"),
+        ("exr", "EXR"),
+        ("tif", "TIFF"),
+        ("tiff", "TIFF"),
+        ("jpg", "JPEG"),
+        ("jpeg", "JPEG"),
+        ("npy", "NPY"),
+    ] {
+        let p = dir.path().join(format!("garbage.{ext}"));
+        std::fs::write(&p, &garbage).unwrap();
+        for e in [
+            err_of(read_photo(&p, Transfer::Srgb, &lim())),
+            err_of(read_depth(&p, &lim())),
+            err_of(read_matte(&p, &lim())),
+        ] {
+            assert!(e.contains(&format!("garbage.{ext}")) && e.contains(expect), "{ext}: {e}");
+        }
+        let _ = read_layer(&p, &lim()).unwrap_err();
+    }
+    let p = dir.path().join("garbage.dat");
+    std::fs::write(&p, &garbage).unwrap();
+    let e = err_of(read_photo(&p, Transfer::Srgb, &lim()));
+    assert!(e.contains("garbage.dat") && e.contains("unrecognised") && e.contains(".png") && e.contains(".exr"), "{e}");
+    // A known but unsupported format is named.
+    let p = dir.path().join("pic.bmp");
+    image::RgbImage::new(2, 2).save(&p).unwrap();
+    let e = err_of(read_photo(&p, Transfer::Srgb, &lim()));
+    assert!(e.contains("Bmp") && e.contains("not supported"), "{e}");
+}
+
+#[test]
+fn detection_by_content_beats_extension() {
+    let dir = tmp();
+    let p = dir.path().join("actually_png.tif");
+    image::GrayImage::from_pixel(2, 2, image::Luma([51])).save_with_format(&p, image::ImageFormat::Png).unwrap();
+    let d = read_decoded(&p, &lim()).unwrap();
+    assert_eq!(d.format, FileFormat::Png);
+    assert_eq!(d.image.data[0], 0.2);
+}
+
+#[test]
+fn truncated_files_are_corrupt_not_panics() {
+    let dir = tmp();
+    let img = pattern(64, 48, 3);
+    let png = dir.path().join("full.png");
+    write_png(&png, &img, 8, Transfer::Srgb).unwrap();
+    let exr = dir.path().join("full.exr");
+    write_exr(&exr, &img, &["R", "G", "B"]).unwrap();
+    let tif = dir.path().join("full.tif");
+    {
+        let data: Vec<u16> = (0..64 * 48 * 3).map(|i| i as u16).collect();
+        write_tiff::<tiff::encoder::colortype::RGB16>(&tif, 64, 48, &data);
+    }
+    let jpg = dir.path().join("full.jpg");
+    image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([x as u8 * 3, y as u8 * 5, 7])).save(&jpg).unwrap();
+    let npy = dir.path().join("full.npy");
+    save_npy(&npy, &img);
+    for (src, expect) in [(&png, "corrupt or truncated PNG"), (&exr, "EXR"), (&tif, "TIFF"), (&jpg, "JPEG"), (&npy, "truncated")] {
+        let bytes = std::fs::read(src).unwrap();
+        let name = format!("half_{}", src.file_name().unwrap().to_string_lossy());
+        let p = dir.path().join(&name);
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+        let e = err_of(read_decoded(&p, &lim()));
+        assert!(e.contains(&name) && e.contains(expect), "{e}");
+    }
+}
+
+#[test]
+fn zero_sized_inputs() {
+    let dir = tmp();
+    let p = dir.path().join("empty.png");
+    std::fs::write(&p, b"").unwrap();
+    let e = err_of(read_photo(&p, Transfer::Srgb, &lim()));
+    assert!(e.contains("empty.png") && e.contains("empty"), "{e}");
+
+    let p = dir.path().join("zero.npy");
+    raw_npy(&p, &[0, 4], &[]);
+    let e = err_of(read_depth(&p, &lim()));
+    assert!(e.contains("zero.npy") && e.contains("empty"), "{e}");
+
+    let p = dir.path().join("zero_width.png");
+    std::fs::write(&p, png_header_only(0, 10)).unwrap();
+    let e = err_of(read_photo(&p, Transfer::Srgb, &lim()));
+    assert!(e.contains("zero_width.png"), "{e}");
+
+    let e = err_of(write_png(&dir.path().join("w0.png"), &Image::new(0, 3, 3), 8, Transfer::Srgb));
+    assert!(e.contains("0x3"), "{e}");
+    let e = err_of(write_exr(&dir.path().join("w0.exr"), &Image::new(3, 0, 1), &["Y"]));
+    assert!(e.contains("empty"), "{e}");
+}
+
+#[test]
+fn decompression_bomb_is_refused_before_allocation() {
+    let dir = tmp();
+    let p = dir.path().join("bomb.png");
+    let bytes = png_header_only(100_000, 100_000);
+    assert!(bytes.len() < 100);
+    std::fs::write(&p, &bytes).unwrap();
+    // 10^10 pixels x 3 bytes would be 30 GB: refused from the header alone (the test would
+    // abort on allocation failure or take minutes otherwise).
+    let limits = ReadLimits { max_pixels: 200_000_000 };
+    for e in [
+        err_of(read_photo(&p, Transfer::Srgb, &limits)),
+        err_of(read_depth(&p, &limits)),
+        err_of(read_matte(&p, &limits)),
+    ] {
+        assert!(e.contains("bomb.png") && e.contains("100000x100000") && e.contains("limit of 200000000 pixels"), "{e}");
+    }
+
+    // Small limits apply to every format.
+    let small = ReadLimits::new(100);
+    let img = pattern(20, 10, 3);
+    for name in ["big.png", "big.exr", "big.npy"] {
+        let p = dir.path().join(name);
+        write_output(&p, &img, 8, Transfer::Srgb).unwrap();
+        let e = err_of(read_decoded(&p, &small));
+        assert!(e.contains(name) && e.contains("limit") && e.contains("100"), "{e}");
+        assert!(read_decoded(&p, &ReadLimits::new(200)).is_ok());
+    }
+    let p = dir.path().join("big.tif");
+    write_tiff::<tiff::encoder::colortype::Gray32Float>(&p, 20, 10, &[0.0; 200]);
+    let e = err_of(read_depth(&p, &small));
+    assert!(e.contains("big.tif") && e.contains("limit of 100 pixels"), "{e}");
+    let p = dir.path().join("big.jpg");
+    image::RgbImage::new(20, 10).save(&p).unwrap();
+    let e = err_of(read_photo(&p, Transfer::Srgb, &small));
+    assert!(e.contains("big.jpg") && e.contains("limit of 100 pixels"), "{e}");
+}
+
+/// Byte-level mutations of valid files: every read must return (Ok or Err), never panic or hang.
+#[test]
+fn mutated_files_never_panic() {
+    let dir = tmp();
+    let img = pattern(24, 16, 4);
+    let mut seeds: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    for name in ["m.png", "m.exr", "m.npy"] {
+        let p = dir.path().join(name);
+        if name.ends_with("png") {
+            write_png(&p, &img, 16, Transfer::Srgb).unwrap();
+        } else {
+            write_exr_or_npy(&p, &img);
+        }
+        seeds.push((p.clone(), std::fs::read(&p).unwrap()));
+    }
+    let tif = dir.path().join("m.tif");
+    write_tiff::<tiff::encoder::colortype::RGBA8>(&tif, 24, 16, &vec![7u8; 24 * 16 * 4]);
+    seeds.push((tif.clone(), std::fs::read(&tif).unwrap()));
+    let jpg = dir.path().join("m.jpg");
+    image::RgbImage::from_fn(24, 16, |x, y| image::Rgb([x as u8 * 9, y as u8 * 13, 50])).save(&jpg).unwrap();
+    seeds.push((jpg.clone(), std::fs::read(&jpg).unwrap()));
+
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let mut rand = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let limits = ReadLimits::new(1 << 20);
+    for (path, bytes) in &seeds {
+        let target = path.with_file_name(format!("mut_{}", path.file_name().unwrap().to_string_lossy()));
+        for _ in 0..150 {
+            let mut b = bytes.clone();
+            for _ in 0..1 + rand() % 4 {
+                let i = (rand() % b.len() as u64) as usize;
+                b[i] = rand() as u8;
+            }
+            if rand() % 5 == 0 {
+                b.truncate((rand() % b.len() as u64) as usize);
+            }
+            std::fs::write(&target, &b).unwrap();
+            let _ = read_decoded(&target, &limits);
+            let _ = read_layer(&target, &limits);
+        }
+    }
+}
+
+fn write_exr_or_npy(p: &Path, img: &Image) {
+    if p.extension().unwrap() == "exr" {
+        write_exr(p, img, &["R", "G", "B", "A"]).unwrap();
+    } else {
+        save_npy(p, img);
+    }
+}
+
+/// An NPY header claiming an absurd shape is refused even with no pixel limit (no overflow).
+#[test]
+fn npy_header_with_huge_shape_unlimited() {
+    let dir = tmp();
+    let p = dir.path().join("huge.npy");
+    let dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296, 3), }";
+    let mut header = dict.to_string();
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend_from_slice(&[0u8; 64]);
+    std::fs::write(&p, &bytes).unwrap();
+    // Either our checked arithmetic ("too large") or, in debug builds where npyz's own shape
+    // product overflows, the panic guard ("malformed data") answers: never a panic.
+    let e = err_of(read_depth(&p, &ReadLimits::unlimited()));
+    assert!(e.contains("huge.npy") && (e.contains("too large") || e.contains("malformed data")), "{e}");
+    let e = err_of(read_depth(&p, &lim()));
+    assert!(e.contains("pixel limit") || e.contains("malformed data"), "{e}");
+}
