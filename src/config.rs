@@ -46,12 +46,16 @@ pub enum KernelChoice {
     Auto,
     /// The official formula, always run (even at K = 0, where it slightly softens).
     Exact,
+    /// The fast kernel at `render.quality`, always run.
+    Fast,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderConfig {
     pub kernel: KernelChoice,
+    /// Fast-kernel quality, 1 (fastest) … 8 (converges to exact); 2 is the default.
+    pub quality: u32,
     /// Blur strength K (pixels of CoC radius per unit of normalized disparity).
     /// Unset: 30 × sqrt(megapixels), the official 30 at 1 MP.
     pub blur: Option<f32>,
@@ -65,7 +69,7 @@ pub struct RenderConfig {
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        RenderConfig { kernel: KernelChoice::Auto, blur: None, lens: None, gamma: None, occlusion: true }
+        RenderConfig { kernel: KernelChoice::Auto, quality: 2, blur: None, lens: None, gamma: None, occlusion: true }
     }
 }
 
@@ -111,6 +115,9 @@ impl Config {
             if l == 0 || l % 2 == 0 {
                 return Err(Error::usage(format!("render.lens must be odd and >= 1, got {l}")));
             }
+        }
+        if !(1..=8).contains(&r.quality) {
+            return Err(Error::usage(format!("render.quality must be 1..=8, got {}", r.quality)));
         }
         if let Some(g) = r.gamma {
             if !(g.is_finite() && g > 0.0) {

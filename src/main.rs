@@ -31,7 +31,9 @@ enum Command {
 enum KernelArg {
     /// The official formula, tap by tap; always run, even when nothing is out of focus.
     Exact,
-    /// The best kernel available; skips rendering when nothing is out of focus.
+    /// The fast kernel (same model, near-constant cost per pixel; see --quality).
+    Fast,
+    /// The fast kernel, and no rendering at all when nothing is out of focus.
     Auto,
 }
 
@@ -87,6 +89,9 @@ struct RenderArgs {
     /// Which kernel renders the layers.
     #[arg(long, value_enum)]
     kernel: Option<KernelArg>,
+    /// Fast-kernel quality: 1 (fastest) … 8 (converges to the exact kernel) [default: 2].
+    #[arg(long, value_name = "Q")]
+    quality: Option<u32>,
     /// Classical scatter without occlusion terms, one layer (a baseline for comparisons).
     #[arg(long)]
     no_occlusion: bool,
@@ -153,8 +158,12 @@ fn config_from(args: &RenderArgs) -> Result<Config, Error> {
     if let Some(k) = args.kernel {
         r.kernel = match k {
             KernelArg::Exact => KernelChoice::Exact,
+            KernelArg::Fast => KernelChoice::Fast,
             KernelArg::Auto => KernelChoice::Auto,
         };
+    }
+    if let Some(q) = args.quality {
+        r.quality = q;
     }
     if args.no_occlusion {
         r.occlusion = false;
@@ -169,7 +178,7 @@ fn config_from(args: &RenderArgs) -> Result<Config, Error> {
         };
     }
     let flag = |e: Error| match e {
-        Error::Usage(m) => Error::Usage(m.replace("render.blur", "--blur").replace("render.lens", "--lens").replace("render.gamma", "--gamma")),
+        Error::Usage(m) => Error::Usage(m.replace("render.blur", "--blur").replace("render.lens", "--lens").replace("render.gamma", "--gamma").replace("render.quality", "--quality")),
         other => other,
     };
     cfg.validate().map_err(flag)?;

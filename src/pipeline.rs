@@ -266,11 +266,33 @@ impl Pipeline {
         }
         let lens = rc.lens.unwrap_or_else(|| render::auto_lens(&layers, blur, focus));
         let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion };
-        let kernel = Kernel::Exact;
+        let (kernel, kernel_name) = match rc.kernel {
+            KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),
+            KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),
+        };
+        render::validate(&layers, &s)?;
         let t = Instant::now();
-        let image = render::render(&layers, &s, kernel)?;
-        report.ran("render", t, Some(serde_json::json!({"kernel": "exact", "lens": lens, "layers": layers.len()})));
-        report.params = self.params(w, h, blur, focus, lens, "exact", layers.len(), max_coc);
+        // A fully transparent layer adds nothing and hides nothing: skip it.
+        let (shown, empty): (Vec<usize>, Vec<usize>) = (0..layers.len()).partition(|&i| !layers[i].is_transparent());
+        let image = if shown.is_empty() {
+            Image::new(w, h, 3)
+        } else {
+            let visible: Vec<Layer> = shown.iter().map(|&i| layers[i].clone()).collect();
+            let raws = render::render_raw_with_stats(&visible, &s, kernel);
+            let stats: Vec<_> = raws.iter().map(|(_, st)| st.clone()).collect();
+            let raws: Vec<_> = raws.into_iter().map(|(r, _)| r).collect();
+            let image = render::composite::composite(&raws);
+            report.ran(
+                "render",
+                t,
+                Some(serde_json::json!({"kernel": kernel_name, "lens": lens, "layers": layers.len(), "skipped_transparent_layers": empty, "per_layer": stats})),
+            );
+            image
+        };
+        if shown.is_empty() {
+            report.skipped("render", "every layer is fully transparent: the result is black");
+        }
+        report.params = self.params(w, h, blur, focus, lens, &kernel_name, layers.len(), max_coc);
         Ok(Outcome { image, layers, report })
     }
 

@@ -23,7 +23,7 @@
 
 use super::aperture::{disk_taps, Tap};
 use super::layer::{Layer, A, D};
-use super::lens::{energy, focal_defocus, in_front, scatter_radius, visibility_half_size};
+use super::lens::{energy, focal_defocus, in_front, scatter_radius, step_source_factor, step_tap_factor, visibility_half_size};
 use super::splat::{accumulate, Grid4, Window};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
@@ -67,6 +67,10 @@ pub struct FastStats {
 /// quadrature of the logistic distribution (scale 1/3 px, standard deviation π/(3√3) px).
 const SOFT_EDGE: [(f32, f32); 3] = [(-1.047_2, 1.0 / 6.0), (0.0, 2.0 / 3.0), (1.047_2, 1.0 / 6.0)];
 
+/// Stencil taps reach `σ + STENCIL_TAIL` px: beyond, the soft step is below 5.5e-5 of its
+/// plateau (a ring that holds < 0.1% of a source's energy).
+const STENCIL_TAIL: f32 = 2.5;
+
 /// `1 - q` below which a target counts as defocused (occlusion ≡ 1).
 const BAND_EPS: f32 = 1e-6;
 /// `g` this close to 0 or 1 counts as saturated.
@@ -89,7 +93,12 @@ struct Ctx<'a> {
     sigma: Vec<f32>,
     sigma_max: f32,
     params: FastParams,
+    /// Stencil taps sorted by row offset, their soft-step tap factors, and where each row
+    /// offset `-stencil_p..=stencil_p` starts in them.
     stencil: Vec<Tap>,
+    stencil_factor: Vec<f32>,
+    stencil_rows: Vec<usize>,
+    stencil_p: i64,
 }
 
 impl Ctx<'_> {
@@ -122,7 +131,7 @@ fn scatter_pass(ctx: &Ctx, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync), sta
     let lattice = Window::Lattice(ctx.p as i64);
 
     // Full resolution: exact stencils and directly drawn disks.
-    let reach0 = equivalent_radius((2.0 * pr.r0).min(ctx.sigma_max)).max(pr.stencil_max + 3.0);
+    let reach0 = equivalent_radius((2.0 * pr.r0).min(ctx.sigma_max)).max(pr.stencil_max + STENCIL_TAIL);
     let pad0 = ctx.pad(reach0);
     let counts = std::sync::Mutex::new((0usize, 0usize));
     accumulate(&mut out, |st| {
@@ -139,14 +148,25 @@ fn scatter_pass(ctx: &Ctx, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync), sta
                 let own_row = sy >= y0 && sy < y1;
                 if sig < pr.stencil_max {
                     n_st += own_row as usize;
-                    let reach = sig + 3.0;
-                    for t in &ctx.stencil {
-                        let row = sy + t.di as i64;
-                        if row < y0 || row >= y1 || t.r >= reach {
+                    let reach = sig + STENCIL_TAIL;
+                    let fs = step_source_factor(sig);
+                    let dens = 1.0 / (sig * sig);
+                    // Taps are sorted by row; visit only this stripe's rows.
+                    let (ra, rb) = ((y0 - sy).max(-ctx.stencil_p), (y1 - 1 - sy).min(ctx.stencil_p));
+                    for di in ra..=rb {
+                        // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
+                        let (start, end) = (ctx.stencil_rows[(di + ctx.stencil_p) as usize], ctx.stencil_rows[(di + ctx.stencil_p + 1) as usize]);
+                        let m = (end - start) / 2;
+                        let rem = reach * reach - (di * di) as f32;
+                        if rem <= 0.0 {
                             continue;
                         }
-                        let e = energy(sig, t.r);
-                        st.tap(sx + t.dj as i64, row, v.map(|c| c * e));
+                        let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
+                        let (a, b) = (start + m - jm, start + m + jm + 1);
+                        for (t, &fr) in ctx.stencil[a..b].iter().zip(&ctx.stencil_factor[a..b]) {
+                            let e = dens / (1.0 + fs * fr);
+                            st.tap(sx + t.dj as i64, sy + di, v.map(|c| c * e));
+                        }
                     }
                 } else {
                     n_sp += own_row as usize;
@@ -286,13 +306,19 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
         return (RawLayer::from_vec(w, h, out), stats);
     }
     let sigma_max = (0..w * h).filter(|&i| img.data[i * 5 + A] > 0.0).map(|i| sigma[i]).fold(1.0, f32::max);
-    let stencil_reach = params.stencil_max + 3.0;
+    let stencil_reach = params.stencil_max + STENCIL_TAIL;
+    let stencil: Vec<Tap> = disk_taps(s.lens).into_iter().filter(|t| t.r < stencil_reach).collect();
+    let stencil_p = stencil.iter().map(|t| t.di.abs() as i64).max().unwrap_or(0);
+    let stencil_rows: Vec<usize> = (-stencil_p..=stencil_p + 1).map(|di| stencil.partition_point(|t| (t.di as i64) < di)).collect();
     let ctx = Ctx {
         img,
         w,
         h,
         p,
-        stencil: disk_taps(s.lens).into_iter().filter(|t| t.r < stencil_reach).collect(),
+        stencil_factor: stencil.iter().map(|t| step_tap_factor(t.r)).collect(),
+        stencil,
+        stencil_rows,
+        stencil_p,
         sigma,
         sigma_max,
         params,
@@ -317,22 +343,38 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
         stats.nodes = n;
         // Sources hidden behind every node add nothing; those in front of every node add
         // their full value to every node: scatter them once.
-        let class = |j: usize| -> u8 {
-            let (g_min, g_max) = (in_front(d[j], dhi), in_front(d[j], dlo));
-            if g_max <= G_EPS {
-                0
-            } else if g_min >= 1.0 - G_EPS {
-                2
-            } else {
-                1
-            }
-        };
-        stats.band_sources_skipped = (0..w * h).filter(|&j| class(j) == 0 && img.data[j * 5 + A] > 0.0).count();
-        let front = scatter_pass(&ctx, &|j| if class(j) == 2 { base(j) } else { None }, &mut stats);
-        stats.passes += 1;
-        for &node in &nodes {
-            let u = scatter_pass(&ctx, &|j| if class(j) == 1 { base(j).map(|v| v.map(|c| c * in_front(d[j], node))) } else { None }, &mut stats);
+        let classes: Vec<u8> = d
+            .par_iter()
+            .map(|&dj| {
+                let (g_min, g_max) = (in_front(dj, dhi), in_front(dj, dlo));
+                if g_max <= G_EPS {
+                    0
+                } else if g_min >= 1.0 - G_EPS {
+                    2
+                } else {
+                    1
+                }
+            })
+            .collect();
+        let class = |j: usize| classes[j];
+        
+        let alpha_at = |j: usize| img.data[j * 5 + A] > 0.0;
+        let has = |c: u8| (0..w * h).any(|j| class(j) == c && alpha_at(j));
+        let front = if has(2) {
             stats.passes += 1;
+            scatter_pass(&ctx, &|j| if class(j) == 2 { base(j) } else { None }, &mut stats)
+        } else {
+            Grid4::new(w, h)
+        };
+        let any_unsaturated = has(1);
+        stats.band_sources_skipped = (0..w * h).filter(|&j| class(j) == 0 && alpha_at(j)).count();
+        for &node in &nodes {
+            let u = if any_unsaturated {
+                stats.passes += 1;
+                scatter_pass(&ctx, &|j| if class(j) == 1 { base(j).map(|v| v.map(|c| c * in_front(d[j], node))) } else { None }, &mut stats)
+            } else {
+                Grid4::new(w, h)
+            };
             // Hat-function (linear) interpolation weight of node k at disparity d_x.
             b_acc.par_chunks_mut(4).enumerate().for_each(|(i, acc)| {
                 if !band[i] {

@@ -28,6 +28,21 @@ pub fn soft_step(a: f32, b: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
 
+/// The soft step split into a source factor and a tap factor, for kernels that evaluate many
+/// taps of one source: `soft_step(σ, r) = 1 / (1 + step_source_factor(σ)·step_tap_factor(r))`.
+/// Same function as [`soft_step`] (to f32 rounding) while both factors are finite and non-zero,
+/// i.e. for `σ, r` below ~25 px; callers use it only there.
+#[inline(always)]
+pub fn step_source_factor(sigma: f32) -> f32 {
+    (STEP_LN_OFFSET - STEP_GAIN * sigma).exp()
+}
+
+/// See [`step_source_factor`].
+#[inline(always)]
+pub fn step_tap_factor(r: f32) -> f32 {
+    (STEP_GAIN * r).exp()
+}
+
 /// Energy weight of a neighbour with scatter radius `sigma` at distance `r` from the target,
 /// before the aperture mask and alpha: `step(σ, r) / σ²`.
 #[inline(always)]
@@ -40,7 +55,11 @@ pub fn energy(sigma: f32, r: f32) -> f32 {
 #[inline(always)]
 pub fn focal_defocus(d_target: f32, k: f32) -> f32 {
     let c = d_target.abs() * k;
-    // -expm1 keeps precision for tiny c (q ≈ 3c²) and saturates to 1 without overflow.
+    if c >= 2.5 {
+        // exp(-3·6.25) < 2^-26: the f32 result is exactly 1; skip the transcendental.
+        return 1.0;
+    }
+    // -expm1 keeps precision for tiny c (q ≈ 3c²).
     -(-3.0 * c * c).exp_m1()
 }
 
@@ -92,11 +111,25 @@ mod tests {
     }
 
     #[test]
+    fn factored_soft_step_is_the_soft_step() {
+        for si in 0..=200 {
+            let sigma = 1.0 + si as f32 * 0.1;
+            for ri in 0..=150 {
+                let r = ri as f32 * 0.1;
+                let f = 1.0 / (1.0 + step_source_factor(sigma) * step_tap_factor(r));
+                assert!((f - soft_step(sigma, r)).abs() < 2e-6, "σ={sigma} r={r}");
+            }
+        }
+    }
+
+    #[test]
     fn occlusion_terms() {
         // Same-depth neighbour of an in-focus target: 0.5 - 0.5 tanh(1).
         assert!((occlusion(0.0, 0.3, 0.3) - 0.119_203).abs() < 1e-6);
         assert_eq!(focal_defocus(0.0, 30.0), 0.0);
         assert_eq!(focal_defocus(1.0, 1e6), 1.0);
+        // The shortcut at c >= 2.5 is exact in f32.
+        assert_eq!(-(-3.0f32 * 2.5 * 2.5).exp_m1(), 1.0);
         assert!(in_front(1e30, -1e30) == 1.0 && in_front(-1e30, 1e30) == 0.0);
         assert_eq!(visibility_half_size(7.9, 10), 3);
         assert_eq!(visibility_half_size(f32::INFINITY, 10), 10);

@@ -120,12 +120,23 @@ pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Im
 
 /// The per-layer raw renders, front first (exposed for tests against the official raws).
 pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<RawLayer> {
-    let taps = aperture::disk_taps(s.lens);
+    render_raw_with_stats(layers, s, kernel).into_iter().map(|(r, _)| r).collect()
+}
+
+/// [`render_raw`], plus what the fast kernel did for each layer (None for the exact kernel).
+pub fn render_raw_with_stats(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<(RawLayer, Option<fast::FastStats>)> {
+    let taps = match kernel {
+        Kernel::Exact => aperture::disk_taps(s.lens),
+        Kernel::Fast { .. } => Vec::new(),
+    };
     layers
         .iter()
         .map(|l| match kernel {
-            Kernel::Exact => exact::scatter_layer(l, s, &taps),
-            Kernel::Fast { quality } => fast::scatter_layer(l, s, fast::FastParams::from_quality(quality)).0,
+            Kernel::Exact => (exact::scatter_layer(l, s, &taps), None),
+            Kernel::Fast { quality } => {
+                let (raw, stats) = fast::scatter_layer(l, s, fast::FastParams::from_quality(quality));
+                (raw, Some(stats))
+            }
         })
         .collect()
 }

@@ -88,12 +88,15 @@ pub struct Stripe {
     width: usize,
     y0: i64,
     y1: i64,
+    /// Row-wise differences (spans), `(width + 2) * 4` per row, column shifted by one.
     diff: Vec<f64>,
+    /// Plain values (taps), `width * 4` per row.
+    direct: Vec<f32>,
 }
 
 impl Stripe {
     fn new(width: usize, y0: usize, y1: usize) -> Self {
-        Stripe { width, y0: y0 as i64, y1: y1 as i64, diff: vec![0.0; (y1 - y0) * (width + 2) * 4] }
+        Stripe { width, y0: y0 as i64, y1: y1 as i64, diff: vec![0.0; (y1 - y0) * (width + 2) * 4], direct: vec![0.0; (y1 - y0) * width * 4] }
     }
 
     pub fn rows(&self) -> (i64, i64) {
@@ -116,8 +119,10 @@ impl Stripe {
         if row < self.y0 || row >= self.y1 || x < 0 || x >= self.width as i64 {
             return;
         }
-        self.add_diff(row, x, v, 1.0);
-        self.add_diff(row, x + 1, v, -1.0);
+        let i = (((row - self.y0) as usize) * self.width + x as usize) * 4;
+        for c in 0..4 {
+            self.direct[i + c] += v[c];
+        }
     }
 
     /// Adds `v` times the coverage of each pixel of `row` by the interval `[l, r]` in edge
@@ -175,6 +180,7 @@ where
         visit(&mut stripe);
         for (r, row) in chunk.chunks_exact_mut(w * 4).enumerate() {
             let d = &stripe.diff[r * (w + 2) * 4..(r + 1) * (w + 2) * 4];
+            let direct = &stripe.direct[r * w * 4..(r + 1) * w * 4];
             let mut acc = [0f64; 4];
             // Column -1 holds spans clipped at the left edge: start the prefix sum there.
             for c in 0..4 {
@@ -183,7 +189,7 @@ where
             for x in 0..w {
                 for c in 0..4 {
                     acc[c] += d[(x + 1) * 4 + c];
-                    row[x * 4 + c] += acc[c] as f32;
+                    row[x * 4 + c] += acc[c] as f32 + direct[x * 4 + c];
                 }
             }
         }

@@ -392,8 +392,9 @@ impl March {
                 taps.push(Tap { dy, dx, grid, data, rx, ry, dst });
             }
         }
-        // Per-channel accumulators: Σ w·I, and the two gradient sums of OpenCV's nudge.
-        let mut acc = vec![0.0f32; 3 * ch];
+        // The known taps of the current pixel, reused for every pixel.
+        let mut known = Vec::with_capacity(taps.len());
+        let mut grads = Vec::with_capacity(if MODE == PLAIN { 0 } else { taps.len() });
         let mut queue = Queue::with_capacity(self.band.len() + self.flags.len() / 8);
         for &n in &self.band {
             queue.push(0.0, n as usize);
@@ -416,9 +417,9 @@ impl March {
                 let interior = y > r && y + r + 1 < h as isize && x > r && x + r + 1 < w as isize;
                 let ctx = Ctx { flags: &self.flags, t: &self.t, taps: &taps, gw, w, h, ch };
                 if interior {
-                    ctx.pixel::<MODE, false>(&mut img.data, &mut acc, q, y, x, cv);
+                    ctx.pixel::<MODE, false>(&mut img.data, &mut known, &mut grads, q, y, x, cv);
                 } else {
-                    ctx.pixel::<MODE, true>(&mut img.data, &mut acc, q, y, x, cv);
+                    ctx.pixel::<MODE, true>(&mut img.data, &mut known, &mut grads, q, y, x, cv);
                 }
                 filled += 1;
                 self.flags[q] = BAND;
@@ -427,6 +428,20 @@ impl March {
         }
         filled
     }
+}
+
+/// For OpenCV's finish, the two image differences OpenCV takes at a known tap, as (plus, minus,
+/// factor) indices into the data, and the tap's offset `r`.
+#[derive(Clone, Copy)]
+struct GradTap {
+    rx: f32,
+    ry: f32,
+    xp: usize,
+    xm: usize,
+    xf: f32,
+    yp: usize,
+    ym: usize,
+    yf: f32,
 }
 
 struct Ctx<'a> {
@@ -442,11 +457,16 @@ struct Ctx<'a> {
 impl Ctx<'_> {
     /// Computes the value of hole pixel (x, y) (grid cell `n`) from the known cells of its disc.
     /// `EDGE`: some tap may lie on the image's first/last row or column (or outside it).
+    ///
+    /// Two passes: the weights (and, for OpenCV's finish, the gradient indices) of the known
+    /// taps, then one sum per channel kept in registers. Each channel's sum runs over the taps in
+    /// OpenCV's order, so the result is bit-identical to OpenCV's per-tap accumulation.
     #[inline(always)]
     fn pixel<const MODE: u8, const EDGE: bool>(
         &self,
         data: &mut [f32],
-        acc: &mut [f32],
+        known: &mut Vec<(f32, usize)>,
+        grads: &mut Vec<GradTap>,
         n: usize,
         y: isize,
         x: isize,
@@ -458,15 +478,10 @@ impl Ctx<'_> {
         let tn = t[n];
         let (wi, hi) = (self.w as isize, self.h as isize);
         let at = |yy: isize, xx: isize| (yy.clamp(0, hi - 1) * wi + xx.clamp(0, wi - 1)) as usize * ch;
-        // OpenCV's integer path works on codes: read values as the nearest code, as converting
-        // the image to that type would, so that rounding ties fall exactly as in OpenCV.
-        let inv_unit = 1.0 / cv.unit;
-        let read = |v: f32| if MODE == CV_INT { round_even_f32(v * inv_unit) } else { v };
         let centre = (y * wi + x) as usize * ch;
         let row = self.w * ch;
-        acc.fill(0.0);
-        let (ia, rest) = acc.split_at_mut(ch);
-        let (jx, jy) = rest.split_at_mut(ch);
+        known.clear();
+        grads.clear();
         let mut s = 1.0e-20f32;
         for tap in self.taps {
             let qc = (n as isize + tap.grid) as usize;
@@ -474,7 +489,9 @@ impl Ctx<'_> {
             if flags[qc] >= INSIDE {
                 continue;
             }
-            let lev = (1.0 / (1.0 + (t[qc] - tn).abs() as f64)) as f32;
+            let dt = (t[qc] - tn).abs();
+            // OpenCV divides in double; the plain mean has no need to be bit-exact.
+            let lev = if MODE == PLAIN { 1.0 / (1.0 + dt) } else { (1.0 / (1.0 + dt as f64)) as f32 };
             let mut dir = tap.rx * gtx + tap.ry * gty;
             if (dir.abs() as f64) <= 0.01 {
                 dir = 1.0e-6;
@@ -482,62 +499,65 @@ impl Ctx<'_> {
             let wgt = (tap.dst * lev * dir).abs();
             s += wgt;
             let src = if EDGE { at(y + tap.dy, x + tap.dx) } else { (centre as isize + tap.data) as usize };
-            if MODE == PLAIN {
-                for (a, &v) in ia.iter_mut().zip(&data[src..src + ch]) {
-                    *a += wgt * v;
-                }
-                continue;
-            }
-            // The colour comes from the tap itself, but OpenCV reads the image gradient through
-            // indices shifted inwards on the image's first and last rows/columns; reproduce that.
-            let (sy, sx) = (y + tap.dy, x + tap.dx);
-            let (km, kp, lm, lp) = if EDGE {
-                (sy + (sy == 0) as isize, sy - (sy == hi - 1) as isize, sx + (sx == 0) as isize, sx - (sx == wi - 1) as isize)
-            } else {
-                (sy, sy, sx, sx)
-            };
-            let (mid, right, left, down, up) = if EDGE {
-                (at(km, lm), at(km, lp + 1), at(km, lm - 1), at(kp + 1, lm), at(km - 1, lm))
-            } else {
-                (src, src + ch, src - ch, src + row, src - row)
-            };
-            // The centre of a one-sided difference is also read at the shifted indices.
-            let (xc, yc) = if EDGE { (at(km, lp), at(kp, lm)) } else { (src, src) };
-            let rk = flags[qc + 1] != INSIDE;
-            let lk = flags[qc - 1] != INSIDE;
-            let dk = flags[qc + gw] != INSIDE;
-            let uk = flags[qc - gw] != INSIDE;
-            // (plus, minus, factor) of each difference; factor 0 when both sides are unknown.
-            let (xp, xm, xf) = match (rk, lk) {
-                (true, true) => (right, left, 2.0f32),
-                (true, false) => (right, mid, 1.0),
-                (false, true) => (xc, left, 1.0),
-                (false, false) => (mid, mid, 0.0),
-            };
-            let (yp, ym, yf) = match (dk, uk) {
-                (true, true) => (down, up, 2.0f32),
-                (true, false) => (down, mid, 1.0),
-                (false, true) => (yc, up, 1.0),
-                (false, false) => (mid, mid, 0.0),
-            };
-            for c in 0..ch {
-                let gx = if xf == 0.0 { 0.0 } else { (read(data[xp + c]) - read(data[xm + c])) * xf };
-                let gy = if yf == 0.0 { 0.0 } else { (read(data[yp + c]) - read(data[ym + c])) * yf };
-                ia[c] += wgt * read(data[src + c]);
-                jx[c] -= wgt * (gx * tap.rx);
-                jy[c] -= wgt * (gy * tap.ry);
+            known.push((wgt, src));
+            if MODE != PLAIN {
+                let mut k = GradTap { rx: tap.rx, ry: tap.ry, xp: src, xm: src, xf: 0.0, yp: src, ym: src, yf: 0.0 };
+                // The colour comes from the tap itself, but OpenCV reads the image gradient through
+                // indices shifted inwards on the image's first and last rows/columns.
+                let (sy, sx) = (y + tap.dy, x + tap.dx);
+                let (km, kp, lm, lp) = if EDGE {
+                    (sy + (sy == 0) as isize, sy - (sy == hi - 1) as isize, sx + (sx == 0) as isize, sx - (sx == wi - 1) as isize)
+                } else {
+                    (sy, sy, sx, sx)
+                };
+                let (mid, right, left, down, up) = if EDGE {
+                    (at(km, lm), at(km, lp + 1), at(km, lm - 1), at(kp + 1, lm), at(km - 1, lm))
+                } else {
+                    (src, src + ch, src - ch, src + row, src - row)
+                };
+                // The centre of a one-sided difference is also read at the shifted indices.
+                let (xc, yc) = if EDGE { (at(km, lp), at(kp, lm)) } else { (src, src) };
+                // (plus, minus, factor) of each difference; factor 0 when both sides are unknown.
+                (k.xp, k.xm, k.xf) = match (flags[qc + 1] != INSIDE, flags[qc - 1] != INSIDE) {
+                    (true, true) => (right, left, 2.0),
+                    (true, false) => (right, mid, 1.0),
+                    (false, true) => (xc, left, 1.0),
+                    (false, false) => (mid, mid, 0.0),
+                };
+                (k.yp, k.ym, k.yf) = match (flags[qc + gw] != INSIDE, flags[qc - gw] != INSIDE) {
+                    (true, true) => (down, up, 2.0),
+                    (true, false) => (down, mid, 1.0),
+                    (false, true) => (yc, up, 1.0),
+                    (false, false) => (mid, mid, 0.0),
+                };
+                grads.push(k);
             }
         }
-        let out = &mut data[centre..centre + ch];
+        // OpenCV's integer path works on codes: read values as the nearest code, as converting
+        // the image to that type would, so that rounding ties fall exactly as in OpenCV.
+        let inv_unit = 1.0 / cv.unit;
+        let read = |v: f32| if MODE == CV_INT { round_even_f32(v * inv_unit) } else { v };
         for c in 0..ch {
-            let mean = ia[c] / s;
+            let mut ia = 0.0f32;
             if MODE == PLAIN {
-                out[c] = mean;
+                for &(wgt, src) in known.iter() {
+                    ia += wgt * data[src + c];
+                }
+                data[centre + c] = ia / s;
                 continue;
             }
+            let (mut jx, mut jy) = (0.0f32, 0.0f32);
+            for (&(wgt, src), k) in known.iter().zip(grads.iter()) {
+                let gx = if k.xf == 0.0 { 0.0 } else { (read(data[k.xp + c]) - read(data[k.xm + c])) * k.xf };
+                let gy = if k.yf == 0.0 { 0.0 } else { (read(data[k.yp + c]) - read(data[k.ym + c])) * k.yf };
+                ia += wgt * read(data[src + c]);
+                jx -= wgt * (gx * k.rx);
+                jy -= wgt * (gy * k.ry);
+            }
+            let mean = ia / s;
             // OpenCV's nudge: the component sum of a unit vector, in code values.
-            let nudge = (jx[c] + jy[c]) / ((jx[c] * jx[c] + jy[c] * jy[c]).sqrt() + 1.0e-20);
-            out[c] = if MODE == CV_INT {
+            let nudge = (jx + jy) / ((jx * jx + jy * jy).sqrt() + 1.0e-20);
+            data[centre + c] = if MODE == CV_INT {
                 let max = cv.max_code.unwrap_or(f32::MAX) as f64;
                 // Integer types get +0.5 before rounding (OpenCV's `round_cast`).
                 round_even_f64((mean + nudge) as f64 + 0.5).clamp(0.0, max) as f32 * cv.unit
