@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what the test suite needs into project-local folders (nothing system-wide):
-#   .venv/   Python with the oracle packages from scripts/requirements-test.txt
+#   .venv/   Python with the oracle packages from scripts/requirements-test.txt, including
+#            the onnxruntime wheel whose onnxruntime/capi/libonnxruntime.so.* drbokeh finds there
 # Safe to run repeatedly; it only installs what is missing.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)

@@ -20,6 +20,10 @@ pub struct Config {
     pub inpaint: InpaintOptions,
     pub render: RenderConfig,
     pub output: OutputConfig,
+    /// `[depth]`: the optional depth-estimation model (used when no depth map is given).
+    pub depth: crate::onnx::DepthConfig,
+    /// `[onnx]`: ONNX Runtime location, threads, execution providers, model folder.
+    pub onnx: crate::onnx::OnnxConfig,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -130,6 +134,11 @@ impl Config {
         if self.input.max_pixels == 0 {
             return Err(Error::usage("input.max_pixels must be > 0"));
         }
+        // Checks values only; never loads ONNX Runtime or a model.
+        self.onnx.validate()?;
+        self.segment.onnx.validate("segment.onnx", crate::onnx::ModelKind::Matte)?;
+        self.inpaint.onnx.validate("inpaint.onnx", crate::onnx::ModelKind::Inpaint)?;
+        self.depth.onnx.validate("depth.onnx", crate::onnx::ModelKind::Depth)?;
         for (key, v) in [
             ("fill_depth.erode", self.fill_depth.erode),
             ("fill_depth.radius", self.fill_depth.radius),

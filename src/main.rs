@@ -38,6 +38,26 @@ enum KernelArg {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum SegmentArg {
+    /// The matte when --matte is given, else the depth split.
+    Auto,
+    /// The --matte (required).
+    Matte,
+    /// Split near from far in the depth map.
+    Depth,
+    /// The saliency / matting model of [segment.onnx] (or u2net.onnx in --model-dir).
+    Onnx,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum InpaintArg {
+    /// Telea fast-marching inpainting (no model).
+    Telea,
+    /// The inpainting model of [inpaint.onnx] (or lama.onnx in --model-dir).
+    Onnx,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum DepthKindArg {
     Depth,
     Disparity,
@@ -49,8 +69,9 @@ struct RenderArgs {
     /// The photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR (linear).
     #[arg(required_unless_present = "layer", conflicts_with = "layer")]
     image: Option<PathBuf>,
-    /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W).
-    #[arg(long, required_unless_present = "layer", conflicts_with = "layer")]
+    /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W). Required unless a depth
+    /// model is configured ([depth.onnx] or --model-dir).
+    #[arg(long, conflicts_with = "layer")]
     depth: Option<PathBuf>,
     /// Foreground matte: grey image or the alpha of an RGBA image, in [0, 1].
     #[arg(long, conflicts_with = "layer")]
@@ -110,6 +131,15 @@ struct RenderArgs {
     /// Print a machine-readable summary (JSON) to stdout.
     #[arg(long)]
     json: bool,
+    /// Where the foreground layer comes from [default: auto].
+    #[arg(long, value_enum)]
+    segment: Option<SegmentArg>,
+    /// How the background behind the foreground is filled [default: telea].
+    #[arg(long, value_enum)]
+    inpaint: Option<InpaintArg>,
+    /// Folder with the ONNX models, named as their presets' files (u2net.onnx, lama.onnx, ...).
+    #[arg(long, value_name = "DIR")]
+    model_dir: Option<PathBuf>,
 }
 
 fn parse_xy(s: &str) -> Result<(i64, i64), String> {
@@ -170,6 +200,25 @@ fn config_from(args: &RenderArgs) -> Result<Config, Error> {
     }
     if let Some(b) = &args.bit_depth {
         cfg.output.bit_depth = b.parse().expect("validated by clap");
+    }
+    if let Some(s) = args.segment {
+        use drbokeh::stages::segment::SegmentMethod;
+        cfg.segment.method = match s {
+            SegmentArg::Auto => SegmentMethod::Auto,
+            SegmentArg::Matte => SegmentMethod::Matte,
+            SegmentArg::Depth => SegmentMethod::Depth,
+            SegmentArg::Onnx => SegmentMethod::Onnx,
+        };
+    }
+    if let Some(m) = args.inpaint {
+        use drbokeh::stages::inpaint_onnx::InpaintMethod;
+        cfg.inpaint.method = match m {
+            InpaintArg::Telea => InpaintMethod::Telea,
+            InpaintArg::Onnx => InpaintMethod::Onnx,
+        };
+    }
+    if let Some(d) = &args.model_dir {
+        cfg.onnx.model_dir = Some(d.clone());
     }
     if let Some(k) = args.depth_kind {
         cfg.input.depth_kind = match k {
@@ -233,17 +282,33 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         out
     } else {
         let image_path = args.image.as_ref().expect("clap requires IMAGE");
-        let depth_path = args.depth.as_ref().expect("clap requires --depth");
         let rgb = io::read_photo(image_path, transfer, &limits)?;
-        let raw_depth = io::read_depth(depth_path, &limits)?;
-        let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
-        let disparity = depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?;
+        let mut depth_stage = None;
+        let disparity = match &args.depth {
+            Some(depth_path) => {
+                let raw_depth = io::read_depth(depth_path, &limits)?;
+                let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
+                depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?
+            }
+            None => {
+                // No depth map: the configured depth model predicts relative disparity.
+                let t = Instant::now();
+                let (d, r) = drbokeh::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx)?;
+                read_warnings.extend(r.warnings.iter().cloned());
+                let detail = serde_json::to_value(&r).ok();
+                depth_stage = Some(StageReport { name: "depth_model", status: "ran", reason: None, ms: t.elapsed().as_secs_f64() * 1e3, detail });
+                d
+            }
+        };
         let matte = match &args.matte {
             Some(p) => Some(fit_to(io::read_matte(p, &limits)?, &rgb, p, image_path, &mut read_warnings)?),
             None => None,
         };
         let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
         let mut out = pipeline.run(&Scene { rgb, disparity, matte }, focus)?;
+        if let Some(s) = depth_stage {
+            out.report.stages.insert(0, s);
+        }
         out.report.stages.insert(0, stage("read", read_ms));
         out
     };

@@ -187,20 +187,27 @@ impl Pipeline {
             single(&mut report, "--no-occlusion renders the scene as one layer")?
         } else {
             let t = Instant::now();
+            let mut seg_model = None;
             let seg = match (cfg.segment.method, &scene.matte) {
+                (SegmentMethod::Onnx, _) => {
+                    let (s, r) = crate::stages::segment_onnx::from_model(&scene.rgb, &cfg.segment.onnx, &cfg.onnx)?;
+                    report.warnings.extend(r.warnings.iter().cloned());
+                    seg_model = Some(r);
+                    s
+                }
                 (SegmentMethod::Matte, None) => return Err(Error::usage("segment.method = \"matte\" needs --matte")),
                 (SegmentMethod::Auto | SegmentMethod::Matte, Some(m)) => segment::from_matte(m),
                 _ => segment::from_disparity(disp, &cfg.segment),
             };
-            let source = if scene.matte.is_some() && cfg.segment.method != SegmentMethod::Depth { "matte" } else { "depth split" };
+            let source = if seg_model.is_some() { "onnx" } else if scene.matte.is_some() && cfg.segment.method != SegmentMethod::Depth { "matte" } else { "depth split" };
             match seg {
                 Segmentation::SingleLayer(why) => {
-                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 1, "why": why})));
+                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 1, "why": why, "model": seg_model})));
                     single(&mut report, &format!("one layer: {why}"))?
                 }
                 Segmentation::Foreground(alpha) => {
                     let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
-                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac})));
+                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})));
                     // How far from the visible region a filled value can still be seen: a
                     // scatter radius, plus the visibility box, plus the soft-step tail.
                     let reach = 2.0 * (max_coc + 1.0).ceil() + 4.0;
@@ -208,8 +215,15 @@ impl Pipeline {
                     let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, reach)?;
                     report.ran("fill_depth", t, Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": reach})));
                     let t = Instant::now();
-                    let bg = inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach)?;
-                    report.ran("inpaint", t, Some(serde_json::json!({"method": "telea", "filled_px": bg.filled, "skipped_unreachable_px": bg.skipped, "reach_px": reach})));
+                    let (bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
+                        let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, &cfg.onnx)?;
+                        report.warnings.extend(r.warnings.iter().cloned());
+                        (bg, Some(r))
+                    } else {
+                        (inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach)?, None)
+                    };
+                    let method = if inpaint_model.is_some() { "onnx" } else { "telea" };
+                    report.ran("inpaint", t, Some(serde_json::json!({"method": method, "filled_px": bg.filled, "skipped_unreachable_px": bg.skipped, "reach_px": reach, "model": inpaint_model})));
                     vec![
                         Layer::from_parts(&scene.rgb, &alpha, &fd.disparity, "foreground layer")?,
                         Layer::from_parts(&bg.rgb, &opaque, &bg.disparity, "background layer")?,

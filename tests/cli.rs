@@ -357,8 +357,8 @@ fn lens_flag_and_auto_lens() {
     assert!(lens % 2 == 1, "auto lens must be odd: {lens}");
     assert!(lens as f64 >= 2.0 * 4.0 + 1.0, "auto lens {lens} must cover the CoC of radius 4 (+1)");
     // --lens changes the picture.
-    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--lens", "3", "-o", "l3.npy"]);
-    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--lens", "15", "-o", "l15.npy"]);
+    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--kernel", "exact", "--lens", "3", "-o", "l3.npy"]);
+    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--kernel", "exact", "--lens", "15", "-o", "l15.npy"]);
     assert!(max_abs_diff(&read_npy(&s.path("l3.npy")).data, &read_npy(&s.path("l15.npy")).data) > 1e-3);
 }
 
@@ -370,7 +370,7 @@ fn gamma_renders_on_powered_colours() {
     let (fg, bg) = scene_layers();
     io::save_npy(&s.path("fg.npy"), &fg).unwrap();
     io::save_npy(&s.path("bg.npy"), &bg).unwrap();
-    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--gamma", "2.2", "-o", "g.npy"]);
+    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--gamma", "2.2", "--kernel", "exact", "-o", "g.npy"]);
     assert!((f64_of(&j["params"]["gamma"]) - 2.2).abs() < 1e-6, "{j}");
     let got = read_npy(&s.path("g.npy"));
     let mut layers = layers_of(&[&fg, &bg]);
@@ -383,7 +383,7 @@ fn gamma_renders_on_powered_colours() {
     let e = max_abs_diff(&got.data, &want.data);
     assert!(e < 1e-5, "gamma path differs from the library by {e}");
     // And it is not the same as the default (exact transfer / linear) result.
-    s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "-o", "lin.npy"]);
+    s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--kernel", "exact", "-o", "lin.npy"]);
     assert!(max_abs_diff(&got.data, &read_npy(&s.path("lin.npy")).data) > 1e-3);
     // A photo input also accepts --gamma.
     s.ok(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--gamma", "2.2", "-o", "g.png"]);
@@ -403,7 +403,7 @@ fn kernel_exact_and_auto() {
     assert_eq!(stage(&j, "render")["status"], "skipped", "{j}");
     let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "--kernel", "exact"]);
     assert_eq!(stage(&j, "render")["status"], "ran", "{j}");
-    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--kernel", "fast"], &["--kernel"]);
+    s.bad(&["image.png", "--depth", "depth.exr", "--focus", "1", "--kernel", "turbo", "-o", "o.png"], &["--kernel"]);
 }
 
 #[test]
@@ -549,6 +549,11 @@ fn config_file_is_honoured_and_flags_override_it() {
     assert_eq!(j["params"]["lens"], 9, "{j}");
     let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "p.toml", "--blur", "2"]);
     assert_eq!(f64_of(&j["params"]["blur"]), 2.0, "flag overrides config: {j}");
+    // Other sections and keys are honoured too.
+    std::fs::write(s.path("k.toml"), "[render]\nkernel = \"exact\"\nblur = 0.0\n[output]\nbit_depth = 16\n").unwrap();
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", "k.toml", "-o", "k.png"]);
+    assert_eq!(stage(&j, "render")["status"], "ran", "config kernel = exact runs at K = 0: {j}");
+    assert_eq!(image::open(s.path("k.png")).unwrap().color(), image::ColorType::Rgb16, "config output.bit_depth = 16");
     // The bundled pipeline.toml parses.
     let bundled = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline.toml");
     if bundled.is_file() {
@@ -1001,4 +1006,46 @@ fn save_layers_when_nothing_is_rendered() {
     let err = String::from_utf8_lossy(&out.stderr);
     let wrote = s.path("L/fg.exr").is_file() && s.path("L/bg.exr").is_file();
     assert!(wrote || err.contains("layers"), "no layers in L/ ({:?}) and no warning: {err}", s.files());
+}
+
+/// Garbage behind each format's magic bytes, and truncations of real files, as every kind of
+/// input: always exit 2 naming the file, never a panic or exit 1.
+#[test]
+fn corrupt_files_behind_valid_magic() {
+    let s = Scene::new();
+    let (fg, _) = scene_layers();
+    io::save_npy(&s.path("good_layer.npy"), &fg).unwrap();
+    io::write_exr(&s.path("good_layer.exr"), &fg, &["R", "G", "B", "A", "D"]).unwrap();
+    io::save_npy(&s.path("good_depth.npy"), &depth_map(W, H)).unwrap();
+    let mut rng = Rng::new(77);
+    let mut cases: Vec<(String, Vec<u8>)> = Vec::new();
+    let magics: [(&str, &[u8]); 5] = [
+        ("png", b"\x89PNG\r\n\x1a\n"),
+        ("jpg", &[0xFF, 0xD8, 0xFF, 0xE0]),
+        ("tif", b"II*\0"),
+        ("exr", &[0x76, 0x2F, 0x31, 0x01]),
+        ("npy", b"\x93NUMPY"),
+    ];
+    for (ext, magic) in magics {
+        let mut bytes = magic.to_vec();
+        bytes.extend((0..300).map(|_| (rng.next_f32() * 256.0) as u8));
+        cases.push((format!("junk.{ext}"), bytes));
+    }
+    for good in ["image.png", "image.exr", "depth.exr", "good_layer.npy", "good_layer.exr", "good_depth.npy"] {
+        let full = std::fs::read(s.path(good)).unwrap();
+        for (i, frac) in [0.1, 0.5, 0.9].into_iter().enumerate() {
+            let ext = Path::new(good).extension().unwrap().to_str().unwrap();
+            cases.push((format!("cut{i}_{}.{ext}", good.replace('.', "_")), full[..(full.len() as f64 * frac) as usize].to_vec()));
+        }
+    }
+    for (name, bytes) in &cases {
+        std::fs::write(s.path(name), bytes).unwrap();
+    }
+    for (name, _) in &cases {
+        let n = name.as_str();
+        s.bad(&[n, "--depth", "depth.exr", "--focus", "1", "--blur", "2", "-o", "o.png"], &[n]);
+        s.bad(&["image.png", "--depth", n, "--focus", "1", "--blur", "2", "-o", "o.png"], &[n]);
+        s.bad(&["image.png", "--depth", "depth.exr", "--matte", n, "--focus", "1", "--blur", "2", "-o", "o.png"], &[n]);
+        s.bad(&["--layer", n, "--focus", "1", "--blur", "2", "-o", "o.png"], &[n]);
+    }
 }

@@ -58,3 +58,70 @@ fn fast_matches_exact_on_groundtruth_scenes() {
     }
     println!("groundtruth worst: PSNR {:.2} dB, max abs {:.4}", worst.0, worst.1);
 }
+
+#[test]
+fn fast_matches_exact_on_stress_scenes() {
+    use drbokeh::bench::stress::two_layer_scene;
+    let mut worst = (f64::INFINITY, 0f32);
+    for (focus_fg, coc) in [(true, 6.0), (true, 20.0), (false, 12.0)] {
+        let (layers, s) = two_layer_scene(96, 80, coc, focus_fg);
+        let (p, m) = compare(&format!("stress fg={focus_fg} coc={coc}"), &layers, &s, 2);
+        worst = (worst.0.min(p), worst.1.max(m));
+        // Focus between the layers.
+        let s_mid = RenderSettings { focus: 0.75, ..s };
+        let (p, m) = compare(&format!("stress between coc={coc}"), &layers, &s_mid, 2);
+        worst = (worst.0.min(p), worst.1.max(m));
+    }
+    println!("stress worst: PSNR {:.2} dB, max abs {:.4}", worst.0, worst.1);
+    assert!(worst.0 >= 45.0 && worst.1 <= 0.02);
+}
+
+#[test]
+fn fast_kernel_converges_with_quality() {
+    use drbokeh::bench::stress::two_layer_scene;
+    let (layers, s) = two_layer_scene(64, 48, 10.0, true);
+    let (p1, _) = compare("converge q1", &layers, &s, 1);
+    let (p8, m8) = compare("converge q8", &layers, &s, 8);
+    assert!(p8 > p1 && p8 > 70.0 && m8 < 1e-3, "q8: {p8} dB, {m8}");
+}
+
+#[test]
+fn fast_kernel_is_deterministic_across_thread_counts() {
+    use drbokeh::bench::stress::two_layer_scene;
+    let (layers, s) = two_layer_scene(120, 90, 24.0, false);
+    let run = |n: usize| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap());
+    assert_eq!(run(1).data, run(2).data);
+    assert_eq!(run(3).data, run(2).data);
+}
+
+#[test]
+fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
+    use drbokeh::Image;
+    let (w, h) = (40, 30);
+    let mut fg = Vec::new();
+    let mut bg = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let a = if (x as i32 - 20).abs() < 8 && (y as i32 - 15).abs() < 6 { 1.0 } else { 0.0 };
+            fg.extend_from_slice(&[0.3, 0.6, 0.9, a, 0.9]);
+            bg.extend_from_slice(&[0.3, 0.6, 0.9, 1.0, (x as f32 / w as f32) * 0.5]);
+        }
+    }
+    let layers = vec![Layer::new(Image::from_vec(w, h, 5, fg).unwrap(), "fg").unwrap(), Layer::new(Image::from_vec(w, h, 5, bg.clone()).unwrap(), "bg").unwrap()];
+    for (k, f) in [(0.0, 0.5), (5.0, 0.9), (30.0, 0.0), (60.0, 0.4)] {
+        let s = RenderSettings { blur: k, focus: f, lens: render::auto_lens(&layers, k, f), occlusion: true };
+        let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
+        for px in out.data.chunks_exact(3) {
+            assert!((px[0] - 0.3).abs() < 1e-5 && (px[1] - 0.6).abs() < 1e-5 && (px[2] - 0.9).abs() < 1e-5, "K={k} f={f}: {px:?}");
+        }
+    }
+    // HDR highlights (1e4) stay finite.
+    for (i, px) in bg.chunks_exact_mut(5).enumerate() {
+        if i % 37 == 0 {
+            px[0] = 1e4;
+        }
+    }
+    let layers = vec![Layer::new(Image::from_vec(w, h, 5, bg).unwrap(), "bg").unwrap()];
+    let s = RenderSettings { blur: 40.0, focus: 1.0, lens: render::auto_lens(&layers, 40.0, 1.0), occlusion: true };
+    assert!(render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap().all_finite());
+}

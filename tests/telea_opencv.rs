@@ -235,6 +235,12 @@ fn opencv(cases: &[Case], dir: &Path) -> Vec<Image> {
     (0..cases.len()).map(|i| read_npy(&dir.join(format!("out{i}.npy")), u64::MAX).unwrap()).collect()
 }
 
+/// The installed OpenCV's version, for the printed tables.
+fn cv_version() -> String {
+    let out = Command::new(python()).args(["-c", "import cv2; print(cv2.__version__)"]).output().expect("run python");
+    String::from_utf8_lossy(&out.stdout).trim().to_string()
+}
+
 /// Our fill, returned in oracle units.
 fn ours(case: &Case, compat: Option<OpenCvCompat>) -> Image {
     let k = case.kind.to_lib();
@@ -251,7 +257,9 @@ struct Stats {
     mean: f64,
     p99: f64,
     max: f64,
+    /// Values compared, and how many of them differ at all.
     n: usize,
+    differ: usize,
 }
 
 /// Absolute differences over the masked pixels (all channels), in levels.
@@ -268,7 +276,8 @@ fn compare(a: &Image, b: &Image, mask: &[bool], level: f32) -> Stats {
     d.sort_by(f64::total_cmp);
     let n = d.len();
     let p99 = d[((n as f64 * 0.99).ceil() as usize).clamp(1, n) - 1];
-    Stats { mean: d.iter().sum::<f64>() / n as f64, p99, max: d[n - 1], n }
+    let differ = d.iter().filter(|&&v| v != 0.0).count();
+    Stats { mean: d.iter().sum::<f64>() / n as f64, p99, max: d[n - 1], n, differ }
 }
 
 fn cases_for(kind: Kind) -> Vec<Case> {
@@ -297,21 +306,27 @@ fn check(kind: Kind) {
     let cases = cases_for(kind);
     let dir = tempfile::tempdir().unwrap();
     let oracle = opencv(&cases, dir.path());
-    println!("{:?} vs cv2.inpaint TELEA, |diff| in levels (1/255 of range) over filled pixels", kind);
-    println!("{:<40} {:>7} | {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7}", "case", "values", "mean", "p99", "max", "mean*", "p99*", "max*");
+    // One print per test, so that tests running in parallel do not interleave their tables.
+    let mut table = format!("{kind:?} vs cv2.inpaint TELEA (OpenCV {}), |diff| in levels (1/255 of range) over filled values\n", cv_version());
+    table += &format!(
+        "{:<34} {:>6} | {:>6} {:>7} {:>7} {:>9} | {:>7} {:>7} {:>7}\n",
+        "case", "values", "differ", "mean", "p99", "max", "mean*", "p99*", "max*"
+    );
     let mut failures = Vec::new();
     for (case, cv) in cases.iter().zip(&oracle) {
         let compat = compare(&ours(case, Some(kind.compat())), cv, &case.mask, kind.level());
         let plain = compare(&ours(case, None), cv, &case.mask, kind.level());
-        println!(
-            "{:<40} {:>7} | {:>7.4} {:>7.3} {:>7.3} | {:>7.3} {:>7.3} {:>7.3}",
-            case.name, compat.n, compat.mean, compat.p99, compat.max, plain.mean, plain.p99, plain.max
+        table += &format!(
+            "{:<34} {:>6} | {:>6} {:>7.4} {:>7.3} {:>9.3e} | {:>7.3} {:>7.3} {:>7.3}\n",
+            case.name, compat.n, compat.differ, compat.mean, compat.p99, compat.max, plain.mean, plain.p99, plain.max
         );
         if !(compat.mean <= 1.0 && compat.p99 <= 4.0) {
             failures.push(format!("{}: mean {:.3} p99 {:.3}", case.name, compat.mean, compat.p99));
         }
     }
-    println!("(first block: compat = OpenCvCompat for the dtype; * = default plain weighted mean)");
+    table += "left: TeleaOptions::compat = the dtype's OpenCvCompat (asserted: mean <= 1, p99 <= 4);\n";
+    table += "right (*): the default plain weighted mean, reported only\n";
+    println!("{table}");
     assert!(failures.is_empty(), "outside tolerance (mean <= 1, p99 <= 4 levels):\n{}", failures.join("\n"));
 }
 

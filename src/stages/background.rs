@@ -19,11 +19,15 @@ pub struct InpaintOptions {
     pub dilate: f32,
     /// Telea neighbourhood radius, pixels.
     pub radius: f32,
+    /// "telea" (this module) or "onnx" (the `[inpaint.onnx]` model, `stages::inpaint_onnx`).
+    pub method: super::inpaint_onnx::InpaintMethod,
+    /// `[inpaint.onnx]`: the model used by `method = "onnx"`.
+    pub onnx: crate::onnx::ModelSpec,
 }
 
 impl Default for InpaintOptions {
     fn default() -> Self {
-        InpaintOptions { threshold: 0.02, dilate: 3.0, radius: 5.0 }
+        InpaintOptions { threshold: 0.02, dilate: 3.0, radius: 5.0, method: Default::default(), onnx: Default::default() }
     }
 }
 

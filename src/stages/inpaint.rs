@@ -117,7 +117,7 @@ pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Resu
             img.data.len()
         )));
     }
-    if !(opts.radius >= 0.0) {
+    if opts.radius.is_nan() || opts.radius < 0.0 {
         return Err(Error::usage(format!("inpaint: radius must be >= 0, got {}", opts.radius)));
     }
     if opts.max_distance.is_some_and(f32::is_nan) {
@@ -127,7 +127,7 @@ pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Resu
         if !(cv.unit.is_finite() && cv.unit > 0.0) {
             return Err(Error::usage(format!("inpaint: compat unit must be finite and > 0, got {}", cv.unit)));
         }
-        if cv.max_code.is_some_and(|m| !(m >= 0.0)) {
+        if cv.max_code.is_some_and(|m| m.is_nan() || m < 0.0) {
             return Err(Error::usage("inpaint: compat max_code must be >= 0"));
         }
     }
@@ -399,6 +399,11 @@ impl March {
         for &n in &self.band {
             queue.push(0.0, n as usize);
         }
+        // OpenCV's integer path works on codes: keep a copy of the image as the nearest codes
+        // (what converting it to that type gives), so that rounding ties fall exactly as there.
+        let inv_unit = 1.0 / cv.unit;
+        let mut codes: Vec<f32> =
+            if MODE == CV_INT { img.data.iter().map(|&v| round_even_f32(v * inv_unit)).collect() } else { Vec::new() };
         let mut filled = 0;
         while let Some(p) = queue.pop() {
             self.flags[p] = KNOWN;
@@ -415,11 +420,18 @@ impl March {
                 let (y, x) = ((q / gw - pad) as isize, (q % gw - pad) as isize);
                 // Sources on the image's outer rows/columns need OpenCV's edge handling.
                 let interior = y > r && y + r + 1 < h as isize && x > r && x + r + 1 < w as isize;
-                let ctx = Ctx { flags: &self.flags, t: &self.t, taps: &taps, gw, w, h, ch };
+                let ctx = Ctx { flags: &self.flags, t: &self.t, taps: &taps, gw, w, h, ch, cv };
+                let buf = if MODE == CV_INT { &mut codes[..] } else { &mut img.data[..] };
                 if interior {
-                    ctx.pixel::<MODE, false>(&mut img.data, &mut known, &mut grads, q, y, x, cv);
+                    ctx.pixel::<MODE, false>(buf, &mut known, &mut grads, q, y, x);
                 } else {
-                    ctx.pixel::<MODE, true>(&mut img.data, &mut known, &mut grads, q, y, x, cv);
+                    ctx.pixel::<MODE, true>(buf, &mut known, &mut grads, q, y, x);
+                }
+                if MODE == CV_INT {
+                    let i = (y as usize * w + x as usize) * ch;
+                    for (v, &code) in img.data[i..i + ch].iter_mut().zip(&codes[i..i + ch]) {
+                        *v = code * cv.unit;
+                    }
                 }
                 filled += 1;
                 self.flags[q] = BAND;
@@ -452,10 +464,12 @@ struct Ctx<'a> {
     w: usize,
     h: usize,
     ch: usize,
+    cv: OpenCvCompat,
 }
 
 impl Ctx<'_> {
-    /// Computes the value of hole pixel (x, y) (grid cell `n`) from the known cells of its disc.
+    /// Computes the value of hole pixel (x, y) (grid cell `n`) from the known cells of its disc,
+    /// reading and writing `data` (for `CV_INT`, the image as codes).
     /// `EDGE`: some tap may lie on the image's first/last row or column (or outside it).
     ///
     /// Two passes: the weights (and, for OpenCV's finish, the gradient indices) of the known
@@ -470,9 +484,8 @@ impl Ctx<'_> {
         n: usize,
         y: isize,
         x: isize,
-        cv: OpenCvCompat,
     ) {
-        let (flags, t, ch, gw) = (self.flags, self.t, self.ch, self.gw);
+        let (flags, t, ch, gw, cv) = (self.flags, self.t, self.ch, self.gw, self.cv);
         let gtx = known_diff(flags, t, n, 1);
         let gty = known_diff(flags, t, n, gw);
         let tn = t[n];
@@ -498,7 +511,8 @@ impl Ctx<'_> {
             }
             let wgt = (tap.dst * lev * dir).abs();
             s += wgt;
-            let src = if EDGE { at(y + tap.dy, x + tap.dx) } else { (centre as isize + tap.data) as usize };
+            // A known tap lies inside the image, so its plain offset is always valid.
+            let src = (centre as isize + tap.data) as usize;
             known.push((wgt, src));
             if MODE != PLAIN {
                 let mut k = GradTap { rx: tap.rx, ry: tap.ry, xp: src, xm: src, xf: 0.0, yp: src, ym: src, yf: 0.0 };
@@ -533,10 +547,6 @@ impl Ctx<'_> {
                 grads.push(k);
             }
         }
-        // OpenCV's integer path works on codes: read values as the nearest code, as converting
-        // the image to that type would, so that rounding ties fall exactly as in OpenCV.
-        let inv_unit = 1.0 / cv.unit;
-        let read = |v: f32| if MODE == CV_INT { round_even_f32(v * inv_unit) } else { v };
         for c in 0..ch {
             let mut ia = 0.0f32;
             if MODE == PLAIN {
@@ -548,9 +558,9 @@ impl Ctx<'_> {
             }
             let (mut jx, mut jy) = (0.0f32, 0.0f32);
             for (&(wgt, src), k) in known.iter().zip(grads.iter()) {
-                let gx = if k.xf == 0.0 { 0.0 } else { (read(data[k.xp + c]) - read(data[k.xm + c])) * k.xf };
-                let gy = if k.yf == 0.0 { 0.0 } else { (read(data[k.yp + c]) - read(data[k.ym + c])) * k.yf };
-                ia += wgt * read(data[src + c]);
+                let gx = if k.xf == 0.0 { 0.0 } else { (data[k.xp + c] - data[k.xm + c]) * k.xf };
+                let gy = if k.yf == 0.0 { 0.0 } else { (data[k.yp + c] - data[k.ym + c]) * k.yf };
+                ia += wgt * data[src + c];
                 jx -= wgt * (gx * k.rx);
                 jy -= wgt * (gy * k.ry);
             }
@@ -560,10 +570,227 @@ impl Ctx<'_> {
             data[centre + c] = if MODE == CV_INT {
                 let max = cv.max_code.unwrap_or(f32::MAX) as f64;
                 // Integer types get +0.5 before rounding (OpenCV's `round_cast`).
-                round_even_f64((mean + nudge) as f64 + 0.5).clamp(0.0, max) as f32 * cv.unit
+                round_even_f64((mean + nudge) as f64 + 0.5).clamp(0.0, max) as f32
             } else {
                 mean + cv.unit * nudge
             };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic pseudo-random values in 0..255 (integer codes), any channel count.
+    fn noise_image(w: usize, h: usize, ch: usize, seed: u64) -> Image {
+        let mut s = seed;
+        let data = (0..w * h * ch)
+            .map(|_| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                ((s >> 33) % 256) as f32
+            })
+            .collect();
+        Image::from_vec(w, h, ch, data).unwrap()
+    }
+
+    fn all_modes() -> [Option<OpenCvCompat>; 4] {
+        [None, Some(OpenCvCompat::u8(1.0)), Some(OpenCvCompat::u16(1.0)), Some(OpenCvCompat::f32())]
+    }
+
+    fn opts(radius: f32, compat: Option<OpenCvCompat>) -> TeleaOptions {
+        TeleaOptions { compat, ..TeleaOptions::new(radius) }
+    }
+
+    /// Fills and checks the invariants every fill must keep: known pixels untouched, output
+    /// finite, count = masked pixels when something is known.
+    fn fill_checked(img: &Image, mask: &[bool], o: TeleaOptions) -> Image {
+        let mut out = img.clone();
+        let filled = inpaint_telea(&mut out, mask, o).unwrap();
+        let masked = mask.iter().filter(|&&m| m).count();
+        let expect = if masked == mask.len() { 0 } else { masked };
+        assert_eq!(filled, expect, "{}x{} {:?}", img.width, img.height, o);
+        let c = img.channels;
+        for (i, &m) in mask.iter().enumerate() {
+            for k in 0..c {
+                let (a, b) = (img.data[i * c + k], out.data[i * c + k]);
+                assert!(b.is_finite(), "non-finite output at {i}");
+                if !m || masked == mask.len() {
+                    assert_eq!(a.to_bits(), b.to_bits(), "pixel {i} changed");
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn empty_mask_is_a_no_op() {
+        let img = noise_image(7, 5, 3, 1);
+        for compat in all_modes() {
+            let mut out = img.clone();
+            assert_eq!(inpaint_telea(&mut out, &[false; 35], opts(3.0, compat)).unwrap(), 0);
+            assert_eq!(out, img);
+        }
+    }
+
+    #[test]
+    fn full_mask_leaves_the_image_unchanged() {
+        let img = noise_image(6, 4, 1, 2);
+        for compat in all_modes() {
+            let mut out = img.clone();
+            assert_eq!(inpaint_telea(&mut out, &[true; 24], opts(3.0, compat)).unwrap(), 0);
+            assert_eq!(out, img);
+        }
+    }
+
+    #[test]
+    fn empty_and_single_pixel_images() {
+        let mut empty = Image::new(0, 3, 2);
+        assert_eq!(inpaint_telea(&mut empty, &[], TeleaOptions::new(3.0)).unwrap(), 0);
+        for m in [false, true] {
+            for compat in all_modes() {
+                let img = Image::filled(1, 1, 3, 7.0);
+                fill_checked(&img, &[m], opts(5.0, compat));
+            }
+        }
+    }
+
+    #[test]
+    fn one_row_and_one_column_images() {
+        for (w, h) in [(1, 9), (9, 1), (2, 7), (7, 2)] {
+            let img = noise_image(w, h, 2, 3);
+            let masks: [Vec<bool>; 4] = [
+                (0..w * h).map(|i| i % 3 == 1).collect(),
+                (0..w * h).map(|i| i != 0).collect(),
+                (0..w * h).map(|i| i + 1 != w * h).collect(),
+                (0..w * h).map(|i| i == 0 || i + 1 == w * h).collect(),
+            ];
+            for mask in &masks {
+                for compat in all_modes() {
+                    for r in [1.0, 3.0, 7.0] {
+                        fill_checked(&img, mask, opts(r, compat));
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn masks_on_the_border() {
+        let (w, h) = (11, 8);
+        let img = noise_image(w, h, 3, 4);
+        let frame: Vec<bool> = (0..w * h).map(|i| i % w == 0 || i % w == w - 1 || i / w == 0 || i / w == h - 1).collect();
+        let corner: Vec<bool> = (0..w * h).map(|i| i % w < 3 && i / w < 3).collect();
+        let last_row: Vec<bool> = (0..w * h).map(|i| i / w == h - 1).collect();
+        let all_but_one: Vec<bool> = (0..w * h).map(|i| i != w * h / 2).collect();
+        for mask in [&frame, &corner, &last_row, &all_but_one] {
+            for compat in all_modes() {
+                for r in [1.0, 2.0, 5.0] {
+                    fill_checked(&img, mask, opts(r, compat));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn plain_fill_stays_within_the_known_range_and_keeps_constants() {
+        let (w, h) = (20, 16);
+        let img = noise_image(w, h, 1, 5);
+        let mask: Vec<bool> = (0..w * h).map(|i| (4..12).contains(&(i % w)) && (3..13).contains(&(i / w))).collect();
+        let out = fill_checked(&img, &mask, TeleaOptions::new(4.0));
+        let known = img.data.iter().zip(&mask).filter(|(_, m)| !**m).map(|(v, _)| *v);
+        let (lo, hi) = known.fold((f32::MAX, f32::MIN), |(a, b), v| (a.min(v), b.max(v)));
+        assert!(out.data.iter().all(|&v| v >= lo - 1e-3 && v <= hi + 1e-3));
+        let flat = fill_checked(&Image::filled(w, h, 1, 0.25), &mask, TeleaOptions::new(4.0));
+        assert!(flat.data.iter().all(|&v| (v - 0.25).abs() < 1e-6));
+    }
+
+    #[test]
+    fn channels_are_filled_independently() {
+        let (w, h) = (15, 12);
+        let img = noise_image(w, h, 5, 6);
+        let mask: Vec<bool> = (0..w * h).map(|i| (i % w + i / w) % 5 < 2 && i % w > 2).collect();
+        for compat in all_modes() {
+            let whole = fill_checked(&img, &mask, opts(3.0, compat));
+            for c in 0..5 {
+                let single = fill_checked(&img.channel(c), &mask, opts(3.0, compat));
+                assert_eq!(whole.channel(c).data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    single.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+            }
+        }
+    }
+
+    #[test]
+    fn unknown_values_are_never_read_by_the_plain_fill() {
+        let (w, h) = (12, 10);
+        let mut img = noise_image(w, h, 1, 7);
+        let mask: Vec<bool> = (0..w * h).map(|i| (2..9).contains(&(i % w)) && i / w < 6).collect();
+        for (v, &m) in img.data.iter_mut().zip(&mask) {
+            if m {
+                *v = f32::NAN;
+            }
+        }
+        let mut out = img.clone();
+        inpaint_telea(&mut out, &mask, TeleaOptions::new(3.0)).unwrap();
+        assert!(out.data.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn max_distance_limits_the_fill() {
+        let (w, h) = (30, 9);
+        let img = noise_image(w, h, 1, 8);
+        // A band of 20 columns: hole pixels are at most 10 from the known columns on either side.
+        let mask: Vec<bool> = (0..w * h).map(|i| (5..25).contains(&(i % w))).collect();
+        let mut out = img.clone();
+        let o = TeleaOptions { max_distance: Some(3.0), ..TeleaOptions::new(3.0) };
+        let filled = inpaint_telea(&mut out, &mask, o).unwrap();
+        assert_eq!(filled, 6 * h);
+        for y in 0..h {
+            for x in 8..22 {
+                assert_eq!(out.pixel(x, y)[0].to_bits(), img.pixel(x, y)[0].to_bits(), "({x}, {y}) was filled");
+            }
+        }
+        let mut all = img.clone();
+        let o = TeleaOptions { max_distance: Some(10.0), ..TeleaOptions::new(3.0) };
+        assert_eq!(inpaint_telea(&mut all, &mask, o).unwrap(), 20 * h);
+    }
+
+    #[test]
+    fn invalid_arguments_are_errors_and_leave_the_image_alone() {
+        let img = noise_image(4, 3, 1, 9);
+        let mask = vec![true, false, false, false, false, false, false, false, false, false, false, true];
+        let bad = |mask: &[bool], o: TeleaOptions| {
+            let mut out = img.clone();
+            let r = inpaint_telea(&mut out, mask, o);
+            assert!(matches!(r, Err(Error::Usage(_))), "{o:?}: {r:?}");
+            assert_eq!(out, img);
+        };
+        bad(&mask[..11], TeleaOptions::new(3.0));
+        bad(&[mask.clone(), vec![false]].concat(), TeleaOptions::new(3.0));
+        bad(&mask, TeleaOptions::new(f32::NAN));
+        bad(&mask, TeleaOptions::new(-1.0));
+        bad(&mask, TeleaOptions { max_distance: Some(f32::NAN), ..TeleaOptions::new(3.0) });
+        bad(&mask, opts(3.0, Some(OpenCvCompat::u8(0.0))));
+        bad(&mask, opts(3.0, Some(OpenCvCompat { unit: 1.0, max_code: Some(f32::NAN) })));
+        let mut wrong = img.clone();
+        wrong.data.pop();
+        assert!(inpaint_telea(&mut wrong, &mask, TeleaOptions::new(3.0)).is_err());
+        // Out-of-range radii are clamped like OpenCV's, not refused.
+        for r in [0.0, 0.4, f32::INFINITY, 1e9] {
+            fill_checked(&img, &mask, TeleaOptions::new(r));
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(200))]
+        #[test]
+        fn never_panics_and_keeps_the_invariants(
+            w in 1usize..10, h in 1usize..10, ch in 1usize..5, bits in proptest::collection::vec(proptest::bool::ANY, 100),
+            radius in 0.0f32..9.0, mode in 0usize..4, seed in 0u64..1000,
+        ) {
+            let img = noise_image(w, h, ch, seed);
+            let mask: Vec<bool> = bits[..w * h].to_vec();
+            fill_checked(&img, &mask, opts(radius, all_modes()[mode]));
         }
     }
 }

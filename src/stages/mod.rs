@@ -1,10 +1,14 @@
 //! The classical stages that turn image + depth (+ matte) into layers, in data-flow order:
 //! `depth` (normalize, focus) → `segment` → `fill_depth` → `background` (inpaint) → layers.
 //! `inpaint` is the Telea algorithm both fills use; `mask` holds shared mask helpers.
+//! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
 
 pub mod background;
 pub mod depth;
+pub mod depth_onnx;
 pub mod fill_depth;
 pub mod inpaint;
+pub mod inpaint_onnx;
 pub mod mask;
 pub mod segment;
+pub mod segment_onnx;

@@ -17,6 +17,8 @@ pub enum SegmentMethod {
     Matte,
     /// The depth split, even when a matte is given.
     Depth,
+    /// The saliency / matting model of `[segment.onnx]` (see `stages::segment_onnx`).
+    Onnx,
 }
 
 /// `[segment]` options: the method and the depth-based split's parameters.
@@ -33,11 +35,13 @@ pub struct SegmentOptions {
     pub min_jump: f32,
     /// Gaussian sigma (pixels) that softens the hard depth split into an alpha matte.
     pub edge_softness: f32,
+    /// `[segment.onnx]`: the model used by `method = "onnx"`.
+    pub onnx: crate::onnx::ModelSpec,
 }
 
 impl Default for SegmentOptions {
     fn default() -> Self {
-        SegmentOptions { method: SegmentMethod::Auto, min_fraction: 0.002, max_fraction: 0.85, min_jump: 0.05, edge_softness: 0.8 }
+        SegmentOptions { method: SegmentMethod::Auto, min_fraction: 0.002, max_fraction: 0.85, min_jump: 0.05, edge_softness: 0.8, onnx: Default::default() }
     }
 }
 

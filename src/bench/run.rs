@@ -1,0 +1,497 @@
+//! `drbokeh bench`: generate (or load) layered scenes, trace their ground truth, render every
+//! method and setting from the same inputs, score them and write the report.
+//!
+//! Methods (see [`Method`]): Dr.Bokeh on the exact two layers, on one exact layer per depth
+//! ("depth-sliced"), and from the realistic pipeline (layers estimated by the classical stages
+//! from the all-in-focus image, disparity and matte); the classical scatter without occlusion
+//! (one layer, the `--no-occlusion` baseline); and the gathering baseline ([`super::gather`]).
+//! Renderer methods run with the exact kernel and the fast kernel's quality levels.
+//!
+//! Scores are computed with a border of the largest CoC radius left out (inputs lack the
+//! off-frame content the lens sees there), in linear light and on sRGB-encoded output clipped
+//! to [0, 1]; see [`Scores`].
+
+use super::gather::gather;
+use super::groundtruth::GtScene;
+use super::metrics::{psnr, rmse, si_rmse, ssim, zncc};
+use super::scenes::{generate, gt_plane_layers, FocusKind, SceneInputs};
+use super::trace::{trace_split, Plane, TraceSettings};
+use crate::color::{linear_to_srgb, Transfer};
+use crate::config::{Config, KernelChoice};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::io::{read_photo, ReadLimits};
+use crate::pipeline::{Focus, Pipeline, Scene};
+use crate::render::{self, Kernel, Layer, RenderSettings};
+use crate::stages::depth::Disparity;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A rendering method of the benchmark.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Method {
+    /// Dr.Bokeh on the exact two layers (all foreground planes, background).
+    Layers,
+    /// Dr.Bokeh on one exact layer per depth plane.
+    Sliced,
+    /// Dr.Bokeh from the classical pipeline (segment, fill depth, Telea inpaint).
+    Pipeline,
+    /// Classical scatter, no occlusion, one layer (`--no-occlusion`).
+    Scatter,
+    /// Per-pixel gather within its own CoC (SteReFo-style).
+    Gather,
+}
+
+impl Method {
+    pub const ALL: [Method; 5] = [Method::Layers, Method::Sliced, Method::Pipeline, Method::Scatter, Method::Gather];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Layers => "drbokeh-layers",
+            Method::Sliced => "drbokeh-sliced",
+            Method::Pipeline => "drbokeh-pipeline",
+            Method::Scatter => "scatter-no-occlusion",
+            Method::Gather => "gather",
+        }
+    }
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Method::Layers => "Dr.Bokeh, exact 2 layers",
+            Method::Sliced => "Dr.Bokeh, exact layer per depth",
+            Method::Pipeline => "Dr.Bokeh, classical pipeline",
+            Method::Scatter => "scatter, no occlusion",
+            Method::Gather => "gather (SteReFo-style)",
+        }
+    }
+
+    /// Parses a method name (the short forms `layers`, `sliced`, `pipeline`, `scatter`,
+    /// `gather` too).
+    pub fn parse(s: &str) -> Option<Method> {
+        let s = s.trim().to_ascii_lowercase();
+        Method::ALL.into_iter().find(|m| m.name() == s || m.name().ends_with(&format!("-{s}")) || (s == "no-occlusion" && *m == Method::Scatter) || (s == "gather" && *m == Method::Gather))
+    }
+
+    /// The kernel settings this method runs.
+    pub fn variants(self) -> Vec<Variant> {
+        use Variant::*;
+        match self {
+            Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8)],
+            Method::Sliced | Method::Pipeline | Method::Scatter => vec![Exact, Fast(2)],
+            Method::Gather => vec![Plain],
+        }
+    }
+
+    /// The setting used when methods are compared (the reference kernel).
+    pub fn reference(self) -> Variant {
+        if self == Method::Gather { Variant::Plain } else { Variant::Exact }
+    }
+}
+
+/// A kernel setting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Variant {
+    Exact,
+    Fast(u32),
+    /// Methods with no kernel choice.
+    Plain,
+}
+
+impl Variant {
+    pub fn name(self) -> String {
+        match self {
+            Variant::Exact => "exact".into(),
+            Variant::Fast(q) => format!("fast-q{q}"),
+            Variant::Plain => "default".into(),
+        }
+    }
+    fn kernel(self) -> Kernel {
+        match self {
+            Variant::Fast(q) => Kernel::Fast { quality: q },
+            _ => Kernel::Exact,
+        }
+    }
+}
+
+/// Benchmark options (the `bench` subcommand's flags).
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    pub scenes: usize,
+    pub width: usize,
+    pub height: usize,
+    pub seed: u64,
+    /// Evaluate on folders in the shared ground-truth format instead of generated scenes.
+    pub groundtruth: Option<PathBuf>,
+    /// Photos to texture the generated planes with (else procedural textures).
+    pub textures: Option<PathBuf>,
+    pub methods: Vec<Method>,
+    pub out: PathBuf,
+    /// Rays per pixel of the traced ground truth.
+    pub spp: u32,
+    /// Runs per render for the median time (renders under ~1 s total are repeated).
+    pub repeats: usize,
+    /// How many side-by-side crops to write.
+    pub crops: usize,
+    /// The command line, for the report.
+    pub command: String,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        BenchOptions {
+            scenes: 50,
+            width: 256,
+            height: 256,
+            seed: 1,
+            groundtruth: None,
+            textures: None,
+            methods: Method::ALL.to_vec(),
+            out: PathBuf::from("bench-report"),
+            spp: 1024,
+            repeats: 3,
+            crops: 4,
+            command: String::new(),
+        }
+    }
+}
+
+/// One evaluated case: a scene at one focus setting, with its ground truth and inputs.
+pub struct Case {
+    pub scene: String,
+    pub setting: String,
+    /// Report categories this case belongs to (`fg_in_focus`, `bg_in_focus`, `between`,
+    /// `thin`, `highlights`).
+    pub categories: Vec<&'static str>,
+    pub blur: f32,
+    pub focus: f32,
+    pub max_coc: f32,
+    /// Pixels left out at each border when scoring.
+    pub border: usize,
+    pub gt: Image,
+    /// Estimated RMS noise of `gt` (two-halves estimate), when it was traced here.
+    pub gt_noise: Option<f64>,
+    pub inputs: SceneInputs,
+}
+
+/// The scores of one render against the ground truth.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Scores {
+    /// Linear light: RMSE, scale-invariant RMSE, PSNR (peak 1), SSIM (luminance, peak 1), ZNCC.
+    pub rmse: f64,
+    pub si_rmse: f64,
+    pub psnr: f64,
+    pub ssim: f64,
+    pub zncc: f64,
+    /// sRGB-encoded, clipped to [0, 1]: PSNR and SSIM (the headline figures).
+    pub psnr_srgb: f64,
+    pub ssim_srgb: f64,
+    /// sRGB PSNR over the whole frame, borders included.
+    pub psnr_srgb_full: f64,
+}
+
+/// sRGB-encodes a linear image, clipped to [0, 1].
+pub fn srgb(img: &Image) -> Image {
+    let mut o = img.clone();
+    o.map_inplace(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
+    o
+}
+
+pub fn score(img: &Image, gt: &Image, border: usize) -> Scores {
+    let (a, b) = (srgb(img), srgb(gt));
+    Scores {
+        rmse: rmse(img, gt, border),
+        si_rmse: si_rmse(img, gt, border),
+        psnr: psnr(img, gt, 1.0, border),
+        ssim: ssim(img, gt, 1.0, border),
+        zncc: zncc(img, gt, border),
+        psnr_srgb: psnr(&a, &b, 1.0, border),
+        ssim_srgb: ssim(&a, &b, 1.0, border),
+        psnr_srgb_full: psnr(&a, &b, 1.0, 0),
+    }
+}
+
+/// One row of report.csv.
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub scene: String,
+    pub setting: String,
+    pub categories: Vec<&'static str>,
+    pub method: Method,
+    pub variant: Variant,
+    pub width: usize,
+    pub height: usize,
+    pub threads: usize,
+    pub blur: f32,
+    pub focus: f32,
+    pub max_coc: f32,
+    pub border: usize,
+    pub runs: usize,
+    /// Median wall time of one render, ms.
+    pub time_ms: f64,
+    pub scores: Scores,
+}
+
+/// Loads the photos of a texture folder (PNG/JPEG/TIFF/EXR), sorted by name.
+pub fn load_textures(dir: &Path) -> Result<Vec<Image>> {
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            let ext = p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+            ["png", "jpg", "jpeg", "tif", "tiff", "exr"].contains(&ext.as_str())
+        })
+        .collect();
+    paths.sort();
+    if paths.is_empty() {
+        return Err(Error::input(dir, "--textures folder holds no PNG, JPEG, TIFF or EXR image"));
+    }
+    paths
+        .iter()
+        .map(|p| {
+            let img = read_photo(p, Transfer::Srgb, &ReadLimits::default())?;
+            if img.width < 16 || img.height < 16 {
+                return Err(Error::input(p, format!("texture is {}x{}; at least 16x16 is needed", img.width, img.height)));
+            }
+            Ok(img)
+        })
+        .collect()
+}
+
+/// Traces (or loads) the cases of a run, one at a time, handing each to `f`.
+fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnMut(Case) -> Result<()>) -> Result<usize> {
+    if let Some(dir) = &opts.groundtruth {
+        let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map_err(|e| Error::io(dir, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.join("params.json").is_file())
+            .collect();
+        dirs.sort();
+        if dirs.is_empty() {
+            return Err(Error::input(dir, "no scene folder (with params.json) found for --groundtruth"));
+        }
+        let mut n = 0;
+        for d in dirs {
+            let scene = GtScene::load(&d)?;
+            let desc = std::fs::read_to_string(d.join("params.json")).unwrap_or_default().to_ascii_lowercase();
+            let inputs = SceneInputs {
+                aif: scene.aif.clone(),
+                disparity: scene.disparity.clone(),
+                matte: scene.alpha.clone(),
+                two_layers: scene.exact_layers()?,
+                plane_layers: gt_plane_layers(&scene)?,
+            };
+            for s in &scene.settings {
+                let mut categories = vec![match s.name.as_str() {
+                    n if n.contains("fg") => "fg_in_focus",
+                    n if n.contains("bg") => "bg_in_focus",
+                    _ => "between",
+                }];
+                if scene.name.contains("thin") || desc.contains("thin structure") {
+                    categories.push("thin");
+                }
+                if desc.contains("highlight") {
+                    categories.push("highlights");
+                }
+                log(&format!("{} {}", scene.name, s.name));
+                f(Case {
+                    scene: scene.name.clone(),
+                    setting: s.name.clone(),
+                    categories,
+                    blur: s.blur,
+                    focus: s.focus,
+                    max_coc: s.coc_max,
+                    border: s.coc_max.ceil() as usize,
+                    gt: s.gt.clone(),
+                    gt_noise: None,
+                    inputs: inputs.clone(),
+                })?;
+                n += 1;
+            }
+        }
+        return Ok(n);
+    }
+    let photos = match &opts.textures {
+        Some(d) => load_textures(d)?,
+        None => Vec::new(),
+    };
+    for i in 0..opts.scenes {
+        let sc = generate(opts.seed, i, opts.width, opts.height, &photos);
+        log(&format!("{}: tracing {} planes, {} spp", sc.name, sc.planes.len(), opts.spp));
+        let planes: Vec<Plane> = sc.trace_planes();
+        let ts = TraceSettings::new(sc.blur, sc.focus, opts.spp, opts.seed ^ (i as u64) << 20);
+        let (gt, half) = trace_split(&planes, &ts, sc.window(), &|_| {})?;
+        let border = sc.max_coc.ceil() as usize;
+        // Noise of the mean of all samples: half the RMS difference of the two halves.
+        let other = Image::from_vec(gt.width, gt.height, 3, gt.data.iter().zip(&half.data).map(|(f, h)| 2.0 * f - h).collect()).expect("size");
+        let noise = rmse(&half, &other, border) / 2.0;
+        let mut categories = vec![match sc.focus_kind {
+            FocusKind::Foreground => "fg_in_focus",
+            FocusKind::Background => "bg_in_focus",
+            FocusKind::Between => "between",
+        }];
+        if sc.thin {
+            categories.push("thin");
+        }
+        if sc.highlights {
+            categories.push("highlights");
+        }
+        f(Case {
+            scene: sc.name.clone(),
+            setting: sc.focus_kind.name().into(),
+            categories,
+            blur: sc.blur,
+            focus: sc.focus,
+            max_coc: sc.max_coc,
+            border,
+            gt,
+            gt_noise: Some(noise),
+            inputs: sc.inputs()?,
+        })?;
+    }
+    Ok(opts.scenes)
+}
+
+/// Runs `f` once, then again while the total stays under ~1 s, up to `repeats` runs; returns
+/// the last result, the median time (ms) and the number of runs.
+fn timed(repeats: usize, mut f: impl FnMut() -> Result<Image>) -> Result<(Image, f64, usize)> {
+    let mut times = Vec::new();
+    let t_all = Instant::now();
+    let mut out;
+    loop {
+        let t = Instant::now();
+        out = f()?;
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        if times.len() >= repeats.max(1) || t_all.elapsed().as_secs_f64() > 1.0 {
+            break;
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let n = times.len();
+    let med = if n % 2 == 1 { times[n / 2] } else { 0.5 * (times[n / 2 - 1] + times[n / 2]) };
+    Ok((out, med, n))
+}
+
+/// Renders one method/setting on a case (linear RGB).
+pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
+    let inp = &case.inputs;
+    let (blur, focus) = (case.blur, case.focus);
+    let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
+        let lens = render::auto_lens(layers, blur, focus);
+        render::render(layers, &RenderSettings { blur, focus, lens, occlusion }, v.kernel())
+    };
+    match m {
+        Method::Layers => renderer(&inp.two_layers, true),
+        Method::Sliced => renderer(&inp.plane_layers, true),
+        Method::Scatter => {
+            let opaque = Image::filled(inp.aif.width, inp.aif.height, 1, 1.0);
+            let single = Layer::from_parts(&inp.aif, &opaque, &inp.disparity, "all-in-focus layer")?;
+            renderer(&[single], false)
+        }
+        Method::Gather => Ok(gather(&inp.aif, &inp.disparity, blur, focus)),
+        Method::Pipeline => {
+            let mut cfg = Config::default();
+            cfg.render.blur = Some(blur);
+            match v {
+                Variant::Fast(q) => {
+                    cfg.render.kernel = KernelChoice::Fast;
+                    cfg.render.quality = q;
+                }
+                _ => cfg.render.kernel = KernelChoice::Exact,
+            }
+            let scene = Scene {
+                rgb: inp.aif.clone(),
+                disparity: Disparity { map: inp.disparity.clone(), z_range: None, filled_fraction: 0.0 },
+                matte: Some(inp.matte.clone()),
+            };
+            Ok(Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?.image)
+        }
+    }
+}
+
+/// A side-by-side crop kept for the report.
+pub struct CropPanel {
+    pub name: String,
+    /// How much better Dr.Bokeh (exact layers) is than the scatter baseline here (sRGB dB).
+    pub gain: f64,
+    /// (label, sRGB-ready linear crop)
+    pub panels: Vec<(String, Image)>,
+}
+
+/// Everything a run produced.
+pub struct BenchResult {
+    pub rows: Vec<Row>,
+    pub crops: Vec<CropPanel>,
+    pub gt_noise: Vec<f64>,
+    pub cases: usize,
+}
+
+/// Runs the benchmark and writes report.csv, report.md, error_vs_time.png and crops/ into
+/// `opts.out`. `log` receives one line per case.
+pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult> {
+    if opts.groundtruth.is_none() && (opts.width < 16 || opts.height < 16) {
+        return Err(Error::usage(format!("--size must be at least 16x16, got {}x{}", opts.width, opts.height)));
+    }
+    if opts.methods.is_empty() {
+        return Err(Error::usage("--methods: no method selected"));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
+    let threads = rayon::current_num_threads();
+    let mut rows = Vec::new();
+    let mut crops: Vec<CropPanel> = Vec::new();
+    let mut gt_noise = Vec::new();
+    let methods = opts.methods.clone();
+    let cases = for_each_case(opts, log, &mut |case: Case| {
+        if let Some(n) = case.gt_noise {
+            gt_noise.push(n);
+        }
+        let mut refs: Vec<(Method, Image, Scores)> = Vec::new();
+        for &m in &methods {
+            for v in m.variants() {
+                let (img, ms, runs) = timed(opts.repeats, || render_method(&case, m, v))?;
+                if !img.all_finite() {
+                    return Err(Error::Internal(format!("{} {} produced a non-finite value on {}", m.name(), v.name(), case.scene)));
+                }
+                let scores = score(&img, &case.gt, case.border);
+                if v == m.reference() {
+                    refs.push((m, img, scores));
+                }
+                rows.push(Row {
+                    scene: case.scene.clone(),
+                    setting: case.setting.clone(),
+                    categories: case.categories.clone(),
+                    method: m,
+                    variant: v,
+                    width: case.gt.width,
+                    height: case.gt.height,
+                    threads,
+                    blur: case.blur,
+                    focus: case.focus,
+                    max_coc: case.max_coc,
+                    border: case.border,
+                    runs,
+                    time_ms: ms,
+                    scores,
+                });
+            }
+        }
+        if opts.crops > 0 {
+            let find = |m: Method| refs.iter().find(|r| r.0 == m);
+            let gain = match (find(Method::Layers), find(Method::Scatter)) {
+                (Some(a), Some(b)) => a.2.psnr_srgb - b.2.psnr_srgb,
+                _ => 0.0,
+            };
+            if crops.len() < opts.crops || crops.iter().any(|c| c.gain < gain) {
+                let mut images: Vec<(String, &Image)> = vec![("ground truth".into(), &case.gt)];
+                images.extend(refs.iter().map(|(m, img, _)| (m.name().to_string(), img)));
+                let panel = super::report::crop_panels(&case, &images, find(Method::Layers).map(|r| &r.1), find(Method::Scatter).map(|r| &r.1));
+                crops.push(CropPanel { name: format!("{}_{}", case.scene, case.setting), gain, panels: panel });
+                crops.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+                crops.truncate(opts.crops);
+            }
+        }
+        Ok(())
+    })?;
+    let result = BenchResult { rows, crops, gt_noise, cases };
+    super::report::write_all(opts, &result)?;
+    Ok(result)
+}

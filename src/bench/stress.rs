@@ -1,0 +1,39 @@
+//! Deterministic synthetic layer stacks for benchmarks and stress tests: a textured
+//! background plane tilted in depth behind a soft-edged foreground disk with thin bars, sized
+//! so that the largest circle of confusion is a chosen radius.
+
+use crate::image::Image;
+use crate::render::{auto_lens, Layer, RenderSettings};
+
+/// Two layers (foreground disk + bars, opaque background) of `width × height` and render
+/// settings whose largest CoC radius is `max_coc` px, focused on the foreground
+/// (`focus_fg`) or on the background's near edge.
+pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool) -> (Vec<Layer>, RenderSettings) {
+    let (w, h) = (width, height);
+    let mut fg = Vec::with_capacity(w * h * 5);
+    let mut bg = Vec::with_capacity(w * h * 5);
+    let (cx, cy, r) = (w as f32 * 0.5, h as f32 * 0.5, w.min(h) as f32 * 0.3);
+    for y in 0..h {
+        for x in 0..w {
+            let (u, v) = (x as f32 / w as f32, y as f32 / h as f32);
+            let dist = ((x as f32 - cx).powi(2) + (y as f32 - cy).powi(2)).sqrt();
+            let disk = (r - dist + 0.5).clamp(0.0, 1.0);
+            let bar = if (x % (w / 7).max(8)) < 2 && v > 0.6 { 1.0 } else { 0.0 };
+            let a = f32::max(disk, bar);
+            fg.extend_from_slice(&[0.8, 0.35 + 0.3 * u, 0.2 + 0.2 * v, a, 1.0]);
+            // Brick-like texture with sparse highlights.
+            let tex = (((x / 9) + (y / 6)) % 4) as f32 * 0.2;
+            let light = if x % 97 == 13 && y % 83 == 7 { 1.0 } else { 0.0 };
+            bg.extend_from_slice(&[(tex + light).min(1.0), 0.3 + 0.4 * v, (1.0 - tex).max(light), 1.0, 0.5 * u]);
+        }
+    }
+    let layers = vec![
+        Layer::new(Image::from_vec(w, h, 5, fg).expect("size"), "stress fg").expect("finite"),
+        Layer::new(Image::from_vec(w, h, 5, bg).expect("size"), "stress bg").expect("finite"),
+    ];
+    // Largest |d| over the scene: focus 1 → background at d ∈ [-1, -0.5]; focus 0.5 → fg at +0.5.
+    let (focus, dmax) = if focus_fg { (1.0, 1.0) } else { (0.5, 0.5) };
+    let blur = (max_coc / dmax).max(0.0);
+    let lens = auto_lens(&layers, blur, focus);
+    (layers, RenderSettings { blur, focus, lens, occlusion: true })
+}

@@ -1,0 +1,470 @@
+//! Model contracts: what a model expects as input and what its output means, and presets for
+//! widely used public exports.
+//!
+//! A contract is checked against the model when its session is first used ([`bind`]): names,
+//! ranks, element types and fixed sizes that do not match are errors that name the model file
+//! and list what the model actually has.
+
+use super::config::{DepthFill, ModelSpec, OnnxConfig};
+use super::session::{ModelSession, TensorInfo};
+use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Tensor memory layout of the image input (and of a rank-4 output).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// [1, C, H, W] (PyTorch exports).
+    Nchw,
+    /// [1, H, W, C] (TensorFlow / TFLite / Keras conversions).
+    Nhwc,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ColorOrder {
+    Rgb,
+    Bgr,
+}
+
+/// How the image is brought to the model's size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ResizeMode {
+    /// Resize to the model size, ignoring the aspect ratio.
+    Stretch,
+    /// Keep the aspect ratio and pad (with 0 after normalization) to the model size.
+    Letterbox,
+}
+
+/// Input value scaling of sRGB-encoded colours before mean/std.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ValueScale {
+    #[serde(rename = "0-1")]
+    Unit,
+    #[serde(rename = "0-255")]
+    Byte,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Activation {
+    None,
+    Sigmoid,
+}
+
+/// An output chosen by name or by position.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum OutputRef {
+    Index(usize),
+    Name(String),
+}
+
+/// What a model is used for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// Saliency / matting: image → soft matte.
+    Matte,
+    /// Inpainting: image + mask → image.
+    Inpaint,
+    /// Depth estimation: image → relative disparity.
+    Depth,
+}
+
+impl ModelKind {
+    pub fn section(self) -> &'static str {
+        match self {
+            ModelKind::Matte => "segment.onnx",
+            ModelKind::Inpaint => "inpaint.onnx",
+            ModelKind::Depth => "depth.onnx",
+        }
+    }
+    fn default_preset(self) -> &'static str {
+        match self {
+            ModelKind::Matte => "u2net",
+            ModelKind::Inpaint => "lama",
+            ModelKind::Depth => "depth-anything-v2",
+        }
+    }
+}
+
+/// The model input size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum SizeSpec {
+    /// Exactly `h` x `w`.
+    Fixed { h: usize, w: usize },
+    /// Any size whose sides are multiples of `multiple`, longest side at most `max_side`.
+    Dynamic { multiple: usize, max_side: Option<usize> },
+}
+
+/// A complete contract.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Contract {
+    /// Preset the contract started from.
+    pub preset: String,
+    pub kind: ModelKind,
+    pub input: Option<String>,
+    pub mask_input: Option<String>,
+    pub output: OutputRef,
+    pub output_rank: Option<usize>,
+    pub layout: Layout,
+    pub color: ColorOrder,
+    pub size: SizeSpec,
+    pub resize: ResizeMode,
+    pub scale: ValueScale,
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    pub activation: Activation,
+    pub output_range: [f32; 2],
+    pub minmax: bool,
+    /// Inpainting: context fraction around the mask's bounding box (fixed-size models).
+    pub context: f32,
+    /// Inpainting: feathered seam width in pixels.
+    pub feather: f32,
+    /// Inpainting: how the disparity is filled.
+    pub depth: DepthFill,
+}
+
+/// A documented preset.
+pub struct Preset {
+    pub name: &'static str,
+    /// Default model file name in `onnx.model_dir`.
+    pub file: &'static str,
+    /// Where the conventions come from.
+    pub source: &'static str,
+    pub contract: fn() -> Contract,
+}
+
+const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+
+fn base(preset: &str, kind: ModelKind) -> Contract {
+    Contract {
+        preset: preset.into(),
+        kind,
+        input: None,
+        mask_input: None,
+        output: OutputRef::Index(0),
+        output_rank: Some(4),
+        layout: Layout::Nchw,
+        color: ColorOrder::Rgb,
+        size: SizeSpec::Fixed { h: 320, w: 320 },
+        resize: ResizeMode::Stretch,
+        scale: ValueScale::Unit,
+        mean: [0.0; 3],
+        std: [1.0; 3],
+        activation: Activation::None,
+        output_range: [0.0, 1.0],
+        minmax: false,
+        context: 0.5,
+        feather: 2.0,
+        depth: DepthFill::Telea,
+    }
+}
+
+/// The presets, with their source conventions.
+pub const PRESETS: &[Preset] = &[
+    Preset {
+        name: "u2net",
+        file: "u2net.onnx",
+        source: "U^2-Net (xuebinqin/U-2-Net; rembg's u2net.onnx): 320x320 RGB in [0,1], ImageNet mean/std, \
+                 first output d0 already through a sigmoid, min-max normalized",
+        contract: || Contract { size: SizeSpec::Fixed { h: 320, w: 320 }, mean: IMAGENET_MEAN, std: IMAGENET_STD, minmax: true, ..base("u2net", ModelKind::Matte) },
+    },
+    Preset {
+        name: "isnet",
+        file: "isnet.onnx",
+        source: "ISNet / DIS (xuebinqin/DIS; rembg's isnet-general-use.onnx): 1024x1024 RGB in [0,1], mean 0.5 std 1, \
+                 first output already through a sigmoid, min-max normalized",
+        contract: || Contract { size: SizeSpec::Fixed { h: 1024, w: 1024 }, mean: [0.5; 3], std: [1.0; 3], minmax: true, ..base("isnet", ModelKind::Matte) },
+    },
+    Preset {
+        name: "birefnet",
+        file: "birefnet.onnx",
+        source: "BiRefNet (ZhengPeng7/BiRefNet ONNX export): 1024x1024 RGB in [0,1], ImageNet mean/std, \
+                 first output is logits -> sigmoid",
+        contract: || Contract {
+            size: SizeSpec::Fixed { h: 1024, w: 1024 },
+            mean: IMAGENET_MEAN,
+            std: IMAGENET_STD,
+            activation: Activation::Sigmoid,
+            ..base("birefnet", ModelKind::Matte)
+        },
+    },
+    Preset {
+        name: "modnet",
+        file: "modnet.onnx",
+        source: "MODNet (ZeHuiLin/MODNet onnx/export_onnx.py): input \"input\" 1x3xHxW, dynamic size (multiple of 32, \
+                 longest side 512), RGB in [0,1] with mean 0.5 std 0.5, output \"output\" matte in [0,1]",
+        contract: || Contract {
+            input: Some("input".into()),
+            output: OutputRef::Name("output".into()),
+            size: SizeSpec::Dynamic { multiple: 32, max_side: Some(512) },
+            mean: [0.5; 3],
+            std: [0.5; 3],
+            ..base("modnet", ModelKind::Matte)
+        },
+    },
+    Preset {
+        name: "mediapipe-selfie",
+        file: "mediapipe_selfie.onnx",
+        source: "MediaPipe selfie segmentation (TFLite converted with tf2onnx): 1x256x256x3 NHWC, RGB in [0,1], \
+                 output 1x256x256x1 already through a sigmoid",
+        contract: || Contract { layout: Layout::Nhwc, size: SizeSpec::Fixed { h: 256, w: 256 }, ..base("mediapipe-selfie", ModelKind::Matte) },
+    },
+    Preset {
+        name: "lama",
+        file: "lama.onnx",
+        source: "LaMa (advimman/lama; Carve/LaMa-ONNX lama_fp32.onnx): inputs \"image\" 1x3x512x512 RGB in [0,1] and \
+                 \"mask\" 1x1x512x512 in {0,1}, output 1x3x512x512 in [0,255]",
+        contract: || Contract {
+            input: Some("image".into()),
+            mask_input: Some("mask".into()),
+            size: SizeSpec::Fixed { h: 512, w: 512 },
+            output_range: [0.0, 255.0],
+            ..base("lama", ModelKind::Inpaint)
+        },
+    },
+    Preset {
+        name: "lama-dynamic",
+        file: "lama_dynamic.onnx",
+        source: "LaMa exported with dynamic axes: inputs \"image\" 1x3xHxW RGB in [0,1] and \"mask\" 1x1xHxW in {0,1}, \
+                 H and W multiples of 8, output 1x3xHxW in [0,1]",
+        contract: || Contract {
+            input: Some("image".into()),
+            mask_input: Some("mask".into()),
+            size: SizeSpec::Dynamic { multiple: 8, max_side: Some(2048) },
+            ..base("lama-dynamic", ModelKind::Inpaint)
+        },
+    },
+    Preset {
+        name: "midas-small",
+        file: "midas_small.onnx",
+        source: "MiDaS v2.1 small (isl-org/MiDaS model-small.onnx): 256x256 RGB in [0,1], ImageNet mean/std, \
+                 output 1x256x256 relative inverse depth, min-max normalized",
+        contract: || Contract {
+            size: SizeSpec::Fixed { h: 256, w: 256 },
+            mean: IMAGENET_MEAN,
+            std: IMAGENET_STD,
+            output_rank: Some(3),
+            minmax: true,
+            ..base("midas-small", ModelKind::Depth)
+        },
+    },
+    Preset {
+        name: "depth-anything-v2",
+        file: "depth_anything_v2.onnx",
+        source: "Depth-Anything-V2 (DepthAnything/Depth-Anything-V2 ONNX exports): 1x3xHxW, sides multiples of 14, \
+                 longest side 518, RGB in [0,1], ImageNet mean/std, output 1xHxW relative disparity, min-max normalized",
+        contract: || Contract {
+            size: SizeSpec::Dynamic { multiple: 14, max_side: Some(518) },
+            mean: IMAGENET_MEAN,
+            std: IMAGENET_STD,
+            output_rank: Some(3),
+            minmax: true,
+            ..base("depth-anything-v2", ModelKind::Depth)
+        },
+    },
+];
+
+/// Looks a preset up by name; the error lists the known ones.
+pub fn preset(name: &str) -> std::result::Result<&'static Preset, String> {
+    PRESETS.iter().find(|p| p.name == name).ok_or_else(|| {
+        format!("unknown preset \"{name}\"; known presets: {}", PRESETS.iter().map(|p| p.name).collect::<Vec<_>>().join(", "))
+    })
+}
+
+/// Resolves a stage's model file and contract from its spec.
+pub fn resolve(spec: &ModelSpec, kind: ModelKind, onnx: &OnnxConfig) -> Result<(PathBuf, Contract)> {
+    let key = kind.section();
+    spec.validate(key, kind)?;
+    let name = spec.preset.as_deref().unwrap_or(kind.default_preset());
+    let p = preset(name).map_err(|m| Error::usage(format!("{key}.preset: {m}")))?;
+    let mut c = (p.contract)();
+    if c.kind != kind {
+        return Err(Error::usage(format!("{key}.preset: \"{name}\" is a {:?} preset, not a {kind:?} one", c.kind)));
+    }
+    let path = match (&spec.model, &onnx.model_dir) {
+        (Some(m), Some(dir)) if m.is_relative() => dir.join(m),
+        (Some(m), _) => m.clone(),
+        (None, Some(dir)) => dir.join(p.file),
+        (None, None) => {
+            return Err(Error::usage(format!(
+                "{key}: no model file: set `model = \"path.onnx\"` in [{key}] or pass --model-dir DIR holding {}",
+                p.file
+            )))
+        }
+    };
+    if spec.input.is_some() {
+        c.input = spec.input.clone();
+    }
+    if spec.mask_input.is_some() {
+        c.mask_input = spec.mask_input.clone();
+    }
+    if let Some(o) = &spec.output {
+        c.output = o.clone();
+    }
+    if spec.output_rank.is_some() {
+        c.output_rank = spec.output_rank;
+    }
+    c.layout = spec.layout.unwrap_or(c.layout);
+    c.color = spec.color.unwrap_or(c.color);
+    if let Some([h, w]) = spec.size {
+        c.size = SizeSpec::Fixed { h, w };
+    }
+    if let Some(m) = spec.multiple {
+        let max_side = spec.max_side.or(match c.size {
+            SizeSpec::Dynamic { max_side, .. } => max_side,
+            SizeSpec::Fixed { .. } => None,
+        });
+        c.size = SizeSpec::Dynamic { multiple: m, max_side };
+    } else if let (Some(ms), SizeSpec::Dynamic { multiple, .. }) = (spec.max_side, c.size) {
+        c.size = SizeSpec::Dynamic { multiple, max_side: Some(ms) };
+    }
+    c.resize = spec.resize.unwrap_or(c.resize);
+    c.scale = spec.scale.unwrap_or(c.scale);
+    c.mean = spec.mean.unwrap_or(c.mean);
+    c.std = spec.std.unwrap_or(c.std);
+    c.activation = spec.activation.unwrap_or(c.activation);
+    c.output_range = spec.output_range.unwrap_or(c.output_range);
+    c.minmax = spec.minmax.unwrap_or(c.minmax);
+    c.context = spec.context.unwrap_or(c.context);
+    c.feather = spec.feather.unwrap_or(c.feather);
+    c.depth = spec.depth.unwrap_or(c.depth);
+    if kind == ModelKind::Inpaint && (c.input.is_none() || c.mask_input.is_none()) {
+        return Err(Error::usage(format!("{key}: an inpainting contract needs both `input` and `mask_input` names")));
+    }
+    Ok((path, c))
+}
+
+/// The contract bound to a model: resolved tensor names and the model's fixed size if any.
+#[derive(Clone, Debug)]
+pub struct Binding {
+    pub input: String,
+    pub mask_input: Option<String>,
+    pub output: String,
+    pub output_rank: usize,
+    /// The input's spatial size when the model fixes it (h, w).
+    pub fixed: Option<(usize, usize)>,
+}
+
+fn list(tensors: &[TensorInfo]) -> String {
+    tensors.iter().map(|t| t.to_string()).collect::<Vec<_>>().join(", ")
+}
+
+/// Checks the model against the contract. Every mismatch is an input error naming `path`
+/// and listing the model's actual inputs or outputs.
+pub fn bind(c: &Contract, s: &ModelSession) -> Result<Binding> {
+    let path: &Path = &s.path;
+    let have_in = || format!("the model has inputs: {}", list(&s.inputs));
+    let have_out = || format!("the model has outputs: {}", list(&s.outputs));
+    let find = |name: &str| s.inputs.iter().find(|t| t.name == name);
+    let image = match &c.input {
+        Some(n) => find(n).ok_or_else(|| {
+            Error::input(path, format!("no input named \"{n}\" (contract `{}` of preset {}); {}", "input", c.preset, have_in()))
+        })?,
+        None => {
+            let expected = if c.mask_input.is_some() { 2 } else { 1 };
+            if s.inputs.len() != expected {
+                return Err(Error::input(
+                    path,
+                    format!("expected {expected} input(s) (preset {}); {}; name the image input with `input = \"...\"`", c.preset, have_in()),
+                ));
+            }
+            &s.inputs[0]
+        }
+    };
+    let (chan_axis, h_axis, w_axis) = match c.layout {
+        Layout::Nchw => (1, 2, 3),
+        Layout::Nhwc => (3, 1, 2),
+    };
+    let check_4d = |t: &TensorInfo, channels: i64, what: &str| -> Result<()> {
+        if t.elem != "f32" {
+            return Err(Error::input(path, format!("{what} \"{}\" is {}, only float32 tensors are supported; {}", t.name, t.elem, have_in())));
+        }
+        if t.dims.len() != 4 {
+            return Err(Error::input(
+                path,
+                format!("{what} \"{}\" has rank {}, the contract ({:?}) needs rank 4; {}", t.name, t.dims.len(), c.layout, have_in()),
+            ));
+        }
+        let ch = t.dims[chan_axis];
+        if ch >= 0 && ch != channels {
+            return Err(Error::input(
+                path,
+                format!(
+                    "{what} \"{}\" has {ch} channel(s) on the {:?} channel axis, expected {channels} (wrong layout? set layout = \"nchw\" or \"nhwc\"); {}",
+                    t.name,
+                    c.layout,
+                    have_in()
+                ),
+            ));
+        }
+        if t.dims[0] > 1 {
+            return Err(Error::input(path, format!("{what} \"{}\" has a fixed batch of {}, expected 1; {}", t.name, t.dims[0], have_in())));
+        }
+        Ok(())
+    };
+    check_4d(image, 3, "input")?;
+    let (mh, mw) = (image.dims[h_axis], image.dims[w_axis]);
+    let fixed = if mh > 0 && mw > 0 { Some((mh as usize, mw as usize)) } else { None };
+    match (c.size, fixed) {
+        (SizeSpec::Fixed { h, w }, Some((fh, fw))) if (h, w) != (fh, fw) => {
+            return Err(Error::input(
+                path,
+                format!("the model's input \"{}\" has the fixed size {fh}x{fw} (HxW) but the contract (preset {}) says {h}x{w}; set size = [{fh}, {fw}]", image.name, c.preset),
+            ));
+        }
+        (SizeSpec::Dynamic { multiple, .. }, Some((fh, fw))) => {
+            return Err(Error::input(
+                path,
+                format!(
+                    "the model's input \"{}\" has the fixed size {fh}x{fw} (HxW) but the contract (preset {}) says dynamic (multiple of {multiple}); set size = [{fh}, {fw}]",
+                    image.name, c.preset
+                ),
+            ));
+        }
+        _ => {}
+    }
+    if (mh > 0) != (mw > 0) {
+        return Err(Error::input(path, format!("input \"{}\" fixes only one of height and width: {}", image.name, image)));
+    }
+    let mask_input = match &c.mask_input {
+        Some(n) => {
+            let m = find(n).ok_or_else(|| Error::input(path, format!("no input named \"{n}\" (contract `mask_input` of preset {}); {}", c.preset, have_in())))?;
+            check_4d(m, 1, "mask input")?;
+            Some(m.name.clone())
+        }
+        None => None,
+    };
+    let out = match &c.output {
+        OutputRef::Index(i) => s.outputs.get(*i).ok_or_else(|| {
+            Error::input(path, format!("no output #{i} (the model has {} output(s)); {}", s.outputs.len(), have_out()))
+        })?,
+        OutputRef::Name(n) => s
+            .outputs
+            .iter()
+            .find(|t| &t.name == n)
+            .ok_or_else(|| Error::input(path, format!("no output named \"{n}\" (contract of preset {}); {}", c.preset, have_out())))?,
+    };
+    if out.elem != "f32" {
+        return Err(Error::input(path, format!("output \"{}\" is {}, only float32 tensors are supported; {}", out.name, out.elem, have_out())));
+    }
+    let rank = out.dims.len();
+    match c.output_rank {
+        Some(r) if r != rank => {
+            return Err(Error::input(
+                path,
+                format!("output \"{}\" has rank {rank}, the contract (preset {}) expects rank {r}; {}", out.name, c.preset, have_out()),
+            ));
+        }
+        None if !(2..=4).contains(&rank) => {
+            return Err(Error::input(path, format!("output \"{}\" has rank {rank}, expected 2, 3 or 4; {}", out.name, have_out())));
+        }
+        _ => {}
+    }
+    Ok(Binding { input: image.name.clone(), mask_input, output: out.name.clone(), output_rank: rank, fixed })
+}

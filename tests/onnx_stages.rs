@@ -1,0 +1,388 @@
+//! ONNX stages against the stub models in models-stub/: every preset's stub runs through the
+//! real pre-processing, session and post-processing, and the result must equal a Rust-side
+//! computation of the stub's known function within 1e-5. Then every model error.
+//!
+//! ONNX Runtime comes from the test environment (`scripts/setup-test-env.sh` installs the
+//! onnxruntime wheel into .venv; the library finds it there) or ORT_DYLIB_PATH.
+
+use drbokeh::color::{linear_to_srgb, srgb_to_linear};
+use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, SizeSpec};
+use drbokeh::onnx::prep::{self, Geometry};
+use drbokeh::onnx::{DepthFill, ModelSpec, OnnxConfig};
+use drbokeh::stages::background::InpaintOptions;
+use drbokeh::stages::inpaint::{inpaint_telea, TeleaOptions};
+use drbokeh::stages::inpaint_onnx::{self, region, seam_weight};
+use drbokeh::stages::mask::{dilate, distance_to};
+use drbokeh::stages::{depth_onnx, segment_onnx};
+use drbokeh::{Error, Image};
+use std::path::{Path, PathBuf};
+
+/// The stubs' function (see models-stub/generate.py).
+const W: [f32; 3] = [0.8, -0.5, 0.3];
+const B: f32 = 0.1;
+const TOL: f32 = 1e-5;
+
+fn stub(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models-stub").join(name)
+}
+
+fn spec(model: &str, preset: &str) -> ModelSpec {
+    ModelSpec { model: Some(stub(model)), preset: Some(preset.into()), ..ModelSpec::default() }
+}
+
+fn cfg() -> OnnxConfig {
+    OnnxConfig { threads: 1, ..OnnxConfig::default() }
+}
+
+/// A small linear-RGB test photo: gradients plus a bright disk.
+fn photo(w: usize, h: usize) -> Image {
+    let mut img = Image::new(w, h, 3);
+    for y in 0..h {
+        for x in 0..w {
+            let disk = ((x as f32 - w as f32 * 0.6).powi(2) + (y as f32 - h as f32 * 0.4).powi(2)).sqrt() < h as f32 * 0.25;
+            let p = img.pixel_mut(x, y);
+            p[0] = if disk { 0.9 } else { x as f32 / w as f32 * 0.7 };
+            p[1] = if disk { 0.6 } else { y as f32 / h as f32 * 0.5 + 0.05 };
+            p[2] = ((x * 7 + y * 3) % 11) as f32 / 11.0 * 0.8;
+        }
+    }
+    img
+}
+
+fn srgb(img: &Image) -> Image {
+    let mut o = img.clone();
+    o.map_inplace(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
+    o
+}
+
+fn sigmoid(v: f32) -> f32 {
+    1.0 / (1.0 + (-v).exp())
+}
+
+fn minmax(v: &mut [f32]) {
+    let (lo, hi) = v.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    v.iter_mut().for_each(|x| *x = if hi > lo { (*x - lo) / (hi - lo) } else { 0.0 });
+}
+
+fn max_diff(a: &Image, b: &Image) -> f32 {
+    assert_eq!((a.width, a.height, a.channels), (b.width, b.height, b.channels));
+    a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+/// Rust-side expected output of a 1x1-conv stub for a preset: sRGB-encode, resize into the
+/// model canvas, normalize with the preset's mean/std in the contract's colour order, apply
+/// W·x + B (+ sigmoid), min-max over the content when the preset says so, resize back.
+fn expected_conv(rgb: &Image, c: &contract::Contract, g: &Geometry, sigmoid_out: bool) -> Image {
+    let r = prep::resize(&srgb(rgb), g.w, g.h);
+    let k = match c.scale {
+        contract::ValueScale::Unit => 1.0,
+        contract::ValueScale::Byte => 255.0,
+    };
+    let order = match c.color {
+        ColorOrder::Rgb => [0, 1, 2],
+        ColorOrder::Bgr => [2, 1, 0],
+    };
+    let mut y: Vec<f32> = r
+        .data
+        .chunks_exact(3)
+        .map(|p| {
+            let x: Vec<f32> = order.iter().map(|&col| (p[col] * k - c.mean[col]) / c.std[col]).collect();
+            let v = W[0] * x[0] + W[1] * x[1] + W[2] * x[2] + B;
+            if sigmoid_out { sigmoid(v) } else { v }
+        })
+        .collect();
+    if c.minmax {
+        minmax(&mut y);
+    }
+    let out = prep::resize(&Image::from_vec(g.w, g.h, 1, y).unwrap(), rgb.width, rgb.height);
+    out
+}
+
+fn contract_of(model: &str, preset: &str) -> contract::Contract {
+    contract::resolve(&spec(model, preset), kind_of(preset), &cfg()).unwrap().1
+}
+
+fn kind_of(preset: &str) -> ModelKind {
+    match preset {
+        "lama" | "lama-dynamic" => ModelKind::Inpaint,
+        "midas-small" | "depth-anything-v2" => ModelKind::Depth,
+        _ => ModelKind::Matte,
+    }
+}
+
+#[test]
+fn geometry_plans() {
+    let fixed = prep::plan(SizeSpec::Fixed { h: 320, w: 320 }, ResizeMode::Stretch, 40, 30);
+    assert_eq!((fixed.model_w, fixed.model_h, fixed.x0, fixed.y0, fixed.w, fixed.h), (320, 320, 0, 0, 320, 320));
+    let lb = prep::plan(SizeSpec::Fixed { h: 320, w: 320 }, ResizeMode::Letterbox, 40, 30);
+    assert_eq!((lb.x0, lb.y0, lb.w, lb.h), (0, 40, 320, 240));
+    let dy = prep::plan(SizeSpec::Dynamic { multiple: 32, max_side: Some(512) }, ResizeMode::Stretch, 1000, 600);
+    assert_eq!((dy.model_w, dy.model_h), (512, 320), "{dy:?}");
+    let d14 = prep::plan(SizeSpec::Dynamic { multiple: 14, max_side: Some(518) }, ResizeMode::Stretch, 48, 36);
+    assert_eq!((d14.model_w, d14.model_h), (42, 42));
+    let dlb = prep::plan(SizeSpec::Dynamic { multiple: 8, max_side: None }, ResizeMode::Letterbox, 41, 30);
+    assert_eq!((dlb.model_w, dlb.model_h, dlb.w, dlb.h, dlb.x0, dlb.y0), (48, 32, 41, 30, 3, 1));
+    // Resizing to the same size is an exact copy; a constant image stays constant.
+    let img = photo(13, 9);
+    assert_eq!(prep::resize(&img, 13, 9), img);
+    let flat = Image::filled(7, 5, 2, 0.25);
+    assert!(prep::resize(&flat, 31, 2).data.iter().all(|&v| (v - 0.25).abs() < 1e-6));
+}
+
+#[test]
+fn every_matte_preset_matches_its_function() {
+    let rgb = photo(40, 30);
+    // (stub, preset, does the stub end in a sigmoid or does the contract apply one)
+    for (model, preset) in [
+        ("u2net.onnx", "u2net"),
+        ("isnet.onnx", "isnet"),
+        ("birefnet.onnx", "birefnet"),
+        ("modnet.onnx", "modnet"),
+        ("mediapipe_selfie.onnx", "mediapipe-selfie"),
+    ] {
+        let (matte, report) = segment_onnx::predict_matte(&rgb, &spec(model, preset), &cfg()).unwrap_or_else(|e| panic!("{preset}: {e}"));
+        let c = contract_of(model, preset);
+        let g = prep::plan(c.size, c.resize, 40, 30);
+        assert_eq!(report.model_size, [g.model_h, g.model_w], "{preset}");
+        let mut want = expected_conv(&rgb, &c, &g, true);
+        want.map_inplace(|a| a.clamp(0.0, 1.0));
+        let d = max_diff(&matte, &want);
+        assert!(d <= TOL, "{preset}: max |matte - expected| = {d}");
+        // The function is not trivial: the matte varies across the image.
+        let (lo, hi) = matte.data.iter().fold((1f32, 0f32), |(a, b), &v| (a.min(v), b.max(v)));
+        assert!(hi - lo > 0.05, "{preset}: matte range {lo}..{hi}");
+        eprintln!("{preset:>17}: max error {d:.2e}, model input {}x{}", g.model_h, g.model_w);
+    }
+}
+
+#[test]
+fn overrides_bgr_letterbox_and_byte_scaling() {
+    let rgb = photo(40, 30);
+    // BGR + letterbox + 0-255 scaling with mean/std in those units, on the dynamic MODNet stub.
+    let s = ModelSpec {
+        color: Some(ColorOrder::Bgr),
+        resize: Some(ResizeMode::Letterbox),
+        scale: Some(contract::ValueScale::Byte),
+        mean: Some([120.0, 110.0, 100.0]),
+        std: Some([60.0, 58.0, 57.0]),
+        ..spec("modnet.onnx", "modnet")
+    };
+    let (matte, _) = segment_onnx::predict_matte(&rgb, &s, &cfg()).unwrap();
+    let (_, c) = contract::resolve(&s, ModelKind::Matte, &cfg()).unwrap();
+    let g = prep::plan(c.size, c.resize, 40, 30);
+    assert!(g.w < g.model_w || g.h < g.model_h, "letterbox pads: {g:?}");
+    let want = expected_conv(&rgb, &c, &g, true);
+    let d = max_diff(&matte, &want);
+    assert!(d <= TOL, "bgr/letterbox/0-255: {d}");
+    // The same stub read as RGB gives a different matte: the colour order matters.
+    let (rgb_matte, _) = segment_onnx::predict_matte(&rgb, &ModelSpec { color: Some(ColorOrder::Rgb), ..s.clone() }, &cfg()).unwrap();
+    assert!(max_diff(&matte, &rgb_matte) > 1e-3);
+}
+
+#[test]
+fn depth_presets_match_their_function() {
+    let rgb = photo(48, 36);
+    for (model, preset) in [("midas_small.onnx", "midas-small"), ("depth_anything_v2.onnx", "depth-anything-v2")] {
+        let (disp, report) = depth_onnx::estimate_disparity(&rgb, &spec(model, preset), &cfg()).unwrap_or_else(|e| panic!("{preset}: {e}"));
+        let c = contract_of(model, preset);
+        let g = prep::plan(c.size, c.resize, 48, 36);
+        let mut want = expected_conv(&rgb, &c, &g, false);
+        minmax(&mut want.data);
+        let d = max_diff(&disp.map, &want);
+        assert!(d <= TOL, "{preset}: max |disparity - expected| = {d}");
+        assert!(disp.z_range.is_none());
+        eprintln!("{preset:>17}: max error {d:.2e}, model input {:?}", report.model_size);
+    }
+}
+
+fn disk_alpha(w: usize, h: usize, cx: f32, cy: f32, r: f32) -> Image {
+    Image::from_vec(w, h, 1, (0..w * h).map(|i| (r - (((i % w) as f32 - cx).powi(2) + ((i / w) as f32 - cy).powi(2)).sqrt()).clamp(0.0, 1.0)).collect()).unwrap()
+}
+
+/// The inpainting stub's function on a model-sized image and binary mask: masked pixels take
+/// the mean of the unmasked ones.
+fn mean_fill(img: &Image, mask: &[bool]) -> Image {
+    let c = img.channels;
+    let mut sum = vec![0f64; c];
+    let n = mask.iter().filter(|m| !**m).count().max(1) as f64;
+    for (p, m) in img.data.chunks_exact(c).zip(mask) {
+        if !m {
+            for k in 0..c {
+                sum[k] += p[k] as f64;
+            }
+        }
+    }
+    let mut out = img.clone();
+    for (p, m) in out.data.chunks_exact_mut(c).zip(mask) {
+        if *m {
+            for k in 0..c {
+                p[k] = (sum[k] / n) as f32;
+            }
+        }
+    }
+    out
+}
+
+fn paste(dst: &mut Image, src: &Image, x0: usize, y0: usize, dist: &[f32], feather: f32) {
+    let c = dst.channels;
+    for y in 0..src.height {
+        for x in 0..src.width {
+            let wgt = seam_weight(dist[(y0 + y) * dst.width + x0 + x], feather);
+            let i = dst.index(x0 + x, y0 + y);
+            for k in 0..c {
+                dst.data[i + k] = dst.data[i + k] * (1.0 - wgt) + src.data[(y * src.width + x) * c + k] * wgt;
+            }
+        }
+    }
+}
+
+#[test]
+fn lama_fixed_size_crops_resizes_and_pastes() {
+    let (w, h) = (64, 48);
+    let rgb = photo(w, h);
+    let disp = Image::from_vec(w, h, 1, (0..w * h).map(|i| 0.2 + 0.5 * (i % w) as f32 / w as f32).collect()).unwrap();
+    let alpha = disk_alpha(w, h, 20.0, 20.0, 6.0);
+    let opts = InpaintOptions { method: inpaint_onnx::InpaintMethod::Onnx, onnx: spec("lama.onnx", "lama"), ..InpaintOptions::default() };
+    let (bg, report) = inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, 40.0, &cfg()).unwrap();
+    assert_eq!(report.model_size, [512, 512]);
+
+    // Rust side: the same region, the stub's function at 512x512, back, pasted.
+    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
+    let mask = dilate(&covered, w, h, opts.dilate);
+    let (x0, y0, cw, ch) = region(&mask, w, h, true, 0.5).unwrap();
+    assert_eq!((x0, y0), (0, 0), "context 16 px reaches the border");
+    assert!(cw < w && ch < h, "a crop, not the whole image: {cw}x{ch}");
+    let mask_img = Image::from_vec(w, h, 1, mask.iter().map(|&m| m as u8 as f32).collect()).unwrap();
+    let crop_rgb = srgb(&prep::crop(&rgb, x0, y0, cw, ch));
+    let m512: Vec<bool> = prep::resize(&prep::crop(&mask_img, x0, y0, cw, ch), 512, 512).data.iter().map(|&v| v > 1e-3).collect();
+    let filled = mean_fill(&prep::resize(&crop_rgb, 512, 512), &m512);
+    let mut back = prep::resize(&filled, cw, ch);
+    back.map_inplace(|v| srgb_to_linear(v.clamp(0.0, 1.0)));
+    let mut want = rgb.clone();
+    paste(&mut want, &back, x0, y0, &distance_to(&mask, w, h), 2.0);
+    let d = max_diff(&bg.rgb, &want);
+    assert!(d <= TOL, "lama: max |rgb - expected| = {d}");
+    eprintln!("lama: max error {d:.2e}, region {cw}x{ch} at ({x0},{y0})");
+    // Far from the mask nothing changed.
+    assert_eq!(bg.rgb.pixel(w - 1, h - 1), rgb.pixel(w - 1, h - 1));
+    // Disparity: Telea (the default `depth`).
+    let mut want_d = disp.clone();
+    inpaint_telea(&mut want_d, &mask, TeleaOptions { max_distance: Some(40.0), ..TeleaOptions::new(opts.radius) }).unwrap();
+    assert!(max_diff(&bg.disparity, &want_d) <= TOL);
+}
+
+#[test]
+fn lama_dynamic_fills_with_the_unmasked_mean_and_model_depth() {
+    // 40x32: multiples of 8, so the dynamic model sees the image as it is.
+    let (w, h) = (40, 32);
+    let rgb = photo(w, h);
+    let disp = Image::from_vec(w, h, 1, (0..w * h).map(|i| 0.1 + 0.8 * (i / w) as f32 / h as f32).collect()).unwrap();
+    let alpha = disk_alpha(w, h, 25.0, 14.0, 5.0);
+    let onnx = ModelSpec { depth: Some(DepthFill::Model), feather: Some(0.0), ..spec("lama_dynamic.onnx", "lama-dynamic") };
+    let opts = InpaintOptions { method: inpaint_onnx::InpaintMethod::Onnx, onnx, ..InpaintOptions::default() };
+    let (bg, report) = inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, 40.0, &cfg()).unwrap();
+    assert_eq!(report.model_size, [h, w]);
+    assert_eq!(report.runs, 2, "colour and disparity");
+    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
+    let mask = dilate(&covered, w, h, opts.dilate);
+    assert_eq!(bg.filled, mask.iter().filter(|&&m| m).count());
+    // Colour: masked = mean of unmasked (in sRGB, as the model sees it); unmasked untouched.
+    let mut want = mean_fill(&srgb(&rgb), &mask);
+    want.map_inplace(|v| srgb_to_linear(v.clamp(0.0, 1.0)));
+    for (i, m) in mask.iter().enumerate() {
+        if !m {
+            want.data[i * 3..i * 3 + 3].copy_from_slice(&rgb.data[i * 3..i * 3 + 3]);
+        }
+    }
+    let d = max_diff(&bg.rgb, &want);
+    assert!(d <= TOL, "lama-dynamic colour: {d}");
+    // Disparity through the model: replicated to 3 channels, same mean fill.
+    let want_d = mean_fill(&disp, &mask);
+    let dd = max_diff(&bg.disparity, &want_d);
+    assert!(dd <= TOL, "lama-dynamic disparity: {dd}");
+}
+
+#[test]
+fn sessions_are_created_once_and_reused() {
+    // A private copy so no other test shares (or pre-creates) this session.
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("mine.onnx");
+    std::fs::copy(stub("u2net.onnx"), &model).unwrap();
+    let s = ModelSpec { model: Some(model), preset: Some("u2net".into()), ..ModelSpec::default() };
+    let (_, first) = segment_onnx::predict_matte(&photo(20, 10), &s, &cfg()).unwrap();
+    let (_, second) = segment_onnx::predict_matte(&photo(30, 30), &s, &cfg()).unwrap();
+    let (_, third) = segment_onnx::predict_matte(&photo(8, 50), &s, &cfg()).unwrap();
+    assert!(!first.session_cached && first.session_ms > 0.0);
+    assert!(second.session_cached && third.session_cached);
+    assert_eq!((second.session_ms, third.session_ms), (0.0, 0.0));
+    assert!(drbokeh::onnx::runtime::is_loaded());
+}
+
+/// Runs a matte model and returns its error message (asserting it is a user error).
+fn matte_err(s: &ModelSpec) -> String {
+    let e = segment_onnx::predict_matte(&photo(16, 12), s, &cfg()).err().expect("must fail");
+    assert!(e.is_user_error(), "exit 2 expected: {e}");
+    assert!(matches!(e, Error::Input { .. } | Error::Usage(_)), "{e:?}");
+    e.to_string()
+}
+
+#[test]
+fn wrong_names_list_what_the_model_has() {
+    let e = matte_err(&spec("bad_names.onnx", "modnet"));
+    assert!(e.contains("bad_names.onnx") && e.contains("no input named \"input\""), "{e}");
+    assert!(e.contains("\"x\" f32[1, 3, ?, ?]"), "lists the actual inputs: {e}");
+    // Right input name, wrong output name.
+    let e = matte_err(&ModelSpec { input: Some("x".into()), ..spec("bad_names.onnx", "modnet") });
+    assert!(e.contains("no output named \"output\"") && e.contains("\"y\" f32[1, 1, ?, ?]"), "{e}");
+    // Output index out of range.
+    let e = matte_err(&ModelSpec { output: Some(contract::OutputRef::Index(5)), ..spec("u2net.onnx", "u2net") });
+    assert!(e.contains("no output #5") && e.contains("\"d0\"") && e.contains("\"d1\""), "{e}");
+    // Inpainting stub used with swapped names.
+    let opts = InpaintOptions {
+        onnx: ModelSpec { input: Some("img".into()), ..spec("lama.onnx", "lama") },
+        ..InpaintOptions::default()
+    };
+    let alpha = disk_alpha(16, 12, 8.0, 6.0, 3.0);
+    let e = inpaint_onnx::inpaint_background(&photo(16, 12), &Image::filled(16, 12, 1, 0.5), &alpha, &opts, 10.0, &cfg()).err().unwrap().to_string();
+    assert!(e.contains("lama.onnx") && e.contains("\"img\"") && e.contains("\"image\" f32[1, 3, 512, 512]") && e.contains("\"mask\""), "{e}");
+}
+
+#[test]
+fn wrong_rank_layout_and_size() {
+    // MiDaS's output is rank 3; U^2-Net's contract wants rank 4.
+    let e = matte_err(&ModelSpec { model: Some(stub("midas_small.onnx")), ..spec("u2net.onnx", "u2net") });
+    assert!(e.contains("midas_small.onnx") && e.contains("rank 3") && e.contains("expects rank 4") && e.contains("\"depth\" f32[1, 256, 256]"), "{e}");
+    // ISNet's fixed 1024 input under the U^2-Net contract (320).
+    let e = matte_err(&ModelSpec { model: Some(stub("isnet.onnx")), ..spec("u2net.onnx", "u2net") });
+    assert!(e.contains("isnet.onnx") && e.contains("1024x1024") && e.contains("320x320"), "{e}");
+    // A fixed model under a dynamic contract.
+    let e = matte_err(&ModelSpec { model: Some(stub("u2net.onnx")), ..spec("u2net.onnx", "modnet") });
+    assert!(e.contains("fixed size 320x320") && e.contains("dynamic"), "{e}");
+    // An NCHW model read as NHWC: the channel axis holds 320, not 3.
+    let e = matte_err(&ModelSpec { layout: Some(Layout::Nhwc), ..spec("u2net.onnx", "u2net") });
+    assert!(e.contains("channel") && e.contains("\"input.1\" f32[1, 3, 320, 320]"), "{e}");
+}
+
+#[test]
+fn nan_output_missing_and_invalid_files() {
+    let e = matte_err(&spec("bad_nan.onnx", "u2net"));
+    assert!(e.contains("bad_nan.onnx") && e.contains("NaN"), "{e}");
+    let e = matte_err(&spec("does_not_exist.onnx", "u2net"));
+    assert!(e.contains("does_not_exist.onnx") && e.contains("not found"), "{e}");
+    let dir = tempfile::tempdir().unwrap();
+    let junk = dir.path().join("junk.onnx");
+    std::fs::write(&junk, "this is not a protobuf").unwrap();
+    let e = matte_err(&ModelSpec { model: Some(junk), ..spec("x", "u2net") });
+    assert!(e.contains("junk.onnx") && e.contains("not a loadable ONNX model"), "{e}");
+    let empty = dir.path().join("empty.onnx");
+    std::fs::write(&empty, "").unwrap();
+    let e = matte_err(&ModelSpec { model: Some(empty), ..spec("x", "u2net") });
+    assert!(e.contains("empty.onnx") && e.contains("empty"), "{e}");
+    // Usage errors: unknown preset, a preset of another kind, no model file configured.
+    let e = matte_err(&spec("u2net.onnx", "u3net"));
+    assert!(e.contains("u3net") && e.contains("u2net, isnet"), "{e}");
+    let e = matte_err(&spec("lama.onnx", "lama"));
+    assert!(e.contains("\"lama\""), "{e}");
+    let e = matte_err(&ModelSpec::default());
+    assert!(e.contains("--model-dir") && e.contains("u2net.onnx"), "{e}");
+}
