@@ -107,10 +107,14 @@ def inpaint_stub(path, h, w, scale):
         helper.make_node("Cast", ["mb"], ["m"], to=F),
         helper.make_node("Sub", ["one", "m"], ["keep"]),
         helper.make_node("Mul", ["image", "keep"], ["kept"]),
-        helper.make_node("ReduceSum", ["kept", "axes"], ["num"], keepdims=1),
-        helper.make_node("ReduceSum", ["keep", "axes"], ["cnt0"], keepdims=1),
-        helper.make_node("Max", ["cnt0", "one"], ["cnt"]),
-        helper.make_node("Div", ["num", "cnt"], ["mean"]),
+        # Sums in double precision: a float32 sum over 512x512 pixels drifts by ~1e-5.
+        helper.make_node("Cast", ["kept"], ["kept64"], to=TensorProto.DOUBLE),
+        helper.make_node("Cast", ["keep"], ["keep64"], to=TensorProto.DOUBLE),
+        helper.make_node("ReduceSum", ["kept64", "axes"], ["num"], keepdims=1),
+        helper.make_node("ReduceSum", ["keep64", "axes"], ["cnt0"], keepdims=1),
+        helper.make_node("Max", ["cnt0", "one64"], ["cnt"]),
+        helper.make_node("Div", ["num", "cnt"], ["mean64"]),
+        helper.make_node("Cast", ["mean64"], ["mean"], to=F),
         helper.make_node("Mul", ["mean", "m"], ["fill"]),
         helper.make_node("Add", ["kept", "fill"], ["res"]),
         helper.make_node("Mul", ["res", "scale"], ["output"]),
@@ -118,6 +122,7 @@ def inpaint_stub(path, h, w, scale):
     inits = [
         const("half", [0.5]),
         const("one", [1.0]),
+        numpy_helper.from_array(np.array([1.0], dtype=np.float64), "one64"),
         const("scale", [scale]),
         numpy_helper.from_array(np.array([2, 3], dtype=np.int64), "axes"),
     ]

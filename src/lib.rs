@@ -11,6 +11,7 @@ pub mod config;
 pub mod error;
 pub mod image;
 pub mod io;
+pub mod job;
 pub mod onnx;
 pub mod pipeline;
 pub mod render;

@@ -3,16 +3,16 @@
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use drbokeh::color::Transfer;
 use drbokeh::config::{Config, KernelChoice};
-use drbokeh::io::{self, ReadLimits};
-use drbokeh::pipeline::{Focus, Outcome, Pipeline, Scene, StageReport};
-use drbokeh::render::Layer;
-use drbokeh::stages::depth::{self, DepthKind};
-use drbokeh::{Error, Image};
-use std::path::{Path, PathBuf};
+use drbokeh::job::{self, Job};
+use drbokeh::pipeline::{Focus, Pipeline};
+use drbokeh::stages::depth::DepthKind;
+use drbokeh::Error;
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
+
+mod cli_bench;
 
 #[derive(Parser)]
 #[command(name = "drbokeh", version, about = "Occlusion-aware lens blur (Dr.Bokeh) from one photo and its depth")]
@@ -25,6 +25,10 @@ struct Cli {
 enum Command {
     /// Render lens blur for one photo + depth (+ matte), or for given layers.
     Render(RenderArgs),
+    /// Ray-trace the thin-lens ground truth of a layered billboard scene.
+    Trace(cli_bench::TraceArgs),
+    /// Benchmark methods and settings against traced ground truth (error vs run time report).
+    Bench(cli_bench::BenchArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -152,6 +156,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = std::panic::catch_unwind(|| match cli.command {
         Command::Render(args) => render(args),
+        Command::Trace(args) => cli_bench::trace(args),
+        Command::Bench(args) => cli_bench::bench(args),
     });
     match result {
         Ok(Ok(())) => ExitCode::SUCCESS,
@@ -240,8 +246,6 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     }
     let t0 = Instant::now();
     let cfg = config_from(&args)?;
-    let limits = ReadLimits { max_pixels: cfg.input.max_pixels };
-    let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
     let focus = match (args.focus, args.focus_at, args.focus_depth) {
         (Some(f), _, _) => Focus::Disparity(f),
         (_, Some((x, y)), _) => Focus::At(x, y),
@@ -249,91 +253,23 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         _ => unreachable!("clap requires one focus flag"),
     };
 
-    let inputs: Vec<PathBuf> = args.image.iter().chain(&args.depth).chain(&args.matte).chain(&args.layer).cloned().collect();
-    let output = match &args.output {
-        Some(p) => p.clone(),
-        None => {
-            let stem = inputs[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let job = Job {
+        image: args.image.clone(),
+        depth: args.depth.clone(),
+        matte: args.matte.clone(),
+        layers: args.layer.clone(),
+        focus,
+        output: args.output.clone().unwrap_or_else(|| {
+            let first = args.image.as_ref().or(args.layer.first()).cloned().unwrap_or_default();
+            let stem = first.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
             PathBuf::from(format!("{stem}_bokeh.png"))
-        }
+        }),
+        save_layers: args.save_layers.clone(),
     };
-    check_output(&output, &inputs)?;
-    let format = io::OutputFormat::from_path(&output)?;
-
-    let pipeline = Pipeline::from_config(cfg.clone())?;
-    let t_read = Instant::now();
-    let mut read_warnings = Vec::new();
-    let outcome: Outcome = if !args.layer.is_empty() {
-        let layers = args
-            .layer
-            .iter()
-            .map(|p| {
-                let mut l = Layer::new(io::read_layer(p, &limits)?, &p.display().to_string())?;
-                if let Some(g) = cfg.render.gamma {
-                    // The official inference raises colours in double precision.
-                    l.map_colors(|c| (c.max(0.0) as f64).powf(g as f64) as f32);
-                }
-                Ok(l)
-            })
-            .collect::<Result<Vec<_>, Error>>()?;
-        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
-        let mut out = pipeline.render_layers(layers, focus)?;
-        out.report.stages.insert(0, stage("read", read_ms));
-        out
-    } else {
-        let image_path = args.image.as_ref().expect("clap requires IMAGE");
-        let rgb = io::read_photo(image_path, transfer, &limits)?;
-        let mut depth_stage = None;
-        let disparity = match &args.depth {
-            Some(depth_path) => {
-                let raw_depth = io::read_depth(depth_path, &limits)?;
-                let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
-                depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?
-            }
-            None => {
-                // No depth map: the configured depth model predicts relative disparity.
-                let t = Instant::now();
-                let (d, r) = drbokeh::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx)?;
-                read_warnings.extend(r.warnings.iter().cloned());
-                let detail = serde_json::to_value(&r).ok();
-                depth_stage = Some(StageReport { name: "depth_model", status: "ran", reason: None, ms: t.elapsed().as_secs_f64() * 1e3, detail });
-                d
-            }
-        };
-        let matte = match &args.matte {
-            Some(p) => Some(fit_to(io::read_matte(p, &limits)?, &rgb, p, image_path, &mut read_warnings)?),
-            None => None,
-        };
-        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
-        let mut out = pipeline.run(&Scene { rgb, disparity, matte }, focus)?;
-        if let Some(s) = depth_stage {
-            out.report.stages.insert(0, s);
-        }
-        out.report.stages.insert(0, stage("read", read_ms));
-        out
-    };
-    let Outcome { mut image, layers, mut report } = outcome;
-    report.warnings.splice(0..0, read_warnings);
-
-    if let Some(dir) = &args.save_layers {
-        let t = Instant::now();
-        save_layers(dir, &layers)?;
-        report.stages.push(stage("save_layers", t.elapsed().as_secs_f64() * 1e3));
-    }
-
-    let t_write = Instant::now();
-    let png_transfer = match cfg.render.gamma {
-        Some(g) => {
-            image.map_inplace(|v| v.max(0.0).powf(1.0 / g));
-            Transfer::Linear
-        }
-        None => Transfer::Srgb,
-    };
-    let _ = format;
-    io::write_output(&output, &image, cfg.output.bit_depth, png_transfer)?;
-    report.stages.push(stage("write", t_write.elapsed().as_secs_f64() * 1e3));
-    report.output = Some(output.display().to_string());
+    let pipeline = Pipeline::from_config(cfg)?;
+    let mut report = job::run(&pipeline, &job)?;
     report.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let output = job.output;
 
     for w in &report.warnings {
         eprintln!("warning: {w}");
@@ -359,54 +295,3 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn stage(name: &'static str, ms: f64) -> StageReport {
-    StageReport { name, status: "ran", reason: None, ms, detail: None }
-}
-
-/// Refuses an output that would overwrite an input.
-fn check_output(output: &Path, inputs: &[PathBuf]) -> Result<(), Error> {
-    let canon = |p: &Path| std::fs::canonicalize(p).ok();
-    if let Some(out) = canon(output) {
-        for i in inputs {
-            if canon(i).as_deref() == Some(out.as_path()) {
-                return Err(Error::usage(format!("output {} is also an input; choose another -o", output.display())));
-            }
-        }
-    }
-    Ok(())
-}
-
-/// Brings a depth map or matte to the photo's size: an equal aspect ratio is resized with a
-/// warning, a different one is an error naming both files.
-fn fit_to(map: Image, rgb: &Image, path: &Path, image_path: &Path, warnings: &mut Vec<String>) -> Result<Image, Error> {
-    if (map.width, map.height) == (rgb.width, rgb.height) {
-        return Ok(map);
-    }
-    let (a, b) = (map.width as f64 / map.height as f64, rgb.width as f64 / rgb.height as f64);
-    if (a / b - 1.0).abs() > 0.01 {
-        return Err(Error::input(
-            path,
-            format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.width, map.height, image_path.display(), rgb.width, rgb.height),
-        ));
-    }
-    warnings.push(format!("{} is {}x{}; resized to the image's {}x{}", path.display(), map.width, map.height, rgb.width, rgb.height));
-    Ok(map.resized(rgb.width, rgb.height))
-}
-
-/// Writes each layer as `layerN.exr` (R,G,B,A,D; feed back with --layer) plus PNG previews.
-fn save_layers(dir: &Path, layers: &[Layer]) -> Result<(), Error> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let names: Vec<String> = match layers.len() {
-        2 => vec!["fg".into(), "bg".into()],
-        1 => vec!["bg".into()],
-        n => (0..n).map(|i| format!("layer{i}")).collect(),
-    };
-    for (name, l) in names.iter().zip(layers) {
-        let img = l.image();
-        io::write_exr(&dir.join(format!("{name}.exr")), img, &["R", "G", "B", "A", "D"])?;
-        io::write_png(&dir.join(format!("{name}_color.png")), &img.select_channels(&[0, 1, 2]), 8, Transfer::Srgb)?;
-        io::write_png(&dir.join(format!("{name}_alpha.png")), &img.channel(3), 8, Transfer::Linear)?;
-        io::write_png(&dir.join(format!("{name}_disparity.png")), &img.channel(4), 16, Transfer::Linear)?;
-    }
-    Ok(())
-}

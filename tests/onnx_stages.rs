@@ -350,7 +350,7 @@ fn wrong_names_list_what_the_model_has() {
 #[test]
 fn wrong_rank_layout_and_size() {
     // MiDaS's output is rank 3; U^2-Net's contract wants rank 4.
-    let e = matte_err(&ModelSpec { model: Some(stub("midas_small.onnx")), ..spec("u2net.onnx", "u2net") });
+    let e = matte_err(&ModelSpec { model: Some(stub("midas_small.onnx")), size: Some([256, 256]), ..spec("u2net.onnx", "u2net") });
     assert!(e.contains("midas_small.onnx") && e.contains("rank 3") && e.contains("expects rank 4") && e.contains("\"depth\" f32[1, 256, 256]"), "{e}");
     // ISNet's fixed 1024 input under the U^2-Net contract (320).
     let e = matte_err(&ModelSpec { model: Some(stub("isnet.onnx")), ..spec("u2net.onnx", "u2net") });

@@ -1,0 +1,205 @@
+//! The `trace` and `bench` subcommands: flag parsing and progress display; the work is in
+//! `drbokeh::bench::{trace, run}`.
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
+use drbokeh::bench::trace::{self, Footprint, Plane, TraceSettings, Window};
+use drbokeh::color::Transfer;
+use drbokeh::io::{self, ReadLimits};
+use drbokeh::render::Layer;
+use drbokeh::Error;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum FootprintArg {
+    /// Rays through the pixel centre, planes read bilinearly: the exact pixel-box integral of
+    /// box texels (converges fastest).
+    Analytic,
+    /// Rays spread over the pixel square (stratified), planes read as box texels.
+    Sampled,
+}
+
+#[derive(Args)]
+pub struct TraceArgs {
+    /// A layer (5-channel EXR R,G,B,A,D or NPY H x W x 5, linear radiance), one fronto-parallel
+    /// plane: D must be constant where A > 0. Repeat, front first.
+    #[arg(long, value_name = "PATH", required = true)]
+    layer: Vec<PathBuf>,
+    /// Focal plane as normalized disparity.
+    #[arg(long, allow_hyphen_values = true)]
+    focus: f32,
+    /// Blur strength K: CoC radius in pixels per unit of relative disparity (as `render`).
+    #[arg(long, value_name = "K")]
+    blur: f32,
+    /// Rays per pixel (rounded up to a power of two).
+    #[arg(long, value_name = "N", default_value_t = 1024)]
+    spp: u32,
+    /// Seed of the sample scrambles (the result is deterministic for a seed).
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    seed: u64,
+    /// How the pixel footprint is integrated.
+    #[arg(long, value_enum, default_value = "analytic")]
+    footprint: FootprintArg,
+    /// Output: .exr or .npy (linear float32) or .png (8-bit sRGB, clipped).
+    #[arg(short, long, value_name = "OUT")]
+    output: PathBuf,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Also print the estimated noise (two halves of the samples) and the time.
+    #[arg(short, long)]
+    verbose: bool,
+}
+
+/// Refuses an output path that is also one of the inputs.
+fn refuse_overwriting_input(output: &std::path::Path, inputs: &[PathBuf]) -> Result<(), Error> {
+    if let Ok(out) = std::fs::canonicalize(output) {
+        if inputs.iter().any(|i| std::fs::canonicalize(i).ok().as_deref() == Some(out.as_path())) {
+            return Err(Error::usage(format!("output {} is also an input; choose another -o", output.display())));
+        }
+    }
+    Ok(())
+}
+
+fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
+    if let Some(n) = n {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
+    }
+    Ok(())
+}
+
+pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
+    set_threads(args.threads)?;
+    let t0 = Instant::now();
+    refuse_overwriting_input(&args.output, &args.layer)?;
+    io::OutputFormat::from_path(&args.output)?;
+    let limits = ReadLimits::default();
+    let planes = args
+        .layer
+        .iter()
+        .map(|p| {
+            let what = p.display().to_string();
+            Plane::from_layer(&Layer::new(io::read_layer(p, &limits)?, &what)?, &what)
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    let mut s = TraceSettings::new(args.blur, args.focus, args.spp, args.seed);
+    s.footprint = match args.footprint {
+        FootprintArg::Analytic => Footprint::Analytic,
+        FootprintArg::Sampled => Footprint::Sampled,
+    };
+    trace::validate(&planes, &s)?;
+    let (w, h) = (planes[0].width, planes[0].height);
+    let bar = ProgressBar::new(h as u64);
+    bar.set_style(ProgressStyle::with_template("tracing {bar:40} {pos}/{len} rows, {elapsed} (eta {eta})").expect("template"));
+    let (img, half) = trace::trace_split(&planes, &s, Window::full(w, h), &|n| bar.inc(n as u64))?;
+    bar.finish_and_clear();
+    io::write_output(&args.output, &img, 8, Transfer::Srgb)?;
+    if args.verbose {
+        let other = drbokeh::Image::from_vec(w, h, 3, img.data.iter().zip(&half.data).map(|(f, h)| 2.0 * f - h).collect()).expect("size");
+        let noise = drbokeh::bench::metrics::rmse(&half, &other, 0) / 2.0;
+        eprintln!(
+            "traced {w}x{h}, {} layer(s), {} rays/pixel, K = {}, focus = {} in {:.2} s ({} threads); estimated noise RMS {noise:.5}",
+            planes.len(),
+            args.spp.next_power_of_two().max(2),
+            args.blur,
+            args.focus,
+            t0.elapsed().as_secs_f64(),
+            rayon::current_num_threads()
+        );
+    }
+    eprintln!("wrote {}", args.output.display());
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Number of generated scenes.
+    #[arg(long, value_name = "N", default_value_t = 50)]
+    scenes: usize,
+    /// Frame size of the generated scenes.
+    #[arg(long, value_name = "WxH", default_value = "256x256", value_parser = parse_size)]
+    size: (usize, usize),
+    /// Seed of the scene generator (and of the tracer).
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    seed: u64,
+    /// Evaluate on scene folders in the shared ground-truth format (Mitsuba renders) instead.
+    #[arg(long, value_name = "DIR")]
+    groundtruth: Option<PathBuf>,
+    /// Texture the generated planes with crops of these photos (else procedural textures).
+    #[arg(long, value_name = "DIR")]
+    textures: Option<PathBuf>,
+    /// Methods to run (comma-separated): layers, sliced, pipeline, scatter, gather [default: all].
+    #[arg(long, value_name = "LIST", value_delimiter = ',', num_args = 1..)]
+    methods: Vec<String>,
+    /// Report folder (report.csv, report.md, error_vs_time.png, crops/).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Rays per pixel of the traced ground truth.
+    #[arg(long, value_name = "N", default_value_t = 1024)]
+    spp: u32,
+    /// Runs per render for the median time (repeated while the total stays under 1 s).
+    #[arg(long, value_name = "N", default_value_t = 3)]
+    repeats: usize,
+    /// Side-by-side crops to write (the cases where Dr.Bokeh gains most over the scatter).
+    #[arg(long, value_name = "N", default_value_t = 4)]
+    crops: usize,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+}
+
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WxH, e.g. 256x256, got '{s}'"))?;
+    let p = |v: &str| v.trim().parse::<usize>().map_err(|_| format!("expected WxH, e.g. 256x256, got '{s}'"));
+    Ok((p(w)?, p(h)?))
+}
+
+pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
+    set_threads(args.threads)?;
+    let methods = if args.methods.is_empty() {
+        Method::ALL.to_vec()
+    } else {
+        args.methods
+            .iter()
+            .map(|m| {
+                Method::parse(m).ok_or_else(|| Error::usage(format!("--methods: unknown method '{m}' (known: layers, sliced, pipeline, scatter, gather)")))
+            })
+            .collect::<Result<Vec<_>, Error>>()?
+    };
+    if args.scenes == 0 && args.groundtruth.is_none() {
+        return Err(Error::usage("--scenes must be at least 1").into());
+    }
+    let opts = BenchOptions {
+        scenes: args.scenes,
+        width: args.size.0,
+        height: args.size.1,
+        seed: args.seed,
+        groundtruth: args.groundtruth.clone(),
+        textures: args.textures.clone(),
+        methods,
+        out: args.out.clone(),
+        spp: args.spp.clamp(2, 1 << 20),
+        repeats: args.repeats.max(1),
+        crops: args.crops,
+        command: std::env::args().map(|a| if a.contains(' ') { format!("'{a}'") } else { a }).collect::<Vec<_>>().join(" "),
+    };
+    let t0 = Instant::now();
+    let bar = if opts.groundtruth.is_some() { ProgressBar::new_spinner() } else { ProgressBar::new(opts.scenes as u64) };
+    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} ({elapsed}, eta {eta})").expect("template"));
+    let mut first = true;
+    let res = bench_run::run(&opts, &mut |msg: &str| {
+        if !first {
+            bar.inc(1);
+        }
+        first = false;
+        bar.set_message(msg.to_string());
+    })?;
+    bar.finish_and_clear();
+    eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
+    eprint!("{}", drbokeh::bench::report::comparisons(&res.rows));
+    eprintln!("wrote {}", opts.out.join("report.md").display());
+    Ok(())
+}
