@@ -10,6 +10,7 @@ use drbokeh::io::{self, ReadLimits};
 use drbokeh::render::Layer;
 use drbokeh::Error;
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -184,17 +185,24 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         spp: args.spp.clamp(2, 1 << 20),
         repeats: args.repeats.max(1),
         crops: args.crops,
-        command: std::env::args().map(|a| if a.contains(' ') { format!("'{a}'") } else { a }).collect::<Vec<_>>().join(" "),
+        command: std::iter::once("drbokeh".to_string())
+            .chain(std::env::args().skip(1).map(|a| if a.contains(' ') { format!("'{a}'") } else { a }))
+            .collect::<Vec<_>>()
+            .join(" "),
     };
     let t0 = Instant::now();
     let bar = if opts.groundtruth.is_some() { ProgressBar::new_spinner() } else { ProgressBar::new(opts.scenes as u64) };
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} ({elapsed}, eta {eta})").expect("template"));
     let mut first = true;
+    let plain = !std::io::stderr().is_terminal();
     let res = bench_run::run(&opts, &mut |msg: &str| {
         if !first {
             bar.inc(1);
         }
         first = false;
+        if plain {
+            eprintln!("[{:7.1} s] {msg}", t0.elapsed().as_secs_f64());
+        }
         bar.set_message(msg.to_string());
     })?;
     bar.finish_and_clear();

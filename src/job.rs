@@ -88,7 +88,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             None => None,
         };
         let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
-        let mut out = pipeline.run(&Scene { rgb, disparity, matte }, focus)?;
+        let mut out = pipeline.run_with(&Scene { rgb, disparity, matte }, focus, job.save_layers.is_some())?;
         if let Some(s) = depth_stage {
             out.report.stages.insert(0, s);
         }

@@ -87,10 +87,10 @@ struct RenderArgs {
     #[arg(long, allow_hyphen_values = true)]
     focus: Option<f32>,
     /// Focus on the surface under pixel X,Y (median disparity of a small window).
-    #[arg(long, value_name = "X,Y", value_parser = parse_xy)]
+    #[arg(long, value_name = "X,Y", value_parser = parse_xy, allow_hyphen_values = true)]
     focus_at: Option<(i64, i64)>,
     /// Focus at metric depth Z (with --depth-kind depth).
-    #[arg(long, value_name = "Z")]
+    #[arg(long, value_name = "Z", allow_negative_numbers = true)]
     focus_depth: Option<f64>,
     /// Blur strength K: CoC radius in pixels per unit of normalized disparity
     /// [default: 30 × sqrt(megapixels)].
@@ -106,10 +106,10 @@ struct RenderArgs {
     #[arg(long, value_enum)]
     depth_kind: Option<DepthKindArg>,
     /// Odd side of the square lens window [default: from the largest CoC in the scene].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
     lens: Option<usize>,
     /// Official "naive gamma": render on rgb^G and output ^(1/G) instead of exact sRGB.
-    #[arg(long, value_name = "G")]
+    #[arg(long, value_name = "G", allow_negative_numbers = true)]
     gamma: Option<f32>,
     /// Which kernel renders the layers.
     #[arg(long, value_enum)]

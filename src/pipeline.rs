@@ -148,6 +148,12 @@ impl Pipeline {
 
     /// Runs segmentation, depth filling, inpainting and rendering on a decoded scene.
     pub fn run(&self, scene: &Scene, focus: Focus) -> Result<Outcome> {
+        self.run_with(scene, focus, false)
+    }
+
+    /// [`Pipeline::run`]; with `need_layers`, the layers are built even when nothing is out
+    /// of focus and rendering is skipped (for `--save-layers`).
+    pub fn run_with(&self, scene: &Scene, focus: Focus, need_layers: bool) -> Result<Outcome> {
         let t0 = Instant::now();
         let cfg = &self.config;
         let (w, h) = (scene.rgb.width, scene.rgb.height);
@@ -164,8 +170,10 @@ impl Pipeline {
         let max_coc = disp.data.iter().map(|&d| (d - focus).abs() * blur).fold(0.0, f32::max);
 
         // Nothing is out of focus: the photo is its own answer (unless the exact kernel is asked for).
-        if cfg.render.kernel == KernelChoice::Auto && max_coc < 0.5 {
-            let why = format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px)");
+        let sharp = cfg.render.kernel == KernelChoice::Auto && max_coc < 0.5;
+        let sharp_why = format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px)");
+        if sharp && !need_layers {
+            let why = sharp_why;
             for name in ["segment", "fill_depth", "inpaint", "render"] {
                 report.skipped(name, why.clone());
             }
@@ -231,6 +239,12 @@ impl Pipeline {
                 }
             }
         };
+        if sharp {
+            report.skipped("render", sharp_why);
+            report.params = self.params(w, h, blur, focus, 0, "none", layers.len(), max_coc);
+            report.total_ms = ms(t0);
+            return Ok(Outcome { image: scene.rgb.clone(), layers, report });
+        }
         let mut out = self.render_prepared(layers, focus, blur, report, false)?;
         out.report.total_ms = ms(t0);
         Ok(out)

@@ -356,7 +356,7 @@ fn wrong_rank_layout_and_size() {
     let e = matte_err(&ModelSpec { model: Some(stub("isnet.onnx")), ..spec("u2net.onnx", "u2net") });
     assert!(e.contains("isnet.onnx") && e.contains("1024x1024") && e.contains("320x320"), "{e}");
     // A fixed model under a dynamic contract.
-    let e = matte_err(&ModelSpec { model: Some(stub("u2net.onnx")), ..spec("u2net.onnx", "modnet") });
+    let e = matte_err(&ModelSpec { input: Some("input.1".into()), ..spec("u2net.onnx", "modnet") });
     assert!(e.contains("fixed size 320x320") && e.contains("dynamic"), "{e}");
     // An NCHW model read as NHWC: the channel axis holds 320, not 3.
     let e = matte_err(&ModelSpec { layout: Some(Layout::Nhwc), ..spec("u2net.onnx", "u2net") });
@@ -385,4 +385,20 @@ fn nan_output_missing_and_invalid_files() {
     assert!(e.contains("\"lama\""), "{e}");
     let e = matte_err(&ModelSpec::default());
     assert!(e.contains("--model-dir") && e.contains("u2net.onnx"), "{e}");
+}
+
+#[test]
+fn missing_execution_provider_falls_back_to_cpu_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("gpu.onnx");
+    std::fs::copy(stub("u2net.onnx"), &model).unwrap();
+    let cfg = OnnxConfig { providers: vec!["cuda".into(), "coreml".into(), "cpu".into()], threads: 2, ..OnnxConfig::default() };
+    let s = ModelSpec { model: Some(model), ..ModelSpec::default() };
+    let (matte, report) = segment_onnx::predict_matte(&photo(20, 10), &s, &cfg).unwrap();
+    assert_eq!(matte.width, 20);
+    // The PyPI CPU wheel has neither provider: both are skipped with a warning, CPU runs.
+    if !report.providers.iter().any(|p| p == "CUDAExecutionProvider") {
+        assert!(report.warnings.iter().any(|w| w.contains("CUDAExecutionProvider") && w.contains("CPU")), "{:?}", report.warnings);
+    }
+    assert_eq!(report.providers.last().map(String::as_str), Some("CPUExecutionProvider"));
 }

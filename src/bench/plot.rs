@@ -11,6 +11,7 @@ use std::path::Path;
 
 /// Draws `text` (ASCII) into an RGB8 buffer of width `w` at (x, y) (top-left), each font
 /// pixel `scale`×`scale`. Off-buffer pixels are clipped.
+#[allow(clippy::too_many_arguments)]
 pub fn draw_text(buf: &mut [u8], w: usize, h: usize, x: i32, y: i32, text: &str, rgb: [u8; 3], scale: i32) {
     for (k, ch) in text.chars().enumerate() {
         let glyph = font8x8::legacy::BASIC_LEGACY[if (ch as usize) < 128 { ch as usize } else { b'?' as usize }];

@@ -55,6 +55,17 @@ impl Method {
         }
     }
 
+    /// A short name for image labels.
+    pub fn short(self) -> &'static str {
+        match self {
+            Method::Layers => "Dr.Bokeh",
+            Method::Sliced => "sliced",
+            Method::Pipeline => "pipeline",
+            Method::Scatter => "scatter",
+            Method::Gather => "gather",
+        }
+    }
+
     pub fn label(self) -> &'static str {
         match self {
             Method::Layers => "Dr.Bokeh, exact 2 layers",
@@ -481,8 +492,8 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
                 _ => 0.0,
             };
             if crops.len() < opts.crops || crops.iter().any(|c| c.gain < gain) {
-                let mut images: Vec<(String, &Image)> = vec![("ground truth".into(), &case.gt)];
-                images.extend(refs.iter().map(|(m, img, _)| (m.name().to_string(), img)));
+                let mut images: Vec<(String, &Image)> = vec![("truth".into(), &case.gt)];
+                images.extend(refs.iter().map(|(m, img, _)| (m.short().to_string(), img)));
                 let panel = super::report::crop_panels(&case, &images, find(Method::Layers).map(|r| &r.1), find(Method::Scatter).map(|r| &r.1));
                 crops.push(CropPanel { name: format!("{}_{}", case.scene, case.setting), gain, panels: panel });
                 crops.sort_by(|a, b| b.gain.total_cmp(&a.gain));

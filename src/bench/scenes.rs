@@ -533,6 +533,7 @@ impl SynthScene {
     }
 
     /// Builds every method's inputs from the planes.
+    #[allow(clippy::needless_range_loop)]
     pub fn inputs(&self) -> Result<SceneInputs> {
         let (w, h, m) = (self.width, self.height, self.margin);
         let cropped: Vec<(Image, Image, f32, bool)> =
@@ -595,6 +596,7 @@ impl SynthScene {
 /// pixels whose centre is on the background go to the nearest labelled foreground pixel's
 /// depth (within 3 px). Background depths (one, or two for a step) become opaque planes; a
 /// farther background plane is filled with `bg.exr` where a nearer one hides it.
+#[allow(clippy::needless_range_loop)]
 pub fn gt_plane_layers(scene: &GtScene) -> Result<Vec<Layer>> {
     let (w, h) = (scene.bg.width, scene.bg.height);
     let n = w * h;

@@ -37,7 +37,7 @@
 //!   bilinearly (premultiplied colour and alpha). Only the aperture is sampled, the integrand
 //!   is continuous, and the error falls about as 1/spp. An in-focus plane is reproduced exactly.
 //! - [`Footprint::Sampled`]: the rays are spread over the pixel square too (a second scrambled
-//!   (0,2)-net, toroidally shifted per pixel) and read the box texels directly. Same mean for
+//!   (0,2)-net, randomly paired with the lens points, toroidally shifted per pixel) and read the box texels directly. Same mean for
 //!   a single plane; it differs only where several planes' edges meet inside one pixel, and it
 //!   converges more slowly (the integrand jumps at every texel edge).
 //!
@@ -268,12 +268,17 @@ impl SampleTables {
         let (mut lens, mut foot) = (Vec::with_capacity(TABLES * n as usize), Vec::with_capacity(TABLES * n as usize));
         for _ in 0..TABLES {
             let (lx, ly, fx, fy) = (next() as u32, next() as u32, next() as u32, next() as u32);
-            let index_scramble = (next() as u32) & (n - 1);
+            // Footprint points pair with lens points through a random permutation (padding):
+            // an XOR of the index would not do, the sequence being linear over GF(2).
+            let mut perm: Vec<u32> = (0..n).collect();
+            for i in (1..n as usize).rev() {
+                perm.swap(i, (next() % (i as u64 + 1)) as usize);
+            }
             for i in 0..n {
                 let (x, y) = sobol02(i);
                 let (ax, ay) = concentric_disk(unit(x ^ lx), unit(y ^ ly));
                 lens.push([ax, ay]);
-                let (x, y) = sobol02(i ^ index_scramble);
+                let (x, y) = sobol02(perm[i as usize]);
                 foot.push([unit(x ^ fx), unit(y ^ fy)]);
             }
         }
@@ -376,51 +381,6 @@ pub(crate) fn splitmix(x: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
-}
-
-/// The analytic thin-lens image of one opaque plane: its texels (box reconstruction) convolved
-/// with the pixel box and the uniform disk of radius `r` px, computed by exact-area quadrature
-/// on a fine grid (`sub` sub-samples per pixel per axis over the disk). A slow reference for tests.
-pub fn disk_blur_reference(rgb: &Image, r: f32, sub: usize) -> Image {
-    let (w, h) = (rgb.width, rgb.height);
-    let mut out = Image::new(w, h, 3);
-    // Kernel: box ⊗ disk, tabulated on a sub-pixel grid (offsets in pixels).
-    let step = 1.0 / sub as f32;
-    let reach = (r + 1.0).ceil() as isize;
-    let mut weights: Vec<(f32, f32, f32)> = Vec::new();
-    for gy in -(reach * sub as isize)..=(reach * sub as isize) {
-        for gx in -(reach * sub as isize)..=(reach * sub as isize) {
-            let (ox, oy) = ((gx as f32 + 0.5) * step, (gy as f32 + 0.5) * step);
-            if ox * ox + oy * oy <= r * r || (r == 0.0 && gx == 0 && gy == 0) {
-                weights.push((ox, oy, 1.0));
-            }
-        }
-    }
-    let total = weights.len() as f32;
-    out.data.par_chunks_mut(w * 3).enumerate().for_each(|(y, row)| {
-        for x in 0..w {
-            let mut acc = [0f64; 3];
-            // Average over the pixel square (sub × sub) and the disk offsets.
-            for sy in 0..sub {
-                for sx in 0..sub {
-                    let (cx, cy) = (x as f32 + (sx as f32 + 0.5) * step, y as f32 + (sy as f32 + 0.5) * step);
-                    for &(ox, oy, _) in &weights {
-                        let tx = ((cx + ox).floor() as isize).clamp(0, w as isize - 1) as usize;
-                        let ty = ((cy + oy).floor() as isize).clamp(0, h as isize - 1) as usize;
-                        let t = &rgb.data[(ty * w + tx) * 3..(ty * w + tx) * 3 + 3];
-                        for c in 0..3 {
-                            acc[c] += t[c] as f64;
-                        }
-                    }
-                }
-            }
-            let n = (sub * sub) as f64 * total as f64;
-            for c in 0..3 {
-                row[x * 3 + c] = (acc[c] / n) as f32;
-            }
-        }
-    });
-    out
 }
 
 #[cfg(test)]

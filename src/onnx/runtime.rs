@@ -91,15 +91,26 @@ pub fn runtime(cfg: &OnnxConfig) -> Result<&'static Runtime> {
         .build()
         .map_err(|e| Error::input(&library, format!("cannot create the ONNX Runtime environment: {e}")))?;
     env.set_log_level(ort::logging::LogLevel::Error);
-    let version = ort_version_string();
+    let version = ort_version_string(&library);
     let rt = Runtime { library, version, env, load_ms: t.elapsed().as_secs_f64() * 1e3 };
     Ok(RUNTIME.get_or_init(|| rt))
 }
 
-/// The runtime's version, from its build string ("... git-branch=rel-1.31.1, ...").
-fn ort_version_string() -> String {
-    let info = ort::info();
-    info.split("rel-").nth(1).map(|v| v.split(|c: char| !(c.is_ascii_digit() || c == '.')).next().unwrap_or("").to_string()).filter(|v| !v.is_empty()).unwrap_or_else(|| info.to_string())
+/// The library's version string ("1.31.1"), from its `OrtGetApiBase()->GetVersionString()`.
+/// The library is already loaded, so this only takes another reference to it.
+fn ort_version_string(library: &Path) -> String {
+    // SAFETY: `library` was just loaded successfully by `ort` (same process, same file), and
+    // OrtGetApiBase / GetVersionString are the stable C entry points of every ONNX Runtime.
+    unsafe {
+        let Ok(lib) = libloading::Library::new(library) else { return String::new() };
+        let Ok(get) = lib.get::<unsafe extern "C" fn() -> *const ort::sys::OrtApiBase>(b"OrtGetApiBase") else { return String::new() };
+        let base = get();
+        if base.is_null() {
+            return String::new();
+        }
+        let v = ((*base).GetVersionString)();
+        if v.is_null() { String::new() } else { std::ffi::CStr::from_ptr(v).to_string_lossy().into_owned() }
+    }
 }
 
 /// Where the runtime library would be loaded from, without loading it.

@@ -10,7 +10,7 @@
 
 use super::aperture::Tap;
 use super::layer::{Layer, A, D};
-use super::lens::{energy, focal_defocus, occlusion, scatter_radius, visibility_half_size};
+use super::lens::{energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
 
@@ -24,6 +24,7 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLaye
     // Per-pixel terms that every tap reads: relative disparity and scatter radius.
     let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
     let sigma: Vec<f32> = d.iter().map(|&d| scatter_radius(d, s.blur)).collect();
+    let unit = weight_unit(super::min_visible_radius(img, &sigma));
 
     let mut out = vec![0f32; w * h * 5];
     out.par_chunks_mut(w * 5).enumerate().for_each(|(y, row)| {
@@ -31,7 +32,9 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLaye
             let i = y * w + x;
             let dp = d[i];
             let q = if s.occlusion { focal_defocus(dp, s.blur) } else { 1.0 };
-            let (mut sr, mut sg, mut sb, mut sw) = (0f32, 0f32, 0f32, 0f32);
+            // f64 sums: thousands of taps of similar size would drift in f32 (a uniform
+            // colour moved by 5e-5 at K = 60).
+            let (mut sr, mut sg, mut sb, mut sw) = (0f64, 0f64, 0f64, 0f64);
             for t in taps {
                 let yy = (y as i64 + t.di as i64).clamp(0, h as i64 - 1) as usize;
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
@@ -42,19 +45,19 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLaye
                 if px[A] == 0.0 {
                     continue;
                 }
-                let wt = energy(sigma[j], t.r);
+                let wt = energy(sigma[j], t.r, unit);
                 let v = if (t.di == 0 && t.dj == 0) || q == 1.0 { 1.0 } else { occlusion(q, d[j], dp) };
                 let k = wt * v * px[A];
-                sr += k * px[0];
-                sg += k * px[1];
-                sb += k * px[2];
-                sw += k;
+                sr += (k * px[0]) as f64;
+                sg += (k * px[1]) as f64;
+                sb += (k * px[2]) as f64;
+                sw += k as f64;
             }
             let o = box_alpha(img, x, y, visibility_half_size(sigma[i], p));
-            row[x * 5..x * 5 + 5].copy_from_slice(&[sr, sg, sb, sw, o]);
+            row[x * 5..x * 5 + 5].copy_from_slice(&[sr as f32, sg as f32, sb as f32, sw as f32, o]);
         }
     });
-    RawLayer::from_vec(w, h, out)
+    RawLayer::new(w, h, out, layer)
 }
 
 /// Mean alpha over the `(2n+1)²` box centred on (x, y), replicate-padded (eq. 4).

@@ -23,7 +23,7 @@
 
 use super::aperture::{disk_taps, Tap};
 use super::layer::{Layer, A, D};
-use super::lens::{energy, focal_defocus, in_front, scatter_radius, step_source_factor, step_tap_factor, visibility_half_size};
+use super::lens::{density, energy, focal_defocus, in_front, scatter_radius, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
 use super::splat::{accumulate, Grid4, Window};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
@@ -98,6 +98,8 @@ struct Ctx<'a> {
     p: usize,
     sigma: Vec<f32>,
     sigma_max: f32,
+    /// Weight unit of the layer (see `lens::weight_unit`).
+    unit: f32,
     params: FastParams,
     /// Stencil taps sorted by row offset, their soft-step tap factors, and where each row
     /// offset `-stencil_p..=stencil_p` starts in them.
@@ -156,7 +158,7 @@ fn scatter_pass(ctx: &Ctx, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync), sta
                     n_st += own_row as usize;
                     let reach = sig + STENCIL_TAIL;
                     let fs = step_source_factor(sig);
-                    let dens = 1.0 / (sig * sig);
+                    let dens = density(sig, ctx.unit);
                     // Taps are sorted by row; visit only this stripe's rows.
                     let (ra, rb) = ((y0 - sy).max(-ctx.stencil_p), (y1 - 1 - sy).min(ctx.stencil_p));
                     for di in ra..=rb {
@@ -176,7 +178,7 @@ fn scatter_pass(ctx: &Ctx, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync), sta
                     }
                 } else {
                     n_sp += own_row as usize;
-                    let dens = 1.0 / (sig * sig);
+                    let dens = density(sig, ctx.unit);
                     let rho = equivalent_radius(sig);
                     // Small disks show their soft edge most: draw its profile there.
                     let edge = if pr.soft_edge || sig < 2.0 * pr.stencil_max { &SOFT_EDGE[..] } else { &HARD_EDGE[..] };
@@ -261,7 +263,7 @@ fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + S
                             continue;
                         }
                         let Some(v) = val(j) else { continue };
-                        let dens = 1.0 / (sig * sig);
+                        let dens = density(sig, ctx.unit);
                         let wgt = (v[3] * dens) as f64;
                         if wgt <= 0.0 {
                             continue;
@@ -311,7 +313,7 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
         for (o, v) in out.chunks_exact_mut(5).zip(&vis) {
             o[4] = *v;
         }
-        return (RawLayer::from_vec(w, h, out), stats);
+        return (RawLayer::new(w, h, out, layer), stats);
     }
     let sigma_max = (0..w * h).filter(|&i| img.data[i * 5 + A] > 0.0).map(|i| sigma[i]).fold(1.0, f32::max);
     let stencil_reach = params.stencil_max.min(sigma_max) + STENCIL_TAIL;
@@ -327,6 +329,7 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
         stencil,
         stencil_rows,
         stencil_p,
+        unit: weight_unit(super::min_visible_radius(img, &sigma)),
         sigma,
         sigma_max,
         params,
@@ -405,7 +408,7 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
             let (qi, b) = (q[i], &b_acc[i * 4..i * 4 + 4]);
             // The centre tap has occlusion 1, not q + (1-q)·g(0) as in A and B.
             let corr = base(i).map(|v| {
-                let e = energy(ctx.sigma[i], 0.0) * (1.0 - qi) * (1.0 - in_front(d[i], d[i]));
+                let e = energy(ctx.sigma[i], 0.0, ctx.unit) * (1.0 - qi) * (1.0 - in_front(d[i], d[i]));
                 v.map(|c| c * e)
             });
             for c in 0..4 {
@@ -416,7 +419,7 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
         }
         o[4] = vis[i];
     });
-    (RawLayer::from_vec(w, h, out), stats)
+    (RawLayer::new(w, h, out, layer), stats)
 }
 
 /// Non-focal visibility (eq. 4) for every pixel from a summed-area table of the

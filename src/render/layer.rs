@@ -73,6 +73,18 @@ impl Layer {
         (0..self.image.pixel_count()).all(|i| self.alpha(i) <= 0.0)
     }
 
+    /// Per-channel `[min, max]` of the colours of visible pixels (alpha > 0); `[0, 0]` when
+    /// nothing is visible.
+    pub fn colour_range(&self) -> [[f32; 2]; 3] {
+        let mut r = [[f32::INFINITY, f32::NEG_INFINITY]; 3];
+        for px in self.image.data.chunks_exact(5).filter(|px| px[A] > 0.0) {
+            for c in 0..3 {
+                r[c] = [r[c][0].min(px[c]), r[c][1].max(px[c])];
+            }
+        }
+        r.map(|c| if c[0] <= c[1] { c } else { [0.0, 0.0] })
+    }
+
     /// True if every pixel has alpha ≥ 1.
     pub fn is_opaque(&self) -> bool {
         (0..self.image.pixel_count()).all(|i| self.alpha(i) >= 1.0)

@@ -16,7 +16,22 @@ pub const STEP_LN_OFFSET: f32 = std::f32::consts::LN_10;
 /// official model's; it keeps the `1/σ²` energy term bounded at the focal plane).
 #[inline(always)]
 pub fn scatter_radius(d: f32, k: f32) -> f32 {
-    d.abs() * k + 1.0
+    // Capped far beyond any image so that σ, and ratios of σ, stay finite.
+    (d.abs() * k).min(MAX_RADIUS) + 1.0
+}
+
+/// Largest scatter radius the model represents (pixels).
+pub const MAX_RADIUS: f32 = 1e30;
+
+/// The weight unit of a layer whose smallest visible scatter radius is `sigma_min`.
+///
+/// Energies are `step/σ²` in the official model; for a layer that is far out of focus
+/// everywhere (σ ≫ 64) they would sink towards the compositing epsilon or underflow. Only
+/// ratios of weights matter, so such a layer measures weights in units of `(unit/σ)²`.
+/// The unit is 1 whenever some visible pixel has σ ≤ 64: there the official numbers are
+/// reproduced exactly.
+pub fn weight_unit(sigma_min: f32) -> f32 {
+    (sigma_min / 64.0).max(1.0)
 }
 
 /// Soft "a > b": `0.1 / (0.1 + exp(-3(a - b)))`, evaluated as the logistic function of
@@ -44,10 +59,17 @@ pub fn step_tap_factor(r: f32) -> f32 {
 }
 
 /// Energy weight of a neighbour with scatter radius `sigma` at distance `r` from the target,
-/// before the aperture mask and alpha: `step(σ, r) / σ²`.
+/// before the aperture mask and alpha: `step(σ, r) / σ²` (times `unit²`, see [`weight_unit`]).
 #[inline(always)]
-pub fn energy(sigma: f32, r: f32) -> f32 {
-    soft_step(sigma, r) / (sigma * sigma)
+pub fn energy(sigma: f32, r: f32, unit: f32) -> f32 {
+    soft_step(sigma, r) * density(sigma, unit)
+}
+
+/// The `1/σ²` energy density, in weight units of `unit` (see [`weight_unit`]).
+#[inline(always)]
+pub fn density(sigma: f32, unit: f32) -> f32 {
+    let u = unit / sigma;
+    u * u
 }
 
 /// The on-focal "defocus" factor of a target pixel: `q = 1 - exp(-3 (|d|·k)²)`.

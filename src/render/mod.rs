@@ -39,27 +39,42 @@ pub struct RenderSettings {
 }
 
 /// A layer's raw render: per pixel `[ΣR, ΣG, ΣB, W, o]` (weighted colour sums, total weight,
-/// non-focal visibility), the same channels as the official renderer's output.
+/// non-focal visibility), the same channels as the official renderer's output, plus the
+/// per-channel range `[min, max]` of the layer's visible colours (every rendered colour is a
+/// weighted mean of them).
 #[derive(Clone, Debug, PartialEq)]
-pub struct RawLayer(Image);
+pub struct RawLayer {
+    image: Image,
+    range: [[f32; 2]; 3],
+}
 
 impl RawLayer {
-    pub fn from_vec(width: usize, height: usize, data: Vec<f32>) -> Self {
-        RawLayer(Image::from_vec(width, height, 5, data).expect("raw layer size"))
+    pub fn new(width: usize, height: usize, data: Vec<f32>, layer: &Layer) -> Self {
+        RawLayer { image: Image::from_vec(width, height, 5, data).expect("raw layer size"), range: layer.colour_range() }
     }
     pub fn width(&self) -> usize {
-        self.0.width
+        self.image.width
     }
     pub fn height(&self) -> usize {
-        self.0.height
+        self.image.height
     }
     #[inline]
     pub fn pixel(&self, i: usize) -> &[f32] {
-        &self.0.data[i * 5..i * 5 + 5]
+        &self.image.data[i * 5..i * 5 + 5]
     }
     pub fn image(&self) -> &Image {
-        &self.0
+        &self.image
     }
+    /// Per-channel `[min, max]` of the layer's visible colours.
+    pub fn colour_range(&self) -> [[f32; 2]; 3] {
+        self.range
+    }
+}
+
+/// Smallest scatter radius over a layer's visible pixels (alpha > 0); 1.0 if none.
+pub fn min_visible_radius(img: &Image, sigma: &[f32]) -> f32 {
+    let m = sigma.iter().zip(img.data.chunks_exact(5)).filter(|(_, px)| px[layer::A] > 0.0).map(|(&s, _)| s).fold(f32::INFINITY, f32::min);
+    if m.is_finite() { m } else { 1.0 }
 }
 
 /// Largest scatter radius `|D - focus|·K + 1` over the pixels a layer actually shows

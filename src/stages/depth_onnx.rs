@@ -10,7 +10,9 @@ use crate::onnx::{self, ModelKind, ModelSpec, OnnxConfig, OnnxReport};
 /// Predicts the normalized disparity of `rgb` (linear RGB).
 pub fn estimate_disparity(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Result<(Disparity, OnnxReport)> {
     let mut model = onnx::load(spec, ModelKind::Depth, cfg)?;
+    let t = std::time::Instant::now();
     let input = onnx::to_model_rgb(rgb);
+    model.report.pre_ms += t.elapsed().as_secs_f64() * 1e3;
     let raw = model.predict(&input, 1)?;
     let t = std::time::Instant::now();
     let disparity = normalize(&raw, DepthKind::Disparity, &model.path)?;

@@ -101,7 +101,8 @@ impl OpenCvCompat {
 /// cells once padded by the radius).
 ///
 /// Allocates O(pixels) working memory once per call (flags and distances over the image padded
-/// by the radius, the queue); nothing per pixel.
+/// by the radius, the queue; with an integer `compat`, also a copy of the image as codes);
+/// nothing per pixel. Single-threaded: fill several images in parallel if needed.
 pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Result<usize> {
     let (w, h, c) = (img.width, img.height, img.channels);
     let pixels = w.checked_mul(h).ok_or_else(|| Error::usage("inpaint: image size overflows"))?;
