@@ -24,6 +24,37 @@ pub struct Config {
     pub depth: crate::onnx::DepthConfig,
     /// `[onnx]`: ONNX Runtime location, threads, execution providers, model folder.
     pub onnx: crate::onnx::OnnxConfig,
+    /// `[batch]`: how `drbokeh batch` pairs files and bounds memory.
+    pub batch: BatchConfig,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BatchConfig {
+    /// Name patterns of an image's depth map, `{stem}` = the image's name without extension;
+    /// each is tried with the extensions exr, png, tif, tiff, npy.
+    pub depth_patterns: Vec<String>,
+    /// Name patterns of an image's (optional) matte; extensions png, tif, tiff, exr, npy.
+    pub matte_patterns: Vec<String>,
+    /// Output name pattern (`{stem}`), without extension.
+    pub output_pattern: String,
+    /// Output format: "png", "exr" or "npy".
+    pub output_format: String,
+    /// Images in flight never need more than this much memory (estimated from their size:
+    /// about 200 bytes per pixel); one image is always allowed.
+    pub memory_budget_mb: u64,
+}
+
+impl Default for BatchConfig {
+    fn default() -> Self {
+        BatchConfig {
+            depth_patterns: vec!["{stem}.depth".into(), "{stem}_depth".into()],
+            matte_patterns: vec!["{stem}.matte".into(), "{stem}_matte".into()],
+            output_pattern: "{stem}_bokeh".into(),
+            output_format: "png".into(),
+            memory_budget_mb: 4096,
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -130,6 +161,12 @@ impl Config {
         }
         if !matches!(self.output.bit_depth, 8 | 16) {
             return Err(Error::usage(format!("output.bit_depth must be 8 or 16, got {}", self.output.bit_depth)));
+        }
+        if !matches!(self.batch.output_format.as_str(), "png" | "exr" | "npy") {
+            return Err(Error::usage(format!("batch.output_format must be \"png\", \"exr\" or \"npy\", got \"{}\"", self.batch.output_format)));
+        }
+        if !self.batch.output_pattern.contains("{stem}") {
+            return Err(Error::usage("batch.output_pattern must contain {stem}"));
         }
         if self.input.max_pixels == 0 {
             return Err(Error::usage("input.max_pixels must be > 0"));

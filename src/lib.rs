@@ -5,6 +5,7 @@
 //! lens model and composites front to back; `pipeline` ties it together for the CLI and for
 //! library users.
 
+pub mod batch;
 pub mod bench;
 pub mod color;
 pub mod config;

@@ -12,6 +12,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+mod cli_batch;
 mod cli_bench;
 
 #[derive(Parser)]
@@ -29,6 +30,8 @@ enum Command {
     Trace(cli_bench::TraceArgs),
     /// Benchmark methods and settings against traced ground truth (error vs run time report).
     Bench(cli_bench::BenchArgs),
+    /// Render every photo of a folder (resumable, parallel, shardable).
+    Batch(cli_batch::BatchArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -92,13 +95,29 @@ struct RenderArgs {
     /// Focus at metric depth Z (with --depth-kind depth).
     #[arg(long, value_name = "Z", allow_negative_numbers = true)]
     focus_depth: Option<f64>,
+    /// Output: .png (8/16-bit sRGB), .exr or .npy (linear float32) [default: IMAGE_bokeh.png].
+    #[arg(short, long, value_name = "OUT")]
+    output: Option<PathBuf>,
+    /// Write the layers (EXR R,G,B,A,D, usable with --layer) and PNG previews to DIR.
+    #[arg(long, value_name = "DIR")]
+    save_layers: Option<PathBuf>,
+    /// Print per-stage timings to stderr.
+    #[arg(short, long)]
+    verbose: bool,
+    /// Print a machine-readable summary (JSON) to stdout.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    opts: PipelineArgs,
+}
+
+/// Options of the pipeline, shared by `render` and `batch`.
+#[derive(Args)]
+pub(crate) struct PipelineArgs {
     /// Blur strength K: CoC radius in pixels per unit of normalized disparity
     /// [default: 30 × sqrt(megapixels)].
     #[arg(long, value_name = "K", allow_hyphen_values = true)]
     blur: Option<f32>,
-    /// Output: .png (8/16-bit sRGB), .exr or .npy (linear float32) [default: IMAGE_bokeh.png].
-    #[arg(short, long, value_name = "OUT")]
-    output: Option<PathBuf>,
     /// Pipeline configuration (TOML); flags override it.
     #[arg(long, value_name = "TOML")]
     config: Option<PathBuf>,
@@ -123,18 +142,9 @@ struct RenderArgs {
     /// PNG bit depth (8 or 16).
     #[arg(long, value_name = "BITS", value_parser = clap::builder::PossibleValuesParser::new(["8", "16"]))]
     bit_depth: Option<String>,
-    /// Write the layers (EXR R,G,B,A,D, usable with --layer) and PNG previews to DIR.
-    #[arg(long, value_name = "DIR")]
-    save_layers: Option<PathBuf>,
     /// Worker threads [default: all cores].
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
-    /// Print per-stage timings to stderr.
-    #[arg(short, long)]
-    verbose: bool,
-    /// Print a machine-readable summary (JSON) to stdout.
-    #[arg(long)]
-    json: bool,
     /// Where the foreground layer comes from [default: auto].
     #[arg(long, value_enum)]
     segment: Option<SegmentArg>,
@@ -146,7 +156,14 @@ struct RenderArgs {
     model_dir: Option<PathBuf>,
 }
 
-fn parse_xy(s: &str) -> Result<(i64, i64), String> {
+pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
+    if let Some(n) = n {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
+    }
+    Ok(())
+}
+
+pub(crate) fn parse_xy(s: &str) -> Result<(i64, i64), String> {
     let (x, y) = s.split_once(',').ok_or_else(|| format!("expected X,Y (two integers), got '{s}'"))?;
     let p = |v: &str| v.trim().parse::<i64>().map_err(|_| format!("expected X,Y (two integers), got '{s}'"));
     Ok((p(x)?, p(y)?))
@@ -155,12 +172,13 @@ fn parse_xy(s: &str) -> Result<(i64, i64), String> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = std::panic::catch_unwind(|| match cli.command {
-        Command::Render(args) => render(args),
-        Command::Trace(args) => cli_bench::trace(args),
-        Command::Bench(args) => cli_bench::bench(args),
+        Command::Render(args) => render(args).map(|()| ExitCode::SUCCESS),
+        Command::Trace(args) => cli_bench::trace(args).map(|()| ExitCode::SUCCESS),
+        Command::Bench(args) => cli_bench::bench(args).map(|()| ExitCode::SUCCESS),
+        Command::Batch(args) => cli_batch::batch(args),
     });
     match result {
-        Ok(Ok(())) => ExitCode::SUCCESS,
+        Ok(Ok(code)) => code,
         Ok(Err(e)) => {
             // Library errors already name their cause; other errors show their chain.
             let user = match e.downcast_ref::<Error>() {
@@ -182,7 +200,7 @@ fn main() -> ExitCode {
     }
 }
 
-fn config_from(args: &RenderArgs) -> Result<Config, Error> {
+pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     let mut cfg = match &args.config {
         Some(p) => Config::load(p)?,
         None => Config::default(),
@@ -241,11 +259,9 @@ fn config_from(args: &RenderArgs) -> Result<Config, Error> {
 }
 
 fn render(args: RenderArgs) -> anyhow::Result<()> {
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
-    }
+    set_threads(args.opts.threads)?;
     let t0 = Instant::now();
-    let cfg = config_from(&args)?;
+    let cfg = config_from(&args.opts)?;
     let focus = match (args.focus, args.focus_at, args.focus_depth) {
         (Some(f), _, _) => Focus::Disparity(f),
         (_, Some((x, y)), _) => Focus::At(x, y),

@@ -4,6 +4,7 @@
 mod common;
 
 use drbokeh::bench::metrics::{psnr, rmse, si_rmse, ssim, zncc};
+use drbokeh::bench::run::Method;
 use drbokeh::io::{self, ReadLimits};
 use drbokeh::Image;
 use std::path::{Path, PathBuf};
@@ -120,6 +121,9 @@ fn bench_on_the_shared_groundtruth_folders_and_bad_flags() {
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = std::fs::read_to_string(dir.join("rep/report.csv")).unwrap();
     assert!(csv.contains("portrait,focus_fg") && csv.contains("thin_bars,focus_bg,bg_in_focus;thin"), "{csv}");
+    for (name, method) in [("layers", Method::Layers), ("scatter", Method::Scatter), ("no-occlusion", Method::Scatter), ("drbokeh-sliced", Method::Sliced), ("pipeline", Method::Pipeline), ("gather", Method::Gather)] {
+        assert_eq!(Method::parse(name), Some(method), "{name}");
+    }
     let o = drbokeh(&dir, &["bench", "--methods", "nope", "--out", "x"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("nope"));

@@ -80,7 +80,14 @@ impl Method {
     /// `gather` too).
     pub fn parse(s: &str) -> Option<Method> {
         let s = s.trim().to_ascii_lowercase();
-        Method::ALL.into_iter().find(|m| m.name() == s || m.name().ends_with(&format!("-{s}")) || (s == "no-occlusion" && *m == Method::Scatter) || (s == "gather" && *m == Method::Gather))
+        let alias = match s.as_str() {
+            "layers" => Some(Method::Layers),
+            "sliced" => Some(Method::Sliced),
+            "pipeline" => Some(Method::Pipeline),
+            "scatter" | "no-occlusion" => Some(Method::Scatter),
+            _ => None,
+        };
+        alias.or_else(|| Method::ALL.into_iter().find(|m| m.name() == s))
     }
 
     /// The kernel settings this method runs.
@@ -450,6 +457,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
     let mut rows = Vec::new();
     let mut crops: Vec<CropPanel> = Vec::new();
     let mut gt_noise = Vec::new();
+    let mut worst: Option<CropPanel> = None;
     let methods = opts.methods.clone();
     let cases = for_each_case(opts, log, &mut |case: Case| {
         if let Some(n) = case.gt_noise {
@@ -491,17 +499,29 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
                 (Some(a), Some(b)) => a.2.psnr_srgb - b.2.psnr_srgb,
                 _ => 0.0,
             };
-            if crops.len() < opts.crops || crops.iter().any(|c| c.gain < gain) {
+            // The best cases for Dr.Bokeh, and (when there is one) the case where it loses most.
+            let keep_best = opts.crops.saturating_sub(1).max(1);
+            let better = crops.len() < keep_best || crops.iter().any(|c| c.gain < gain);
+            let worse = opts.crops > 1 && gain < 0.0 && worst.as_ref().is_none_or(|w: &CropPanel| gain < w.gain);
+            if better || worse {
                 let mut images: Vec<(String, &Image)> = vec![("truth".into(), &case.gt)];
                 images.extend(refs.iter().map(|(m, img, _)| (m.short().to_string(), img)));
-                let panel = super::report::crop_panels(&case, &images, find(Method::Layers).map(|r| &r.1), find(Method::Scatter).map(|r| &r.1));
-                crops.push(CropPanel { name: format!("{}_{}", case.scene, case.setting), gain, panels: panel });
-                crops.sort_by(|a, b| b.gain.total_cmp(&a.gain));
-                crops.truncate(opts.crops);
+                let (ours, base) = (find(Method::Layers).map(|r| &r.1), find(Method::Scatter).map(|r| &r.1));
+                // Show where the difference is largest, in whichever direction this case goes.
+                let panel = if worse { super::report::crop_panels(&case, &images, base, ours) } else { super::report::crop_panels(&case, &images, ours, base) };
+                let c = CropPanel { name: format!("{}_{}", case.scene, case.setting), gain, panels: panel };
+                if worse {
+                    worst = Some(c);
+                } else {
+                    crops.push(c);
+                    crops.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+                    crops.truncate(keep_best);
+                }
             }
         }
         Ok(())
     })?;
+    crops.extend(worst);
     let result = BenchResult { rows, crops, gt_noise, cases };
     super::report::write_all(opts, &result)?;
     Ok(result)

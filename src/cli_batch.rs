@@ -1,0 +1,125 @@
+//! CLI glue of `drbokeh batch` (the work is in `drbokeh::batch`).
+
+use crate::{config_from, parse_xy, set_threads, PipelineArgs};
+use clap::Args;
+use drbokeh::batch::{self, BatchOptions, ItemResult};
+use drbokeh::pipeline::Focus;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+#[derive(Args)]
+pub struct BatchArgs {
+    /// Folder of photos; each NAME.{png,jpg,jpeg,tif,tiff,exr} needs NAME.depth.* or NAME_depth.*
+    /// (optional NAME.matte.* / NAME_matte.*); patterns in [batch] of pipeline.toml.
+    input_dir: PathBuf,
+    /// Output folder (created; subfolders mirrored with --recursive).
+    #[arg(short, long, value_name = "OUTPUT_DIR")]
+    output: PathBuf,
+    /// Focal plane as normalized disparity, for images the manifest does not set.
+    #[arg(long, allow_hyphen_values = true, conflicts_with = "focus_at")]
+    focus: Option<f32>,
+    /// Focus on the surface under pixel X,Y, for images the manifest does not set.
+    #[arg(long, value_name = "X,Y", value_parser = parse_xy, allow_hyphen_values = true)]
+    focus_at: Option<(i64, i64)>,
+    /// Per-image overrides: CSV (columns image,focus,focus_at,blur,matte,output) or TOML
+    /// ([[image]] tables with the same keys); image paths relative to INPUT_DIR.
+    #[arg(long, value_name = "FILE")]
+    manifest: Option<PathBuf>,
+    /// Also process subfolders (mirrored in the output folder).
+    #[arg(long)]
+    recursive: bool,
+    /// Images rendered at once (each render uses all threads); memory stays under
+    /// [batch] memory_budget_mb.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    jobs: usize,
+    /// Redo images whose output is newer than their inputs.
+    #[arg(long)]
+    force: bool,
+    /// Process only slice I of N (0-based), by sorted path: for Slurm arrays, GNU parallel,
+    /// Kubernetes indexed jobs.
+    #[arg(long, value_name = "I/N", value_parser = batch::parse_shard)]
+    shard: Option<(usize, usize)>,
+    /// Print the summary as JSON on stdout (no progress bar).
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    opts: PipelineArgs,
+}
+
+pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
+    set_threads(args.opts.threads)?;
+    let cfg = config_from(&args.opts)?;
+    let opts = BatchOptions {
+        input_dir: args.input_dir.clone(),
+        output_dir: args.output.clone(),
+        recursive: args.recursive,
+        force: args.force,
+        shard: args.shard,
+        jobs: args.jobs,
+        focus: args.focus.map(Focus::Disparity).or(args.focus_at.map(|(x, y)| Focus::At(x, y))),
+        manifest: args.manifest.clone(),
+    };
+    // SIGINT/SIGTERM: stop starting images; those in flight finish (their writes are atomic).
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let cancel = cancel.clone();
+        let _ = ctrlc::set_handler(move || {
+            if cancel.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\ninterrupted: finishing the images in flight (interrupt again to abort)");
+        });
+    }
+    let fancy = !args.json && std::io::stderr().is_terminal();
+    let bar = fancy.then(|| {
+        let b = ProgressBar::new(0);
+        b.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} {per_sec} eta {eta} {msg}").expect("template"));
+        b
+    });
+    let progress = |done: usize, total: usize, r: &ItemResult| {
+        let line = format!("{} {}{}", r.status, r.image, r.reason.as_ref().map(|w| format!(": {w}")).unwrap_or_default());
+        match &bar {
+            Some(b) => {
+                b.set_length(total as u64);
+                b.set_position(done as u64);
+                b.set_message(r.image.clone());
+                if r.status == "failed" {
+                    b.println(line);
+                }
+            }
+            None if !args.json => eprintln!("[{done}/{total}] {line} ({:.1} s)", r.seconds),
+            None => {}
+        }
+    };
+    let summary = batch::run(&cfg, &opts, &cancel, &progress)?;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        eprintln!(
+            "{} ok, {} skipped, {} failed{} in {:.1} s; summary in {}",
+            summary.ok,
+            summary.skipped,
+            summary.failed,
+            if summary.cancelled > 0 { format!(", {} cancelled", summary.cancelled) } else { String::new() },
+            summary.seconds,
+            batch::summary_path(&args.output, args.shard).display()
+        );
+        for r in summary.items.iter().filter(|r| r.status == "failed") {
+            eprintln!("  failed {}: {}", r.image, r.reason.as_deref().unwrap_or(""));
+        }
+    }
+    Ok(if summary.cancelled > 0 {
+        ExitCode::from(130)
+    } else if summary.failed > 0 {
+        ExitCode::from(3)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
