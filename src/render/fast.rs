@@ -100,6 +100,8 @@ struct Ctx<'a> {
     sigma_max: f32,
     /// Weight unit of the layer (see `lens::weight_unit`).
     unit: f32,
+    /// Whether any visible source falls in coarse level ℓ (index ℓ).
+    levels_present: Vec<bool>,
     params: FastParams,
     /// Stencil taps sorted by row offset, their soft-step tap factors, and where each row
     /// offset `-stencil_p..=stencil_p` starts in them.
@@ -198,8 +200,12 @@ fn scatter_pass(ctx: &Ctx, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync), sta
 
     // Coarse levels: level ℓ takes σ in [r0·2^ℓ, r0·2^(ℓ+1)).
     let mut level = 1u32;
-    while pr.r0 * (1u64 << level) as f32 <= ctx.sigma_max {
+    while level < 63 && pr.r0 * (1u64 << level) as f32 <= ctx.sigma_max {
         let f = (1u64 << level) as f32;
+        if !ctx.levels_present.get(level as usize).copied().unwrap_or(false) {
+            level += 1;
+            continue;
+        }
         let aggs = aggregate(ctx, level, val);
         stats.coarse_sources += aggs.iter().map(|r| r.len()).sum::<usize>();
         if aggs.iter().any(|r| !r.is_empty()) {
@@ -330,6 +336,15 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
         stencil_rows,
         stencil_p,
         unit: weight_unit(super::min_visible_radius(img, &sigma)),
+        levels_present: {
+            let mut v = vec![false; 64];
+            for (i, &sg) in sigma.iter().enumerate() {
+                if img.data[i * 5 + A] > 0.0 && sg >= 2.0 * params.r0 {
+                    v[((sg / params.r0).log2().floor() as usize).min(63)] = true;
+                }
+            }
+            v
+        },
         sigma,
         sigma_max,
         params,
