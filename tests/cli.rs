@@ -6,6 +6,8 @@
 //! binary runs with that folder as its working directory. Images are tiny (32x24) so the whole
 //! file runs in seconds.
 
+mod common;
+
 use drbokeh::color::Transfer;
 use drbokeh::io::{self, ReadLimits};
 use drbokeh::render::{self, Kernel, Layer, RenderSettings};
@@ -24,20 +26,7 @@ const FG_Y: std::ops::Range<usize> = 7..17;
 // Helpers
 // ---------------------------------------------------------------------------------------------
 
-/// Small deterministic generator (xorshift64*), so tests need no extra crate.
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Self {
-        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-    fn next_f32(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
-    }
-}
+use common::Rng;
 
 fn in_fg(x: usize, y: usize) -> bool {
     FG_X.contains(&x) && FG_Y.contains(&y)

@@ -4,7 +4,7 @@
 mod common;
 
 use drbokeh::io::npy::read_npy;
-use drbokeh::render::{self, Kernel, Layer, RenderSettings};
+use drbokeh::render::{self, Kernel};
 use drbokeh::Image;
 use std::path::Path;
 
@@ -22,26 +22,7 @@ fn exact_kernel_matches_official_renderer() {
     let mut worst = (0f32, 0f32);
     for dir in cases {
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
-        let params: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("params.json")).unwrap()).unwrap();
-        let gamma = params["gamma"].as_f64().unwrap();
-        let names: Vec<String> = params["layers"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_owned()).collect();
-        let layers: Vec<Layer> = names
-            .iter()
-            .map(|n| {
-                let mut l = Layer::new(load(&dir.join(format!("{n}.npy"))), n).unwrap();
-                // The official inference raises colours to gamma in double precision.
-                if gamma != 1.0 {
-                    l.map_colors(|c| (c as f64).powf(gamma) as f32);
-                }
-                l
-            })
-            .collect();
-        let s = RenderSettings {
-            blur: params["K"].as_f64().unwrap() as f32,
-            focus: params["focus"].as_f64().unwrap() as f32,
-            lens: params["lens"].as_u64().unwrap() as usize,
-            occlusion: true,
-        };
+        let (layers, s, names, gamma) = common::golden_case(&dir);
         let raws = render::render_raw(&layers, &s, Kernel::Exact);
         let mut raw_err = 0f32;
         for (n, raw) in names.iter().zip(&raws) {

@@ -8,6 +8,8 @@
 //!
 //! Scenes are tiny (at most 40x30) and rendered with the exact kernel.
 
+mod common;
+
 use drbokeh::config::Config;
 use drbokeh::render::{self, auto_lens, render_raw, Kernel, Layer, RenderSettings};
 use drbokeh::stages::depth::Disparity;
@@ -17,20 +19,7 @@ use drbokeh::{Focus, Image, Pipeline, Scene};
 // Helpers
 // ---------------------------------------------------------------------------------------------
 
-/// Small deterministic generator (xorshift64*).
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Self {
-        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-    fn next_f32(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
-    }
-}
+use common::Rng;
 
 /// A one-channel plane from a function of (x, y).
 fn plane(w: usize, h: usize, mut f: impl FnMut(usize, usize) -> f32) -> Image {

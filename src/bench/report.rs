@@ -303,7 +303,7 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
     s.push_str(&category_table(rows));
     s.push_str("\n![error vs time](error_vs_time.png)\n");
     if !res.crops.is_empty() {
-        s.push_str("\n## Crops (ground truth | methods, sRGB)\n\nThe cases where Dr.Bokeh (exact layers) gains most over the scatter baseline, and the one where it loses most; \neach crop is the window where the scatter's error most exceeds Dr.Bokeh's (or the reverse).\n\n");
+        s.push_str("\n## Crops (ground truth | methods, sRGB)\n\nThe cases where Dr.Bokeh (exact layers) gains most over the scatter baseline, and the one where it loses most;\neach crop is the window where the scatter's error most exceeds Dr.Bokeh's (or the reverse).\n\n");
         for c in &res.crops {
             let _ = writeln!(s, "- `crops/{}.png`: Dr.Bokeh {:+.2} dB sRGB PSNR against the scatter in this case", c.name, c.gain);
         }
