@@ -89,6 +89,18 @@ impl Image {
         out
     }
 
+    /// Copies the rectangle of `w × h` pixels whose top-left corner is (x0, y0).
+    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Image {
+        assert!(x0 + w <= self.width && y0 + h <= self.height, "crop outside the image");
+        let c = self.channels;
+        let mut out = Image::new(w, h, c);
+        for y in 0..h {
+            let s = self.index(x0, y0 + y);
+            out.data[y * w * c..(y + 1) * w * c].copy_from_slice(&self.data[s..s + w * c]);
+        }
+        out
+    }
+
     /// Applies `f` to every value in place.
     pub fn map_inplace(&mut self, f: impl Fn(f32) -> f32 + Sync) {
         self.data.iter_mut().for_each(|v| *v = f(*v));

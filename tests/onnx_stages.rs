@@ -253,8 +253,8 @@ fn lama_fixed_size_crops_resizes_and_pastes() {
     assert_eq!((x0, y0), (0, 0), "context 16 px reaches the border");
     assert!(cw < w && ch < h, "a crop, not the whole image: {cw}x{ch}");
     let mask_img = Image::from_vec(w, h, 1, mask.iter().map(|&m| m as u8 as f32).collect()).unwrap();
-    let crop_rgb = srgb(&prep::crop(&rgb, x0, y0, cw, ch));
-    let m512: Vec<bool> = prep::resize(&prep::crop(&mask_img, x0, y0, cw, ch), 512, 512).data.iter().map(|&v| v > 1e-3).collect();
+    let crop_rgb = srgb(&rgb.crop(x0, y0, cw, ch));
+    let m512: Vec<bool> = prep::resize(&mask_img.crop(x0, y0, cw, ch), 512, 512).data.iter().map(|&v| v > 1e-3).collect();
     let filled = mean_fill(&prep::resize(&crop_rgb, 512, 512), &m512);
     let mut back = prep::resize(&filled, cw, ch);
     back.map_inplace(|v| srgb_to_linear(v.clamp(0.0, 1.0)));

@@ -468,16 +468,6 @@ pub fn generate(seed: u64, index: usize, width: usize, height: usize, photos: &[
     }
 }
 
-/// Crops a one- or three-channel plane image to the frame.
-fn crop(img: &Image, m: usize, w: usize, h: usize) -> Image {
-    let c = img.channels;
-    let mut out = Image::new(w, h, c);
-    for y in 0..h {
-        let src = img.index(m, y + m);
-        out.data[y * w * c..(y + 1) * w * c].copy_from_slice(&img.data[src..src + w * c]);
-    }
-    out
-}
 
 /// Front-to-back over-composite of straight-colour planes: (premultiplied colour, alpha).
 fn over(planes: &[(&Image, &Image)]) -> (Image, Image) {
@@ -537,7 +527,7 @@ impl SynthScene {
     pub fn inputs(&self) -> Result<SceneInputs> {
         let (w, h, m) = (self.width, self.height, self.margin);
         let cropped: Vec<(Image, Image, f32, bool)> =
-            self.planes.iter().map(|p| (crop(&p.rgb, m, w, h), crop(&p.alpha, m, w, h), p.disparity, p.foreground)).collect();
+            self.planes.iter().map(|p| (p.rgb.crop(m, m, w, h), p.alpha.crop(m, m, w, h), p.disparity, p.foreground)).collect();
         let refs: Vec<(&Image, &Image)> = cropped.iter().map(|(c, a, _, _)| (c, a)).collect();
         let (aif, _) = over(&refs);
         // Pixel-centre labels: the front-most plane that covers at least half the pixel.

@@ -139,16 +139,6 @@ pub fn resize(img: &Image, w: usize, h: usize) -> Image {
     out
 }
 
-/// Crops the rectangle (x0, y0, w, h) out of an image.
-pub fn crop(img: &Image, x0: usize, y0: usize, w: usize, h: usize) -> Image {
-    let c = img.channels;
-    let mut out = Image::new(w, h, c);
-    for y in 0..h {
-        let s = img.index(x0, y0 + y);
-        out.data[y * w * c..(y + 1) * w * c].copy_from_slice(&img.data[s..s + w * c]);
-    }
-    out
-}
 
 /// Tensor shape of a `channels`-channel input for the geometry and layout.
 pub fn input_shape(g: &Geometry, layout: Layout, channels: usize) -> Vec<i64> {

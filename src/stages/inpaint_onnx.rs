@@ -14,7 +14,7 @@ use super::mask::{dilate, distance_to};
 use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::contract::SizeSpec;
-use crate::onnx::{self, prep, DepthFill, ModelKind, OnnxConfig, OnnxReport};
+use crate::onnx::{self, DepthFill, ModelKind, OnnxConfig, OnnxReport};
 use std::time::Instant;
 
 /// The rectangle (x0, y0, w, h) the model works on: the whole image for a dynamic-size model,
@@ -88,8 +88,8 @@ pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &Inpai
     };
     let t = Instant::now();
     let mask_img = Image::from_vec(w, h, 1, mask.iter().map(|&m| m as u8 as f32).collect()).expect("mask size");
-    let crop_mask = prep::crop(&mask_img, x0, y0, cw, ch);
-    let crop_rgb = onnx::to_model_rgb(&prep::crop(rgb, x0, y0, cw, ch));
+    let crop_mask = mask_img.crop(x0, y0, cw, ch);
+    let crop_rgb = onnx::to_model_rgb(&rgb.crop(x0, y0, cw, ch));
     // Every masked pixel is inside the region, so the distance field of the region's mask is
     // exact there.
     let dist = distance_to(&crop_mask.data.iter().map(|&m| m > 0.5).collect::<Vec<_>>(), cw, ch);
@@ -109,7 +109,7 @@ pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &Inpai
         }
         DepthFill::Model => {
             let t = Instant::now();
-            let d = prep::crop(disp, x0, y0, cw, ch);
+            let d = disp.crop(x0, y0, cw, ch);
             let d3 = Image::stack(&[&d, &d, &d]);
             model.report.pre_ms += t.elapsed().as_secs_f64() * 1e3;
             let out = model.predict_with_mask(&d3, Some(&crop_mask), 3)?;
