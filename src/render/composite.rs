@@ -2,6 +2,7 @@
 
 use super::RawLayer;
 use crate::image::Image;
+use rayon::prelude::*;
 
 /// `out = Σ_l C_l·V_l·Π_{k<l}(1 - V_k)` with `C_l = ΣRGB_l / W_l`, layers front first.
 ///
@@ -15,7 +16,7 @@ use crate::image::Image;
 pub fn composite(raws: &[RawLayer]) -> Image {
     let (w, h) = (raws[0].width(), raws[0].height());
     let mut out = Image::new(w, h, 3);
-    for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
+    out.data.par_chunks_exact_mut(3).enumerate().for_each(|(i, px)| {
         let mut t = 1f32;
         for raw in raws {
             let r = raw.pixel(i);
@@ -29,6 +30,6 @@ pub fn composite(raws: &[RawLayer]) -> Image {
             }
             t *= 1.0 - vis;
         }
-    }
+    });
     out
 }

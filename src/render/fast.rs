@@ -310,9 +310,9 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
     let (w, h) = (img.width, img.height);
     let p = s.lens / 2;
     let mut stats = FastStats::default();
-    let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
-    let sigma: Vec<f32> = d.iter().map(|&d| scatter_radius(d, s.blur)).collect();
-    let q: Vec<f32> = d.iter().map(|&d| if s.occlusion { focal_defocus(d, s.blur) } else { 1.0 }).collect();
+    let d: Vec<f32> = img.data.par_chunks_exact(5).map(|px| px[D] - s.focus).collect();
+    let sigma: Vec<f32> = d.par_iter().map(|&d| scatter_radius(d, s.blur)).collect();
+    let q: Vec<f32> = d.par_iter().map(|&d| if s.occlusion { focal_defocus(d, s.blur) } else { 1.0 }).collect();
     let vis = visibility(img, &sigma, p);
     if layer.is_transparent() || p == 0 {
         let mut out = vec![0f32; w * h * 5];
