@@ -7,6 +7,7 @@
 //! file runs in seconds.
 
 mod common;
+use common::crc32;
 
 use drbokeh::color::Transfer;
 use drbokeh::io::{self, ReadLimits};
@@ -826,16 +827,6 @@ fn empty_images() {
     s.bad(&["zero.png", "--depth", "depth.exr", "--focus", "0", "-o", "o.npy"], &["zero.png"]);
 }
 
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
-    for &b in bytes {
-        crc ^= b as u32;
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-        }
-    }
-    !crc
-}
 
 #[test]
 fn matte_with_wrong_size() {

@@ -2,6 +2,9 @@
 //! colour decoding, depth/matte/layer channel rules, and every error path (missing, garbage,
 //! truncated, empty, oversized files; atomic writes).
 
+mod common;
+use common::crc32;
+
 use drbokeh::color::Transfer;
 use drbokeh::io::{
     self, read_decoded, read_depth, read_depth_map, read_layer, read_matte, read_photo, write_exr, write_output,
@@ -49,16 +52,6 @@ fn raw_npy(path: &Path, shape: &[u64], data: &[f32]) {
     std::fs::write(path, buf).unwrap();
 }
 
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
-    for &b in bytes {
-        crc ^= b as u32;
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-        }
-    }
-    !crc
-}
 
 fn png_chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
     out.extend_from_slice(&(data.len() as u32).to_be_bytes());

@@ -66,3 +66,15 @@ pub fn golden_case(dir: &std::path::Path) -> (Vec<drbokeh::render::Layer>, drbok
     };
     (layers, s, names, gamma)
 }
+
+/// CRC-32 (IEEE), for crafting PNG chunks in tests.
+pub fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
+}
