@@ -60,7 +60,7 @@ fn telea(c: &mut Criterion) {
             *v = ((i * 7919) % 255) as f32 / 255.0;
         }
         // An ellipse covering ~31% of the frame.
-        let (a, b) = (w as f32 * 0.35, h as f32 * 0.45);
+        let (a, b) = (w as f32 * 0.30, h as f32 * 0.33);
         let mask: Vec<bool> = (0..w * h)
             .map(|i| (((i % w) as f32 - w as f32 / 2.0) / a).powi(2) + (((i / w) as f32 - h as f32 / 2.0) / b).powi(2) < 1.0)
             .collect();
