@@ -19,6 +19,7 @@ pub fn read_npy(path: &Path, max_pixels: u64) -> Result<Image> {
 
 /// Decodes NPY bytes; the error is a message without the file name.
 pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, String> {
+    check_header_length(bytes)?;
     let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a valid NPY file ({e})"))?;
     let shape = npy.shape().to_vec();
     let (h, w, c) = match shape[..] {
@@ -62,6 +63,23 @@ pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, S
     Image::from_vec(w as usize, h as usize, c as usize, data).ok_or_else(|| "NPY data length does not match its shape".into())
 }
 
+/// Refuses a header whose declared length runs past the end of the file. npyz allocates the
+/// declared length (up to 4 GiB for format 2/3) before reading it; found by fuzzing.
+fn check_header_length(bytes: &[u8]) -> std::result::Result<(), String> {
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err("not a valid NPY file (no NPY magic number)".into());
+    }
+    let (len, start) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        v => return Err(format!("not a valid NPY file (unsupported format version {v})")),
+    };
+    if start + len > bytes.len() {
+        return Err(format!("NPY file is truncated: its header declares {len} bytes, the file has {}", bytes.len() - start));
+    }
+    Ok(())
+}
+
 /// Writes `img` as little-endian float32, shape `H x W` (one channel) or `H x W x C`.
 pub fn write_npy<W: Write>(w: &mut W, img: &Image) -> std::io::Result<()> {
     let shape: Vec<u64> = if img.channels == 1 {
@@ -89,6 +107,14 @@ mod tests {
         let mut buf = Vec::new();
         write_npy(&mut buf, &img).unwrap();
         assert_eq!(decode_npy(&buf, u64::MAX).unwrap(), img);
+    }
+
+    #[test]
+    fn lying_header_length_is_refused_before_allocation() {
+        // Fuzzer find: format 2.0 with a 2.5 GB header length in a 16-byte file.
+        let bytes = [0x93, b'N', b'U', b'M', b'P', b'Y', 2, 0, 0x46, 0x93, 0x93, 0x93, 0x93, 0x93, 0x66, 0x64];
+        assert!(decode_npy(&bytes, u64::MAX).unwrap_err().contains("truncated"));
+        assert!(decode_npy(b"\x93NUMPY", u64::MAX).is_err());
     }
 
     #[test]
