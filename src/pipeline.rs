@@ -305,11 +305,8 @@ impl Pipeline {
         let image = if shown.is_empty() {
             Image::new(w, h, 3)
         } else {
-            let visible: Vec<Layer> = shown.iter().map(|&i| layers[i].clone()).collect();
-            let raws = render::render_raw_with_stats(&visible, &s, kernel);
-            let stats: Vec<_> = raws.iter().map(|(_, st)| st.clone()).collect();
-            let raws: Vec<_> = raws.into_iter().map(|(r, _)| r).collect();
-            let image = render::composite::composite(&raws);
+            let visible: Vec<&Layer> = shown.iter().map(|&i| &layers[i]).collect();
+            let (image, stats) = render::render_with_stats(&visible, &s, kernel)?;
             report.ran(
                 "render",
                 t,

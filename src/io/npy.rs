@@ -77,6 +77,38 @@ fn check_header_length(bytes: &[u8]) -> std::result::Result<(), String> {
     if start + len > bytes.len() {
         return Err(format!("NPY file is truncated: its header declares {len} bytes, the file has {}", bytes.len() - start));
     }
+    check_header_text(&bytes[start..start + len])
+}
+
+/// Longest header accepted (numpy's own `max_header_size` default).
+const MAX_HEADER_BYTES: usize = 10_000;
+/// Deepest bracket nesting accepted: a plain array needs 2 (`{'shape': (..)}`), a structured
+/// dtype 3-4.
+const MAX_HEADER_DEPTH: usize = 4;
+
+/// Refuses headers that are too long or nested too deeply before npyz parses them: its
+/// Python-literal parser backtracks exponentially on deep nesting (a 273-byte file with 140
+/// `[` ran for over ten minutes; found by fuzzing).
+fn check_header_text(header: &[u8]) -> std::result::Result<(), String> {
+    if header.len() > MAX_HEADER_BYTES {
+        return Err(format!("not a valid NPY file (header of {} bytes; at most {MAX_HEADER_BYTES} are allowed)", header.len()));
+    }
+    let (mut depth, mut quote) = (0usize, None);
+    for &b in header {
+        match (quote, b) {
+            (Some(q), _) if b == q => quote = None,
+            (Some(_), _) => {}
+            (None, b'\'' | b'"') => quote = Some(b),
+            (None, b'{' | b'[' | b'(') => {
+                depth += 1;
+                if depth > MAX_HEADER_DEPTH {
+                    return Err(format!("not a valid NPY file (header nests brackets deeper than {MAX_HEADER_DEPTH})"));
+                }
+            }
+            (None, b'}' | b']' | b')') => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
     Ok(())
 }
 
@@ -115,6 +147,24 @@ mod tests {
         let bytes = [0x93, b'N', b'U', b'M', b'P', b'Y', 2, 0, 0x46, 0x93, 0x93, 0x93, 0x93, 0x93, 0x66, 0x64];
         assert!(decode_npy(&bytes, u64::MAX).unwrap_err().contains("truncated"));
         assert!(decode_npy(b"\x93NUMPY", u64::MAX).is_err());
+    }
+
+    #[test]
+    fn deeply_nested_header_is_refused_quickly() {
+        // Fuzzer find (timeout): 140 nested '[' made the header parser backtrack for minutes.
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        let header = format!("{{'descr': {}'<f4', 'fortran_order': False, 'shape': (2, 2), }}", "[".repeat(140));
+        bytes.extend((header.len() as u16).to_le_bytes());
+        bytes.extend(header.as_bytes());
+        bytes.extend([0u8; 16]);
+        let t = std::time::Instant::now();
+        assert!(decode_npy(&bytes, u64::MAX).unwrap_err().contains("deeper"));
+        assert!(t.elapsed().as_secs() < 1);
+        // Ordinary headers (depth 2) still parse.
+        let img = Image::new(2, 2, 3);
+        let mut buf = Vec::new();
+        write_npy(&mut buf, &img).unwrap();
+        assert_eq!(decode_npy(&buf, u64::MAX).unwrap(), img);
     }
 
     #[test]

@@ -1,35 +1,68 @@
 //! Front-to-back compositing of rendered layers (eq. 2).
+//!
+//! One rule, [`over`], serves both the whole-image [`composite`] of stored raw layers and the
+//! streaming compositor the renderer uses (layers rendered one after another straight into an
+//! RGB + transmittance accumulator, so no raw layer is ever stored whole).
 
 use super::RawLayer;
 use crate::image::Image;
 use rayon::prelude::*;
 
-/// `out = Σ_l C_l·V_l·Π_{k<l}(1 - V_k)` with `C_l = ΣRGB_l / W_l`, layers front first.
+/// Channels of a streaming accumulator pixel: linear R, G, B so far and the transmittance
+/// `Π(1 - V_k)` of the layers composited so far.
+pub const ACC_CHANNELS: usize = 4;
+
+/// Adds one layer's raw pixel `[ΣR, ΣG, ΣB, W, o]` behind what `acc = [R, G, B, T]` holds.
 ///
-/// As in the official code there is no renormalisation by the remaining transmittance, and a
-/// layer with zero weight at a pixel contributes nothing there (a pixel whose layers all have
-/// zero weight is black). The official code divides by `W + 1e-8` instead; that epsilon
-/// darkens layers whose weights are legitimately tiny (huge blur: weights ∝ 1/σ²), so here
-/// `C` is the plain ratio, clamped to the layer's colour range: it is a weighted mean of those
-/// colours, and the clamp only removes rounding (and a fast kernel's cancellation noise where
-/// `W` is close to 0). Returns linear RGB (3 channels).
+/// `C = ΣRGB / W`, clamped to the layer's colour range `range`, weighted by `T·o`; then
+/// `T *= 1 - o`. As in the official code there is no renormalisation by the remaining
+/// transmittance, and a layer with zero weight at a pixel contributes nothing there (a pixel
+/// whose layers all have zero weight is black). The official code divides by `W + 1e-8`
+/// instead; that epsilon darkens layers whose weights are legitimately tiny (huge blur:
+/// weights ∝ 1/σ²), so here `C` is the plain ratio, clamped: it is a weighted mean of the
+/// layer's colours, and the clamp only removes rounding (and a fast kernel's cancellation
+/// noise where `W` is close to 0).
+#[inline]
+pub fn over(raw: &[f32], range: &[[f32; 2]; 3], acc: &mut [f32]) {
+    let (weight, vis) = (raw[3], raw[4]);
+    let t = acc[3];
+    let cover = t * vis;
+    if weight > 0.0 && cover > 0.0 {
+        for c in 0..3 {
+            acc[c] += (raw[c] / weight).clamp(range[c][0], range[c][1]) * cover;
+        }
+    }
+    acc[3] = t * (1.0 - vis);
+}
+
+/// A fresh streaming accumulator: black, transmittance 1. `width * height * 4` f32.
+pub fn accumulator(width: usize, height: usize) -> Vec<f32> {
+    let mut acc = vec![0f32; width * height * ACC_CHANNELS];
+    acc.par_chunks_exact_mut(ACC_CHANNELS).for_each(|px| px[3] = 1.0);
+    acc
+}
+
+/// Turns a streaming accumulator into the linear RGB image, in place (no second full-size
+/// buffer: each pixel moves to a lower or equal offset).
+pub fn finish(width: usize, height: usize, mut acc: Vec<f32>) -> Image {
+    for i in 0..width * height {
+        for c in 0..3 {
+            acc[i * 3 + c] = acc[i * ACC_CHANNELS + c];
+        }
+    }
+    acc.truncate(width * height * 3);
+    acc.shrink_to_fit();
+    Image::from_vec(width, height, 3, acc).expect("accumulator size")
+}
+
+/// `out = Σ_l C_l·V_l·Π_{k<l}(1 - V_k)` with `C_l = ΣRGB_l / W_l`, layers front first (see
+/// [`over`]). Returns linear RGB (3 channels).
 pub fn composite(raws: &[RawLayer]) -> Image {
     let (w, h) = (raws[0].width(), raws[0].height());
-    let mut out = Image::new(w, h, 3);
-    out.data.par_chunks_exact_mut(3).enumerate().for_each(|(i, px)| {
-        let mut t = 1f32;
-        for raw in raws {
-            let r = raw.pixel(i);
-            let (weight, vis) = (r[3], r[4]);
-            let cover = t * vis;
-            if weight > 0.0 && cover > 0.0 {
-                let range = raw.colour_range();
-                for c in 0..3 {
-                    px[c] += (r[c] / weight).clamp(range[c][0], range[c][1]) * cover;
-                }
-            }
-            t *= 1.0 - vis;
-        }
-    });
-    out
+    let mut acc = accumulator(w, h);
+    for raw in raws {
+        let range = raw.colour_range();
+        acc.par_chunks_exact_mut(ACC_CHANNELS).enumerate().for_each(|(i, px)| over(raw.pixel(i), &range, px));
+    }
+    finish(w, h, acc)
 }

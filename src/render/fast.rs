@@ -7,8 +7,9 @@
 //! `A = Σ_y v(y)·E(σ_y, |y-x|)` is a plain variable-radius scatter and `B` the same scatter
 //! with sources weighted by `g(d_y - d_x)`. `B` only matters where `q(x) < 1`, a narrow band
 //! of disparities around the focal plane; there it is interpolated in `d_x` between a few
-//! nodes `δ_k`, each a plain scatter again. Sources far in front of every node (g = 1) are
-//! scattered once and shared by all nodes; sources far behind (g = 0) are skipped.
+//! nodes `δ_k`: `B = F + Σ_k hat_k(d_x)·U_k`, where `F` scatters the sources in front of
+//! every node (g = 1) once and `U_k` the partly occluding ones weighted by `g(d_y - δ_k)`;
+//! sources behind every node (g = 0) are skipped.
 //!
 //! Every plain scatter sorts its sources by scatter radius σ:
 //! - σ below `stencil_max`: the exact taps `E(σ, r)` (the model's footprint is a few pixels),
@@ -18,15 +19,22 @@
 //!   where their radius is again below `2·r0`, scattered there and upsampled bilinearly
 //!   (cost per source O(1)).
 //!
-//! The quality knob moves these thresholds; at high quality every source is an exact stencil
+//! Work is done one stripe of rows at a time: each worker scatters the stripe's sources into
+//! reusable stripe accumulators for every pass at once (the tap weight is computed once and
+//! shared by `A`, `F` and the `U_k`), adds the coarse levels, combines and hands each finished
+//! raw pixel to the caller (who stores or composites it). Only the coarse grids and the
+//! scatter radii are stored for the whole layer, so memory stays a few bytes per pixel.
+//!
+//! The quality knob moves the thresholds; at high quality every source is an exact stencil
 //! and the interpolation nodes are dense, so the kernel converges to the exact one.
 
 use super::aperture::{disk_taps, Tap};
 use super::layer::{Layer, A, D};
 use super::lens::{density, energy, focal_defocus, in_front, scatter_radius, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
-use super::splat::{accumulate, Grid4, Window};
+use super::splat::{accumulate, Grid4, Stripe, Window, STRIPE_ROWS};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The fast kernel's accuracy/speed trade-off, derived from the quality level.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -56,16 +64,30 @@ impl FastParams {
 /// What the fast kernel did for one layer (for `--json`).
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct FastStats {
+    /// Visible sources drawn as exact stencils, as full-resolution disks, and aggregated on
+    /// coarse grids (per pass: a source in several passes counts in each).
     pub stencil_sources: usize,
     pub span_sources: usize,
     pub coarse_sources: usize,
     /// Target pixels in the on-focal band (where the occlusion term is computed).
     pub band_pixels: usize,
     pub nodes: usize,
-    /// Plain scatter passes run (1 when no pixel is near the focal plane).
+    /// Plain scatter passes (1 when no pixel is near the focal plane: the occlusion part is
+    /// skipped; in the band, `F` and one `U_k` per node).
     pub passes: usize,
     /// Sources skipped in the band passes because they are hidden behind every node.
     pub band_sources_skipped: usize,
+    /// Stripes of rows where the occlusion part was computed, out of all stripes.
+    pub band_stripes: usize,
+    pub stripes: usize,
+    /// Fully transparent pixels (never scattered).
+    pub transparent_pixels: usize,
+    /// Weighted taps the exact kernel evaluates for this layer (`W·H·taps(lens)`) and the
+    /// elementary writes the fast kernel made (stencil taps, disk spans, coarse spans and
+    /// upsampled pixels); `work_saved = 1 - fast_ops / exact_taps`.
+    pub exact_taps: f64,
+    pub fast_ops: f64,
+    pub work_saved: f64,
 }
 
 /// The soft step's edge as a mixture of hard disks: radius offsets and weights of a 3-point
@@ -80,7 +102,7 @@ const STENCIL_TAIL: f32 = 2.5;
 /// `1 - q` below which a target counts as defocused (occlusion ≡ 1).
 const BAND_EPS: f32 = 1e-6;
 /// `g` this close to 0 or 1 counts as saturated.
-const G_EPS: f32 = 1e-5;
+const G_EPS: f64 = 1e-5;
 
 /// Radius of the hard disk with the same area as the soft step's footprint
 /// (`∫ 2πr·S(σ, r) dr = π·((σ - ln10/3)² + π²/27)`, a Fermi–Dirac integral: the step is
@@ -91,21 +113,142 @@ fn equivalent_radius(sigma: f32) -> f32 {
     (m * m + std::f32::consts::PI * std::f32::consts::PI / 27.0).sqrt()
 }
 
+/// `q` of a target (1 everywhere without occlusion).
+#[inline]
+fn defocus(d: f32, s: &RenderSettings) -> f32 {
+    if s.occlusion { focal_defocus(d, s.blur) } else { 1.0 }
+}
+
+#[inline]
+fn in_band(q: f32) -> bool {
+    1.0 - q > BAND_EPS
+}
+
+/// Coarse level of a source: level ℓ ≥ 1 takes σ in `[r0·2^ℓ, r0·2^(ℓ+1))`; None below `2·r0`.
+#[inline]
+fn level_of(sigma: f32, r0: f32) -> Option<usize> {
+    (sigma >= 2.0 * r0).then(|| ((sigma / r0).log2().floor() as usize).clamp(1, 63))
+}
+
+/// How a source relates to the on-focal band's nodes.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Class {
+    /// Behind every node: `g ≤ G_EPS`, adds nothing to `B`.
+    Hidden,
+    /// Partly occluding: weighted by `g(d - δ_k)` per node.
+    Partial,
+    /// In front of every node: `g ≥ 1 - G_EPS`, adds its full value to every node.
+    Front,
+}
+
+/// The interpolation nodes over the band's target disparities `[lo, hi]`.
+#[derive(Clone, Copy)]
+struct Band {
+    lo: f32,
+    step: f32,
+    n: usize,
+    /// Sources with `d ≤ hidden` are [`Class::Hidden`], with `d ≥ front` [`Class::Front`].
+    hidden: f32,
+    front: f32,
+}
+
+impl Band {
+    fn new(lo: f32, hi: f32, node_step: f32) -> Self {
+        let n = (((hi - lo) / node_step).ceil() as usize) + 1;
+        let step = if n > 1 { (hi - lo) / (n - 1) as f32 } else { 0.0 };
+        // g(δ) = ½ + ½·tanh(10(δ - 0.1)) ≤ ε  ⇔  δ ≤ 0.1 - atanh(1 - 2ε)/10; symmetric above.
+        let z = (0.5 * ((1.0 - G_EPS) / G_EPS).ln() / 10.0) as f32;
+        Band { lo, step, n, hidden: lo + 0.1 - z, front: hi + 0.1 + z }
+    }
+
+    fn node(&self, k: usize) -> f32 {
+        self.lo + self.step * k as f32
+    }
+
+    #[inline]
+    fn class(&self, d: f32) -> Class {
+        if d <= self.hidden {
+            Class::Hidden
+        } else if d >= self.front {
+            Class::Front
+        } else {
+            Class::Partial
+        }
+    }
+
+    /// Hat-function (linear interpolation) weight of node k at target disparity `d`.
+    #[inline]
+    fn hat(&self, k: usize, d: f32) -> f32 {
+        if self.n == 1 { 1.0 } else { (1.0 - ((d - self.node(k)) / self.step).abs()).max(0.0) }
+    }
+
+    /// The nodes whose hats are non-zero somewhere in `[a, b]`.
+    fn nodes_for(&self, a: f32, b: f32) -> (usize, usize) {
+        if self.n == 1 {
+            return (0, 0);
+        }
+        let ka = (((a - self.lo) / self.step).floor().max(0.0) as usize).min(self.n - 1);
+        let kb = (((b - self.lo) / self.step).ceil().max(0.0) as usize).min(self.n - 1);
+        (ka, kb)
+    }
+}
+
+/// What one parallel pre-pass learns about a layer.
+#[derive(Clone, Copy)]
+struct Survey {
+    visible: usize,
+    sigma_min: f32,
+    sigma_max: f32,
+    /// Largest σ of a visible source drawn at full resolution (below `2·r0`); 0 if none.
+    full_max: f32,
+    band_pixels: usize,
+    band_lo: f32,
+    band_hi: f32,
+}
+
+impl Survey {
+    const EMPTY: Survey = Survey { visible: 0, sigma_min: f32::INFINITY, sigma_max: 1.0, full_max: 0.0, band_pixels: 0, band_lo: f32::INFINITY, band_hi: f32::NEG_INFINITY };
+
+    fn merge(a: Survey, b: Survey) -> Survey {
+        Survey {
+            visible: a.visible + b.visible,
+            sigma_min: a.sigma_min.min(b.sigma_min),
+            sigma_max: a.sigma_max.max(b.sigma_max),
+            full_max: a.full_max.max(b.full_max),
+            band_pixels: a.band_pixels + b.band_pixels,
+            band_lo: a.band_lo.min(b.band_lo),
+            band_hi: a.band_hi.max(b.band_hi),
+        }
+    }
+}
+
+/// A pass's coarse levels: grids `factor` times coarser than the image.
+struct Coarse {
+    factor: f32,
+    grid: Grid4,
+}
+
+/// Per-layer state shared by every stripe.
 struct Ctx<'a> {
     img: &'a crate::Image,
+    s: &'a RenderSettings,
     w: usize,
     h: usize,
     p: usize,
     sigma: Vec<f32>,
     sigma_max: f32,
+    /// See `Survey::full_max`.
+    full_max: f32,
     /// Weight unit of the layer (see `lens::weight_unit`).
     unit: f32,
-    /// Whether any visible source falls in coarse level ℓ (index ℓ).
-    levels_present: Vec<bool>,
     params: FastParams,
-    /// Stencil taps sorted by row offset, their soft-step tap factors, and where each row
+    /// The on-focal band (None when no target is near the focal plane).
+    band: Option<Band>,
+    /// Whether the band passes have front / partial sources at all.
+    has_front: bool,
+    has_partial: bool,
+    /// Soft-step tap factors of the stencil taps (sorted by row offset), and where each row
     /// offset `-stencil_p..=stencil_p` starts in them.
-    stencil: Vec<Tap>,
     stencil_factor: Vec<f32>,
     stencil_rows: Vec<usize>,
     stencil_p: i64,
@@ -121,6 +264,34 @@ impl Ctx<'_> {
     fn pad(&self, reach: f32) -> i64 {
         (reach.min(1e9).ceil() as i64 + 1).min(self.p as i64 - 1).max(0)
     }
+
+    #[inline]
+    fn d(&self, j: usize) -> f32 {
+        self.img.data[j * 5 + D] - self.s.focus
+    }
+
+    /// A source's premultiplied value `[r·a, g·a, b·a, a]`; None when transparent.
+    #[inline]
+    fn base(&self, j: usize) -> Option<[f32; 4]> {
+        let px = &self.img.data[j * 5..j * 5 + 5];
+        let a = px[A];
+        (a > 0.0).then(|| [px[0] * a, px[1] * a, px[2] * a, a])
+    }
+
+    /// Which sources pass `slot` scatters and with what value: slot 0 is `A`, 1 is `F`,
+    /// `2 + k` is `U_k`.
+    fn value(&self, slot: usize, j: usize) -> Option<[f32; 4]> {
+        let v = self.base(j)?;
+        match (slot, self.band) {
+            (0, _) => Some(v),
+            (1, Some(b)) => (b.class(self.d(j)) == Class::Front).then_some(v),
+            (k, Some(b)) => {
+                let dj = self.d(j);
+                (b.class(dj) == Class::Partial).then(|| v.map(|c| c * in_front(dj, b.node(k - 2))))
+            }
+            _ => None,
+        }
+    }
 }
 
 /// One aggregated source on a coarse grid.
@@ -132,118 +303,53 @@ struct Agg {
     v: [f32; 4],
 }
 
-/// `Σ_y val(y)·E(σ_y, |y - x|)` for every target x (4 channels). `val` returns the source's
-/// value (None = no contribution).
-fn scatter_pass(ctx: &Ctx, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync), stats: &mut FastStats) -> Grid4 {
+/// The coarse levels of pass `slot`, for the levels in `mask` (bit ℓ = level ℓ present).
+fn coarse_levels(ctx: &Ctx, slot: usize, mask: u64, ops: &AtomicU64, coarse_sources: &AtomicU64) -> Vec<Coarse> {
     let (w, h) = (ctx.w, ctx.h);
-    let pr = ctx.params;
-    let mut out = Grid4::new(w, h);
-    let lattice = Window::Lattice(ctx.p as i64);
-
-    // Full resolution: exact stencils and directly drawn disks.
-    let reach0 = equivalent_radius((2.0 * pr.r0).min(ctx.sigma_max)).max(pr.stencil_max.min(ctx.sigma_max) + STENCIL_TAIL);
-    let pad0 = ctx.pad(reach0);
-    let counts = std::sync::Mutex::new((0usize, 0usize));
-    accumulate(&mut out, |st| {
-        let (y0, y1) = st.rows();
-        let (mut n_st, mut n_sp) = (0, 0);
-        for sy in (y0 - pad0).max(-pad0)..(y1 + pad0).min(h as i64 + pad0) {
-            for sx in -pad0..w as i64 + pad0 {
-                let j = ctx.clamp_index(sx, sy);
-                let sig = ctx.sigma[j];
-                if sig >= 2.0 * pr.r0 {
-                    continue;
-                }
-                let Some(v) = val(j) else { continue };
-                let own_row = sy >= y0 && sy < y1;
-                if sig < pr.stencil_max {
-                    n_st += own_row as usize;
-                    let reach = sig + STENCIL_TAIL;
-                    let fs = step_source_factor(sig);
-                    let dens = density(sig, ctx.unit);
-                    // Taps are sorted by row; visit only this stripe's rows.
-                    let (ra, rb) = ((y0 - sy).max(-ctx.stencil_p), (y1 - 1 - sy).min(ctx.stencil_p));
-                    for di in ra..=rb {
-                        // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
-                        let (start, end) = (ctx.stencil_rows[(di + ctx.stencil_p) as usize], ctx.stencil_rows[(di + ctx.stencil_p + 1) as usize]);
-                        let m = (end - start) / 2;
-                        let rem = reach * reach - (di * di) as f32;
-                        if rem <= 0.0 {
-                            continue;
-                        }
-                        let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
-                        let (a, b) = (start + m - jm, start + m + jm + 1);
-                        for (t, &fr) in ctx.stencil[a..b].iter().zip(&ctx.stencil_factor[a..b]) {
-                            let e = dens / (1.0 + fs * fr);
-                            st.tap(sx + t.dj as i64, sy + di, v.map(|c| c * e));
-                        }
-                    }
-                } else {
-                    n_sp += own_row as usize;
-                    let dens = density(sig, ctx.unit);
-                    let rho = equivalent_radius(sig);
-                    // Small disks show their soft edge most: draw its profile there.
-                    let edge = if pr.soft_edge || sig < 2.0 * pr.stencil_max { &SOFT_EDGE[..] } else { &HARD_EDGE[..] };
-                    for &(off, wt) in edge {
-                        st.disk(sx as f32, sy as f32, rho + off, lattice, v.map(|c| c * dens * wt));
-                    }
-                }
-            }
-        }
-        let mut c = counts.lock().expect("counter");
-        c.0 += n_st;
-        c.1 += n_sp;
-    });
-    let (n_st, n_sp) = counts.into_inner().expect("counter");
-    stats.stencil_sources += n_st;
-    stats.span_sources += n_sp;
-
-    // Coarse levels: level ℓ takes σ in [r0·2^ℓ, r0·2^(ℓ+1)).
-    let mut level = 1u32;
-    while level < 63 && pr.r0 * (1u64 << level) as f32 <= ctx.sigma_max {
-        let f = (1u64 << level) as f32;
-        if !ctx.levels_present.get(level as usize).copied().unwrap_or(false) {
-            level += 1;
+    let r0 = ctx.params.r0;
+    let mut out = Vec::new();
+    for level in 1..64u32 {
+        if mask & (1 << level) == 0 {
             continue;
         }
-        let aggs = aggregate(ctx, level, val);
-        stats.coarse_sources += aggs.iter().map(|r| r.len()).sum::<usize>();
-        if aggs.iter().any(|r| !r.is_empty()) {
-            let (cw, ch) = ((w as f32 / f).ceil() as usize, (h as f32 / f).ceil() as usize);
-            let mut coarse = Grid4::new(cw, ch);
-            let window = Window::Disk(ctx.p as f32 / f);
-            let reach = 2.0 * pr.r0 + 2.0;
-            let pad = ctx.pad(ctx.sigma_max + 3.0) as f32;
-            accumulate(&mut coarse, |st| {
-                let (y0, y1) = st.rows();
-                for (i, row) in aggs.iter().enumerate() {
-                    // Centres of cell row i lie within ±1 of this coarse coordinate.
-                    let cy = (i as f32 * f - pad + 0.5 * f) / f - 0.5;
-                    if cy + 1.0 + reach < y0 as f32 || cy - 1.0 - reach > y1 as f32 {
-                        continue;
-                    }
-                    for a in row {
-                        st.disk(a.cx, a.cy, a.rho, window, a.v);
-                    }
-                }
-            });
-            out.data.par_chunks_mut(w * 4).enumerate().for_each(|(y, orow)| {
-                let v = (y as f32 + 0.5) / f - 0.5;
-                for x in 0..w {
-                    let s = coarse.sample((x as f32 + 0.5) / f - 0.5, v);
-                    for c in 0..4 {
-                        orow[x * 4 + c] += s[c];
-                    }
-                }
-            });
+        let f = (1u64 << level) as f32;
+        let aggs = aggregate(ctx, level, slot);
+        let n: usize = aggs.iter().map(|r| r.len()).sum();
+        coarse_sources.fetch_add(n as u64, Ordering::Relaxed);
+        if n == 0 {
+            continue;
         }
-        level += 1;
+        let (cw, ch) = ((w as f32 / f).ceil() as usize, (h as f32 / f).ceil() as usize);
+        let mut grid = Grid4::new(cw, ch);
+        let window = Window::Disk(ctx.p as f32 / f);
+        let reach = 2.0 * r0 + 2.0;
+        let pad = ctx.pad(ctx.sigma_max + 3.0) as f32;
+        let rows = AtomicU64::new(0);
+        accumulate(&mut grid, |st| {
+            let (y0, y1) = st.rows();
+            let mut spans = 0f32;
+            for (i, row) in aggs.iter().enumerate() {
+                // Centres of cell row i lie within ±1 of this coarse coordinate.
+                let cy = (i as f32 * f - pad + 0.5 * f) / f - 0.5;
+                if cy + 1.0 + reach < y0 as f32 || cy - 1.0 - reach > y1 as f32 {
+                    continue;
+                }
+                for a in row {
+                    spans += st.disk(a.cx, a.cy, a.rho, window, a.v).min(1.0).ceil();
+                }
+            }
+            rows.fetch_add(spans as u64, Ordering::Relaxed);
+        });
+        ops.fetch_add(rows.into_inner() + (w * h) as u64, Ordering::Relaxed);
+        out.push(Coarse { factor: f, grid });
     }
     out
 }
 
-/// Aggregates the sources of coarse level `level` per cell and radius bin; one Vec per cell row.
-fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + Sync)) -> Vec<Vec<Agg>> {
+/// Aggregates the sources of pass `slot` at coarse level `level` per cell and radius bin
+/// (value-weighted centroid and radius, so a cell's light stays where it was); one Vec per
+/// cell row.
+fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
     let f = 1i64 << level;
     let ff = f as f32;
     let (lo, hi) = (ctx.params.r0 * ff, ctx.params.r0 * 2.0 * ff);
@@ -259,7 +365,6 @@ fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + S
             let mut out = Vec::new();
             let mut acc = vec![[0f64; 7]; bins];
             for cj in 0..cols {
-                acc.iter_mut().for_each(|a| *a = [0.0; 7]);
                 let mut any = false;
                 for sy in (y0 + ci * f)..(y0 + (ci + 1) * f).min(y1) {
                     for sx in (x0 + cj * f)..(x0 + (cj + 1) * f).min(x1) {
@@ -268,7 +373,7 @@ fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + S
                         if sig < lo || sig >= hi {
                             continue;
                         }
-                        let Some(v) = val(j) else { continue };
+                        let Some(v) = ctx.value(slot, j) else { continue };
                         let dens = density(sig, ctx.unit);
                         let wgt = (v[3] * dens) as f64;
                         if wgt <= 0.0 {
@@ -288,7 +393,7 @@ fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + S
                 if !any {
                     continue;
                 }
-                for a in &acc {
+                for a in acc.iter_mut() {
                     if a[3] > 0.0 {
                         out.push(Agg {
                             cx: (a[4] / a[3]) as f32,
@@ -297,6 +402,7 @@ fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + S
                             v: [a[0] as f32, a[1] as f32, a[2] as f32, a[3] as f32],
                         });
                     }
+                    *a = [0.0; 7];
                 }
             }
             out
@@ -304,163 +410,414 @@ fn aggregate(ctx: &Ctx, level: u32, val: &(dyn Fn(usize) -> Option<[f32; 4]> + S
         .collect()
 }
 
+/// A worker's reusable buffers (sized on first use, then recycled from stripe to stripe).
+#[derive(Default)]
+struct Scratch {
+    /// Accumulators: `[A, F, U_ka, …, U_kb]` for the stripe's nodes.
+    accs: Vec<Stripe>,
+    /// `q` of the stripe's targets.
+    q: Vec<f32>,
+    /// The stripe's finished raw pixels, 5 channels.
+    raw: Vec<f32>,
+    row_a: Vec<f32>,
+    row_b: Vec<f32>,
+    row_u: Vec<f32>,
+    tmp: Vec<f32>,
+    /// One stencil row's tap weights.
+    erow: Vec<f32>,
+    /// (accumulator, factor) pairs a source scatters into.
+    dests: Vec<(usize, f32)>,
+    sat: Vec<f64>,
+    vis: Vec<f32>,
+}
+
+/// Counters the stripes add to.
+#[derive(Default)]
+struct Counts {
+    stencil: AtomicU64,
+    span: AtomicU64,
+    skipped: AtomicU64,
+    band_stripes: AtomicU64,
+    ops: AtomicU64,
+    coarse: AtomicU64,
+}
+
 /// Renders one layer into its raw sums `[ΣR, ΣG, ΣB, W, o]`, like [`super::exact::scatter_layer`].
+/// Allocates the 5-channel output.
 pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (RawLayer, FastStats) {
+    let (w, h) = (layer.width(), layer.height());
+    let mut out = vec![0f32; w * h * 5];
+    let stats = scatter_layer_into(layer, s, params, &mut out, 5, &|raw, px| px.copy_from_slice(raw));
+    (RawLayer::new(w, h, out, layer), stats)
+}
+
+/// Renders one layer and hands each pixel's raw sums `[ΣR, ΣG, ΣB, W, o]` to `finish`, with
+/// that pixel's `stride` values of `out` (row-major, `width·height·stride` f32): storing them
+/// ([`scatter_layer`]) or compositing them on the fly (`render::render`). Besides `out`,
+/// allocates the scatter radii (4 bytes per pixel), the coarse grids of the passes that have
+/// large-blur sources (≤ 16/4^ℓ bytes per pixel at level ℓ each) and per-worker stripe
+/// scratch.
+pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams, out: &mut [f32], stride: usize, finish: &(dyn Fn(&[f32; 5], &mut [f32]) + Sync)) -> FastStats {
     let img = layer.image();
     let (w, h) = (img.width, img.height);
+    assert_eq!(out.len(), w * h * stride, "output buffer size");
     let p = s.lens / 2;
     let mut stats = FastStats::default();
-    let d: Vec<f32> = img.data.par_chunks_exact(5).map(|px| px[D] - s.focus).collect();
-    let sigma: Vec<f32> = d.par_iter().map(|&d| scatter_radius(d, s.blur)).collect();
-    let q: Vec<f32> = d.par_iter().map(|&d| if s.occlusion { focal_defocus(d, s.blur) } else { 1.0 }).collect();
-    let vis = visibility(img, &sigma, p);
-    if layer.is_transparent() || p == 0 {
-        let mut out = vec![0f32; w * h * 5];
-        for (o, v) in out.chunks_exact_mut(5).zip(&vis) {
-            o[4] = *v;
-        }
-        return (RawLayer::new(w, h, out, layer), stats);
-    }
-    let sigma_max = (0..w * h).filter(|&i| img.data[i * 5 + A] > 0.0).map(|i| sigma[i]).fold(1.0, f32::max);
-    let stencil_reach = params.stencil_max.min(sigma_max) + STENCIL_TAIL;
+
+    // One pass over the layer: scatter radii, what is visible, and the on-focal band.
+    let mut sigma = vec![0f32; w * h];
+    let survey = sigma
+        .par_chunks_mut(w)
+        .zip(img.data.par_chunks(w * 5))
+        .map(|(srow, prow)| {
+            let mut sv = Survey::EMPTY;
+            for (sg, px) in srow.iter_mut().zip(prow.chunks_exact(5)) {
+                let d = px[D] - s.focus;
+                *sg = scatter_radius(d, s.blur);
+                if px[A] > 0.0 {
+                    sv.visible += 1;
+                    sv.sigma_min = sv.sigma_min.min(*sg);
+                    sv.sigma_max = sv.sigma_max.max(*sg);
+                    if *sg < 2.0 * params.r0 {
+                        sv.full_max = sv.full_max.max(*sg);
+                    }
+                }
+                if in_band(defocus(d, s)) {
+                    sv.band_pixels += 1;
+                    sv.band_lo = sv.band_lo.min(d);
+                    sv.band_hi = sv.band_hi.max(d);
+                }
+            }
+            sv
+        })
+        .reduce(|| Survey::EMPTY, Survey::merge);
+    stats.transparent_pixels = w * h - survey.visible;
+    stats.band_pixels = survey.band_pixels;
+    stats.stripes = h.div_ceil(STRIPE_ROWS);
+    stats.exact_taps = (w * h) as f64 * disk_taps(s.lens).len() as f64;
+    let unit = weight_unit(if survey.sigma_min.is_finite() { survey.sigma_min } else { 1.0 });
+
+    let band = (survey.band_pixels > 0).then(|| Band::new(survey.band_lo, survey.band_hi, params.node_step));
+    let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
     let stencil: Vec<Tap> = disk_taps(s.lens).into_iter().filter(|t| t.r < stencil_reach).collect();
     let stencil_p = stencil.iter().map(|t| t.di.abs() as i64).max().unwrap_or(0);
     let stencil_rows: Vec<usize> = (-stencil_p..=stencil_p + 1).map(|di| stencil.partition_point(|t| (t.di as i64) < di)).collect();
-    let ctx = Ctx {
+    let mut ctx = Ctx {
         img,
+        s,
         w,
         h,
         p,
         stencil_factor: stencil.iter().map(|t| step_tap_factor(t.r)).collect(),
-        stencil,
         stencil_rows,
         stencil_p,
-        unit: weight_unit(super::min_visible_radius(img, &sigma)),
-        levels_present: {
-            let mut v = vec![false; 64];
-            for (i, &sg) in sigma.iter().enumerate() {
-                if img.data[i * 5 + A] > 0.0 && sg >= 2.0 * params.r0 {
-                    v[((sg / params.r0).log2().floor() as usize).min(63)] = true;
-                }
-            }
-            v
-        },
+        unit,
         sigma,
-        sigma_max,
+        sigma_max: survey.sigma_max,
+        full_max: survey.full_max,
         params,
+        band,
+        has_front: false,
+        has_partial: false,
     };
-    let base = |j: usize| -> Option<[f32; 4]> {
-        let px = &ctx.img.data[j * 5..j * 5 + 5];
-        let a = px[A];
-        (a > 0.0).then(|| [px[0] * a, px[1] * a, px[2] * a, a])
-    };
-    let a_grid = scatter_pass(&ctx, &base, &mut stats);
-    stats.passes = 1;
 
-    // The on-focal band: targets whose occlusion term is not saturated at 1.
-    let band: Vec<bool> = q.iter().map(|&q| 1.0 - q > BAND_EPS).collect();
-    stats.band_pixels = band.iter().filter(|&&b| b).count();
-    let mut b_acc = vec![0f32; if stats.band_pixels > 0 { w * h * 4 } else { 0 }];
-    if stats.band_pixels > 0 {
-        let (dlo, dhi) = d.iter().zip(&band).filter(|(_, b)| **b).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (&d, _)| (lo.min(d), hi.max(d)));
-        let n = (((dhi - dlo) / params.node_step).ceil() as usize).max(0) + 1;
-        let step = if n > 1 { (dhi - dlo) / (n - 1) as f32 } else { 0.0 };
-        let nodes: Vec<f32> = (0..n).map(|k| dlo + step * k as f32).collect();
-        stats.nodes = n;
-        // Sources hidden behind every node add nothing; those in front of every node add
-        // their full value to every node: scatter them once.
-        let classes: Vec<u8> = d
-            .par_iter()
-            .map(|&dj| {
-                let (g_min, g_max) = (in_front(dj, dhi), in_front(dj, dlo));
-                if g_max <= G_EPS {
-                    0
-                } else if g_min >= 1.0 - G_EPS {
-                    2
-                } else {
-                    1
-                }
-            })
-            .collect();
-        let class = |j: usize| classes[j];
-        
-        let alpha_at = |j: usize| img.data[j * 5 + A] > 0.0;
-        let has = |c: u8| (0..w * h).any(|j| class(j) == c && alpha_at(j));
-        let front = if has(2) {
-            stats.passes += 1;
-            scatter_pass(&ctx, &|j| if class(j) == 2 { base(j) } else { None }, &mut stats)
-        } else {
-            Grid4::new(w, h)
-        };
-        let any_unsaturated = has(1);
-        stats.band_sources_skipped = (0..w * h).filter(|&j| class(j) == 0 && alpha_at(j)).count();
-        for &node in &nodes {
-            let u = if any_unsaturated {
-                stats.passes += 1;
-                scatter_pass(&ctx, &|j| if class(j) == 1 { base(j).map(|v| v.map(|c| c * in_front(d[j], node))) } else { None }, &mut stats)
-            } else {
-                Grid4::new(w, h)
-            };
-            // Hat-function (linear) interpolation weight of node k at disparity d_x.
-            b_acc.par_chunks_mut(4).enumerate().for_each(|(i, acc)| {
-                if !band[i] {
-                    return;
-                }
-                let wk = if n == 1 { 1.0 } else { (1.0 - ((d[i] - node) / step).abs()).max(0.0) };
-                if wk > 0.0 {
-                    for c in 0..4 {
-                        acc[c] += wk * (front.data[i * 4 + c] + u.data[i * 4 + c]);
-                    }
-                }
-            });
+    // Coarse levels present, per source class: [all, front, partial] as bit masks.
+    let masks = (0..w * h)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&j| img.data[j * 5 + A] > 0.0)
+        .map(|j| {
+            let bit = level_of(ctx.sigma[j], params.r0).map_or(0, |l| 1u64 << l);
+            let class = band.map(|b| b.class(ctx.d(j)));
+            // Bit 0 marks that the class has any visible source at all.
+            let tag = bit | 1;
+            match class {
+                Some(Class::Front) => [tag, tag, 0],
+                Some(Class::Partial) => [tag, 0, tag],
+                _ => [tag, 0, 0],
+            }
+        })
+        .reduce(|| [0u64; 3], |a, b| [a[0] | b[0], a[1] | b[1], a[2] | b[2]]);
+    ctx.has_front = masks[1] & 1 != 0;
+    ctx.has_partial = masks[2] & 1 != 0;
+    let ctx = ctx;
+    let n_nodes = band.map_or(0, |b| b.n);
+    stats.nodes = n_nodes;
+    stats.passes = 1 + usize::from(ctx.has_front) + if ctx.has_partial { n_nodes } else { 0 };
+    if band.is_some() {
+        stats.band_sources_skipped = survey.visible - (0..w * h).into_par_iter().filter(|&j| img.data[j * 5 + A] > 0.0 && band.map(|b| b.class(ctx.d(j))) != Some(Class::Hidden)).count();
+    }
+
+    let counts = Counts::default();
+    // Coarse grids of every pass, indexed by slot (0 = A, 1 = F, 2 + k = U_k).
+    let empty = survey.visible == 0 || p == 0;
+    let mut coarse: Vec<Vec<Coarse>> = Vec::new();
+    if !empty {
+        coarse.push(coarse_levels(&ctx, 0, masks[0] & !1, &counts.ops, &counts.coarse));
+        coarse.push(if ctx.has_front { coarse_levels(&ctx, 1, masks[1] & !1, &counts.ops, &counts.coarse) } else { Vec::new() });
+        for k in 0..n_nodes {
+            coarse.push(if ctx.has_partial { coarse_levels(&ctx, 2 + k, masks[2] & !1, &counts.ops, &counts.coarse) } else { Vec::new() });
         }
     }
 
-    let mut out = vec![0f32; w * h * 5];
-    out.par_chunks_mut(5).enumerate().for_each(|(i, o)| {
-        let a = a_grid.at(i);
-        if !band.is_empty() && band[i] {
-            let (qi, b) = (q[i], &b_acc[i * 4..i * 4 + 4]);
+    // Scratch is pooled, not made per rayon split: a worker's first stripe sizes its buffers
+    // and later stripes reuse them without new pages.
+    let pool = std::sync::Mutex::new(Vec::<Scratch>::new());
+    out.par_chunks_mut(STRIPE_ROWS * w * stride).enumerate().for_each(|(si, chunk)| {
+        let mut sc = pool.lock().map(|mut p| p.pop()).ok().flatten().unwrap_or_default();
+        let y0 = si * STRIPE_ROWS;
+        let y1 = (y0 + STRIPE_ROWS).min(h);
+        render_stripe(&ctx, &coarse, empty, y0, y1, &mut sc, &counts);
+        // Hand the finished pixels over.
+        for (k, px) in chunk.chunks_exact_mut(stride).enumerate() {
+            let raw: &[f32; 5] = sc.raw[k * 5..k * 5 + 5].try_into().expect("5 channels");
+            finish(raw, px);
+        }
+        if let Ok(mut p) = pool.lock() {
+            p.push(sc);
+        }
+    });
+    stats.stencil_sources = counts.stencil.into_inner() as usize;
+    stats.span_sources = counts.span.into_inner() as usize;
+    stats.coarse_sources = counts.coarse.into_inner() as usize;
+    stats.band_stripes = counts.band_stripes.into_inner() as usize;
+    stats.fast_ops = counts.ops.into_inner() as f64;
+    stats.work_saved = if stats.exact_taps > 0.0 { (1.0 - stats.fast_ops / stats.exact_taps).max(0.0) } else { 0.0 };
+    let _ = counts.skipped;
+    stats
+}
+
+/// Renders rows `[y0, y1)` into `sc.raw` as raw 5-channel pixels.
+fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: usize, sc: &mut Scratch, counts: &Counts) {
+    let w = ctx.w;
+    let rows = y1 - y0;
+    visibility_rows(ctx.img, &ctx.sigma, ctx.p, y0, y1, &mut sc.sat, &mut sc.vis);
+    let mut raw = std::mem::take(&mut sc.raw);
+    raw.clear();
+    raw.resize(rows * w * 5, 0.0);
+    if empty {
+        for (o, &v) in raw.chunks_exact_mut(5).zip(&sc.vis) {
+            o[4] = v;
+        }
+        sc.raw = raw;
+        return;
+    }
+
+    // Targets of this stripe: q, and the band's nodes they need.
+    sc.q.clear();
+    let (mut blo, mut bhi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for i in y0 * w..y1 * w {
+        let d = ctx.d(i);
+        let q = defocus(d, ctx.s);
+        if in_band(q) {
+            blo = blo.min(d);
+            bhi = bhi.max(d);
+        }
+        sc.q.push(q);
+    }
+    let nodes = match ctx.band {
+        Some(b) if blo <= bhi && (ctx.has_front || ctx.has_partial) => Some(b.nodes_for(blo, bhi)),
+        _ => None,
+    };
+    let n_acc = match nodes {
+        Some((ka, kb)) if ctx.has_partial => 2 + kb - ka + 1,
+        Some(_) => 2,
+        None => 1,
+    };
+    if nodes.is_some() {
+        counts.band_stripes.fetch_add(1, Ordering::Relaxed);
+    }
+    while sc.accs.len() < n_acc {
+        sc.accs.push(Stripe::new(w));
+    }
+    for a in &mut sc.accs[..n_acc] {
+        a.reset(y0, y1);
+    }
+
+    scan_sources(ctx, nodes, y0, y1, sc, counts);
+    combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw);
+    counts.ops.fetch_add((rows * w * n_acc) as u64, Ordering::Relaxed);
+    sc.raw = raw;
+}
+
+/// Scatters the full-resolution sources that reach rows `[y0, y1)` (exact stencils and
+/// directly drawn disks) into the stripe accumulators `sc.accs`: `A`, and for a stripe with
+/// band targets `F` and the `U_k` of `nodes`.
+#[inline(never)]
+fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, sc: &mut Scratch, counts: &Counts) {
+    let (w, h) = (ctx.w, ctx.h);
+    let rows = y1 - y0;
+    let pr = ctx.params;
+    if ctx.full_max <= 0.0 {
+        // Every visible source lives on a coarse grid.
+        return;
+    }
+    // The widest full-resolution footprint: a disk with its outer soft edge, or a stencil.
+    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0).max(pr.stencil_max.min(ctx.full_max) + STENCIL_TAIL);
+    let pad0 = ctx.pad(reach0);
+    let lattice = Window::Lattice(ctx.p as i64);
+    let (y0i, y1i) = (y0 as i64, y1 as i64);
+    let (mut n_st, mut n_sp, mut ops) = (0u64, 0u64, 0u64);
+    for sy in (y0i - pad0).max(-pad0)..(y1i + pad0).min(h as i64 + pad0) {
+        let own_row = sy >= y0i && sy < y1i;
+        for sx in -pad0..w as i64 + pad0 {
+            let j = ctx.clamp_index(sx, sy);
+            let sig = ctx.sigma[j];
+            if sig >= 2.0 * pr.r0 {
+                continue;
+            }
+            let Some(v) = ctx.base(j) else { continue };
+            sc.dests.clear();
+            sc.dests.push((0, 1.0));
+            if let (Some((ka, kb)), Some(b)) = (nodes, ctx.band) {
+                let dj = ctx.d(j);
+                match b.class(dj) {
+                    Class::Front => sc.dests.push((1, 1.0)),
+                    Class::Partial => sc.dests.extend((ka..=kb).map(|k| (2 + k - ka, in_front(dj, b.node(k))))),
+                    Class::Hidden => {}
+                }
+            }
+            let dens = density(sig, ctx.unit);
+            if sig < pr.stencil_max {
+                n_st += own_row as u64;
+                let reach = sig + STENCIL_TAIL;
+                let fs = step_source_factor(sig);
+                // Taps are sorted by row; visit only this stripe's rows.
+                let (ra, rb) = ((y0i - sy).max(-ctx.stencil_p), (y1i - 1 - sy).min(ctx.stencil_p));
+                for di in ra..=rb {
+                    // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
+                    let (start, end) = (ctx.stencil_rows[(di + ctx.stencil_p) as usize], ctx.stencil_rows[(di + ctx.stencil_p + 1) as usize]);
+                    let m = (end - start) / 2;
+                    let rem = reach * reach - (di * di) as f32;
+                    if rem <= 0.0 || end == start {
+                        continue;
+                    }
+                    let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
+                    let (a, b) = (start + m - jm, start + m + jm + 1);
+                    sc.erow.clear();
+                    sc.erow.extend(ctx.stencil_factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
+                    for &(slot, f) in &sc.dests {
+                        sc.accs[slot].tap_row(sx - jm as i64, sy + di, &sc.erow, v.map(|c| c * f));
+                    }
+                    ops += ((b - a) * sc.dests.len()) as u64;
+                }
+            } else {
+                n_sp += own_row as u64;
+                let rho = equivalent_radius(sig);
+                // Small disks show their soft edge most: draw its profile there.
+                let edge = if pr.soft_edge || sig < 2.0 * pr.stencil_max { &SOFT_EDGE[..] } else { &HARD_EDGE[..] };
+                for &(off, wt) in edge {
+                    for &(slot, f) in &sc.dests {
+                        let area = sc.accs[slot].disk(sx as f32, sy as f32, rho + off, lattice, v.map(|c| c * dens * wt * f));
+                        ops += (area > 0.0) as u64 * (2.0 * (rho + off)).ceil().min(rows as f32) as u64;
+                    }
+                }
+            }
+        }
+    }
+
+    counts.stencil.fetch_add(n_st, Ordering::Relaxed);
+    counts.span.fetch_add(n_sp, Ordering::Relaxed);
+    counts.ops.fetch_add(ops, Ordering::Relaxed);
+}
+
+/// Resolves the stripe accumulators row by row, adds the coarse levels and combines:
+/// `A` everywhere; `q·A + (1-q)·B` plus the centre correction in the band. Writes `raw`.
+#[inline(never)]
+fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>, y0: usize, y1: usize, sc: &mut Scratch, raw: &mut [f32]) {
+    let w = ctx.w;
+    let (row_a, row_b, row_u, tmp) = (&mut sc.row_a, &mut sc.row_b, &mut sc.row_u, &mut sc.tmp);
+    for r in 0..y1 - y0 {
+        let y = y0 + r;
+        row_a.clear();
+        row_a.resize(w * 4, 0.0);
+        sc.accs[0].add_row_to(r, row_a);
+        for c in &coarse[0] {
+            c.grid.add_upsampled_row(y, c.factor, row_a, tmp);
+        }
+        let q = &sc.q[r * w..(r + 1) * w];
+        let out = &mut raw[r * w * 5..(r + 1) * w * 5];
+        for (x, o) in out.chunks_exact_mut(5).enumerate() {
+            o[..4].copy_from_slice(&row_a[x * 4..x * 4 + 4]);
+            o[4] = sc.vis[r * w + x];
+        }
+        let (Some((ka, kb)), Some(band)) = (nodes, ctx.band) else { continue };
+        // B = F + Σ_k hat_k(d_x)·U_k (the hats sum to 1 over the band), held in row_b.
+        row_b.clear();
+        row_b.resize(w * 4, 0.0);
+        if ctx.has_front {
+            sc.accs[1].add_row_to(r, row_b);
+            for c in &coarse[1] {
+                c.grid.add_upsampled_row(y, c.factor, row_b, tmp);
+            }
+        }
+        if ctx.has_partial {
+            for k in ka..=kb {
+                row_u.clear();
+                row_u.resize(w * 4, 0.0);
+                sc.accs[2 + k - ka].add_row_to(r, row_u);
+                for c in &coarse[2 + k] {
+                    c.grid.add_upsampled_row(y, c.factor, row_u, tmp);
+                }
+                for x in 0..w {
+                    if in_band(q[x]) {
+                        let wk = band.hat(k, ctx.d(y * w + x));
+                        if wk > 0.0 {
+                            for c in 0..4 {
+                                row_b[x * 4 + c] += wk * row_u[x * 4 + c];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        for (x, o) in out.chunks_exact_mut(5).enumerate() {
+            let qi = q[x];
+            if !in_band(qi) {
+                continue;
+            }
+            let i = y * w + x;
+            let di = ctx.d(i);
             // The centre tap has occlusion 1, not q + (1-q)·g(0) as in A and B.
-            let corr = base(i).map(|v| {
-                let e = energy(ctx.sigma[i], 0.0, ctx.unit) * (1.0 - qi) * (1.0 - in_front(d[i], d[i]));
+            let corr = ctx.base(i).map(|v| {
+                let e = energy(ctx.sigma[i], 0.0, ctx.unit) * (1.0 - qi) * (1.0 - in_front(di, di));
                 v.map(|c| c * e)
             });
             for c in 0..4 {
-                o[c] = qi * a[c] + (1.0 - qi) * b[c] + corr.map_or(0.0, |v| v[c]);
+                o[c] = qi * row_a[x * 4 + c] + (1.0 - qi) * row_b[x * 4 + c] + corr.map_or(0.0, |v| v[c]);
             }
-        } else {
-            o[..4].copy_from_slice(a);
         }
-        o[4] = vis[i];
-    });
-    (RawLayer::new(w, h, out, layer), stats)
+    }
 }
 
-/// Non-focal visibility (eq. 4) for every pixel from a summed-area table of the
-/// replicate-padded alpha (f64: sums of millions of values). O(1) per pixel.
-fn visibility(img: &crate::Image, sigma: &[f32], p: usize) -> Vec<f32> {
+/// Non-focal visibility (eq. 4) of rows `[y0, y1)` into `out`: box means of the
+/// replicate-padded alpha from a summed-area table of just the rows the boxes reach (f64).
+/// O(1) per pixel plus the table, `(rows + 2n)·(w + 2n)` for the stripe's largest box half-size n.
+#[inline(never)]
+fn visibility_rows(img: &crate::Image, sigma: &[f32], p: usize, y0: usize, y1: usize, sat: &mut Vec<f64>, out: &mut Vec<f32>) {
     let (w, h) = (img.width, img.height);
-    let nmax = sigma.iter().map(|&s| visibility_half_size(s, p)).max().unwrap_or(0);
-    let (pw, ph) = (w + 2 * nmax, h + 2 * nmax);
-    let mut sat = vec![0f64; (pw + 1) * (ph + 1)];
-    for y in 0..ph {
-        let sy = (y as i64 - nmax as i64).clamp(0, h as i64 - 1) as usize;
+    let nmax = sigma[y0 * w..y1 * w].iter().map(|&s| visibility_half_size(s, p)).max().unwrap_or(0);
+    let (pw, ph) = (w + 2 * nmax, (y1 - y0) + 2 * nmax);
+    sat.clear();
+    sat.resize((pw + 1) * (ph + 1), 0.0);
+    for yy in 0..ph {
+        let sy = (y0 as i64 + yy as i64 - nmax as i64).clamp(0, h as i64 - 1) as usize;
+        let src = &img.data[sy * w * 5..(sy + 1) * w * 5];
         let mut row = 0f64;
         for x in 0..pw {
             let sx = (x as i64 - nmax as i64).clamp(0, w as i64 - 1) as usize;
-            row += img.data[(sy * w + sx) * 5 + A] as f64;
-            sat[(y + 1) * (pw + 1) + x + 1] = sat[y * (pw + 1) + x + 1] + row;
+            row += src[sx * 5 + A] as f64;
+            sat[(yy + 1) * (pw + 1) + x + 1] = sat[yy * (pw + 1) + x + 1] + row;
         }
     }
-    (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let (x, y) = (i % w + nmax, i / w + nmax);
-            let n = visibility_half_size(sigma[i], p);
-            let (x0, y0, x1, y1) = (x - n, y - n, x + n + 1, y + n + 1);
-            let s = sat[y1 * (pw + 1) + x1] - sat[y0 * (pw + 1) + x1] - sat[y1 * (pw + 1) + x0] + sat[y0 * (pw + 1) + x0];
-            (s / ((2 * n + 1) * (2 * n + 1)) as f64) as f32
-        })
-        .collect()
+    out.clear();
+    for y in y0..y1 {
+        for x in 0..w {
+            let n = visibility_half_size(sigma[y * w + x], p);
+            let (cx, cy) = (x + nmax, y - y0 + nmax);
+            let (xa, ya, xb, yb) = (cx - n, cy - n, cx + n + 1, cy + n + 1);
+            let s = sat[yb * (pw + 1) + xb] - sat[ya * (pw + 1) + xb] - sat[yb * (pw + 1) + xa] + sat[ya * (pw + 1) + xa];
+            out.push((s / ((2 * n + 1) * (2 * n + 1)) as f64) as f32);
+        }
+    }
 }

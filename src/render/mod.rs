@@ -13,6 +13,8 @@ pub mod splat;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+use rayon::prelude::*;
+use std::borrow::Borrow;
 pub use layer::Layer;
 
 /// Which per-layer kernel runs.
@@ -98,11 +100,11 @@ pub fn auto_lens(layers: &[Layer], blur: f32, focus: f32) -> usize {
 }
 
 /// Checks that the layers agree in size and that the settings are usable.
-pub fn validate(layers: &[Layer], s: &RenderSettings) -> Result<()> {
-    let Some(first) = layers.first() else {
+pub fn validate<L: Borrow<Layer>>(layers: &[L], s: &RenderSettings) -> Result<()> {
+    let Some(first) = layers.first().map(Borrow::borrow) else {
         return Err(Error::usage("nothing to render: no layers"));
     };
-    for (n, l) in layers.iter().enumerate() {
+    for (n, l) in layers.iter().map(Borrow::borrow).enumerate() {
         if (l.width(), l.height()) != (first.width(), first.height()) {
             return Err(Error::usage(format!(
                 "layer {} is {}x{} but layer 1 is {}x{}: all layers must have the same size",
@@ -128,30 +130,49 @@ pub fn validate(layers: &[Layer], s: &RenderSettings) -> Result<()> {
 
 /// Renders each layer with `kernel` and composites them front to back. Returns linear RGB.
 pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Image> {
+    let refs: Vec<&Layer> = layers.iter().collect();
+    render_with_stats(&refs, s, kernel).map(|(img, _)| img)
+}
+
+/// [`render`], plus what the fast kernel did for each layer (None for the exact kernel).
+///
+/// Layers are rendered one after another straight into a streaming compositor (see
+/// [`composite::over`]): besides the layers and the 12-byte RGB result, the fast kernel
+/// holds a 4-byte transmittance and a 4-byte scatter radius per pixel plus its coarse grids,
+/// never a whole raw layer.
+pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     validate(layers, s)?;
-    let raws = render_raw(layers, s, kernel);
-    Ok(composite::composite(&raws))
+    let (w, h) = (layers[0].width(), layers[0].height());
+    let mut acc = composite::accumulator(w, h);
+    let mut stats = Vec::with_capacity(layers.len());
+    let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
+    for l in layers {
+        let range = l.colour_range();
+        let over = |raw: &[f32; 5], px: &mut [f32]| composite::over(raw, &range, px);
+        match kernel {
+            Kernel::Exact => {
+                let raw = exact::scatter_layer(l, s, &taps);
+                acc.par_chunks_exact_mut(composite::ACC_CHANNELS).enumerate().for_each(|(i, px)| over(raw.pixel(i).try_into().expect("5 channels"), px));
+                stats.push(None);
+            }
+            Kernel::Fast { quality } => {
+                let st = fast::scatter_layer_into(l, s, fast::FastParams::from_quality(quality), &mut acc, composite::ACC_CHANNELS, &over);
+                stats.push(Some(st));
+            }
+        }
+    }
+    Ok((composite::finish(w, h, acc), stats))
 }
 
-/// The per-layer raw renders, front first (exposed for tests against the official raws).
+/// The per-layer raw renders, front first (stored whole: for tests against the official raws
+/// and for tools that inspect them; [`render`] streams instead).
 pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<RawLayer> {
-    render_raw_with_stats(layers, s, kernel).into_iter().map(|(r, _)| r).collect()
-}
-
-/// [`render_raw`], plus what the fast kernel did for each layer (None for the exact kernel).
-pub fn render_raw_with_stats(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<(RawLayer, Option<fast::FastStats>)> {
-    let taps = match kernel {
-        Kernel::Exact => aperture::disk_taps(s.lens),
-        Kernel::Fast { .. } => Vec::new(),
-    };
+    let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
     layers
         .iter()
         .map(|l| match kernel {
-            Kernel::Exact => (exact::scatter_layer(l, s, &taps), None),
-            Kernel::Fast { quality } => {
-                let (raw, stats) = fast::scatter_layer(l, s, fast::FastParams::from_quality(quality));
-                (raw, Some(stats))
-            }
+            Kernel::Exact => exact::scatter_layer(l, s, &taps),
+            Kernel::Fast { quality } => fast::scatter_layer(l, s, fast::FastParams::from_quality(quality)).0,
         })
         .collect()
 }

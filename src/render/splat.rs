@@ -1,16 +1,18 @@
 //! Scatter primitives of the fast kernel: 4-channel accumulation of taps and antialiased
-//! disks into a grid, one horizontal stripe of rows at a time.
+//! disks, one horizontal stripe of rows at a time.
 //!
 //! A disk is written as one span per row into a row-wise difference array (4 writes per row
 //! and channel, whatever the radius); a prefix sum per row then turns the differences into
 //! values. Each stripe owns its rows, so stripes run in parallel without locks, and the result
 //! does not depend on the thread count. Sums run in f64: a difference array cancels large
-//! terms, which f32 would not survive over a 4000-pixel row.
+//! terms, which f32 would not survive over a 4000-pixel row. A [`Stripe`] is scratch that a
+//! worker reuses from stripe to stripe (a fresh multi-megabyte buffer per stripe made the
+//! kernel spend a third of its time in the OS zeroing pages).
 
 use rayon::prelude::*;
 
 /// Rows per stripe: the unit of parallel work (fixed, so results are thread-count independent).
-pub const STRIPE_ROWS: usize = 32;
+pub const STRIPE_ROWS: usize = 64;
 
 /// A grid of 4-channel values (R, G, B, W), interleaved, `width * height * 4` f32.
 #[derive(Clone, Debug)]
@@ -30,27 +32,30 @@ impl Grid4 {
         &self.data[i * 4..i * 4 + 4]
     }
 
-    /// Bilinear sample at continuous grid coordinates (pixel centres at integers), clamped.
-    #[inline]
-    pub fn sample(&self, u: f32, v: f32) -> [f32; 4] {
-        let u = u.clamp(0.0, (self.width - 1) as f32);
-        let v = v.clamp(0.0, (self.height - 1) as f32);
-        let (x0, y0) = (u.floor() as usize, v.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
-        let (fx, fy) = (u - x0 as f32, v - y0 as f32);
-        let mut out = [0f32; 4];
-        for (idx, wt) in [
-            (y0 * self.width + x0, (1.0 - fx) * (1.0 - fy)),
-            (y0 * self.width + x1, fx * (1.0 - fy)),
-            (y1 * self.width + x0, (1.0 - fx) * fy),
-            (y1 * self.width + x1, fx * fy),
-        ] {
-            let p = self.at(idx);
+    /// Adds row `y` of this grid upsampled bilinearly by `factor` to a full-resolution row
+    /// `out` (`out.len() / 4` pixels): full-resolution pixel centre `x + 0.5` maps to grid
+    /// coordinate `(x + 0.5)/factor - 0.5` (grid pixel centres at integers), clamped at the
+    /// edges. `tmp` is scratch (one grid row).
+    pub fn add_upsampled_row(&self, y: usize, factor: f32, out: &mut [f32], tmp: &mut Vec<f32>) {
+        let v = ((y as f32 + 0.5) / factor - 0.5).clamp(0.0, (self.height - 1) as f32);
+        let y0 = v.floor() as usize;
+        let y1 = (y0 + 1).min(self.height - 1);
+        let fy = v - y0 as f32;
+        // Vertical interpolation once per grid row, then horizontal per output pixel.
+        let (r0, r1) = (&self.data[y0 * self.width * 4..(y0 + 1) * self.width * 4], &self.data[y1 * self.width * 4..(y1 + 1) * self.width * 4]);
+        tmp.clear();
+        tmp.extend(r0.iter().zip(r1).map(|(a, b)| a + fy * (b - a)));
+        let last = (self.width - 1) as f32;
+        for (x, o) in out.chunks_exact_mut(4).enumerate() {
+            let u = ((x as f32 + 0.5) / factor - 0.5).clamp(0.0, last);
+            let x0 = u.floor() as usize;
+            let x1 = (x0 + 1).min(self.width - 1);
+            let fx = u - x0 as f32;
             for c in 0..4 {
-                out[c] += wt * p[c];
+                let (a, b) = (tmp[x0 * 4 + c], tmp[x1 * 4 + c]);
+                o[c] += a + fx * (b - a);
             }
         }
-        out
     }
 }
 
@@ -92,11 +97,32 @@ pub struct Stripe {
     diff: Vec<f64>,
     /// Plain values (taps), `width * 4` per row.
     direct: Vec<f32>,
+    /// Whether anything was written to `diff` / `direct` since the last reset (a clean
+    /// buffer is neither zeroed again nor summed: most layers use only one of the two).
+    spans: bool,
+    taps: bool,
 }
 
 impl Stripe {
-    fn new(width: usize, y0: usize, y1: usize) -> Self {
-        Stripe { width, y0: y0 as i64, y1: y1 as i64, diff: vec![0.0; (y1 - y0) * (width + 2) * 4], direct: vec![0.0; (y1 - y0) * width * 4] }
+    /// Empty scratch; [`Stripe::reset`] sizes it.
+    pub fn new(width: usize) -> Self {
+        Stripe { width, y0: 0, y1: 0, diff: Vec::new(), direct: Vec::new(), spans: false, taps: false }
+    }
+
+    /// Starts accumulating rows `[y0, y1)` from zero, reusing the buffers.
+    pub fn reset(&mut self, y0: usize, y1: usize) {
+        let rows = y1 - y0;
+        (self.y0, self.y1) = (y0 as i64, y1 as i64);
+        let (nd, nt) = (rows * (self.width + 2) * 4, rows * self.width * 4);
+        if self.spans || self.diff.len() != nd {
+            self.diff.clear();
+            self.diff.resize(nd, 0.0);
+        }
+        if self.taps || self.direct.len() != nt {
+            self.direct.clear();
+            self.direct.resize(nt, 0.0);
+        }
+        (self.spans, self.taps) = (false, false);
     }
 
     pub fn rows(&self) -> (i64, i64) {
@@ -107,21 +133,53 @@ impl Stripe {
     fn add_diff(&mut self, row: i64, col: i64, v: [f32; 4], f: f64) {
         // Column index shifted by one: col may be -1 .. width (clipped spans write there).
         let col = col.clamp(-1, self.width as i64) + 1;
+        self.spans = true;
         let i = (((row - self.y0) as usize) * (self.width + 2) + col as usize) * 4;
         for c in 0..4 {
             self.diff[i + c] += v[c] as f64 * f;
         }
     }
 
-    /// Adds `v` to pixel (x, row) if inside the stripe and grid.
+    /// Adds `v·e[k]` to pixel `(x0 + k, row)` for each k (one stencil row), clipped to the
+    /// stripe and grid.
     #[inline]
-    pub fn tap(&mut self, x: i64, row: i64, v: [f32; 4]) {
-        if row < self.y0 || row >= self.y1 || x < 0 || x >= self.width as i64 {
+    pub fn tap_row(&mut self, x0: i64, row: i64, e: &[f32], v: [f32; 4]) {
+        if row < self.y0 || row >= self.y1 {
             return;
         }
-        let i = (((row - self.y0) as usize) * self.width + x as usize) * 4;
-        for c in 0..4 {
-            self.direct[i + c] += v[c];
+        let (ka, kb) = ((-x0).max(0) as usize, ((self.width as i64 - x0).max(0) as usize).min(e.len()));
+        if ka >= kb {
+            return;
+        }
+        self.taps = true;
+        let base = ((row - self.y0) as usize * self.width) as i64 + x0;
+        let dst = &mut self.direct[((base + ka as i64) * 4) as usize..((base + kb as i64) * 4) as usize];
+        for (o, &ek) in dst.chunks_exact_mut(4).zip(&e[ka..kb]) {
+            for c in 0..4 {
+                o[c] += v[c] * ek;
+            }
+        }
+    }
+
+    /// Adds the values of stripe row `r` (prefix sum of the spans plus the taps) to `out`
+    /// (`width * 4` f32).
+    pub fn add_row_to(&self, r: usize, out: &mut [f32]) {
+        let w = self.width;
+        let direct = &self.direct[r * w * 4..(r + 1) * w * 4];
+        if !self.spans {
+            if self.taps {
+                out.iter_mut().zip(direct).for_each(|(o, t)| *o += t);
+            }
+            return;
+        }
+        let d = &self.diff[r * (w + 2) * 4..(r + 1) * (w + 2) * 4];
+        // Column -1 holds spans clipped at the left edge: start the prefix sum there.
+        let mut acc = [d[0] as f64, d[1] as f64, d[2] as f64, d[3] as f64];
+        for (x, o) in out.chunks_exact_mut(4).enumerate() {
+            for c in 0..4 {
+                acc[c] += d[(x + 1) * 4 + c];
+                o[c] += acc[c] as f32 + direct[x * 4 + c];
+            }
         }
     }
 
@@ -173,27 +231,17 @@ where
     F: Fn(&mut Stripe) + Sync,
 {
     let (w, h) = (out.width, out.height);
-    out.data.par_chunks_mut(STRIPE_ROWS * w * 4).enumerate().for_each(|(s, chunk)| {
-        let y0 = s * STRIPE_ROWS;
-        let y1 = (y0 + STRIPE_ROWS).min(h);
-        let mut stripe = Stripe::new(w, y0, y1);
-        visit(&mut stripe);
-        for (r, row) in chunk.chunks_exact_mut(w * 4).enumerate() {
-            let d = &stripe.diff[r * (w + 2) * 4..(r + 1) * (w + 2) * 4];
-            let direct = &stripe.direct[r * w * 4..(r + 1) * w * 4];
-            let mut acc = [0f64; 4];
-            // Column -1 holds spans clipped at the left edge: start the prefix sum there.
-            for c in 0..4 {
-                acc[c] += d[c];
+    out.data.par_chunks_mut(STRIPE_ROWS * w * 4).enumerate().for_each_init(
+        || Stripe::new(w),
+        |stripe, (s, chunk)| {
+            let y0 = s * STRIPE_ROWS;
+            stripe.reset(y0, (y0 + STRIPE_ROWS).min(h));
+            visit(stripe);
+            for (r, row) in chunk.chunks_exact_mut(w * 4).enumerate() {
+                stripe.add_row_to(r, row);
             }
-            for x in 0..w {
-                for c in 0..4 {
-                    acc[c] += d[(x + 1) * 4 + c];
-                    row[x * 4 + c] += acc[c] as f32 + direct[x * 4 + c];
-                }
-            }
-        }
-    });
+        },
+    );
 }
 
 #[cfg(test)]
