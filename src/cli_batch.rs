@@ -100,7 +100,7 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         b.finish_and_clear();
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        crate::print_json(&summary)?;
     } else {
         eprintln!(
             "{} ok, {} skipped, {} failed{} in {:.1} s; summary in {}",

@@ -258,6 +258,17 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     Ok(cfg)
 }
 
+/// Prints `value` as pretty JSON on stdout. A reader that went away (`drbokeh ... --json |
+/// head`) is not an error: the outputs are already written.
+pub(crate) fn print_json<T: serde::Serialize>(value: &T) -> anyhow::Result<()> {
+    use std::io::Write;
+    let text = serde_json::to_string_pretty(value).context("cannot serialize the report")?;
+    match writeln!(std::io::stdout().lock(), "{text}") {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("cannot write to standard output"),
+        _ => Ok(()),
+    }
+}
+
 fn render(args: RenderArgs) -> anyhow::Result<()> {
     set_threads(args.opts.threads)?;
     let t0 = Instant::now();
@@ -304,7 +315,7 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         );
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report).context("cannot serialize the report")?);
+        print_json(&report)?;
     } else if !args.verbose {
         eprintln!("wrote {}", output.display());
     }

@@ -42,17 +42,12 @@ pub fn accumulator(width: usize, height: usize) -> Vec<f32> {
     acc
 }
 
-/// Turns a streaming accumulator into the linear RGB image, in place (no second full-size
-/// buffer: each pixel moves to a lower or equal offset).
-pub fn finish(width: usize, height: usize, mut acc: Vec<f32>) -> Image {
-    for i in 0..width * height {
-        for c in 0..3 {
-            acc[i * 3 + c] = acc[i * ACC_CHANNELS + c];
-        }
-    }
-    acc.truncate(width * height * 3);
-    acc.shrink_to_fit();
-    Image::from_vec(width, height, 3, acc).expect("accumulator size")
+/// Turns a streaming accumulator into the linear RGB image (allocates the 3-channel image; the
+/// accumulator is freed).
+pub fn finish(width: usize, height: usize, acc: Vec<f32>) -> Image {
+    let mut out = vec![0f32; width * height * 3];
+    out.par_chunks_exact_mut(3).zip(acc.par_chunks_exact(ACC_CHANNELS)).for_each(|(o, a)| o.copy_from_slice(&a[..3]));
+    Image::from_vec(width, height, 3, out).expect("accumulator size")
 }
 
 /// `out = Σ_l C_l·V_l·Π_{k<l}(1 - V_k)` with `C_l = ΣRGB_l / W_l`, layers front first (see

@@ -113,15 +113,17 @@ fn equivalent_radius(sigma: f32) -> f32 {
     (m * m + std::f32::consts::PI * std::f32::consts::PI / 27.0).sqrt()
 }
 
-/// `q` of a target (1 everywhere without occlusion).
-#[inline]
-fn defocus(d: f32, s: &RenderSettings) -> f32 {
-    if s.occlusion { focal_defocus(d, s.blur) } else { 1.0 }
+/// `|d|·K` below which a target is in the on-focal band: there `1 - q = exp(-3(|d|·K)²)`
+/// exceeds `BAND_EPS`. The band test uses this threshold, never `q` itself, so the survey
+/// and the stripes agree without evaluating the exponential twice.
+fn band_coc() -> f32 {
+    ((1.0 / BAND_EPS as f64).ln() / super::lens::STEP_GAIN as f64).sqrt() as f32
 }
 
+/// Whether a target at relative disparity `d` is in the on-focal band.
 #[inline]
-fn in_band(q: f32) -> bool {
-    1.0 - q > BAND_EPS
+fn in_band(d: f32, s: &RenderSettings, band_coc: f32) -> bool {
+    s.occlusion && d.abs() * s.blur < band_coc
 }
 
 /// Coarse level of a source: level ℓ ≥ 1 takes σ in `[r0·2^ℓ, r0·2^(ℓ+1))`; None below `2·r0`.
@@ -423,12 +425,39 @@ struct Scratch {
     row_b: Vec<f32>,
     row_u: Vec<f32>,
     tmp: Vec<f32>,
-    /// One stencil row's tap weights.
-    erow: Vec<f32>,
+    /// Tap weights per stencil row `-stencil_p..=stencil_p` (first column offset, weights)
+    /// of a source with scatter radius `stencil_sigma` (reused while σ repeats: in-focus
+    /// regions and planes of constant depth).
+    stencil_w: Vec<(i64, Vec<f32>)>,
+    stencil_sigma: f32,
     /// (accumulator, factor) pairs a source scatters into.
     dests: Vec<(usize, f32)>,
     sat: Vec<f64>,
     vis: Vec<f32>,
+}
+
+/// The exact taps `E(σ, r)` of a source with scatter radius `sigma` (energy density `dens`),
+/// per stencil row, out to `σ + STENCIL_TAIL`.
+fn stencil_weights(ctx: &Ctx, sigma: f32, dens: f32, out: &mut Vec<(i64, Vec<f32>)>) {
+    let rows = (2 * ctx.stencil_p + 1) as usize;
+    out.resize_with(rows, Default::default);
+    let reach = sigma + STENCIL_TAIL;
+    let fs = step_source_factor(sigma);
+    for (k, (jm_out, e)) in out.iter_mut().enumerate() {
+        let di = k as i64 - ctx.stencil_p;
+        e.clear();
+        // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
+        let (start, end) = (ctx.stencil_rows[k], ctx.stencil_rows[k + 1]);
+        let rem = reach * reach - (di * di) as f32;
+        if rem <= 0.0 || end == start {
+            continue;
+        }
+        let m = (end - start) / 2;
+        let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
+        let (a, b) = (start + m - jm, start + m + jm + 1);
+        e.extend(ctx.stencil_factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
+        *jm_out = jm as i64;
+    }
 }
 
 /// Counters the stripes add to.
@@ -466,6 +495,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
 
     // One pass over the layer: scatter radii, what is visible, and the on-focal band.
     let mut sigma = vec![0f32; w * h];
+    let bc = band_coc();
     let survey = sigma
         .par_chunks_mut(w)
         .zip(img.data.par_chunks(w * 5))
@@ -482,7 +512,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
                         sv.full_max = sv.full_max.max(*sg);
                     }
                 }
-                if in_band(defocus(d, s)) {
+                if in_band(d, s, bc) {
                     sv.band_pixels += 1;
                     sv.band_lo = sv.band_lo.min(d);
                     sv.band_hi = sv.band_hi.max(d);
@@ -605,14 +635,18 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
 
     // Targets of this stripe: q, and the band's nodes they need.
     sc.q.clear();
+    let bc = band_coc();
     let (mut blo, mut bhi) = (f32::INFINITY, f32::NEG_INFINITY);
     for i in y0 * w..y1 * w {
+        // q < 1 marks a band target; the others count as q = 1 (occlusion ≡ 1).
         let d = ctx.d(i);
-        let q = defocus(d, ctx.s);
-        if in_band(q) {
+        let q = if in_band(d, ctx.s, bc) {
             blo = blo.min(d);
             bhi = bhi.max(d);
-        }
+            focal_defocus(d, ctx.s.blur)
+        } else {
+            1.0
+        };
         sc.q.push(q);
     }
     let nodes = match ctx.band {
@@ -680,26 +714,21 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
             let dens = density(sig, ctx.unit);
             if sig < pr.stencil_max {
                 n_st += own_row as u64;
-                let reach = sig + STENCIL_TAIL;
-                let fs = step_source_factor(sig);
-                // Taps are sorted by row; visit only this stripe's rows.
+                if sig != sc.stencil_sigma {
+                    stencil_weights(ctx, sig, dens, &mut sc.stencil_w);
+                    sc.stencil_sigma = sig;
+                }
+                // Visit only this stripe's rows.
                 let (ra, rb) = ((y0i - sy).max(-ctx.stencil_p), (y1i - 1 - sy).min(ctx.stencil_p));
                 for di in ra..=rb {
-                    // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
-                    let (start, end) = (ctx.stencil_rows[(di + ctx.stencil_p) as usize], ctx.stencil_rows[(di + ctx.stencil_p + 1) as usize]);
-                    let m = (end - start) / 2;
-                    let rem = reach * reach - (di * di) as f32;
-                    if rem <= 0.0 || end == start {
+                    let (jm, ref e) = sc.stencil_w[(di + ctx.stencil_p) as usize];
+                    if e.is_empty() {
                         continue;
                     }
-                    let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
-                    let (a, b) = (start + m - jm, start + m + jm + 1);
-                    sc.erow.clear();
-                    sc.erow.extend(ctx.stencil_factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
                     for &(slot, f) in &sc.dests {
-                        sc.accs[slot].tap_row(sx - jm as i64, sy + di, &sc.erow, v.map(|c| c * f));
+                        sc.accs[slot].tap_row(sx - jm, sy + di, e, v.map(|c| c * f));
                     }
-                    ops += ((b - a) * sc.dests.len()) as u64;
+                    ops += (e.len() * sc.dests.len()) as u64;
                 }
             } else {
                 n_sp += own_row as u64;
@@ -760,7 +789,7 @@ fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>
                     c.grid.add_upsampled_row(y, c.factor, row_u, tmp);
                 }
                 for x in 0..w {
-                    if in_band(q[x]) {
+                    if q[x] < 1.0 {
                         let wk = band.hat(k, ctx.d(y * w + x));
                         if wk > 0.0 {
                             for c in 0..4 {
@@ -773,7 +802,7 @@ fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>
         }
         for (x, o) in out.chunks_exact_mut(5).enumerate() {
             let qi = q[x];
-            if !in_band(qi) {
+            if qi >= 1.0 {
                 continue;
             }
             let i = y * w + x;
@@ -797,27 +826,38 @@ fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>
 fn visibility_rows(img: &crate::Image, sigma: &[f32], p: usize, y0: usize, y1: usize, sat: &mut Vec<f64>, out: &mut Vec<f32>) {
     let (w, h) = (img.width, img.height);
     let nmax = sigma[y0 * w..y1 * w].iter().map(|&s| visibility_half_size(s, p)).max().unwrap_or(0);
+    out.clear();
+    // Every box lies in these rows; if their alpha is one constant (an opaque background, an
+    // empty part of a foreground layer), every mean is that constant, exactly.
+    let (ra, rb) = (y0.saturating_sub(nmax), (y1 + nmax).min(h));
+    let a0 = img.data[ra * w * 5 + A];
+    if img.data[ra * w * 5..rb * w * 5].chunks_exact(5).all(|px| px[A] == a0) {
+        out.resize((y1 - y0) * w, a0);
+        return;
+    }
     let (pw, ph) = (w + 2 * nmax, (y1 - y0) + 2 * nmax);
     sat.clear();
     sat.resize((pw + 1) * (ph + 1), 0.0);
     for yy in 0..ph {
         let sy = (y0 as i64 + yy as i64 - nmax as i64).clamp(0, h as i64 - 1) as usize;
         let src = &img.data[sy * w * 5..(sy + 1) * w * 5];
+        let (above, this) = sat[yy * (pw + 1)..(yy + 2) * (pw + 1)].split_at_mut(pw + 1);
         let mut row = 0f64;
-        for x in 0..pw {
-            let sx = (x as i64 - nmax as i64).clamp(0, w as i64 - 1) as usize;
-            row += src[sx * 5 + A] as f64;
-            sat[(yy + 1) * (pw + 1) + x + 1] = sat[yy * (pw + 1) + x + 1] + row;
+        // Replicate padding: the left and right margins repeat the edge pixels.
+        let alpha = std::iter::repeat_n(src[A], nmax).chain(src.chunks_exact(5).map(|px| px[A])).chain(std::iter::repeat_n(src[(w - 1) * 5 + A], nmax));
+        for ((t, &u), a) in this[1..].iter_mut().zip(&above[1..]).zip(alpha) {
+            row += a as f64;
+            *t = u + row;
         }
     }
-    out.clear();
+    let inv_area: Vec<f64> = (0..=nmax).map(|n| 1.0 / ((2 * n + 1) * (2 * n + 1)) as f64).collect();
     for y in y0..y1 {
         for x in 0..w {
             let n = visibility_half_size(sigma[y * w + x], p);
             let (cx, cy) = (x + nmax, y - y0 + nmax);
             let (xa, ya, xb, yb) = (cx - n, cy - n, cx + n + 1, cy + n + 1);
             let s = sat[yb * (pw + 1) + xb] - sat[ya * (pw + 1) + xb] - sat[yb * (pw + 1) + xa] + sat[ya * (pw + 1) + xa];
-            out.push((s / ((2 * n + 1) * (2 * n + 1)) as f64) as f32);
+            out.push((s * inv_area[n]) as f32);
         }
     }
 }

@@ -2,6 +2,7 @@
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+use rayon::prelude::*;
 
 /// Channel indices of a layer image.
 pub const R: usize = 0;
@@ -70,24 +71,34 @@ impl Layer {
 
     /// True if no pixel has alpha > 0: such a layer contributes nothing.
     pub fn is_transparent(&self) -> bool {
-        (0..self.image.pixel_count()).all(|i| self.alpha(i) <= 0.0)
+        self.image.data.par_chunks_exact(5).all(|px| px[A] <= 0.0)
     }
 
     /// Per-channel `[min, max]` of the colours of visible pixels (alpha > 0); `[0, 0]` when
     /// nothing is visible.
     pub fn colour_range(&self) -> [[f32; 2]; 3] {
-        let mut r = [[f32::INFINITY, f32::NEG_INFINITY]; 3];
-        for px in self.image.data.chunks_exact(5).filter(|px| px[A] > 0.0) {
-            for c in 0..3 {
-                r[c] = [r[c][0].min(px[c]), r[c][1].max(px[c])];
-            }
-        }
+        let empty = [[f32::INFINITY, f32::NEG_INFINITY]; 3];
+        let r = self
+            .image
+            .data
+            .par_chunks_exact(5)
+            .filter(|px| px[A] > 0.0)
+            .fold(
+                || empty,
+                |mut r, px| {
+                    for c in 0..3 {
+                        r[c] = [r[c][0].min(px[c]), r[c][1].max(px[c])];
+                    }
+                    r
+                },
+            )
+            .reduce(|| empty, |a, b| std::array::from_fn(|c| [a[c][0].min(b[c][0]), a[c][1].max(b[c][1])]));
         r.map(|c| if c[0] <= c[1] { c } else { [0.0, 0.0] })
     }
 
     /// True if every pixel has alpha ≥ 1.
     pub fn is_opaque(&self) -> bool {
-        (0..self.image.pixel_count()).all(|i| self.alpha(i) >= 1.0)
+        self.image.data.par_chunks_exact(5).all(|px| px[A] >= 1.0)
     }
 
     /// Applies `f` to the colour channels only (e.g. the official naive gamma).

@@ -84,8 +84,14 @@ pub fn min_visible_radius(img: &Image, sigma: &[f32]) -> f32 {
 pub fn max_scatter_radius(layers: &[Layer], blur: f32, focus: f32) -> f32 {
     layers
         .iter()
-        .flat_map(|l| (0..l.image().pixel_count()).filter(move |&i| l.alpha(i) > 0.0).map(move |i| l.disparity(i)))
-        .map(|d| lens::scatter_radius(d - focus, blur))
+        .map(|l| {
+            l.image()
+                .data
+                .par_chunks_exact(5)
+                .filter(|px| px[layer::A] > 0.0)
+                .map(|px| lens::scatter_radius(px[layer::D] - focus, blur))
+                .reduce(|| 1.0, f32::max)
+        })
         .fold(1.0, f32::max)
 }
 

@@ -38,7 +38,7 @@ impl Grid4 {
     /// edges. `tmp` is scratch (one grid row).
     pub fn add_upsampled_row(&self, y: usize, factor: f32, out: &mut [f32], tmp: &mut Vec<f32>) {
         let v = ((y as f32 + 0.5) / factor - 0.5).clamp(0.0, (self.height - 1) as f32);
-        let y0 = v.floor() as usize;
+        let y0 = v as usize;
         let y1 = (y0 + 1).min(self.height - 1);
         let fy = v - y0 as f32;
         // Vertical interpolation once per grid row, then horizontal per output pixel.
@@ -48,7 +48,8 @@ impl Grid4 {
         let last = (self.width - 1) as f32;
         for (x, o) in out.chunks_exact_mut(4).enumerate() {
             let u = ((x as f32 + 0.5) / factor - 0.5).clamp(0.0, last);
-            let x0 = u.floor() as usize;
+            // u ≥ 0: truncation is floor.
+            let x0 = u as usize;
             let x1 = (x0 + 1).min(self.width - 1);
             let fx = u - x0 as f32;
             for c in 0..4 {
@@ -192,7 +193,8 @@ impl Stripe {
         if r <= l {
             return;
         }
-        let (il, ir) = (l.floor() as i64, r.floor() as i64);
+        // l, r ≥ 0 here: truncation is floor (and avoids a libm call per span).
+        let (il, ir) = (l as i64, r as i64);
         if il == ir {
             self.add_diff(row, il, v, (r - l) as f64);
             self.add_diff(row, il + 1, v, -(r - l) as f64);
