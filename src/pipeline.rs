@@ -216,13 +216,15 @@ impl Pipeline {
                 Segmentation::Foreground(alpha) => {
                     let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
                     report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})));
-                    // How far from the visible region a filled value can still be seen: a
-                    // scatter radius, plus the visibility box, plus the soft-step tail.
-                    let reach = 2.0 * (max_coc + 1.0).ceil() + 4.0;
                     let t = Instant::now();
-                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, reach)?;
-                    report.ran("fill_depth", t, Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": reach})));
+                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, focus, blur)?;
+                    report.ran("fill_depth", t, Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": fd.reach})));
+                    // How deep under the foreground a background value can still be seen: the
+                    // foreground shows the background up to its visibility reach inside its
+                    // outline, and a background pixel scatters up to σ ≤ max CoC + 1 plus the
+                    // soft step's tail (disparities stay in [0, 1], so max_coc bounds σ).
                     let t = Instant::now();
+                    let reach = crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0);
                     let (bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
                         let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, &cfg.onnx)?;
                         report.warnings.extend(r.warnings.iter().cloned());

@@ -561,3 +561,54 @@ fn uniform_colour_stays_uniform_for_huge_blur() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// The pipeline fills the foreground's disparity only as far as a blur can show it (issue 5,
+/// "fill depth only where a blur can reveal the result"). The skip must be exact: giving every
+/// pixel beyond the foreground's visibility reach any other disparity in the layer's range
+/// changes no output pixel, with either kernel.
+#[test]
+fn depth_fill_skips_only_what_no_blur_can_show() {
+    let (w, h) = (72, 48);
+    let rgb = Image::stack(&[&random_plane(w, h, 11), &random_plane(w, h, 12), &random_plane(w, h, 13)]);
+    // A soft disk subject at disparity ~0.9 (slightly tilted) over a wall at 0.1..0.3.
+    let inside = |x: usize, y: usize| ((x as f32 - 30.0).powi(2) + (y as f32 - 22.0).powi(2)).sqrt();
+    let matte = plane(w, h, |x, y| (12.5 - inside(x, y)).clamp(0.0, 1.0));
+    let d = plane(w, h, |x, y| if inside(x, y) < 12.0 { 0.88 + 0.002 * x as f32 } else { 0.1 + 0.2 * x as f32 / w as f32 });
+    let scene = Scene { rgb, disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: Some(matte) };
+    for (focus, kernel) in [(0.9, "exact"), (0.2, "exact"), (0.9, "fast"), (0.5, "fast")] {
+        let mut cfg = Config::default();
+        cfg.render.blur = Some(12.0);
+        cfg.render.kernel = if kernel == "exact" { drbokeh::config::KernelChoice::Exact } else { drbokeh::config::KernelChoice::Fast };
+        let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(focus)).unwrap();
+        let p = &out.report.params;
+        let s = RenderSettings { blur: p.blur, focus: p.focus, lens: p.lens, occlusion: true };
+        let k = if kernel == "exact" { Kernel::Exact } else { Kernel::Fast { quality: 2 } };
+        assert_eq!(out.layers.len(), 2);
+        let fg = out.layers[0].image();
+        let (lo, hi) = fg.data.chunks_exact(5).map(|px| px[4]).fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        let reach = (((lo - focus).abs().max((hi - focus).abs()) * p.blur + 1.0) / 2.0).trunc() as i64 + 1;
+        let sees = |x: i64, y: i64| {
+            (-reach..=reach).any(|dy| (-reach..=reach).any(|dx| {
+                let (xx, yy) = ((x + dx).clamp(0, w as i64 - 1) as usize, (y + dy).clamp(0, h as i64 - 1) as usize);
+                fg.data[(yy * w + xx) * 5 + 3] > 0.0
+            }))
+        };
+        let mut rng = Rng::new(5);
+        let mut moved = fg.clone();
+        let mut n = 0;
+        for y in 0..h {
+            for x in 0..w {
+                if !sees(x as i64, y as i64) {
+                    moved.data[(y * w + x) * 5 + 4] = lo + (hi - lo) * rng.next_f32();
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 100, "the scene must have pixels beyond the reach ({n})");
+        let base = render::render(&out.layers, &s, k).unwrap();
+        let other = render::render(&[Layer::new(moved, "moved").unwrap(), out.layers[1].clone()], &s, k).unwrap();
+        assert_eq!(base.data, other.data, "focus {focus}, {kernel}: a disparity beyond the reach changed the render");
+        // And the pipeline's own render is that of its layers.
+        assert_eq!(out.image.data, base.data);
+    }
+}

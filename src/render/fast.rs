@@ -559,24 +559,24 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         .map(|j| {
             let bit = level_of(ctx.sigma[j], params.r0).map_or(0, |l| 1u64 << l);
             let class = band.map(|b| b.class(ctx.d(j)));
-            // Bit 0 marks that the class has any visible source at all.
+            // Bit 0 marks that the class has any visible source at all; [3] counts the
+            // sources hidden behind every node.
             let tag = bit | 1;
             match class {
-                Some(Class::Front) => [tag, tag, 0],
-                Some(Class::Partial) => [tag, 0, tag],
-                _ => [tag, 0, 0],
+                Some(Class::Front) => [tag, tag, 0, 0],
+                Some(Class::Partial) => [tag, 0, tag, 0],
+                Some(Class::Hidden) => [tag, 0, 0, 1],
+                None => [tag, 0, 0, 0],
             }
         })
-        .reduce(|| [0u64; 3], |a, b| [a[0] | b[0], a[1] | b[1], a[2] | b[2]]);
+        .reduce(|| [0u64; 4], |a, b| [a[0] | b[0], a[1] | b[1], a[2] | b[2], a[3] + b[3]]);
     ctx.has_front = masks[1] & 1 != 0;
     ctx.has_partial = masks[2] & 1 != 0;
     let ctx = ctx;
     let n_nodes = band.map_or(0, |b| b.n);
     stats.nodes = n_nodes;
     stats.passes = 1 + usize::from(ctx.has_front) + if ctx.has_partial { n_nodes } else { 0 };
-    if band.is_some() {
-        stats.band_sources_skipped = survey.visible - (0..w * h).into_par_iter().filter(|&j| img.data[j * 5 + A] > 0.0 && band.map(|b| b.class(ctx.d(j))) != Some(Class::Hidden)).count();
-    }
+    stats.band_sources_skipped = masks[3] as usize;
 
     let counts = Counts::default();
     // Coarse grids of every pass, indexed by slot (0 = A, 1 = F, 2 + k = U_k).
@@ -830,6 +830,11 @@ fn visibility_rows(img: &crate::Image, sigma: &[f32], p: usize, y0: usize, y1: u
     // Every box lies in these rows; if their alpha is one constant (an opaque background, an
     // empty part of a foreground layer), every mean is that constant, exactly.
     let (ra, rb) = (y0.saturating_sub(nmax), (y1 + nmax).min(h));
+    if nmax == 0 {
+        // Every box is the pixel itself.
+        out.extend(img.data[y0 * w * 5..y1 * w * 5].chunks_exact(5).map(|px| px[A]));
+        return;
+    }
     let a0 = img.data[ra * w * 5 + A];
     if img.data[ra * w * 5..rb * w * 5].chunks_exact(5).all(|px| px[A] == a0) {
         out.resize((y1 - y0) * w, a0);

@@ -77,6 +77,10 @@ pub fn density(sigma: f32, unit: f32) -> f32 {
 #[inline(always)]
 pub fn focal_defocus(d_target: f32, k: f32) -> f32 {
     let c = d_target.abs() * k;
+    if c == 0.0 {
+        // Exactly in focus (common: a plane at the focal depth); -expm1(-0) is 0.
+        return 0.0;
+    }
     if c >= 2.5 {
         // exp(-3·6.25) < 2^-26: the f32 result is exactly 1; skip the transcendental.
         return 1.0;

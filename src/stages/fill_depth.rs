@@ -6,7 +6,7 @@
 //! shrunk hard mask is kept and everything outside it is Telea-inpainted from it.
 
 use super::inpaint::{inpaint_telea, TeleaOptions};
-use super::mask::erode;
+use super::mask::{distance_in, distance_to, erode, grown_bbox};
 use crate::error::Result;
 use crate::image::Image;
 
@@ -33,13 +33,28 @@ pub struct FilledDepth {
     pub disparity: Image,
     /// Pixels whose disparity was inpainted.
     pub filled: usize,
-    /// Pixels outside the foreground left as they were because no blur can reach them.
+    /// Pixels outside the foreground that no blur can show: set to the core's disparity
+    /// nearest the focus instead of being inpainted.
     pub skipped: usize,
+    /// How far (pixels) from the core the fill reached.
+    pub reach: f32,
+    /// How far (pixels) outside its visible pixels the foreground layer can show: its largest
+    /// visibility box half-size, plus one.
+    pub visible_reach: f32,
 }
 
-/// Foreground disparity: `disp` inside the eroded mask `alpha > threshold`, inpainted outside
-/// up to `reach` pixels away (beyond that the layer is invisible; those pixels keep `disp`).
-pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions, reach: f32) -> Result<FilledDepth> {
+/// Foreground disparity: `disp` inside the eroded mask `alpha > threshold` (the core),
+/// Telea-inpainted outside it as far as a blur can show the result, and clamped to the core's
+/// disparity range (the foreground extended, not extrapolated past its own depths).
+///
+/// Why the fill can stop: a pixel of the foreground layer that is not visible (alpha 0) only
+/// matters through its visibility (eq. 4), the mean alpha over a box of half-size σ/2 sized by
+/// its own disparity. With every disparity in the core's range `[lo, hi]`, that box is at most
+/// `r = trunc((max|D - focus|·K + 1)/2)` pixels, so only pixels within `r` of a visible pixel
+/// can show the layer. The fill covers those (measured from the core: the farthest visible
+/// pixel's distance plus `r`, with a margin for the fast-marching metric); every pixel beyond
+/// gets the core disparity nearest the focus, which keeps its box small and its value unseen.
+pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions, focus: f32, blur: f32) -> Result<FilledDepth> {
     let (w, h) = (disp.width, disp.height);
     let hard: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
     let mut core = erode(&hard, w, h, opts.erode);
@@ -49,11 +64,35 @@ pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions
     }
     let mut out = disp.clone();
     if !core.iter().any(|&m| m) {
-        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0 });
+        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0 });
     }
+    let (lo, hi) = core.iter().zip(&disp.data).filter(|(c, _)| **c).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (_, &d)| (lo.min(d), hi.max(d)));
+    let coc = ((lo - focus).abs().max((hi - focus).abs()) * blur).min(1e9);
+    let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
+    // Distances from the core, on the visible pixels' box grown by the visibility reach (the
+    // core lies inside it): exact wherever the fill can matter.
+    let visible: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
+    let to_core = match grown_bbox(&visible, w, h, visible_reach + 2.0) {
+        Some(bb) => distance_in(&core, w, h, bb),
+        None => distance_to(&core, w, h),
+    };
+    let edge = to_core.iter().zip(&visible).filter(|(_, v)| **v).map(|(&d, _)| d).fold(0.0, f32::max);
+    // Fast marching overestimates Euclidean distance by a few percent on diagonals.
+    let reach = (edge + visible_reach) * 1.1 + 2.0;
     let unknown: Vec<bool> = core.iter().map(|&m| !m).collect();
     let filled = inpaint_telea(&mut out, &unknown, TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) })?;
-    out.map_inplace(|v| v.clamp(0.0, 1.0));
-    let total = unknown.iter().filter(|&&u| u).count();
-    Ok(FilledDepth { disparity: out, filled, skipped: total.saturating_sub(filled) })
+    let quiet = focus.clamp(lo, hi);
+    let mut skipped = 0;
+    for ((v, &u), &d) in out.data.iter_mut().zip(&unknown).zip(&to_core) {
+        if !u {
+            continue;
+        }
+        if d <= edge + visible_reach {
+            *v = v.clamp(lo, hi);
+        } else {
+            *v = quiet;
+            skipped += 1;
+        }
+    }
+    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach })
 }
