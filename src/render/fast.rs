@@ -203,13 +203,15 @@ struct Survey {
     sigma_max: f32,
     /// Largest σ of a visible source drawn at full resolution (below `2·r0`); 0 if none.
     full_max: f32,
+    /// The same over bright sources (a colour above 1): 0 if none.
+    bright_max: f32,
     band_pixels: usize,
     band_lo: f32,
     band_hi: f32,
 }
 
 impl Survey {
-    const EMPTY: Survey = Survey { visible: 0, sigma_min: f32::INFINITY, sigma_max: 1.0, full_max: 0.0, band_pixels: 0, band_lo: f32::INFINITY, band_hi: f32::NEG_INFINITY };
+    const EMPTY: Survey = Survey { visible: 0, sigma_min: f32::INFINITY, sigma_max: 1.0, full_max: 0.0, bright_max: 0.0, band_pixels: 0, band_lo: f32::INFINITY, band_hi: f32::NEG_INFINITY };
 
     fn merge(a: Survey, b: Survey) -> Survey {
         Survey {
@@ -217,6 +219,7 @@ impl Survey {
             sigma_min: a.sigma_min.min(b.sigma_min),
             sigma_max: a.sigma_max.max(b.sigma_max),
             full_max: a.full_max.max(b.full_max),
+            bright_max: a.bright_max.max(b.bright_max),
             band_pixels: a.band_pixels + b.band_pixels,
             band_lo: a.band_lo.min(b.band_lo),
             band_hi: a.band_hi.max(b.band_hi),
@@ -239,8 +242,9 @@ struct Ctx<'a> {
     p: usize,
     sigma: Vec<f32>,
     sigma_max: f32,
-    /// See `Survey::full_max`.
+    /// See `Survey::full_max` and `Survey::bright_max`.
     full_max: f32,
+    bright_max: f32,
     /// Weight unit of the layer (see `lens::weight_unit`).
     unit: f32,
     params: FastParams,
@@ -510,6 +514,9 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
                     sv.sigma_max = sv.sigma_max.max(*sg);
                     if *sg < 2.0 * params.r0 {
                         sv.full_max = sv.full_max.max(*sg);
+                        if px[0].max(px[1]).max(px[2]) > 1.0 {
+                            sv.bright_max = sv.bright_max.max(*sg);
+                        }
                     }
                 }
                 if in_band(d, s, bc) {
@@ -528,7 +535,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
     let unit = weight_unit(if survey.sigma_min.is_finite() { survey.sigma_min } else { 1.0 });
 
     let band = (survey.band_pixels > 0).then(|| Band::new(survey.band_lo, survey.band_hi, params.node_step));
-    let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
+    let stencil_reach = params.stencil_max.min(survey.sigma_max).max(survey.bright_max) + STENCIL_TAIL;
     let stencil: Vec<Tap> = disk_taps(s.lens).into_iter().filter(|t| t.r < stencil_reach).collect();
     let stencil_p = stencil.iter().map(|t| t.di.abs() as i64).max().unwrap_or(0);
     let stencil_rows: Vec<usize> = (-stencil_p..=stencil_p + 1).map(|di| stencil.partition_point(|t| (t.di as i64) < di)).collect();
@@ -545,6 +552,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         sigma,
         sigma_max: survey.sigma_max,
         full_max: survey.full_max,
+        bright_max: survey.bright_max,
         params,
         band,
         has_front: false,
@@ -687,7 +695,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
         return;
     }
     // The widest full-resolution footprint: a disk with its outer soft edge, or a stencil.
-    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0).max(pr.stencil_max.min(ctx.full_max) + STENCIL_TAIL);
+    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0).max(pr.stencil_max.min(ctx.full_max).max(ctx.bright_max) + STENCIL_TAIL);
     let pad0 = ctx.pad(reach0);
     let lattice = Window::Lattice(ctx.p as i64);
     let (y0i, y1i) = (y0 as i64, y1 as i64);
@@ -712,7 +720,10 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                 }
             }
             let dens = density(sig, ctx.unit);
-            if sig < pr.stencil_max {
+            // Bright (HDR) sources get the exact taps at every full-resolution radius: a disk's
+            // edge approximation errs in proportion to the source's value, and a highlight of
+            // 50 would turn an LDR-sized error into a visible one.
+            if sig < pr.stencil_max || (sig <= ctx.bright_max && v[0].max(v[1]).max(v[2]) > v[3]) {
                 n_st += own_row as u64;
                 if sig != sc.stencil_sigma {
                     stencil_weights(ctx, sig, dens, &mut sc.stencil_w);
