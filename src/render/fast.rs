@@ -30,7 +30,7 @@
 
 use super::aperture::{disk_taps, Tap};
 use super::layer::{Layer, A, D};
-use super::lens::{density, energy, focal_defocus, in_front, scatter_radius, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
+use super::lens::{density, energy, focal_defocus, in_front, scatter_radius, soft_step, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
 use super::splat::{accumulate, Grid4, Stripe, Window, STRIPE_ROWS};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
@@ -68,6 +68,9 @@ pub struct FastStats {
     /// coarse grids (per pass: a source in several passes counts in each).
     pub stencil_sources: usize,
     pub span_sources: usize,
+    /// Bright sources (above white, at most ~1% of the visible ones) drawn with their exact
+    /// footprint at any radius; counted once per stripe row they own.
+    pub bright_sources: usize,
     pub coarse_sources: usize,
     /// Target pixels in the on-focal band (where the occlusion term is computed).
     pub band_pixels: usize,
@@ -203,7 +206,7 @@ struct Survey {
     sigma_max: f32,
     /// Largest σ of a visible source drawn at full resolution (below `2·r0`); 0 if none.
     full_max: f32,
-    /// The same over bright sources (a colour above 1): 0 if none.
+    /// Largest σ of a visible bright source (a colour above 1, see [`is_bright`]); 0 if none.
     bright_max: f32,
     band_pixels: usize,
     band_lo: f32,
@@ -242,9 +245,11 @@ struct Ctx<'a> {
     p: usize,
     sigma: Vec<f32>,
     sigma_max: f32,
-    /// See `Survey::full_max` and `Survey::bright_max`.
+    /// See `Survey::full_max`; `bright_max` is `Survey::bright_max` for sources above
+    /// `bright_level` (see [`bright_level`]).
     full_max: f32,
     bright_max: f32,
+    bright_level: f32,
     /// Weight unit of the layer (see `lens::weight_unit`).
     unit: f32,
     params: FastParams,
@@ -380,6 +385,10 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                             continue;
                         }
                         let Some(v) = ctx.value(slot, j) else { continue };
+                        if is_bright(v[0].max(v[1]).max(v[2]), v[3], ctx.bright_level) {
+                            // Drawn exactly at full resolution (scan_sources).
+                            continue;
+                        }
                         let dens = density(sig, ctx.unit);
                         let wgt = (v[3] * dens) as f64;
                         if wgt <= 0.0 {
@@ -434,6 +443,8 @@ struct Scratch {
     /// regions and planes of constant depth).
     stencil_w: Vec<(i64, Vec<f32>)>,
     stencil_sigma: f32,
+    /// One rim row of a bright source.
+    rim: Vec<f32>,
     /// (accumulator, factor) pairs a source scatters into.
     dests: Vec<(usize, f32)>,
     sat: Vec<f64>,
@@ -464,9 +475,80 @@ fn stencil_weights(ctx: &Ctx, sigma: f32, dens: f32, out: &mut Vec<(i64, Vec<f32
     }
 }
 
+/// Whether a source whose largest premultiplied channel is `c` at alpha `a` is brighter than
+/// `level` (≥ 1, see [`bright_level`]): such sources are drawn exactly, see [`rim_disk`].
+#[inline]
+fn is_bright(c: f32, a: f32, level: f32) -> bool {
+    c > a * level
+}
+
+/// Most visible sources (fraction) drawn exactly as bright: their cost grows with σ.
+const BRIGHT_FRACTION: usize = 100;
+
+/// The colour above which a source counts as bright: 1 (white), raised when more than 1% of
+/// the visible sources are above white (a bright sky, an HDR photo exposed low) to the level
+/// that keeps the brightest 1%. Edge errors grow with a source's value relative to its
+/// surroundings, so the brightest sources are the ones that need the exact footprint, and the
+/// cap keeps the cost near-constant per pixel.
+fn bright_level(img: &crate::Image, visible: usize) -> f32 {
+    let mut above: Vec<f32> = img.data.par_chunks_exact(5).filter(|px| px[A] > 0.0).map(|px| px[0].max(px[1]).max(px[2])).filter(|&c| c > 1.0).collect();
+    let budget = (visible / BRIGHT_FRACTION).max(1);
+    if above.len() <= budget {
+        return 1.0;
+    }
+    let k = above.len() - budget - 1;
+    let (_, &mut kth, _) = above.select_nth_unstable_by(k, f32::total_cmp);
+    kth
+}
+
+/// Inside this distance from the edge (`r ≤ σ - RIM`) the soft step is within 6e-5 of 1.
+const RIM: f32 = 4.0;
+
+/// The exact footprint `E(σ, r)` of one source at integer position (sx, sy), clipped to the
+/// lens window `|offset| < p` and to the stripe, in O(σ) writes: per row, one span of the
+/// plateau (`r ≤ σ - RIM`, soft step taken as 1) and explicit taps on the rim out to
+/// `σ + STENCIL_TAIL`. Returns the number of writes.
+fn rim_disk(st: &mut Stripe, sx: i64, sy: i64, sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
+    let (y0, y1) = st.rows();
+    let (reach, inner) = (sigma + STENCIL_TAIL, sigma - RIM);
+    let rr = (reach.min(1e9).ceil() as i64).min(p);
+    let mut ops = 0;
+    for row in (sy - rr).max(y0)..=(sy + rr).min(y1 - 1) {
+        let dy = row - sy;
+        let rem = p * p - dy * dy;
+        if rem <= 0 {
+            continue;
+        }
+        // Largest |dx| inside the window (strict disk, as the official mask).
+        let m = ((rem as f64).sqrt().ceil() as i64 - 1).max(0);
+        let dyf = (dy * dy) as f32;
+        let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { continue };
+        let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
+        if xi >= 0 {
+            st.pixels(row, sx - xi, sx + xi, v.map(|c| c * dens));
+            ops += 4;
+        }
+        if xo > xi {
+            e.clear();
+            e.extend((xi + 1..=xo).map(|dx| dens * soft_step(sigma, ((dx * dx) as f32 + dyf).sqrt())));
+            st.tap_row(sx + xi + 1, row, e, v);
+            if xi >= 0 || xo > 0 {
+                // The left rim mirrors the right one (without the centre column when xi < 0).
+                let skip = usize::from(xi < 0);
+                e.reverse();
+                let left = &e[..e.len() - skip];
+                st.tap_row(sx - xo, row, left, v);
+            }
+            ops += 2 * e.len() as u64;
+        }
+    }
+    ops
+}
+
 /// Counters the stripes add to.
 #[derive(Default)]
 struct Counts {
+    bright: AtomicU64,
     stencil: AtomicU64,
     span: AtomicU64,
     skipped: AtomicU64,
@@ -514,9 +596,9 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
                     sv.sigma_max = sv.sigma_max.max(*sg);
                     if *sg < 2.0 * params.r0 {
                         sv.full_max = sv.full_max.max(*sg);
-                        if px[0].max(px[1]).max(px[2]) > 1.0 {
-                            sv.bright_max = sv.bright_max.max(*sg);
-                        }
+                    }
+                    if is_bright(px[0].max(px[1]).max(px[2]), 1.0, 1.0) {
+                        sv.bright_max = sv.bright_max.max(*sg);
                     }
                 }
                 if in_band(d, s, bc) {
@@ -535,10 +617,22 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
     let unit = weight_unit(if survey.sigma_min.is_finite() { survey.sigma_min } else { 1.0 });
 
     let band = (survey.band_pixels > 0).then(|| Band::new(survey.band_lo, survey.band_hi, params.node_step));
-    let stencil_reach = params.stencil_max.min(survey.sigma_max).max(survey.bright_max) + STENCIL_TAIL;
+    let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
     let stencil: Vec<Tap> = disk_taps(s.lens).into_iter().filter(|t| t.r < stencil_reach).collect();
     let stencil_p = stencil.iter().map(|t| t.di.abs() as i64).max().unwrap_or(0);
     let stencil_rows: Vec<usize> = (-stencil_p..=stencil_p + 1).map(|di| stencil.partition_point(|t| (t.di as i64) < di)).collect();
+    let (bright_level, bright_max) = if survey.bright_max > 0.0 {
+        let level = bright_level(img, survey.visible);
+        let max = if level > 1.0 {
+            let sig = &sigma;
+            img.data.par_chunks_exact(5).enumerate().filter(|(_, px)| px[A] > 0.0 && is_bright(px[0].max(px[1]).max(px[2]), 1.0, level)).map(|(i, _)| sig[i]).reduce(|| 0.0, f32::max)
+        } else {
+            survey.bright_max
+        };
+        (level, max)
+    } else {
+        (1.0, 0.0)
+    };
     let mut ctx = Ctx {
         img,
         s,
@@ -552,7 +646,8 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         sigma,
         sigma_max: survey.sigma_max,
         full_max: survey.full_max,
-        bright_max: survey.bright_max,
+        bright_max,
+        bright_level,
         params,
         band,
         has_front: false,
@@ -617,6 +712,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
     });
     stats.stencil_sources = counts.stencil.into_inner() as usize;
     stats.span_sources = counts.span.into_inner() as usize;
+    stats.bright_sources = counts.bright.into_inner() as usize;
     stats.coarse_sources = counts.coarse.into_inner() as usize;
     stats.band_stripes = counts.band_stripes.into_inner() as usize;
     stats.fast_ops = counts.ops.into_inner() as f64;
@@ -690,25 +786,32 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
     let (w, h) = (ctx.w, ctx.h);
     let rows = y1 - y0;
     let pr = ctx.params;
-    if ctx.full_max <= 0.0 {
+    if ctx.full_max <= 0.0 && ctx.bright_max <= 0.0 {
         // Every visible source lives on a coarse grid.
         return;
     }
-    // The widest full-resolution footprint: a disk with its outer soft edge, or a stencil.
-    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0).max(pr.stencil_max.min(ctx.full_max).max(ctx.bright_max) + STENCIL_TAIL);
+    // The widest full-resolution footprint: a disk with its outer soft edge, a stencil, or a
+    // bright source's exact rim.
+    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0).max(pr.stencil_max.min(ctx.full_max) + STENCIL_TAIL).max(ctx.bright_max + STENCIL_TAIL);
     let pad0 = ctx.pad(reach0);
     let lattice = Window::Lattice(ctx.p as i64);
     let (y0i, y1i) = (y0 as i64, y1 as i64);
-    let (mut n_st, mut n_sp, mut ops) = (0u64, 0u64, 0u64);
+    let (mut n_st, mut n_sp, mut n_br, mut ops) = (0u64, 0u64, 0u64, 0u64);
     for sy in (y0i - pad0).max(-pad0)..(y1i + pad0).min(h as i64 + pad0) {
         let own_row = sy >= y0i && sy < y1i;
         for sx in -pad0..w as i64 + pad0 {
+            // Counted once: in the stripe that owns it, not as a replicated border copy.
+            let own = (own_row && sx >= 0 && sx < w as i64) as u64;
             let j = ctx.clamp_index(sx, sy);
             let sig = ctx.sigma[j];
-            if sig >= 2.0 * pr.r0 {
+            if sig >= 2.0 * pr.r0 && sig > ctx.bright_max {
                 continue;
             }
             let Some(v) = ctx.base(j) else { continue };
+            let bright = is_bright(v[0].max(v[1]).max(v[2]), v[3], ctx.bright_level);
+            if sig >= 2.0 * pr.r0 && !bright {
+                continue;
+            }
             sc.dests.clear();
             sc.dests.push((0, 1.0));
             if let (Some((ka, kb)), Some(b)) = (nodes, ctx.band) {
@@ -720,11 +823,16 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                 }
             }
             let dens = density(sig, ctx.unit);
-            // Bright (HDR) sources get the exact taps at every full-resolution radius: a disk's
-            // edge approximation errs in proportion to the source's value, and a highlight of
-            // 50 would turn an LDR-sized error into a visible one.
-            if sig < pr.stencil_max || (sig <= ctx.bright_max && v[0].max(v[1]).max(v[2]) > v[3]) {
-                n_st += own_row as u64;
+            if sig >= pr.stencil_max && bright {
+                // Bright (HDR) sources, whatever their radius: a disk's edge approximation errs
+                // in proportion to the source's value (a highlight of 50 turns an LDR-sized
+                // error into a visible one), so draw the exact footprint at full resolution.
+                n_br += own;
+                for &(slot, f) in &sc.dests {
+                    ops += rim_disk(&mut sc.accs[slot], sx, sy, sig, dens, ctx.p as i64, v.map(|c| c * f), &mut sc.rim);
+                }
+            } else if sig < pr.stencil_max {
+                n_st += own;
                 if sig != sc.stencil_sigma {
                     stencil_weights(ctx, sig, dens, &mut sc.stencil_w);
                     sc.stencil_sigma = sig;
@@ -742,7 +850,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                     ops += (e.len() * sc.dests.len()) as u64;
                 }
             } else {
-                n_sp += own_row as u64;
+                n_sp += own;
                 let rho = equivalent_radius(sig);
                 // Small disks show their soft edge most: draw its profile there.
                 let edge = if pr.soft_edge || sig < 2.0 * pr.stencil_max { &SOFT_EDGE[..] } else { &HARD_EDGE[..] };
@@ -758,6 +866,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
 
     counts.stencil.fetch_add(n_st, Ordering::Relaxed);
     counts.span.fetch_add(n_sp, Ordering::Relaxed);
+    counts.bright.fetch_add(n_br, Ordering::Relaxed);
     counts.ops.fetch_add(ops, Ordering::Relaxed);
 }
 

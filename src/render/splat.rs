@@ -184,6 +184,14 @@ impl Stripe {
         }
     }
 
+    /// Adds `v` to pixels `x0..=x1` of `row` (one span), clipped to the grid; rows outside the
+    /// stripe are ignored.
+    pub fn pixels(&mut self, row: i64, x0: i64, x1: i64, v: [f32; 4]) {
+        if row >= self.y0 && row < self.y1 && x1 >= x0 {
+            self.span(row, x0 as f32, (x1 + 1) as f32, v);
+        }
+    }
+
     /// Adds `v` times the coverage of each pixel of `row` by the interval `[l, r]` in edge
     /// coordinates (pixel i covers [i, i+1]).
     #[inline]
