@@ -129,7 +129,7 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
     assert!(render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap().all_finite());
 }
 
-/// Sources above white get their exact footprint at any radius, but at most ~1% of them (the
+/// Sources above 1.25 (bright) get their exact footprint at any radius, but at most ~1% of them (the
 /// brightest), so a photo with a large bright area keeps its near-constant cost; a few
 /// highlights in an LDR scene are all drawn exactly.
 #[test]
@@ -137,7 +137,7 @@ fn bright_sources_are_exact_and_capped() {
     use drbokeh::bench::stress::two_layer_scene;
     use drbokeh::render::fast::{scatter_layer, FastParams};
     let (layers, s) = two_layer_scene(120, 90, 24.0, true);
-    // All of the background above white (a bright sky), with a few far brighter points.
+    // Most of the background bright (a bright sky), with a few far brighter points.
     let mut bg = layers[1].image().clone();
     for (i, px) in bg.data.chunks_exact_mut(5).enumerate() {
         let k = if i % 997 == 500 { 40.0 } else { 2.0 };
@@ -151,7 +151,7 @@ fn bright_sources_are_exact_and_capped() {
     assert!(st.bright_sources > 0 && st.bright_sources <= visible / 100 + 1, "{} bright sources of {visible}", st.bright_sources);
     let fast = render::render(&[layers[0].clone(), bg.clone()], &s, Kernel::Fast { quality: 2 }).unwrap();
     assert!(fast.all_finite());
-    // With only the few highlights above white, every one is drawn exactly. (Off the corners:
+    // With only the few highlights bright, every one is drawn exactly. (Off the corners:
     // a corner highlight is replicated by the border padding into a block of copies whose
     // colour magnifies the coarse grids' small weight error there.)
     let mut few = layers[1].image().clone();
