@@ -557,7 +557,6 @@ struct Counts {
     bright: AtomicU64,
     stencil: AtomicU64,
     span: AtomicU64,
-    skipped: AtomicU64,
     band_stripes: AtomicU64,
     ops: AtomicU64,
     coarse: AtomicU64,
@@ -723,7 +722,6 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
     stats.band_stripes = counts.band_stripes.into_inner() as usize;
     stats.fast_ops = counts.ops.into_inner() as f64;
     stats.work_saved = if stats.exact_taps > 0.0 { (1.0 - stats.fast_ops / stats.exact_taps).max(0.0) } else { 0.0 };
-    let _ = counts.skipped;
     stats
 }
 

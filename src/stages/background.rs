@@ -41,6 +41,13 @@ pub struct Background {
     pub skipped: usize,
 }
 
+/// The pixels the background fill replaces: covered by the foreground (`alpha > threshold`),
+/// grown by `dilate`.
+pub fn inpaint_mask(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
+    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
+    dilate(&covered, alpha.width, alpha.height, opts.dilate)
+}
+
 /// The region a background fill must cover, as a fast-marching reach from the visible
 /// background: background values are seen through the foreground wherever its visibility is
 /// below 1, i.e. within `see` pixels (visibility box plus a background scatter radius) of a
@@ -48,23 +55,19 @@ pub struct Background {
 /// reach inward accordingly. Computes the dilated mask and one distance transform.
 pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
     let (w, h) = (alpha.width, alpha.height);
-    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
-    let mask = dilate(&covered, w, h, opts.dilate);
+    let mask = inpaint_mask(alpha, opts);
     // Every masked pixel's nearest outside pixel lies within the mask's box grown by 1.
-    let Some(bb) = super::mask::grown_bbox(&mask, w, h, 1.0) else { return see * 1.1 + 2.0 };
+    let Some(bb) = super::mask::grown_bbox(&mask, w, h, 1.0) else { return super::mask::marching_reach(see) };
     let outside: Vec<bool> = mask.iter().map(|&m| !m).collect();
     let to_outside = super::mask::distance_in(&outside, w, h, bb);
     let deep = to_outside.iter().zip(&alpha.data).filter(|(d, a)| d.is_finite() && **a < 1.0).map(|(&d, _)| d).fold(0.0, f32::max);
-    // Fast marching overestimates Euclidean distance by a few percent on diagonals.
-    (deep + see) * 1.1 + 2.0
+    super::mask::marching_reach(deep + see)
 }
 
 /// Inpaints `rgb` and `disp` under the dilated foreground, up to `reach` pixels from the
 /// visible background (deeper pixels cannot be seen through any blur and keep their input).
 pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, reach: f32) -> Result<Background> {
-    let (w, h) = (rgb.width, rgb.height);
-    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
-    let mask = dilate(&covered, w, h, opts.dilate);
+    let mask = inpaint_mask(alpha, opts);
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };

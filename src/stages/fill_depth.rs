@@ -77,8 +77,7 @@ pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions
         None => distance_to(&core, w, h),
     };
     let edge = to_core.iter().zip(&visible).filter(|(_, v)| **v).map(|(&d, _)| d).fold(0.0, f32::max);
-    // Fast marching overestimates Euclidean distance by a few percent on diagonals.
-    let reach = (edge + visible_reach) * 1.1 + 2.0;
+    let reach = super::mask::marching_reach(edge + visible_reach);
     let unknown: Vec<bool> = core.iter().map(|&m| !m).collect();
     let filled = inpaint_telea(&mut out, &unknown, TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) })?;
     let quiet = focus.clamp(lo, hi);

@@ -10,7 +10,7 @@
 
 use super::background::{Background, InpaintOptions};
 use super::inpaint::{inpaint_telea, TeleaOptions};
-use super::mask::{dilate, distance_to};
+use super::mask::distance_to;
 use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::contract::SizeSpec;
@@ -76,8 +76,7 @@ fn paste(dst: &mut Image, filled: &Image, x0: usize, y0: usize, dist: &[f32], fe
 /// Returns the same [`Background`] as the classical stage, plus the model report.
 pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, reach: f32, cfg: &OnnxConfig) -> Result<(Background, OnnxReport)> {
     let (w, h) = (rgb.width, rgb.height);
-    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
-    let mask = dilate(&covered, w, h, opts.dilate);
+    let mask = super::background::inpaint_mask(alpha, opts);
     let mut model = onnx::load(&opts.onnx, ModelKind::Inpaint, cfg)?;
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();

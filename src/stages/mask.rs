@@ -58,6 +58,12 @@ pub fn distance_in(mask: &[bool], width: usize, height: usize, (x0, y0, x1, y1):
     out
 }
 
+/// A fast-marching `max_distance` (Telea) that surely covers every pixel within Euclidean
+/// distance `d`: fast marching overestimates distance by a few percent on diagonals.
+pub fn marching_reach(d: f32) -> f32 {
+    d * 1.1 + 2.0
+}
+
 /// Pixels within `radius` of the mask (disk structuring element).
 pub fn dilate(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<bool> {
     if radius <= 0.0 {
