@@ -175,3 +175,89 @@ fn f32_accumulation_error_of_large_windows() {
         assert!(rel < 1e-3);
     }
 }
+
+/// Mean of each RGB channel.
+fn channel_means(img: &Image) -> [f64; 3] {
+    let mut m = [0f64; 3];
+    for px in img.data.chunks_exact(3) {
+        for c in 0..3 {
+            m[c] += px[c] as f64;
+        }
+    }
+    m.map(|v| v / (img.width * img.height) as f64)
+}
+
+/// A textured opaque background and a soft-edged textured foreground disk, each with its own
+/// depth variation, `w × h`.
+fn disk_scene(w: usize, h: usize, seed: u64, fg_d: f32, bg_d: f32) -> Vec<Layer> {
+    let mut s = seed | 1;
+    let mut rnd = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let (cx, cy, rad) = (w as f32 * 0.45, h as f32 * 0.55, w.min(h) as f32 * 0.3);
+    let (mut fg, mut bg) = (Vec::new(), Vec::new());
+    for y in 0..h {
+        for x in 0..w {
+            let r = ((x as f32 + 0.5 - cx).powi(2) + (y as f32 + 0.5 - cy).powi(2)).sqrt();
+            let a = (rad + 0.5 - r).clamp(0.0, 1.0);
+            fg.extend_from_slice(&[0.2 + 0.6 * rnd(), 0.1 + 0.3 * rnd(), 0.7 * rnd(), a, fg_d + 0.05 * rnd()]);
+            bg.extend_from_slice(&[0.3 + 0.5 * rnd(), 0.2 + 0.6 * rnd(), 0.4 + 0.2 * rnd(), 1.0, bg_d + 0.05 * rnd()]);
+        }
+    }
+    vec![Layer::new(Image::from_vec(w, h, 5, fg).unwrap(), "fg").unwrap(), Layer::new(Image::from_vec(w, h, 5, bg).unwrap(), "bg").unwrap()]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 6, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Issue 10: every quality level × circles of confusion from 0 to far beyond the image ×
+    /// both kernels, with and without occlusion: the output is finite and keeps the light. The
+    /// exact kernel's mean stays near the input's (at huge blur it is the image's average);
+    /// every fast quality's mean stays near the exact kernel's.
+    #[test]
+    fn light_is_conserved_at_every_quality_and_coc(
+        shape in prop_oneof![Just((32usize, 24usize)), Just((17, 40)), Just((48, 9))],
+        focus in prop_oneof![Just(0.85f32), Just(0.5), Just(0.05), Just(0.9), Just(0.1)], seed in any::<u64>(),
+    ) {
+        let (w, h) = shape;
+        // Layers at disparities [0.9, 0.95] and [0.1, 0.15]. With the focus off both ranges,
+        // every layer's radii vary by a bounded ratio, and the exact mean must stay near the
+        // input's. With the focus on a layer's near edge, its few pixels right on the focal
+        // plane outweigh the rest at a huge blur (weights ∝ 1/σ²), which moves the exact mean
+        // legitimately: there only the fast kernel is compared (with the exact one).
+        let layers = disk_scene(w, h, seed, 0.9, 0.1);
+        let focus_off_layers = focus != 0.9 && focus != 0.1;
+        let input = channel_means(&render::alpha_composite(&layers));
+        // Every failing combination is listed, not only the first.
+        let mut failures = Vec::new();
+        // Largest CoC in pixels, about K·0.85 (the farthest layer's relative disparity).
+        for coc in [0.0f32, 0.4, 1.0, 3.0, 8.0, 20.0, 35.0, 60.0, 150.0, 1e3, 5e3, 1e5, 1e8] {
+            let blur = coc / 0.85;
+            for occlusion in [true, false] {
+                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion };
+                let exact = render::render(&layers, &s, Kernel::Exact).unwrap();
+                prop_assert!(exact.all_finite(), "exact: non-finite output at CoC {coc}");
+                let me = channel_means(&exact);
+                let worst = (0..3).map(|c| (me[c] - input[c]).abs() / input[c]).fold(0.0, f64::max);
+                // Loose: eq. 4's visibility box reads replicate-padded alpha, so at a blur as wide
+                // as the image it over-weights the border (16% off the input's mean seen here).
+                if focus_off_layers && worst >= 0.25 {
+                    failures.push(format!("exact, CoC {coc}, occlusion {occlusion}: mean {me:?} vs input {input:?} ({:.1}%)", worst * 100.0));
+                }
+                for quality in 1..=8 {
+                    let fast = render::render(&layers, &s, Kernel::Fast { quality }).unwrap();
+                    prop_assert!(fast.all_finite(), "fast q{quality}: non-finite output at CoC {coc}");
+                    let mf = channel_means(&fast);
+                    let worst = (0..3).map(|c| (mf[c] - me[c]).abs() / me[c]).fold(0.0, f64::max);
+                    if worst >= 0.03 {
+                        failures.push(format!("fast q{quality}, CoC {coc}, occlusion {occlusion}: mean {mf:?} vs exact {me:?} ({:.1}%)", worst * 100.0));
+                    }
+                }
+            }
+        }
+        prop_assert!(failures.is_empty(), "{} failing settings ({w}x{h}, focus {focus}):\n{}", failures.len(), failures.join("\n"));
+    }
+}

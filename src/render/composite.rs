@@ -27,7 +27,9 @@ pub fn over(raw: &[f32], range: &[[f32; 2]; 3], acc: &mut [f32]) {
     let (weight, vis) = (raw[3], raw[4]);
     let t = acc[3];
     let cover = t * vis;
-    if weight > 0.0 && cover > 0.0 {
+    // A NaN weight (a kernel bug) is carried into the result, never dropped as "no light":
+    // the renderer refuses non-finite output rather than writing a black pixel.
+    if (weight > 0.0 || weight.is_nan()) && cover > 0.0 {
         for c in 0..3 {
             acc[c] += (raw[c] / weight).clamp(range[c][0], range[c][1]) * cover;
         }

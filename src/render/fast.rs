@@ -30,7 +30,7 @@
 
 use super::aperture::{disk_taps, Tap};
 use super::layer::{Layer, A, D};
-use super::lens::{density, energy, focal_defocus, in_front, scatter_radius, soft_step, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
+use super::lens::{density, energy, focal_defocus, FACTORED_STEP_MAX, in_front, scatter_radius, soft_step, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
 use super::splat::{accumulate, Grid4, Stripe, Window, STRIPE_ROWS};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
@@ -129,6 +129,16 @@ fn in_band(d: f32, s: &RenderSettings, band_coc: f32) -> bool {
     s.occlusion && d.abs() * s.blur < band_coc
 }
 
+/// The radius a source is drawn with: its scatter radius σ, capped at `p + RIM` for a
+/// window of half-size `p`. Beyond `p + RIM` the soft step is within 6e-5 of 1 at every tap
+/// of the window, so the footprint is the window itself whatever σ is; only the energy
+/// density `1/σ²` still depends on σ. Without the cap a circle far larger than the image went
+/// to a coarse grid whose cells are larger than the window, and its light was lost.
+#[inline]
+fn drawn_radius(sigma: f32, p: usize) -> f32 {
+    sigma.min(p as f32 + RIM)
+}
+
 /// Coarse level of a source: level ℓ ≥ 1 takes σ in `[r0·2^ℓ, r0·2^(ℓ+1))`; None below `2·r0`.
 #[inline]
 fn level_of(sigma: f32, r0: f32) -> Option<usize> {
@@ -204,7 +214,8 @@ struct Survey {
     visible: usize,
     sigma_min: f32,
     sigma_max: f32,
-    /// Largest σ of a visible source drawn at full resolution (below `2·r0`); 0 if none.
+    /// Largest drawn radius (see [`drawn_radius`]) of a visible source drawn at full
+    /// resolution (below `2·r0`); 0 if none. `sigma_max` and `bright_max` are drawn radii too.
     full_max: f32,
     /// Largest σ of a visible bright source (a colour above 1, see [`is_bright`]); 0 if none.
     bright_max: f32,
@@ -258,8 +269,10 @@ struct Ctx<'a> {
     /// Whether the band passes have front / partial sources at all.
     has_front: bool,
     has_partial: bool,
-    /// Soft-step tap factors of the stencil taps (sorted by row offset), and where each row
-    /// offset `-stencil_p..=stencil_p` starts in them.
+    /// Distances of the stencil taps (sorted by row offset), their soft-step tap factors
+    /// (infinite beyond the factored form's range), and where each row offset
+    /// `-stencil_p..=stencil_p` starts in them.
+    stencil_r: Vec<f32>,
     stencil_factor: Vec<f32>,
     stencil_rows: Vec<usize>,
     stencil_p: i64,
@@ -381,7 +394,8 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                     for sx in (x0 + cj * f)..(x0 + (cj + 1) * f).min(x1) {
                         let j = ctx.clamp_index(sx, sy);
                         let sig = ctx.sigma[j];
-                        if sig < lo || sig >= hi {
+                        let drawn = drawn_radius(sig, ctx.p);
+                        if drawn < lo || drawn >= hi {
                             continue;
                         }
                         let Some(v) = ctx.value(slot, j) else { continue };
@@ -394,14 +408,14 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                         if wgt <= 0.0 {
                             continue;
                         }
-                        let b = (((sig - lo) / ff) as usize).min(bins - 1);
+                        let b = (((drawn - lo) / ff) as usize).min(bins - 1);
                         let a = &mut acc[b];
                         for c in 0..4 {
                             a[c] += (v[c] * dens) as f64;
                         }
                         a[4] += wgt * ((sx as f32 + 0.5) / ff - 0.5) as f64;
                         a[5] += wgt * ((sy as f32 + 0.5) / ff - 0.5) as f64;
-                        a[6] += wgt * (equivalent_radius(sig) / ff) as f64;
+                        a[6] += wgt * (equivalent_radius(drawn) / ff) as f64;
                         any = true;
                     }
                 }
@@ -470,7 +484,13 @@ fn stencil_weights(ctx: &Ctx, sigma: f32, dens: f32, out: &mut Vec<(i64, Vec<f32
         let m = (end - start) / 2;
         let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
         let (a, b) = (start + m - jm, start + m + jm + 1);
-        e.extend(ctx.stencil_factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
+        if sigma <= FACTORED_STEP_MAX {
+            e.extend(ctx.stencil_factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
+        } else {
+            // Beyond the factored form's range (quality 8 draws every radius as a stencil):
+            // the plain stable step, one exponential per tap.
+            e.extend(ctx.stencil_r[a..b].iter().map(|&r| dens * soft_step(sigma, r)));
+        }
         *jm_out = jm as i64;
     }
 }
@@ -598,12 +618,13 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
                 if px[A] > 0.0 {
                     sv.visible += 1;
                     sv.sigma_min = sv.sigma_min.min(*sg);
-                    sv.sigma_max = sv.sigma_max.max(*sg);
-                    if *sg < 2.0 * params.r0 {
-                        sv.full_max = sv.full_max.max(*sg);
+                    let drawn = drawn_radius(*sg, p);
+                    sv.sigma_max = sv.sigma_max.max(drawn);
+                    if drawn < 2.0 * params.r0 {
+                        sv.full_max = sv.full_max.max(drawn);
                     }
                     if is_bright(px[0].max(px[1]).max(px[2]), 1.0, BRIGHT_MIN) {
-                        sv.bright_max = sv.bright_max.max(*sg);
+                        sv.bright_max = sv.bright_max.max(drawn);
                     }
                 }
                 if in_band(d, s, bc) {
@@ -630,7 +651,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         let level = bright_level(img, survey.visible);
         let max = if level > BRIGHT_MIN {
             let sig = &sigma;
-            img.data.par_chunks_exact(5).enumerate().filter(|(_, px)| px[A] > 0.0 && is_bright(px[0].max(px[1]).max(px[2]), 1.0, level)).map(|(i, _)| sig[i]).reduce(|| 0.0, f32::max)
+            img.data.par_chunks_exact(5).enumerate().filter(|(_, px)| px[A] > 0.0 && is_bright(px[0].max(px[1]).max(px[2]), 1.0, level)).map(|(i, _)| drawn_radius(sig[i], p)).reduce(|| 0.0, f32::max)
         } else {
             survey.bright_max
         };
@@ -644,6 +665,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         w,
         h,
         p,
+        stencil_r: stencil.iter().map(|t| t.r).collect(),
         stencil_factor: stencil.iter().map(|t| step_tap_factor(t.r)).collect(),
         stencil_rows,
         stencil_p,
@@ -665,7 +687,7 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         .with_min_len(4096)
         .filter(|&j| img.data[j * 5 + A] > 0.0)
         .map(|j| {
-            let bit = level_of(ctx.sigma[j], params.r0).map_or(0, |l| 1u64 << l);
+            let bit = level_of(drawn_radius(ctx.sigma[j], p), params.r0).map_or(0, |l| 1u64 << l);
             let class = band.map(|b| b.class(ctx.d(j)));
             // Bit 0 marks that the class has any visible source at all; [3] counts the
             // sources hidden behind every node.
@@ -807,7 +829,8 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
             // Counted once: in the stripe that owns it, not as a replicated border copy.
             let own = (own_row && sx >= 0 && sx < w as i64) as u64;
             let j = ctx.clamp_index(sx, sy);
-            let sig = ctx.sigma[j];
+            // Footprint from the drawn radius, energy density from the true one.
+            let (sig, true_sig) = (drawn_radius(ctx.sigma[j], ctx.p), ctx.sigma[j]);
             if sig >= 2.0 * pr.r0 && sig > ctx.bright_max {
                 continue;
             }
@@ -826,7 +849,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                     Class::Hidden => {}
                 }
             }
-            let dens = density(sig, ctx.unit);
+            let dens = density(true_sig, ctx.unit);
             if sig >= pr.stencil_max && bright {
                 // Bright (HDR) sources, whatever their radius: a disk's edge approximation errs
                 // in proportion to the source's value (a highlight of 50 turns an LDR-sized
@@ -837,9 +860,11 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                 }
             } else if sig < pr.stencil_max {
                 n_st += own;
-                if sig != sc.stencil_sigma {
+                // Keyed by the true σ: two sources drawn with the same capped radius can
+                // still differ in density.
+                if true_sig != sc.stencil_sigma {
                     stencil_weights(ctx, sig, dens, &mut sc.stencil_w);
-                    sc.stencil_sigma = sig;
+                    sc.stencil_sigma = true_sig;
                 }
                 // Visit only this stripe's rows.
                 let (ra, rb) = ((y0i - sy).max(-ctx.stencil_p), (y1i - 1 - sy).min(ctx.stencil_p));

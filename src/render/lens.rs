@@ -46,11 +46,17 @@ pub fn soft_step(a: f32, b: f32) -> f32 {
 /// The soft step split into a source factor and a tap factor, for kernels that evaluate many
 /// taps of one source: `soft_step(σ, r) = 1 / (1 + step_source_factor(σ)·step_tap_factor(r))`.
 /// Same function as [`soft_step`] (to f32 rounding) while both factors are finite and non-zero,
-/// i.e. for `σ, r` below ~25 px; callers use it only there.
+/// i.e. for `σ, r` up to [`FACTORED_STEP_MAX`]; callers use it only there (beyond, `e^{3r}`
+/// overflows and `e^{ln10 - 3σ}` underflows, and their product is `0·inf = NaN`).
 #[inline(always)]
 pub fn step_source_factor(sigma: f32) -> f32 {
     (STEP_LN_OFFSET - STEP_GAIN * sigma).exp()
 }
+
+/// Largest `σ` and tap distance `r` (pixels) for which the factored soft step
+/// ([`step_source_factor`] · [`step_tap_factor`]) is used: `e^{3·25}` and `e^{ln10 - 3·25}`
+/// are both normal f32 numbers, with margin.
+pub const FACTORED_STEP_MAX: f32 = 25.0;
 
 /// See [`step_source_factor`].
 #[inline(always)]
@@ -146,6 +152,9 @@ mod tests {
                 assert!((f - soft_step(sigma, r)).abs() < 2e-6, "σ={sigma} r={r}");
             }
         }
+        // Both factors stay normal numbers up to the documented limit.
+        let (fs, fr) = (step_source_factor(FACTORED_STEP_MAX), step_tap_factor(FACTORED_STEP_MAX + 2.5));
+        assert!(fs.is_normal() && fr.is_normal(), "{fs} {fr}");
     }
 
     #[test]

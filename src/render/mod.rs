@@ -27,6 +27,16 @@ pub enum Kernel {
     Fast { quality: u32 },
 }
 
+impl Kernel {
+    /// The kernel's name as the CLI and reports spell it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Kernel::Exact => "exact",
+            Kernel::Fast { .. } => "fast",
+        }
+    }
+}
+
 /// Lens and model parameters of one render.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -167,7 +177,13 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
             }
         }
     }
-    Ok((composite::finish(w, h, acc), stats))
+    let out = composite::finish(w, h, acc);
+    // Finite layers and settings give finite output (see DESIGN.md); anything else is a
+    // kernel bug, reported as such instead of being written as a wrong image.
+    if !out.all_finite() {
+        return Err(Error::Internal(format!("the {} kernel produced non-finite pixels (blur {}, focus {}, lens {}); please report this", kernel.name(), s.blur, s.focus, s.lens)));
+    }
+    Ok((out, stats))
 }
 
 /// The per-layer raw renders, front first (stored whole: for tests against the official raws
