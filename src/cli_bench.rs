@@ -55,16 +55,6 @@ pub struct TraceArgs {
     verbose: bool,
 }
 
-/// Refuses an output path that is also one of the inputs.
-fn refuse_overwriting_input(output: &std::path::Path, inputs: &[PathBuf]) -> Result<(), Error> {
-    if let Ok(out) = std::fs::canonicalize(output) {
-        if inputs.iter().any(|i| std::fs::canonicalize(i).ok().as_deref() == Some(out.as_path())) {
-            return Err(Error::usage(format!("output {} is also an input; choose another -o", output.display())));
-        }
-    }
-    Ok(())
-}
-
 fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
     if let Some(n) = n {
         rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
@@ -75,7 +65,7 @@ fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
 pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     let t0 = Instant::now();
-    refuse_overwriting_input(&args.output, &args.layer)?;
+    drbokeh::io::InputFiles::new(&args.layer).check_write(&args.output, "output")?;
     io::OutputFormat::from_path(&args.output)?;
     let limits = ReadLimits::default();
     let planes = args

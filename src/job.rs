@@ -42,7 +42,15 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
     let focus = job.focus;
     let output = &job.output;
-    check_output(output, &job.inputs())?;
+    let inputs = io::InputFiles::new(job.inputs());
+    inputs.check_write(output, "output")?;
+    if let Some(dir) = &job.save_layers {
+        // Every name the layers may get (the pipeline makes one or two), before the run
+        // spends any time; `save_layers` checks again what it actually writes.
+        for n in [1, 2, job.layers.len()] {
+            inputs.check_writes(layer_file_names(dir, n).iter().flat_map(LayerFiles::all), "--save-layers file")?;
+        }
+    }
     io::OutputFormat::from_path(output)?;
     let t_read = Instant::now();
     let mut read_warnings = Vec::new();
@@ -100,7 +108,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
 
     if let Some(dir) = &job.save_layers {
         let t = Instant::now();
-        save_layers(dir, &layers)?;
+        save_layers(dir, &layers, &inputs)?;
         report.stages.push(stage("save_layers", t.elapsed().as_secs_f64() * 1e3));
     }
 
@@ -123,19 +131,6 @@ pub(crate) fn stage(name: &'static str, ms: f64) -> StageReport {
     StageReport { name, status: "ran", reason: None, ms, detail: None }
 }
 
-/// Refuses an output that would overwrite an input.
-pub fn check_output(output: &Path, inputs: &[PathBuf]) -> Result<()> {
-    let canon = |p: &Path| std::fs::canonicalize(p).ok();
-    if let Some(out) = canon(output) {
-        for i in inputs {
-            if canon(i).as_deref() == Some(out.as_path()) {
-                return Err(Error::usage(format!("output {} is also an input; choose another -o", output.display())));
-            }
-        }
-    }
-    Ok(())
-}
-
 /// Brings a depth map or matte to the photo's size: an equal aspect ratio is resized with a
 /// warning, a different one is an error naming both files.
 pub fn fit_to(map: Image, rgb: &Image, path: &Path, image_path: &Path, warnings: &mut Vec<String>) -> Result<Image> {
@@ -153,20 +148,60 @@ pub fn fit_to(map: Image, rgb: &Image, path: &Path, image_path: &Path, warnings:
     Ok(map.resized(rgb.width, rgb.height))
 }
 
-/// Writes each layer as `layerN.exr` (R,G,B,A,D; feed back with --layer) plus PNG previews.
-pub fn save_layers(dir: &Path, layers: &[Layer]) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let names: Vec<String> = match layers.len() {
-        2 => vec!["fg".into(), "bg".into()],
-        1 => vec!["bg".into()],
-        n => (0..n).map(|i| format!("layer{i}")).collect(),
+/// The files `--save-layers` writes for one layer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LayerFiles {
+    /// R, G, B, A, D in linear light: feed back with `--layer`.
+    pub exr: PathBuf,
+    /// Previews: sRGB colour, alpha, 16-bit disparity.
+    pub color: PathBuf,
+    pub alpha: PathBuf,
+    pub disparity: PathBuf,
+}
+
+impl LayerFiles {
+    /// The four paths.
+    pub fn all(&self) -> [&Path; 4] {
+        [&self.exr, &self.color, &self.alpha, &self.disparity]
+    }
+}
+
+/// Names of the files of `n` layers in `dir`, front first: `0_fg`, `1_bg` for the pipeline's
+/// two layers (`0_bg` for one, `00_layer` … for more), each as `NAME.exr` plus
+/// `NAME_color.png`, `NAME_alpha.png` and `NAME_disparity.png`. The index leads, zero-padded,
+/// so a shell glob (`--layer DIR/*.exr`) lists the layers front to back.
+pub fn layer_file_names(dir: &Path, n: usize) -> Vec<LayerFiles> {
+    let stems: Vec<String> = match n {
+        2 => vec!["0_fg".into(), "1_bg".into()],
+        1 => vec!["0_bg".into()],
+        n => {
+            let digits = n.saturating_sub(1).max(1).to_string().len();
+            (0..n).map(|i| format!("{i:0digits$}_layer")).collect()
+        }
     };
-    for (name, l) in names.iter().zip(layers) {
+    stems
+        .into_iter()
+        .map(|s| LayerFiles {
+            exr: dir.join(format!("{s}.exr")),
+            color: dir.join(format!("{s}_color.png")),
+            alpha: dir.join(format!("{s}_alpha.png")),
+            disparity: dir.join(format!("{s}_disparity.png")),
+        })
+        .collect()
+}
+
+/// Writes each layer (see [`layer_file_names`]); refuses, before writing anything, a file
+/// name that is one of the run's `inputs`.
+pub fn save_layers(dir: &Path, layers: &[Layer], inputs: &io::InputFiles) -> Result<()> {
+    let files = layer_file_names(dir, layers.len());
+    inputs.check_writes(files.iter().flat_map(LayerFiles::all), "--save-layers file")?;
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    for (f, l) in files.iter().zip(layers) {
         let img = l.image();
-        io::write_exr(&dir.join(format!("{name}.exr")), img, &["R", "G", "B", "A", "D"])?;
-        io::write_png(&dir.join(format!("{name}_color.png")), &img.select_channels(&[0, 1, 2]), 8, Transfer::Srgb)?;
-        io::write_png(&dir.join(format!("{name}_alpha.png")), &img.channel(3), 8, Transfer::Linear)?;
-        io::write_png(&dir.join(format!("{name}_disparity.png")), &img.channel(4), 16, Transfer::Linear)?;
+        io::write_exr(&f.exr, img, &["R", "G", "B", "A", "D"])?;
+        io::write_png(&f.color, &img.select_channels(&[0, 1, 2]), 8, Transfer::Srgb)?;
+        io::write_png(&f.alpha, &img.channel(3), 8, Transfer::Linear)?;
+        io::write_png(&f.disparity, &img.channel(4), 16, Transfer::Linear)?;
     }
     Ok(())
 }

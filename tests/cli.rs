@@ -461,18 +461,52 @@ fn bit_depth_16_writes_a_16_bit_png() {
 fn save_layers_writes_exr_layers_that_feed_back() {
     let s = Scene::new();
     s.ok(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "5", "--kernel", "exact", "--save-layers", "layers", "-o", "out.npy"]);
-    for f in ["fg.exr", "bg.exr", "fg_color.png", "fg_alpha.png", "fg_disparity.png", "bg_color.png", "bg_alpha.png", "bg_disparity.png"] {
+    for f in ["0_fg.exr", "1_bg.exr", "0_fg_color.png", "0_fg_alpha.png", "0_fg_disparity.png", "1_bg_color.png", "1_bg_alpha.png", "1_bg_disparity.png"] {
         assert!(s.path("layers").join(f).is_file(), "missing layers/{f}; have {:?}", s.files());
     }
-    let fg = io::read_layer(&s.path("layers/fg.exr"), &ReadLimits::default()).unwrap();
+    // A glob of the EXR files lists them front to back.
+    let mut exrs: Vec<String> = s.files().into_iter().filter(|f| f.starts_with("layers/") && f.ends_with(".exr")).collect();
+    exrs.sort();
+    assert_eq!(exrs, ["layers/0_fg.exr", "layers/1_bg.exr"]);
+    let fg = io::read_layer(&s.path("layers/0_fg.exr"), &ReadLimits::default()).unwrap();
     assert_eq!((fg.width, fg.height, fg.channels), (W, H, 5));
     // Alpha of the foreground layer is the matte.
     assert_eq!(fg.pixel(15, 11)[3], 1.0);
     assert_eq!(fg.pixel(0, 0)[3], 0.0);
     // Feeding the saved layers back renders the same picture.
-    s.ok(&["--layer", "layers/fg.exr", "--layer", "layers/bg.exr", "--focus", "1", "--blur", "5", "--kernel", "exact", "-o", "again.npy"]);
+    s.ok(&["--layer", "layers/0_fg.exr", "--layer", "layers/1_bg.exr", "--focus", "1", "--blur", "5", "--kernel", "exact", "-o", "again.npy"]);
     let e = max_abs_diff(&read_npy(&s.path("out.npy")).data, &read_npy(&s.path("again.npy")).data);
     assert!(e < 1e-6, "re-rendering the saved layers differs by {e}");
+}
+
+/// Issue 10: no file the tool writes may be a file the run reads, whatever its spelling
+/// (same name, another path to it, a hard or symbolic link): `-o` and every `--save-layers`
+/// file; refused before anything is written, the folder unchanged.
+#[test]
+fn writes_never_hit_an_input() {
+    let s = Scene::new();
+    std::fs::create_dir(s.path("L")).unwrap();
+    // Inputs living in the layer folder under layer-file names.
+    std::fs::copy(s.path("depth.exr"), s.path("L/0_fg.exr")).unwrap();
+    std::fs::copy(s.path("matte.png"), s.path("L/1_bg_alpha.png")).unwrap();
+    let base = ["image.png", "--focus", "1", "--blur", "4"];
+    let with = |extra: &[&'static str]| -> Vec<&'static str> { base.iter().copied().chain(extra.iter().copied()).collect() };
+    s.bad(&with(&["--depth", "L/0_fg.exr", "--matte", "matte.png", "--save-layers", "L", "-o", "o.png"]), &["L/0_fg.exr", "--save-layers"]);
+    s.bad(&with(&["--depth", "depth.exr", "--matte", "L/1_bg_alpha.png", "--save-layers", "L", "-o", "o.png"]), &["1_bg_alpha.png"]);
+    // The same file through another spelling of its path.
+    s.bad(&with(&["--depth", "L/0_fg.exr", "--matte", "matte.png", "--save-layers", "L/../L", "-o", "o.png"]), &["0_fg.exr"]);
+    // -o onto an input, by name and through links.
+    s.bad(&with(&["--depth", "depth.exr", "-o", "image.png"]), &["image.png"]);
+    #[cfg(unix)]
+    {
+        std::fs::hard_link(s.path("image.png"), s.path("hard.png")).unwrap();
+        std::os::unix::fs::symlink(s.path("image.png"), s.path("soft.png")).unwrap();
+        s.bad(&with(&["--depth", "depth.exr", "-o", "hard.png"]), &["hard.png", "image.png"]);
+        s.bad(&with(&["--depth", "depth.exr", "-o", "soft.png"]), &["soft.png"]);
+    }
+    // --layer inputs and --save-layers into their own folder.
+    s.ok(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "4", "--save-layers", "M", "-o", "m.png"]);
+    s.bad(&["--layer", "M/0_fg.exr", "--layer", "M/1_bg.exr", "--focus", "0", "--blur", "4", "--save-layers", "M", "-o", "n.png"], &["M/0_fg.exr"]);
 }
 
 #[test]
@@ -984,7 +1018,7 @@ fn save_layers_when_nothing_is_rendered() {
     let out = s.run(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "0", "--save-layers", "L", "-o", "o.png"]);
     assert!(out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    let wrote = s.path("L/fg.exr").is_file() && s.path("L/bg.exr").is_file();
+    let wrote = s.path("L/0_fg.exr").is_file() && s.path("L/1_bg.exr").is_file();
     assert!(wrote || err.contains("layers"), "no layers in L/ ({:?}) and no warning: {err}", s.files());
 }
 

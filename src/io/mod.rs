@@ -3,7 +3,7 @@
 //! One file per concern: [`format`] (detection by magic bytes then extension, panic guard),
 //! [`limits`] (decompression-bomb limits), [`image_file`] (photos and generic rasters),
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
-//! [`atomic`] (temp file + rename).
+//! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads).
 //!
 //! Every error names the file and says what is wrong. Untrusted input never makes the
 //! readers panic or allocate beyond [`ReadLimits`]: header dimensions are checked before
@@ -13,6 +13,7 @@ pub mod atomic;
 pub mod depth;
 pub mod exr_file;
 pub mod format;
+pub mod guard;
 pub mod image_file;
 pub mod layer;
 pub mod limits;
@@ -24,6 +25,7 @@ pub mod write;
 pub use depth::{read_depth, read_depth_map, DepthMap};
 pub use exr_file::{read_exr_channels, write_exr, ExrChannel, ExrChannels};
 pub use format::{detect_format, FileFormat, SUPPORTED_INPUT_EXTENSIONS};
+pub use guard::InputFiles;
 pub use image_file::{read_decoded, read_photo, Decoded, Encoding};
 pub use layer::{read_layer, LAYER_CHANNELS};
 pub use limits::ReadLimits;
