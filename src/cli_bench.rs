@@ -1,7 +1,7 @@
 //! The `trace` and `bench` subcommands: flag parsing and progress display; the work is in
 //! `drbokeh::bench::{trace, run}`.
 
-use anyhow::Context;
+use crate::set_threads;
 use clap::{Args, ValueEnum};
 use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
 use drbokeh::bench::trace::{self, Footprint, Plane, TraceSettings, Window};
@@ -55,12 +55,6 @@ pub struct TraceArgs {
     verbose: bool,
 }
 
-fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
-    if let Some(n) = n {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
-    }
-    Ok(())
-}
 
 pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
@@ -145,11 +139,25 @@ pub struct BenchArgs {
 fn parse_size(s: &str) -> Result<(usize, usize), String> {
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WxH, e.g. 256x256, got '{s}'"))?;
     let p = |v: &str| v.trim().parse::<usize>().map_err(|_| format!("expected WxH, e.g. 256x256, got '{s}'"));
-    Ok((p(w)?, p(h)?))
+    let (w, h) = (p(w)?, p(h)?);
+    // Generated scenes are traced at up to thousands of rays per pixel: larger frames would
+    // run for days (and 100000x100000 aborted allocating 45 GB).
+    if !(BENCH_SIDES.contains(&w) && BENCH_SIDES.contains(&h)) {
+        return Err(format!("each side must be {} to {} pixels, got {w}x{h}", BENCH_SIDES.start(), BENCH_SIDES.end()));
+    }
+    Ok((w, h))
 }
+
+/// Accepted frame sides of generated bench scenes.
+const BENCH_SIDES: std::ops::RangeInclusive<usize> = 8..=4096;
+/// Peak bytes per pixel of one bench scene (planes, exact layers, traced truth, every
+/// method's render and the crops), with margin.
+const BENCH_BYTES_PER_PIXEL: u64 = 600;
 
 pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
+    let (w, h) = args.size;
+    drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
     let methods = if args.methods.is_empty() {
         Method::ALL.to_vec()
     } else {

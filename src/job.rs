@@ -52,6 +52,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         }
     }
     io::OutputFormat::from_path(output)?;
+    preflight(job, cfg)?;
     let t_read = Instant::now();
     let mut read_warnings = Vec::new();
     let outcome: Outcome = if !job.layers.is_empty() {
@@ -131,19 +132,72 @@ pub(crate) fn stage(name: &'static str, ms: f64) -> StageReport {
     StageReport { name, status: "ran", reason: None, ms, detail: None }
 }
 
+/// Cheap checks before anything is decoded or rendered, from file headers and the file
+/// system: the output folder is writable, depth map and matte have the photo's aspect ratio,
+/// and the run fits in the memory available.
+fn preflight(job: &Job, cfg: &Config) -> Result<()> {
+    check_writable_folder(&job.output)?;
+    if let Some(dir) = &job.save_layers {
+        if dir.is_dir() {
+            check_writable_folder(&dir.join("x"))?;
+        }
+    }
+    let probe = crate::resources::probe_dimensions;
+    if let Some((image, (w, h))) = job.image.as_ref().and_then(|p| probe(p).map(|d| (p, d))) {
+        for map in job.depth.iter().chain(&job.matte) {
+            if let Some((mw, mh)) = probe(map) {
+                check_aspect((mw as usize, mh as usize), (w as usize, h as usize), map, image)?;
+            }
+        }
+        let pixels = w.saturating_mul(h).min(cfg.input.max_pixels);
+        let need = pixels.saturating_mul(crate::resources::RENDER_BYTES_PER_PIXEL);
+        crate::resources::check_memory(&format!("{} ({w}x{h}) through the pipeline", image.display()), need)?;
+    } else if let Some((first, (w, h))) = job.layers.first().and_then(|p| probe(p).map(|d| (p, d))) {
+        let need = w.saturating_mul(h).saturating_mul(crate::resources::layers_bytes_per_pixel(job.layers.len()));
+        crate::resources::check_memory(&format!("{} layers of {w}x{h} (as {})", job.layers.len(), first.display()), need)?;
+    }
+    Ok(())
+}
+
+/// Refuses an output whose folder is missing or not writable, by creating and removing a
+/// probe file there (permissions alone miss read-only mounts and ACLs).
+fn check_writable_folder(output: &Path) -> Result<()> {
+    let dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        return Err(Error::input(dir, format!("the folder of the output {} does not exist", output.display())));
+    }
+    let probe = dir.join(format!(".drbokeh-probe-{}", std::process::id()));
+    match std::fs::OpenOptions::new().write(true).create_new(true).open(&probe) {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        // A probe left by a killed run with our pid: the folder is writable.
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => Err(Error::input(dir, format!("cannot write the output {} here: {e}", output.display()))),
+    }
+}
+
+/// Refuses a depth map or matte of `map` size whose aspect ratio differs from the photo's
+/// `rgb` size by more than 1%, naming both files.
+fn check_aspect(map: (usize, usize), rgb: (usize, usize), path: &Path, image_path: &Path) -> Result<()> {
+    let (a, b) = (map.0 as f64 / map.1 as f64, rgb.0 as f64 / rgb.1 as f64);
+    if (a / b - 1.0).abs() > 0.01 {
+        return Err(Error::input(path, format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.0, map.1, image_path.display(), rgb.0, rgb.1)));
+    }
+    Ok(())
+}
+
 /// Brings a depth map or matte to the photo's size: an equal aspect ratio is resized with a
 /// warning, a different one is an error naming both files.
 pub fn fit_to(map: Image, rgb: &Image, path: &Path, image_path: &Path, warnings: &mut Vec<String>) -> Result<Image> {
     if (map.width, map.height) == (rgb.width, rgb.height) {
         return Ok(map);
     }
-    let (a, b) = (map.width as f64 / map.height as f64, rgb.width as f64 / rgb.height as f64);
-    if (a / b - 1.0).abs() > 0.01 {
-        return Err(Error::input(
-            path,
-            format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.width, map.height, image_path.display(), rgb.width, rgb.height),
-        ));
-    }
+    check_aspect((map.width, map.height), (rgb.width, rgb.height), path, image_path)?;
     warnings.push(format!("{} is {}x{}; resized to the image's {}x{}", path.display(), map.width, map.height, rgb.width, rgb.height));
     Ok(map.resized(rgb.width, rgb.height))
 }

@@ -16,6 +16,7 @@ pub mod job;
 pub mod onnx;
 pub mod pipeline;
 pub mod render;
+pub mod resources;
 pub mod stages;
 
 pub use error::{Error, Result};

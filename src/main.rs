@@ -158,7 +158,8 @@ pub(crate) struct PipelineArgs {
 
 pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
     if let Some(n) = n {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().context("cannot set the thread count")?;
+        let n = drbokeh::resources::check_threads(n, "--threads")?;
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("cannot set the thread count")?;
     }
     Ok(())
 }
@@ -250,12 +251,18 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
             DepthKindArg::Disparity => DepthKind::Disparity,
         };
     }
-    let flag = |e: Error| match e {
-        Error::Usage(m) => Error::Usage(m.replace("render.blur", "--blur").replace("render.lens", "--lens").replace("render.gamma", "--gamma").replace("render.quality", "--quality")),
-        other => other,
-    };
-    cfg.validate().map_err(flag)?;
+    cfg.validate().map_err(as_flags)?;
     Ok(cfg)
+}
+
+/// The library names parameters by their config keys (`render.lens`); on the command line
+/// they are flags.
+pub(crate) fn as_flags(e: Error) -> Error {
+    const KEYS: [(&str, &str); 5] = [("render.blur", "--blur"), ("render.lens", "--lens"), ("render.gamma", "--gamma"), ("render.quality", "--quality"), ("render.focus", "--focus")];
+    match e {
+        Error::Usage(m) => Error::Usage(KEYS.iter().fold(m, |m, (key, flag)| m.replace(key, flag))),
+        other => other,
+    }
 }
 
 /// Prints `value` as pretty JSON on stdout. A reader that went away (`drbokeh ... --json |
@@ -293,12 +300,20 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         }),
         save_layers: args.save_layers.clone(),
     };
-    let pipeline = Pipeline::from_config(cfg)?;
-    let mut report = job::run(&pipeline, &job)?;
+    // Warnings that matter before the run ends (a long exact render) are printed at once;
+    // the rest after the run.
+    let shown = std::sync::Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let seen = shown.clone();
+    let pipeline = Pipeline::from_config(cfg)?.with_notice(Box::new(move |m| {
+        eprintln!("warning: {m}");
+        seen.lock().map(|mut s| s.push(m.to_owned())).ok();
+    }));
+    let mut report = job::run(&pipeline, &job).map_err(as_flags)?;
     report.total_ms = t0.elapsed().as_secs_f64() * 1e3;
     let output = job.output;
 
-    for w in &report.warnings {
+    let shown = shown.lock().map(|s| s.clone()).unwrap_or_default();
+    for w in report.warnings.iter().filter(|w| !shown.contains(w)) {
         eprintln!("warning: {w}");
     }
     if args.verbose {
@@ -316,7 +331,7 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     }
     if args.json {
         print_json(&report)?;
-    } else if !args.verbose {
+    } else {
         eprintln!("wrote {}", output.display());
     }
     Ok(())

@@ -98,10 +98,18 @@ pub struct Outcome {
     pub report: Report,
 }
 
+/// Receives a warning the moment it is known (a long exact render is announced before it
+/// starts, not in the report after it).
+pub type Notice = Box<dyn Fn(&str) + Send + Sync>;
+
 /// The configured pipeline.
 pub struct Pipeline {
     config: Config,
+    notice: Option<Notice>,
 }
+
+/// An exact-kernel render estimated to take longer than this (seconds) is announced.
+const LONG_EXACT_SECONDS: f64 = 60.0;
 
 /// Default blur strength for an image: the official K = 30 at 1 MP, scaled with the image's
 /// linear size so the look does not change with resolution.
@@ -112,7 +120,21 @@ pub fn default_blur(width: usize, height: usize) -> f32 {
 impl Pipeline {
     pub fn from_config(config: Config) -> Result<Self> {
         config.validate()?;
-        Ok(Pipeline { config })
+        Ok(Pipeline { config, notice: None })
+    }
+
+    /// Calls `notice` with warnings that matter before a stage ends (they are in the
+    /// report's warnings as well).
+    pub fn with_notice(mut self, notice: Notice) -> Self {
+        self.notice = Some(notice);
+        self
+    }
+
+    fn warn_now(&self, report: &mut Report, msg: String) {
+        if let Some(n) = &self.notice {
+            n(&msg);
+        }
+        report.warnings.push(msg);
     }
 
     pub fn config(&self) -> &Config {
@@ -301,6 +323,9 @@ impl Pipeline {
             KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),
         };
         render::validate(&layers, &s)?;
+        if kernel == Kernel::Exact {
+            self.check_exact_cost(w, h, lens, &layers, &mut report)?;
+        }
         let t = Instant::now();
         // A fully transparent layer adds nothing and hides nothing: skip it.
         let (shown, empty): (Vec<usize>, Vec<usize>) = (0..layers.len()).partition(|&i| !layers[i].is_transparent());
@@ -324,6 +349,25 @@ impl Pipeline {
     }
 
     #[allow(clippy::too_many_arguments)]
+    /// The exact kernel lists its window's taps (12 bytes each) and visits every one per
+    /// pixel: refuse what cannot fit, announce what will take minutes.
+    fn check_exact_cost(&self, w: usize, h: usize, lens: usize, layers: &[Layer], report: &mut Report) -> Result<()> {
+        let taps = render::aperture::disk_tap_count(lens);
+        let shown = layers.iter().filter(|l| !l.is_transparent()).count();
+        let bytes = taps.saturating_mul(std::mem::size_of::<render::aperture::Tap>() as u64) + (w * h) as u64 * crate::resources::layers_bytes_per_pixel(layers.len());
+        crate::resources::check_memory(&format!("the exact kernel's {lens}x{lens} window on {w}x{h} layers"), bytes)?;
+        let threads = rayon::current_num_threads();
+        let secs = render::exact_seconds((w * h) as u64, lens, shown, threads);
+        if secs > LONG_EXACT_SECONDS {
+            let when = if secs < 5400.0 { format!("{:.0} minutes", secs / 60.0) } else { format!("{:.1} hours", secs / 3600.0) };
+            self.warn_now(
+                report,
+                format!("the exact kernel will take about {when} here ({w}x{h} pixels x {taps} taps x {shown} layer(s) on {threads} threads); the fast kernel at quality 8 converges to it in a fraction of that"),
+            );
+        }
+        Ok(())
+    }
+
     fn params(&self, w: usize, h: usize, blur: f32, focus: f32, lens: usize, kernel: &str, layers: usize, max_coc: f32) -> UsedParams {
         UsedParams {
             width: w,

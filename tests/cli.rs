@@ -1063,3 +1063,71 @@ fn corrupt_files_behind_valid_magic() {
         s.bad(&["--layer", n, "--focus", "1", "--blur", "2", "-o", "o.png"], &[n]);
     }
 }
+
+/// A PNG whose header declares `w × h` RGB pixels, followed by a few bytes of image data
+/// (far too few to decode).
+fn png_header_only(w: u32, h: u32) -> Vec<u8> {
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = w.to_be_bytes().to_vec();
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+    for (name, data) in [(&b"IHDR"[..], &ihdr[..]), (b"IDAT", &[0x78, 0x9c, 0, 0][..])] {
+        png.extend_from_slice(&(data.len() as u32).to_be_bytes());
+        let mut chunk = name.to_vec();
+        chunk.extend_from_slice(data);
+        png.extend_from_slice(&chunk);
+        png.extend_from_slice(&crc32(&chunk).to_be_bytes());
+    }
+    png
+}
+
+/// Issue 10: every size a user gives is bounded by what the image or the machine can use, and
+/// cheap checks come before decoding: exit 2 with a message naming the flag or file.
+#[test]
+fn sizes_are_bounded_and_checked_before_work() {
+    let s = Scene::new();
+    let base = ["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "4"];
+    let with = |extra: &[&'static str]| -> Vec<&'static str> { base.iter().copied().chain(extra.iter().copied()).collect() };
+    // A 32x24 image can use a window of at most 2·40 + 1 = 81.
+    s.ok(&with(&["--lens", "81", "-o", "l81.png"]));
+    let e = s.bad(&with(&["--lens", "100001", "-o", "o.png"]), &["--lens", "100001", "81"]);
+    assert!(!e.contains("render.lens"), "{e}");
+    s.bad(&with(&["--lens", "83", "-o", "o.png"]), &["--lens"]);
+    s.bad(&with(&["--threads", "100000", "-o", "o.png"]), &["--threads", "100000"]);
+    s.bad(&with(&["--threads", "0", "-o", "o.png"]), &["--threads"]);
+    // The output folder is checked before a (here undecodable) photo is read.
+    std::fs::write(s.path("broken.png"), b"\x89PNG\r\n\x1a\nnot really").unwrap();
+    s.bad(&["broken.png", "--depth", "depth.exr", "--focus", "1", "-o", "missing/o.png"], &["missing"]);
+    // A depth map of another aspect ratio is refused from its header, before decoding.
+    std::fs::write(s.path("tall_header.png"), png_header_only(24, 32)).unwrap();
+    s.bad(&["image.png", "--depth", "tall_header.png", "--focus", "1", "-o", "o.png"], &["tall_header.png", "aspect"]);
+    // bench frames are bounded too.
+    let out = Command::new(env!("CARGO_BIN_EXE_drbokeh")).args(["bench", "--size", "100000x100000", "--out", "b"]).current_dir(s.path(".")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--size"));
+}
+
+/// Issue 10: a photo whose header declares more pixels than the memory available can render
+/// is refused from its header (exit 2, naming the file and both sizes) instead of aborting
+/// in an allocation. The limit is an address-space ulimit of 3 GB; the header says 10000 x
+/// 10000 (about 12 GB to render).
+#[cfg(target_os = "linux")]
+#[test]
+fn a_photo_that_cannot_fit_in_memory_is_refused_before_decoding() {
+    let s = Scene::new();
+    std::fs::write(s.path("huge.png"), png_header_only(10_000, 10_000)).unwrap();
+    io::write_exr(&s.path("huge_depth.exr"), &Image::filled(100, 100, 1, 2.0), &["Z"]).unwrap();
+    let before = snapshot(s.dir.path());
+    let bin = env!("CARGO_BIN_EXE_drbokeh");
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(format!("ulimit -v 3000000 && exec '{bin}' render huge.png --depth huge_depth.exr --focus 1 -o o.png"))
+        .current_dir(s.dir.path())
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("huge.png") && err.contains("memory") && err.contains("GB"), "{err}");
+    assert_eq!(before, snapshot(s.dir.path()));
+}

@@ -28,7 +28,7 @@
 //! The quality knob moves the thresholds; at high quality every source is an exact stencil
 //! and the interpolation nodes are dense, so the kernel converges to the exact one.
 
-use super::aperture::{disk_taps, Tap};
+use super::aperture::{disk_tap_count, disk_taps_within, Tap};
 use super::layer::{Layer, A, D};
 use super::lens::{density, energy, focal_defocus, FACTORED_STEP_MAX, in_front, scatter_radius, soft_step, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
 use super::splat::{accumulate, Grid4, Stripe, Window, STRIPE_ROWS};
@@ -639,12 +639,12 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
     stats.transparent_pixels = w * h - survey.visible;
     stats.band_pixels = survey.band_pixels;
     stats.stripes = h.div_ceil(STRIPE_ROWS);
-    stats.exact_taps = (w * h) as f64 * disk_taps(s.lens).len() as f64;
+    stats.exact_taps = (w * h) as f64 * disk_tap_count(s.lens) as f64;
     let unit = weight_unit(if survey.sigma_min.is_finite() { survey.sigma_min } else { 1.0 });
 
     let band = (survey.band_pixels > 0).then(|| Band::new(survey.band_lo, survey.band_hi, params.node_step));
     let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
-    let stencil: Vec<Tap> = disk_taps(s.lens).into_iter().filter(|t| t.r < stencil_reach).collect();
+    let stencil: Vec<Tap> = disk_taps_within(s.lens, stencil_reach);
     let stencil_p = stencil.iter().map(|t| t.di.abs() as i64).max().unwrap_or(0);
     let stencil_rows: Vec<usize> = (-stencil_p..=stencil_p + 1).map(|di| stencil.partition_point(|t| (t.di as i64) < di)).collect();
     let (bright_level, bright_max) = if survey.bright_max > 0.0 {
