@@ -51,7 +51,9 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             .layers
             .iter()
             .map(|p| {
-                let mut l = Layer::new(io::read_layer(p, &limits)?, &p.display().to_string())?;
+                let file = io::read_layer_file(p, &limits)?;
+                read_warnings.extend(file.warnings);
+                let mut l = Layer::new(file.image, &p.display().to_string())?;
                 if let Some(g) = cfg.render.gamma {
                     // The official inference raises colours in double precision.
                     l.map_colors(|c| (c.max(0.0) as f64).powf(g as f64) as f32);
@@ -69,7 +71,9 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         let mut depth_stage = None;
         let disparity = match &job.depth {
             Some(depth_path) => {
-                let raw_depth = io::read_depth(depth_path, &limits)?;
+                let map = io::read_depth_map(depth_path, &limits)?;
+                read_warnings.extend(map.warnings);
+                let raw_depth = map.image;
                 let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
                 depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?
             }
