@@ -71,7 +71,7 @@ struct TomlManifest {
 /// Reads a manifest: `.csv` (columns image, focus, focus_at, blur, matte, output; empty cells
 /// allowed) or `.toml` (`[[image]]` tables with the same keys).
 pub fn read_manifest(path: &Path) -> Result<BTreeMap<String, ManifestEntry>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_input_text(path)?;
     let entries: Vec<ManifestEntry> = match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("toml") => toml::from_str::<TomlManifest>(&text).map_err(|e| Error::input(path, format!("invalid manifest: {}", e.message())))?.image,
         Some("csv") => {

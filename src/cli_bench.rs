@@ -67,7 +67,11 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
         .iter()
         .map(|p| {
             let what = p.display().to_string();
-            Plane::from_layer(&Layer::new(io::read_layer(p, &limits)?, &what)?, &what)
+            let file = io::read_layer_file(p, &limits)?;
+            for w in &file.warnings {
+                eprintln!("warning: {w}");
+            }
+            Plane::from_layer(&Layer::new(file.image, &what)?, &what)
         })
         .collect::<Result<Vec<_>, Error>>()?;
     let mut s = TraceSettings::new(args.blur, args.focus, args.spp, args.seed);

@@ -124,7 +124,7 @@ impl Default for OutputConfig {
 impl Config {
     /// Reads and validates a pipeline.toml.
     pub fn load(path: &Path) -> Result<Config> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::io::read_input_text(path)?;
         let cfg = Config::parse(&text).map_err(|msg| Error::input(path, msg))?;
         cfg.validate().map_err(|e| match e {
             Error::Usage(msg) => Error::input(path, msg),

@@ -60,7 +60,9 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             .layers
             .iter()
             .map(|p| {
-                let mut l = Layer::new(io::read_layer(p, &limits)?, &p.display().to_string())?;
+                let file = io::read_layer_file(p, &limits)?;
+                read_warnings.extend(file.warnings);
+                let mut l = Layer::new(file.image, &p.display().to_string())?;
                 if let Some(g) = cfg.render.gamma {
                     // The official inference raises colours in double precision.
                     l.map_colors(|c| (c.max(0.0) as f64).powf(g as f64) as f32);
@@ -78,7 +80,9 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         let mut depth_stage = None;
         let disparity = match &job.depth {
             Some(depth_path) => {
-                let raw_depth = io::read_depth(depth_path, &limits)?;
+                let map = io::read_depth_map(depth_path, &limits)?;
+                read_warnings.extend(map.warnings);
+                let raw_depth = map.image;
                 let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
                 depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?
             }
@@ -136,6 +140,9 @@ pub(crate) fn stage(name: &'static str, ms: f64) -> StageReport {
 /// system: the output folder is writable, depth map and matte have the photo's aspect ratio,
 /// and the run fits in the memory available.
 fn preflight(job: &Job, cfg: &Config) -> Result<()> {
+    for input in job.inputs() {
+        io::check_regular_file(&input)?;
+    }
     check_writable_folder(&job.output)?;
     if let Some(dir) = &job.save_layers {
         if dir.is_dir() {

@@ -91,6 +91,8 @@ fn check_memory_against(what: &str, needed: u64, available: Option<u64>) -> Resu
 /// Width and height from a raster's header, without decoding (PNG, JPEG, TIFF, EXR, ...);
 /// None when the header cannot be read (the reader then reports the problem).
 pub fn probe_dimensions(path: &Path) -> Option<(u64, u64)> {
+    // Opening a FIFO would block.
+    crate::io::check_regular_file(path).ok()?;
     let is_exr = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     if is_exr {
         let meta = exr::meta::MetaData::read_from_file(path, false).ok()?;

@@ -15,7 +15,8 @@ use drbokeh::render::{self, Kernel, Layer, RenderSettings};
 use drbokeh::Image;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 const W: usize = 32;
 const H: usize = 24;
@@ -125,8 +126,16 @@ impl Scene {
     /// Runs a command that must fail as bad input: exit 2, stderr naming every `needles`
     /// entry, and no file created or changed in the folder.
     fn bad(&self, args: &[&str], needles: &[&str]) -> String {
+        self.bad_with(args, needles, |a| self.run(a))
+    }
+    /// [`Scene::bad`] for inputs that could block (a FIFO): the run is killed and the test
+    /// fails after `limit`.
+    fn bad_within(&self, args: &[&str], needles: &[&str], limit: Duration) -> String {
+        self.bad_with(args, needles, |a| run_within(drbokeh_cmd(self.dir.path(), a), limit))
+    }
+    fn bad_with(&self, args: &[&str], needles: &[&str], run: impl FnOnce(&[&str]) -> Output) -> String {
         let before = snapshot(self.dir.path());
-        let out = self.run(args);
+        let out = run(args);
         let err = String::from_utf8_lossy(&out.stderr).into_owned();
         assert_eq!(out.status.code(), Some(2), "drbokeh {} should exit 2; stderr: {err}", args.join(" "));
         for n in needles {
@@ -140,13 +149,30 @@ impl Scene {
 }
 
 fn drbokeh_in(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_drbokeh"))
-        .arg("render")
-        .args(args)
-        .current_dir(dir)
-        .env("RAYON_NUM_THREADS", "2")
-        .output()
-        .expect("cannot run drbokeh")
+    drbokeh_cmd(dir, args).output().expect("cannot run drbokeh")
+}
+
+/// `drbokeh render ARGS` in `dir`, not started yet.
+fn drbokeh_cmd(dir: &Path, args: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_drbokeh"));
+    c.arg("render").args(args).current_dir(dir).env("RAYON_NUM_THREADS", "2");
+    c
+}
+
+/// Runs `cmd` to completion, or kills it and fails the test after `limit`. Output is read
+/// after exit, so it suits commands that print little (error cases), not a pipe-filling log.
+fn run_within(mut cmd: Command, limit: Duration) -> Output {
+    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("cannot run drbokeh");
+    let t0 = Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{cmd:?} still running after {limit:?} (blocked on an input?)");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    child.wait_with_output().expect("output")
 }
 
 /// Every file under `dir` (recursive), as relative paths.
@@ -1130,4 +1156,92 @@ fn a_photo_that_cannot_fit_in_memory_is_refused_before_decoding() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("huge.png") && err.contains("memory") && err.contains("GB"), "{err}");
     assert_eq!(before, snapshot(s.dir.path()));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Silent acceptance of broken data (issue 10)
+
+/// A JPEG cut short renders as grey in the decoder; the CLI refuses it as a photo and as a
+/// depth map (exit 2, naming the file and the truncation).
+#[test]
+fn truncated_jpeg_inputs_are_refused() {
+    let s = Scene::new();
+    let mut f = std::fs::File::create(s.path("photo.jpg")).unwrap();
+    let rgb = image::RgbImage::from_fn(W as u32, H as u32, |x, y| image::Rgb([x as u8 * 7, y as u8 * 9, 100]));
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut f, 90).encode_image(&rgb).unwrap();
+    drop(f);
+    s.ok(&["photo.jpg", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "-o", "ok.png"]);
+    let full = std::fs::read(s.path("photo.jpg")).unwrap();
+    std::fs::write(s.path("cut.jpg"), &full[..full.len() - 40]).unwrap();
+    s.bad(&["cut.jpg", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "-o", "o.png"], &["cut.jpg", "truncated JPEG"]);
+    s.bad(&["image.png", "--depth", "cut.jpg", "--focus", "1", "--blur", "2", "-o", "o.png"], &["cut.jpg", "truncated JPEG"]);
+}
+
+/// A FIFO (or a character device) given as any input is refused at once, not opened: opening
+/// a FIFO for reading would block until a writer comes.
+#[cfg(unix)]
+#[test]
+fn fifo_and_device_inputs_are_refused_without_blocking() {
+    let s = Scene::new();
+    // Outside the scene folder: `Scene::bad` reads every file there to check nothing changed.
+    let other = tempfile::tempdir().unwrap();
+    let fifo = other.path().join("pipe.exr");
+    assert!(Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+    let (fifo, limit) = (fifo.to_str().unwrap(), Duration::from_secs(20));
+    io::save_npy(&s.path("bg.npy"), &scene_layers().1).unwrap();
+    for (special, kind) in [(fifo, "FIFO"), ("/dev/null", "character device")] {
+        let n = [special, "not a regular file", kind];
+        s.bad_within(&[special, "--depth", "depth.exr", "--focus", "1", "--blur", "2", "-o", "o.png"], &n, limit);
+        s.bad_within(&["image.png", "--depth", special, "--focus", "1", "--blur", "2", "-o", "o.png"], &n, limit);
+        s.bad_within(&["image.png", "--depth", "depth.exr", "--matte", special, "--focus", "1", "--blur", "2", "-o", "o.png"], &n, limit);
+        s.bad_within(&["--layer", special, "--layer", "bg.npy", "--focus", "0", "--blur", "2", "-o", "o.png"], &n, limit);
+        s.bad_within(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", special, "-o", "o.png"], &n, limit);
+    }
+    // The batch manifest.
+    let mut batch = Command::new(env!("CARGO_BIN_EXE_drbokeh"));
+    let out_dir = other.path().join("out");
+    batch.args(["batch", s.dir.path().to_str().unwrap(), "-o", out_dir.to_str().unwrap(), "--focus", "0", "--manifest", fifo]);
+    let o = run_within(batch, limit);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("pipe.exr") && err.contains("FIFO"), "{err}");
+}
+
+/// An 8-bit depth map renders, with a precision warning naming the file on stderr and in
+/// `--json`'s warnings; a float depth map gets none.
+#[test]
+fn eight_bit_depth_map_warns() {
+    let s = Scene::new();
+    let mut d8 = depth_map(W, H);
+    d8.map_inplace(|z| z / 4.0);
+    io::write_png(&s.path("depth8.png"), &d8, 8, Transfer::Linear).unwrap();
+    let args = ["image.png", "--depth", "depth8.png", "--focus", "1", "--blur", "3", "-o", "o.png"];
+    let out = s.run(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("warning: ") && err.contains("depth8.png") && err.contains("8-bit depth map"), "{err}");
+    let j = s.json(&args);
+    let warnings: Vec<&str> = j["warnings"].as_array().unwrap().iter().filter_map(|w| w.as_str()).collect();
+    assert!(warnings.iter().any(|w| w.contains("depth8.png") && w.contains("256 depth levels")), "{j}");
+    let j = s.json(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "o.png"]);
+    assert!(!j["warnings"].to_string().contains("depth levels"), "{j}");
+}
+
+/// Layer alpha outside [0, 1] is used as stored but warned about (stderr and `--json`).
+#[test]
+fn layer_alpha_outside_unit_range_warns() {
+    let s = Scene::new();
+    let (mut fg, bg) = scene_layers();
+    fg.pixel_mut(12, 9)[3] = 1.75;
+    io::save_npy(&s.path("hot.npy"), &fg).unwrap();
+    io::save_npy(&s.path("bg.npy"), &bg).unwrap();
+    let args = ["--layer", "hot.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "3", "-o", "o.png"];
+    let out = s.run(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("warning: ") && err.contains("hot.npy") && err.contains("alpha") && err.contains("1.75"), "{err}");
+    let j = s.json(&args);
+    assert!(j["warnings"].to_string().contains("hot.npy"), "{j}");
+    let j = s.json(&["--layer", "bg.npy", "--focus", "0", "--blur", "3", "-o", "o.png"]);
+    assert!(!j["warnings"].to_string().contains("alpha"), "{j}");
 }

@@ -789,3 +789,233 @@ fn npy_header_with_huge_shape_unlimited() {
     let e = err_of(read_depth(&p, &lim()));
     assert!(e.contains("pixel limit") || e.contains("malformed data"), "{e}");
 }
+
+// ---------------------------------------------------------------------------------------------
+// Silent acceptance of broken data (issue 10): truncation, special files, doubtful values
+
+/// Uncompressed 8-bit grey TIFF with its IFD *before* the pixel data (as some writers do; the
+/// `tiff` encoder puts it last, so a cut file loses the IFD rather than pixels), one strip per
+/// `rows` rows (`rows < h`: several strips, so their offsets and counts are arrays). Pixel i
+/// is `i * 7 mod 256`.
+fn tiff_ifd_first(w: u32, h: u32, rows: u32) -> Vec<u8> {
+    let strips = h.div_ceil(rows);
+    assert!(strips > 1, "one strip would store its offset inline");
+    let entries = 9u16;
+    let offsets_at = 8 + 2 + 12 * entries as u32 + 4;
+    let counts_at = offsets_at + 4 * strips;
+    let data_at = counts_at + 4 * strips;
+    let mut out = b"II*\0".to_vec();
+    out.extend(8u32.to_le_bytes());
+    out.extend(entries.to_le_bytes());
+    // (tag, type: 3 SHORT / 4 LONG, count, value or offset), sorted by tag.
+    for (tag, typ, count, value) in [
+        (256u16, 4u16, 1u32, w),
+        (257, 4, 1, h),
+        (258, 3, 1, 8),
+        (259, 3, 1, 1),
+        (262, 3, 1, 1),
+        (273, 4, strips, offsets_at),
+        (277, 3, 1, 1),
+        (278, 4, 1, rows),
+        (279, 4, strips, counts_at),
+    ] {
+        out.extend(tag.to_le_bytes());
+        out.extend(typ.to_le_bytes());
+        out.extend(count.to_le_bytes());
+        out.extend(value.to_le_bytes());
+    }
+    out.extend(0u32.to_le_bytes());
+    out.extend((0..strips).flat_map(|s| (data_at + s * w * rows).to_le_bytes()));
+    out.extend((0..strips).flat_map(|s| (w * rows.min(h - s * rows)).to_le_bytes()));
+    assert_eq!(out.len() as u32, data_at);
+    out.extend((0..w * h).map(|i| (i * 7) as u8));
+    out
+}
+
+/// Every format cut at 15 points (1/16 .. 15/16 of its length) is an error naming the file and
+/// saying "truncated", through every reader; nothing is silently padded. (A PNG cut inside its
+/// final 12-byte IEND chunk still has all its pixels and reads; no cut here lands there.)
+#[test]
+fn truncated_files_are_errors_in_every_format_at_every_cut() {
+    let dir = tmp();
+    let img = pattern(48, 40, 3);
+    let mut files: Vec<(PathBuf, &str)> = Vec::new();
+    let png = dir.path().join("t.png");
+    write_png(&png, &img, 16, Transfer::Srgb).unwrap();
+    files.push((png, "PNG"));
+    let exr = dir.path().join("t.exr");
+    write_exr(&exr, &img, &["R", "G", "B"]).unwrap();
+    files.push((exr, "EXR"));
+    let tif = dir.path().join("t.tif");
+    write_tiff::<tiff::encoder::colortype::RGB16>(&tif, 48, 40, &(0..48 * 40 * 3).map(|i| i as u16).collect::<Vec<_>>());
+    files.push((tif, "TIFF"));
+    for rows in [1, 8] {
+        let p = dir.path().join(format!("ifd_first_{rows}.tif"));
+        std::fs::write(&p, tiff_ifd_first(48, 40, rows)).unwrap();
+        assert_eq!(read_decoded(&p, &lim()).unwrap().image.data[3], 21.0 / 255.0);
+        files.push((p, "TIFF"));
+    }
+    let jpg = dir.path().join("t.jpg");
+    image::RgbImage::from_fn(48, 40, |x, y| image::Rgb([x as u8 * 5, y as u8 * 6, (x * y) as u8])).save(&jpg).unwrap();
+    files.push((jpg, "JPEG"));
+    let npy = dir.path().join("t.npy");
+    save_npy(&npy, &img);
+    files.push((npy, "NPY"));
+
+    let mut failures = Vec::new();
+    for (src, format) in &files {
+        let bytes = std::fs::read(src).unwrap();
+        let name = format!("cut_{}", src.file_name().unwrap().to_string_lossy());
+        let p = dir.path().join(&name);
+        for k in 1..16 {
+            let cut = bytes.len() * k / 16;
+            std::fs::write(&p, &bytes[..cut]).unwrap();
+            for (reader, r) in [
+                ("read_decoded", read_decoded(&p, &lim()).map(|_| ())),
+                ("read_depth_map", read_depth_map(&p, &lim()).map(|_| ())),
+                ("read_matte", read_matte(&p, &lim()).map(|_| ())),
+            ] {
+                match r {
+                    Ok(()) => failures.push(format!("{name} cut at {cut}/{}: {reader} accepted it", bytes.len())),
+                    Err(e) => {
+                        let e = e.to_string();
+                        if !(e.contains(&name) && e.contains(format) && e.contains("truncated")) {
+                            failures.push(format!("{name} cut at {cut}: {reader}: {e}"));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{} failures:\n{}", failures.len(), failures.join("\n"));
+}
+
+/// The JPEG decoder pads a cut-off picture with grey; the marker walk refuses it, but bytes
+/// after the end-of-image marker (camera trailers) are fine, and the limit check still comes
+/// first for a bomb.
+#[test]
+fn truncated_jpeg_is_refused_and_trailers_are_allowed() {
+    let dir = tmp();
+    let p = dir.path().join("photo.jpg");
+    image::RgbImage::from_fn(128, 96, |x, y| image::Rgb([x as u8 * 3, y as u8 * 5, (x ^ y) as u8])).save(&p).unwrap();
+    let full = std::fs::read(&p).unwrap();
+    let good = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+
+    let trailer = dir.path().join("trailer.jpg");
+    std::fs::write(&trailer, [&full[..], b"vendor trailer \xFF\xD8 bytes"].concat()).unwrap();
+    assert_eq!(read_photo(&trailer, Transfer::Srgb, &lim()).unwrap(), good);
+
+    let cut = dir.path().join("cut.jpg");
+    for drop in [2, 3, 100, full.len() / 2] {
+        std::fs::write(&cut, &full[..full.len() - drop]).unwrap();
+        let e = err_of(read_photo(&cut, Transfer::Srgb, &lim()));
+        assert!(e.contains("cut.jpg") && e.contains("truncated JPEG") && e.contains("end-of-image"), "drop {drop}: {e}");
+    }
+    let e = err_of(read_photo(&cut, Transfer::Srgb, &ReadLimits::new(100)));
+    assert!(e.contains("limit of 100 pixels"), "{e}");
+}
+
+/// Runs `f` on another thread and fails the test if it has not returned within 10 s (a
+/// blocking `open` of a FIFO would otherwise hang the test forever).
+fn within_10s<T: Send + 'static>(what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(f());
+    });
+    rx.recv_timeout(std::time::Duration::from_secs(10)).unwrap_or_else(|_| panic!("{what} blocked for 10 s"))
+}
+
+/// FIFOs, character devices and folders are refused from their metadata, before any `open`
+/// could block, by every reader: images, depth, matte, layer, raw NPY, config, manifest.
+#[cfg(unix)]
+#[test]
+fn special_files_are_refused_without_blocking() {
+    let dir = tmp();
+    let fifo = dir.path().join("pipe.png");
+    let status = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(status.success());
+    let cases: [(PathBuf, &str); 3] =
+        [(fifo, "FIFO"), (PathBuf::from("/dev/null"), "character device"), (dir.path().to_path_buf(), "folder")];
+    for (p, kind) in cases {
+        let name = p.display().to_string();
+        let errors = within_10s(&name, move || {
+            vec![
+                err_of(read_photo(&p, Transfer::Srgb, &lim())),
+                err_of(read_depth(&p, &lim())),
+                err_of(read_matte(&p, &lim())),
+                err_of(read_layer(&p, &lim())),
+                err_of(io::read_npy(&p, 100)),
+                err_of(drbokeh::config::Config::load(&p)),
+                err_of(drbokeh::batch::read_manifest(&p)),
+            ]
+        });
+        for e in errors {
+            assert!(e.contains(&name) && e.contains(kind) && e.contains("not a regular file"), "{e}");
+        }
+    }
+}
+
+#[test]
+fn eight_bit_depth_warns_about_precision() {
+    let dir = tmp();
+    let p = dir.path().join("depth8.png");
+    image::GrayImage::from_fn(4, 4, |x, y| image::Luma([(x * 10 + y) as u8])).save(&p).unwrap();
+    let d = read_depth_map(&p, &lim()).unwrap();
+    assert_eq!(d.warnings.len(), 1, "{:?}", d.warnings);
+    let w = &d.warnings[0];
+    assert!(w.contains("depth8.png") && w.contains("8-bit") && w.contains("256 depth levels") && w.contains("16-bit"), "{w}");
+    let jpg = dir.path().join("depth8.jpg");
+    image::GrayImage::from_pixel(8, 8, image::Luma([90])).save(&jpg).unwrap();
+    assert_eq!(read_depth_map(&jpg, &lim()).unwrap().warnings.len(), 1);
+    // 16-bit, float TIFF, EXR (half and float) and NPY maps carry no warning.
+    let p16 = dir.path().join("depth16.png");
+    write_png(&p16, &pattern(4, 4, 1), 16, Transfer::Linear).unwrap();
+    let tif = dir.path().join("depth.tif");
+    write_tiff::<tiff::encoder::colortype::Gray32Float>(&tif, 2, 2, &[0.5; 4]);
+    let exr = dir.path().join("depth.exr");
+    write_exr(&exr, &pattern(4, 4, 1), &["Z"]).unwrap();
+    let npy = dir.path().join("depth.npy");
+    save_npy(&npy, &pattern(4, 4, 1));
+    for p in [p16, tif, exr, npy] {
+        let d = read_depth_map(&p, &lim()).unwrap();
+        assert!(d.warnings.is_empty(), "{}: {:?}", p.display(), d.warnings);
+    }
+}
+
+#[test]
+fn layer_alpha_outside_unit_range_warns() {
+    let dir = tmp();
+    let layer = |alpha: f32| {
+        let mut img = pattern(6, 4, 5);
+        img.data.iter_mut().skip(3).step_by(5).for_each(|a| *a = 0.5);
+        img.data[5 * 7 + 3] = alpha;
+        img
+    };
+    for (name, alpha, warns) in [
+        ("in_range.npy", 1.0, false),
+        ("round_off.npy", 1.0 + 1e-4, false),
+        ("above.npy", 1.5, true),
+        ("below.exr", -0.25, true),
+    ] {
+        let p = dir.path().join(name);
+        write_exr_or_npy_5(&p, &layer(alpha));
+        let l = io::read_layer_file(&p, &lim()).unwrap();
+        assert_eq!(l.image.data[5 * 7 + 3], alpha, "values are kept as stored");
+        assert_eq!(l.image, read_layer(&p, &lim()).unwrap());
+        if warns {
+            assert_eq!(l.warnings.len(), 1, "{name}: {:?}", l.warnings);
+            let w = &l.warnings[0];
+            assert!(w.contains(name) && w.contains("alpha") && w.contains(&alpha.to_string()) && w.contains("[0, 1]"), "{w}");
+        } else {
+            assert!(l.warnings.is_empty(), "{name}: {:?}", l.warnings);
+        }
+    }
+}
+
+fn write_exr_or_npy_5(p: &Path, img: &Image) {
+    if p.extension().unwrap() == "exr" {
+        write_exr(p, img, &["R", "G", "B", "A", "D"]).unwrap();
+    } else {
+        save_npy(p, img);
+    }
+}

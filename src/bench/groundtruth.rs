@@ -47,7 +47,7 @@ fn num(v: &serde_json::Value, key: &str, file: &Path) -> Result<f64> {
 impl GtScene {
     pub fn load(dir: &Path) -> Result<GtScene> {
         let pfile = dir.join("params.json");
-        let text = std::fs::read_to_string(&pfile).map_err(|e| Error::io(&pfile, e))?;
+        let text = crate::io::read_input_text(&pfile)?;
         let p: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::input(&pfile, e.to_string()))?;
         let (zmin, zmax) = (num(&p, "z_min", &pfile)?, num(&p, "z_max", &pfile)?);
         let limits = ReadLimits::default();

@@ -290,7 +290,7 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
         let mut n = 0;
         for d in dirs {
             let scene = GtScene::load(&d)?;
-            let desc = std::fs::read_to_string(d.join("params.json")).unwrap_or_default().to_ascii_lowercase();
+            let desc = crate::io::read_input_text(&d.join("params.json")).unwrap_or_default().to_ascii_lowercase();
             let inputs = SceneInputs {
                 aif: scene.aif.clone(),
                 disparity: scene.disparity.clone(),

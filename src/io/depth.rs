@@ -7,8 +7,8 @@
 //! - 16-bit PNG or TIFF: value / 65535, so the map is in [0, 1] (rescale if the file stores
 //!   e.g. millimetres);
 //! - 32-bit float TIFF: values as stored;
-//! - 8-bit PNG/TIFF/JPEG: value / 255. Allowed, but only 256 levels: check
-//!   [`DepthMap::bit_depth`] and warn;
+//! - 8-bit PNG/TIFF/JPEG: value / 255. Allowed, but only 256 levels: [`read_depth_map`] puts
+//!   a precision warning in [`DepthMap::warnings`];
 //! - NPY `H x W` or `H x W x 1` (values as stored, integer dtypes not rescaled).
 //!
 //! Grey+alpha images use the grey channel; RGB(A) images are accepted only when R = G = B
@@ -30,10 +30,37 @@ pub struct DepthMap {
     /// Bits per sample in the file (8, 16, 32, 64). 8 means only 256 depth levels: worth a warning.
     pub bit_depth: u8,
     pub format: FileFormat,
+    /// What the caller should tell the user (each names the file): today the precision warning
+    /// of an 8-bit map.
+    pub warnings: Vec<String>,
 }
 
-/// Reads a depth or disparity map (see the module doc), with its bit depth.
+/// Bit depths at or below this get [`precision_warning`]: 8 bits are 256 depth levels, few
+/// enough to show as steps in the blur of a smooth surface.
+const LOW_PRECISION_BITS: u8 = 8;
+
+/// The warning for a depth map stored with only `bits` bits per sample.
+fn precision_warning(path: &Path, bits: u8) -> String {
+    format!(
+        "{} is an {bits}-bit depth map: only {} depth levels, which can show as steps in the blur; \
+         a 16-bit PNG/TIFF or a float EXR/TIFF/NPY keeps the depth's precision",
+        path.display(),
+        1u32 << bits
+    )
+}
+
+/// Reads a depth or disparity map (see the module doc), with its bit depth and the warnings it
+/// deserves (an 8-bit map).
 pub fn read_depth_map(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
+    let mut map = read_depth_map_raw(path, limits)?;
+    if map.bit_depth <= LOW_PRECISION_BITS {
+        map.warnings.push(precision_warning(path, map.bit_depth));
+    }
+    Ok(map)
+}
+
+fn read_depth_map_raw(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
+    let warnings = Vec::new();
     match detect_format(path)? {
         FileFormat::Exr => {
             let exr = read_exr_channels(path, limits)?;
@@ -44,7 +71,7 @@ pub fn read_depth_map(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
                     format!("EXR depth map needs a single channel or a channel named Z, Y or R; found: {}", exr.names()),
                 )
             })?;
-            Ok(DepthMap { image: exr.to_image(&[i]), bit_depth: exr.channels[i].bits, format: FileFormat::Exr })
+            Ok(DepthMap { image: exr.to_image(&[i]), bit_depth: exr.channels[i].bits, format: FileFormat::Exr, warnings })
         }
         FileFormat::Npy => {
             let image = super::format::read_npy_guarded(path, limits)?;
@@ -54,17 +81,18 @@ pub fn read_depth_map(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
                     format!("NPY depth map has {} channels; expected shape H x W or H x W x 1", image.channels),
                 ));
             }
-            Ok(DepthMap { image, bit_depth: 32, format: FileFormat::Npy })
+            Ok(DepthMap { image, bit_depth: 32, format: FileFormat::Npy, warnings })
         }
         _ => {
             let d = read_decoded(path, limits)?;
             let image = single_grey_channel(path, &d.image, "depth map")?;
-            Ok(DepthMap { image, bit_depth: d.bit_depth, format: d.format })
+            Ok(DepthMap { image, bit_depth: d.bit_depth, format: d.format, warnings })
         }
     }
 }
 
-/// Reads a depth or disparity map as one channel of raw values (see the module doc).
+/// Reads a depth or disparity map as one channel of raw values (see the module doc), without
+/// its warnings: use [`read_depth_map`] where they can be shown.
 pub fn read_depth(path: &Path, limits: &ReadLimits) -> Result<Image> {
     read_depth_map(path, limits).map(|d| d.image)
 }

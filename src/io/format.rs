@@ -1,5 +1,6 @@
 //! Input format detection and the shared plumbing of every reader: opening files with a plain
-//! error, and running third-party decoders behind a panic guard.
+//! error (regular files only: see [`check_regular_file`]), and running third-party decoders
+//! behind a panic guard.
 //!
 //! Detection looks at the file's first bytes (magic numbers) first and falls back to the
 //! extension only when the content is not recognised, so a PNG saved as `depth.tif` still reads,
@@ -112,13 +113,62 @@ pub(crate) fn read_error(path: &Path, e: std::io::Error) -> Error {
     Error::io(path, std::io::Error::new(e.kind(), format!("cannot read file: {e}")))
 }
 
-/// Opens `path` for buffered reading; a directory is refused with a plain message.
-pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
-    let file = File::open(path).map_err(|e| read_error(path, e))?;
-    if file.metadata().map(|m| m.is_dir()).unwrap_or(false) {
-        return Err(Error::input(path, "cannot read file: it is a folder"));
+/// Refuses anything but a regular file (or a symlink to one) before it is opened: a folder, a
+/// FIFO, a socket or a device. Opening a FIFO for reading blocks until a writer appears, and
+/// reading a character device such as `/dev/stdin` or `/dev/zero` may block or never end, so
+/// the check looks at the metadata (`stat`, which never blocks) and runs before `open`. (A file
+/// swapped for a FIFO between the check and the open would still block: that takes a hostile
+/// local user, not a mistake.)
+///
+/// Every input goes through here: images, depth maps, mattes and layers via [`open`] and
+/// [`read_input`], configs, manifests and models via [`read_input_text`] / [`read_input`].
+pub fn check_regular_file(path: &Path) -> Result<()> {
+    let meta = std::fs::metadata(path).map_err(|e| read_error(path, e))?;
+    if meta.is_file() {
+        return Ok(());
     }
+    let kind = file_kind(&meta.file_type());
+    Err(Error::input(path, format!("cannot read file: it is {kind}, not a regular file")))
+}
+
+/// "a folder", "a FIFO (named pipe)"... for [`check_regular_file`]'s message.
+fn file_kind(t: &std::fs::FileType) -> &'static str {
+    if t.is_dir() {
+        return "a folder";
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO (named pipe)";
+        } else if t.is_char_device() {
+            return "a character device";
+        } else if t.is_block_device() {
+            return "a block device";
+        } else if t.is_socket() {
+            return "a socket";
+        }
+    }
+    "a special file"
+}
+
+/// Opens `path` for buffered reading after [`check_regular_file`].
+pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
+    check_regular_file(path)?;
+    let file = File::open(path).map_err(|e| read_error(path, e))?;
     Ok(BufReader::new(file))
+}
+
+/// Reads the whole of `path` after [`check_regular_file`]. Allocates the file's size.
+pub fn read_input(path: &Path) -> Result<Vec<u8>> {
+    check_regular_file(path)?;
+    std::fs::read(path).map_err(|e| read_error(path, e))
+}
+
+/// Reads the whole of the text file `path` (a config, a manifest) after [`check_regular_file`].
+pub fn read_input_text(path: &Path) -> Result<String> {
+    check_regular_file(path)?;
+    std::fs::read_to_string(path).map_err(|e| read_error(path, e))
 }
 
 /// Reads an NPY file ([`super::npy::read_npy`]) behind the same panic guard as the other

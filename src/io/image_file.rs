@@ -5,14 +5,21 @@
 //! directly from their stored width (8-bit / 255, 16-bit / 65535), so 16-bit files keep their
 //! full precision. EXIF orientation and ICC profiles are not applied: pixels are used in stored
 //! order, so a photo and a depth map computed from the same stored pixels stay aligned.
+//!
+//! Truncated files are errors in every format. The PNG, TIFF, EXR and NPY decoders report
+//! missing data themselves (a PNG cut inside its final IEND chunk has all its pixels and reads); the JPEG decoder (zune-jpeg, which the `image` crate runs in
+//! lenient mode) fills a cut-off picture with grey and succeeds, so JPEG files are read into
+//! memory and their marker structure is walked up to the end-of-image marker first
+//! ([`jpeg_eoi_end`]).
 
 use super::exr_file::read_exr_channels;
-use super::format::{detect_format, guarded, open, FileFormat};
+use super::format::{detect_format, guarded, open, read_input, FileFormat};
 use super::limits::ReadLimits;
 use crate::color::Transfer;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use image::{DynamicImage, ImageDecoder, ImageError, ImageFormat, ImageReader};
+use std::io::{BufRead, Seek};
 use std::path::Path;
 
 /// How the decoded values relate to light.
@@ -48,7 +55,20 @@ pub struct Decoded {
 /// single channel of any name.
 pub fn read_decoded(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
     match detect_format(path)? {
-        f @ (FileFormat::Png | FileFormat::Jpeg) => decode_with_image_crate(path, f, limits),
+        FileFormat::Png => decode_with_image_crate(path, FileFormat::Png, open(path)?, limits, || Ok(())),
+        FileFormat::Jpeg => {
+            // In memory for the marker walk (one pass over the file's bytes); a JPEG file is
+            // far smaller than its decoded pixels.
+            let bytes = read_input(path)?;
+            let complete = || match jpeg_eoi_end(&bytes) {
+                Some(_) => Ok(()),
+                None => Err(Error::input(
+                    path,
+                    format!("truncated JPEG: the data stops after {} bytes, before the end-of-image marker (incomplete copy or download?)", bytes.len()),
+                )),
+            };
+            decode_with_image_crate(path, FileFormat::Jpeg, std::io::Cursor::new(&bytes[..]), limits, complete)
+        }
         FileFormat::Tiff => super::tiff_file::decode_tiff(path, limits),
         FileFormat::Exr => decode_exr(path, limits),
         FileFormat::Npy => {
@@ -138,8 +158,16 @@ fn image_error(path: &Path, format: FileFormat, limits: &ReadLimits, e: ImageErr
     }
 }
 
-fn decode_with_image_crate(path: &Path, format: FileFormat, limits: &ReadLimits) -> Result<Decoded> {
-    let reader = open(path)?;
+/// Decodes a PNG or JPEG from `reader` (the whole file). `check_data` runs once the header's
+/// dimensions passed the limits and before the pixels are decoded (the JPEG truncation check),
+/// so a bomb is refused by its size and a truncated file costs no decoding.
+fn decode_with_image_crate<R: BufRead + Seek>(
+    path: &Path,
+    format: FileFormat,
+    reader: R,
+    limits: &ReadLimits,
+    check_data: impl FnOnce() -> Result<()>,
+) -> Result<Decoded> {
     guarded(path, format, || {
         let ie = |e| image_error(path, format, limits, e);
         let mut r = ImageReader::with_format(reader, image_format(format));
@@ -151,6 +179,7 @@ fn decode_with_image_crate(path: &Path, format: FileFormat, limits: &ReadLimits)
         let dec = r.into_decoder().map_err(ie)?;
         let (w, h) = dec.dimensions();
         limits.check(path, w as u64, h as u64)?;
+        check_data()?;
         let img = DynamicImage::from_decoder(dec).map_err(ie)?;
         let (w, h) = (w as usize, h as usize);
         fn scale<T: Copy + Into<f32>>(v: &[T], max: f32) -> Vec<f32> {
@@ -199,4 +228,84 @@ fn decode_exr(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
     let image = exr.to_image(&which);
     let has_alpha = matches!(which.len(), 2 | 4);
     Ok(Decoded { image, encoding: Encoding::Linear, bit_depth: exr.bits(&which), has_alpha, format: FileFormat::Exr })
+}
+
+/// Offset just past the end-of-image (EOI) marker of the JPEG stream `b`, or `None` when the
+/// bytes end first (a truncated file). Bytes after EOI (trailers some cameras append) are
+/// allowed.
+///
+/// Walks the marker segments from SOI: each segment's length is skipped (so an EXIF thumbnail's
+/// own EOI inside APP1 is not mistaken for the end), and after each start-of-scan the
+/// entropy-coded data is scanned up to the next marker that is not a stuffed `FF 00`, a restart
+/// marker or fill bytes. Malformed segments are the decoder's business; this only answers
+/// whether the stream reaches its end. O(file size), no allocation.
+pub(crate) fn jpeg_eoi_end(b: &[u8]) -> Option<usize> {
+    const SOS: u8 = 0xDA;
+    const EOI: u8 = 0xD9;
+    let mut i = 2; // after SOI
+    loop {
+        // The next marker: an 0xFF, possibly several (fill bytes), then the marker code.
+        i += b.get(i..)?.iter().position(|&x| x == 0xFF)?;
+        while *b.get(i)? == 0xFF {
+            i += 1;
+        }
+        let marker = b[i];
+        i += 1;
+        match marker {
+            EOI => return Some(i),
+            // Stray stuffed byte, TEM, restart markers, SOI: no length field.
+            0x00 | 0x01 | 0xD0..=0xD8 => {}
+            _ => {
+                let len = u16::from_be_bytes([*b.get(i)?, *b.get(i + 1)?]) as usize;
+                i += len;
+                if i > b.len() {
+                    return None;
+                }
+                if marker == SOS {
+                    // Entropy-coded data: 0xFF is followed by 0x00 (a stuffed byte), a restart
+                    // marker or another 0xFF; anything else is the next marker.
+                    loop {
+                        i += b.get(i..)?.iter().position(|&x| x == 0xFF)?;
+                        match *b.get(i + 1)? {
+                            0x00 | 0xD0..=0xD7 | 0xFF => i += 1,
+                            _ => break,
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// SOI, an APP1 segment holding a thumbnail's own EOI, SOS with entropy data containing a
+    /// stuffed byte, a restart marker and fill bytes, then EOI and a trailer.
+    fn stream() -> Vec<u8> {
+        let mut b = vec![0xFF, 0xD8];
+        b.extend([0xFF, 0xE1, 0x00, 0x06, 0xFF, 0xD9, 0xFF, 0xD9]);
+        b.extend([0xFF, 0xDA, 0x00, 0x03, 0x01]);
+        b.extend([0x12, 0xFF, 0x00, 0x34, 0xFF, 0xD0, 0x56, 0xFF, 0xFF, 0xD1, 0x78]);
+        b.extend([0xFF, 0xD9]);
+        b
+    }
+
+    #[test]
+    fn jpeg_walk_finds_the_real_eoi() {
+        let mut b = stream();
+        let end = b.len();
+        assert_eq!(jpeg_eoi_end(&b), Some(end));
+        b.extend(b"trailer");
+        assert_eq!(jpeg_eoi_end(&b), Some(end));
+    }
+
+    #[test]
+    fn jpeg_walk_refuses_every_cut() {
+        let b = stream();
+        for cut in 0..b.len() {
+            assert_eq!(jpeg_eoi_end(&b[..cut]), None, "cut at {cut}");
+        }
+    }
 }

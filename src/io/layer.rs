@@ -2,21 +2,54 @@
 //!
 //! Accepted files: EXR with channels named R, G, B, A, D (case-insensitive; exact names win;
 //! other channels are ignored), or NPY `H x W x 5` (float32/float64). Values are returned
-//! unchanged; NaN or infinity anywhere is an error naming the channel and pixel.
+//! unchanged; NaN or infinity anywhere is an error naming the channel and pixel. Alpha outside
+//! [0, 1] (beyond [`MATTE_TOLERANCE`] of float round-off) is kept but earns a warning in
+//! [`LayerFile::warnings`]: the renderer assumes coverage in [0, 1].
 
 use super::exr_file::read_exr_channels;
 use super::format::{detect_format, FileFormat};
 use super::image_file::pixel_of;
 use super::limits::ReadLimits;
+use super::matte::MATTE_TOLERANCE;
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render::layer::A;
 use std::path::Path;
 
 /// Channel names of a layer, in [`read_layer`]'s output order.
 pub const LAYER_CHANNELS: [&str; 5] = ["R", "G", "B", "A", "D"];
 
-/// Reads a layer as a 5-channel R,G,B,A,D image (see the module doc).
+/// A layer as read from its file, with the warnings it deserves.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LayerFile {
+    /// 5 channels R, G, B, A, D, values as stored (see the module doc).
+    pub image: Image,
+    /// What the caller should tell the user (each names the file): alpha outside [0, 1].
+    pub warnings: Vec<String>,
+}
+
+/// Reads a layer as a 5-channel R,G,B,A,D image (see the module doc), without its warnings:
+/// use [`read_layer_file`] where they can be shown.
 pub fn read_layer(path: &Path, limits: &ReadLimits) -> Result<Image> {
+    read_layer_file(path, limits).map(|l| l.image)
+}
+
+/// Reads a layer (see the module doc) with its warnings. One extra pass over the alpha channel.
+pub fn read_layer_file(path: &Path, limits: &ReadLimits) -> Result<LayerFile> {
+    let image = read_layer_image(path, limits)?;
+    let mut warnings = Vec::new();
+    let alpha = image.data.iter().skip(A).step_by(LAYER_CHANNELS.len());
+    let (lo, hi) = alpha.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    if lo < -MATTE_TOLERANCE || hi > 1.0 + MATTE_TOLERANCE {
+        warnings.push(format!(
+            "{} has layer alpha in [{lo}, {hi}], outside [0, 1]; used as stored, but the renderer expects coverage in [0, 1]",
+            path.display()
+        ));
+    }
+    Ok(LayerFile { image, warnings })
+}
+
+fn read_layer_image(path: &Path, limits: &ReadLimits) -> Result<Image> {
     let img = match detect_format(path)? {
         FileFormat::Exr => {
             let exr = read_exr_channels(path, limits)?;

@@ -5,7 +5,11 @@
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
 //! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads).
 //!
-//! Every error names the file and says what is wrong. Untrusted input never makes the
+//! Every error names the file and says what is wrong. Only regular files are opened (a FIFO
+//! or a device would block: [`check_regular_file`]), and a truncated file is an error in every
+//! format. What is usable but doubtful (an 8-bit depth map, layer alpha outside [0, 1]) comes
+//! back as warnings next to the data ([`DepthMap::warnings`], [`LayerFile::warnings`]) for the
+//! caller to show. Untrusted input never makes the
 //! readers panic or allocate beyond [`ReadLimits`]: header dimensions are checked before
 //! decoding, and third-party decoders run behind `catch_unwind` as defence in depth.
 
@@ -24,10 +28,10 @@ pub mod write;
 
 pub use depth::{read_depth, read_depth_map, DepthMap};
 pub use exr_file::{read_exr_channels, write_exr, ExrChannel, ExrChannels};
-pub use format::{detect_format, FileFormat, SUPPORTED_INPUT_EXTENSIONS};
+pub use format::{check_regular_file, detect_format, read_input, read_input_text, FileFormat, SUPPORTED_INPUT_EXTENSIONS};
 pub use guard::InputFiles;
 pub use image_file::{read_decoded, read_photo, Decoded, Encoding};
-pub use layer::{read_layer, LAYER_CHANNELS};
+pub use layer::{read_layer, read_layer_file, LayerFile, LAYER_CHANNELS};
 pub use limits::ReadLimits;
 pub use matte::{read_matte, MATTE_TOLERANCE};
 pub use npy::{read_npy, save_npy};

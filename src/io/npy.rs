@@ -13,13 +13,13 @@ use std::path::Path;
 
 /// Reads an NPY file into an image (see the module doc for what is accepted).
 pub fn read_npy(path: &Path, max_pixels: u64) -> Result<Image> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = super::format::read_input(path)?;
     decode_npy(&bytes, max_pixels).map_err(|msg| Error::input(path, msg))
 }
 
 /// Decodes NPY bytes; the error is a message without the file name.
 pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, String> {
-    check_header_length(bytes)?;
+    let data_start = check_header_length(bytes)?;
     let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a valid NPY file ({e})"))?;
     let shape = npy.shape().to_vec();
     let (h, w, c) = match shape[..] {
@@ -50,8 +50,12 @@ pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, S
         .ok_or_else(|| format!("NPY array shape {shape:?} is too large"))?;
     let item = ts.num_bytes().unwrap_or(0) as u64;
     // The data must be in the file: refuse before allocating `count` values.
-    if (bytes.len() as u64) < count.saturating_mul(item) {
-        return Err(format!("NPY file is truncated: shape {shape:?} needs {} bytes of data", count.saturating_mul(item)));
+    let have = (bytes.len() - data_start) as u64;
+    if have < count.saturating_mul(item) {
+        return Err(format!(
+            "NPY file is truncated: shape {shape:?} needs {} bytes of data, the file has {have}",
+            count.saturating_mul(item)
+        ));
     }
     let data: Vec<f32> = match (ts.type_char(), item) {
         (TypeChar::Float, 4) => npy.into_vec::<f32>().map_err(|e| e.to_string())?,
@@ -64,8 +68,9 @@ pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, S
 }
 
 /// Refuses a header whose declared length runs past the end of the file. npyz allocates the
-/// declared length (up to 4 GiB for format 2/3) before reading it; found by fuzzing.
-fn check_header_length(bytes: &[u8]) -> std::result::Result<(), String> {
+/// declared length (up to 4 GiB for format 2/3) before reading it; found by fuzzing. Returns
+/// the offset of the array data (the end of the header).
+fn check_header_length(bytes: &[u8]) -> std::result::Result<usize, String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not a valid NPY file (no NPY magic number)".into());
     }
@@ -77,7 +82,8 @@ fn check_header_length(bytes: &[u8]) -> std::result::Result<(), String> {
     if start + len > bytes.len() {
         return Err(format!("NPY file is truncated: its header declares {len} bytes, the file has {}", bytes.len() - start));
     }
-    check_header_text(&bytes[start..start + len])
+    check_header_text(&bytes[start..start + len])?;
+    Ok(start + len)
 }
 
 /// Longest header accepted (numpy's own `max_header_size` default).
@@ -172,7 +178,11 @@ mod tests {
         let img = Image::new(64, 64, 1);
         let mut buf = Vec::new();
         write_npy(&mut buf, &img).unwrap();
+        let full = buf.clone();
         buf.truncate(buf.len() / 2);
         assert!(decode_npy(&buf, u64::MAX).unwrap_err().contains("truncated"));
+        // Missing fewer bytes than the header's length: the data size alone is compared.
+        let e = decode_npy(&full[..full.len() - 4], u64::MAX).unwrap_err();
+        assert!(e.contains("truncated") && e.contains("needs 16384 bytes of data, the file has 16380"), "{e}");
     }
 }

@@ -92,7 +92,7 @@ pub fn session(path: &Path, cfg: &OnnxConfig) -> Result<(Arc<ModelSession>, bool
 
 fn create(path: &Path, cfg: &OnnxConfig, rt: &runtime::Runtime) -> Result<ModelSession> {
     let t = Instant::now();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::read_input(path)?;
     if bytes.is_empty() {
         return Err(Error::input(path, "the model file is empty (not an ONNX model)"));
     }
