@@ -3,12 +3,18 @@
 //! - Pairing: `NAME.ext` with its depth map and optional matte by the `[batch]` name patterns.
 //! - Deterministic order (sorted relative paths) and sharding (`--shard I/N` takes every N-th
 //!   item starting at I), so external schedulers can split a collection without coordination.
-//! - Resumable: an output newer than all its inputs is skipped unless `force`.
+//! - Resumable: an output is skipped (unless `force`) when the [`Fingerprint`] of its inputs
+//!   and parameters recorded beside it matches and the file still is what was written.
 //! - Each image is one [`crate::job::Job`] (atomic output); a failure is recorded, not fatal.
+//!   Values the user set (focus, manifest entries, config) are checked for every image before
+//!   any renders: a bad one is a usage error, not a failure of every image.
+//! - Writes stay inside the output folder, and nothing it writes is read back as a photo.
 //! - Bounded memory: images in flight stay under a budget estimated from their pixel counts.
 //! - Cancellable: once `cancel` is set, no new image starts; images in flight finish.
+//! - Safe beside other runs on the same folder: only temporary files whose writer is gone are
+//!   removed (see [`crate::io::atomic`]).
 
-use crate::config::Config;
+use crate::config::{stays_inside, Config};
 use crate::error::{Error, Result};
 use crate::job::{self, Job};
 use crate::pipeline::{Focus, Pipeline};
@@ -147,7 +153,14 @@ pub fn discover(opts: &BatchOptions, cfg: &Config) -> Result<Vec<Item>> {
                 names.insert(name);
             }
         }
-        let images: Vec<&String> = names.iter().filter(|n| ext_of(Path::new(n)).is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str()))).collect();
+        // In the folder this folder's outputs go to (`-o` = the input folder), files named like
+        // outputs are earlier results, not photos (their photo may even be gone).
+        let outputs_here = same_dir(&dir, &opts.output_dir.join(&rel_dir));
+        let images: Vec<&String> = names
+            .iter()
+            .filter(|n| ext_of(Path::new(n)).is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str())))
+            .filter(|n| !(outputs_here && is_output_name(n, &cfg.batch) && output_name(n, &cfg.batch) != **n))
+            .collect();
         // A file that is another image's depth map or matte is not an image itself.
         let mut companions = BTreeSet::new();
         for n in &images {
@@ -160,7 +173,10 @@ pub fn discover(opts: &BatchOptions, cfg: &Config) -> Result<Vec<Item>> {
         }
         for n in images.into_iter().filter(|n| !companions.contains(*n)) {
             let stem = Path::new(n).file_stem().unwrap_or_default().to_string_lossy().into_owned();
-            let out_name = format!("{}.{}", cfg.batch.output_pattern.replace("{stem}", &stem), cfg.batch.output_format);
+            let out_name = output_name(n, &cfg.batch);
+            if !stays_inside(Path::new(&out_name)) {
+                return Err(Error::usage(format!("batch.output_pattern makes '{out_name}' of {n}, outside the output folder")));
+            }
             items.push(Item {
                 rel: rel_dir.join(n).to_string_lossy().replace('\\', "/"),
                 image: dir.join(n),
@@ -172,6 +188,32 @@ pub fn discover(opts: &BatchOptions, cfg: &Config) -> Result<Vec<Item>> {
     }
     items.sort_by(|a, b| a.rel.cmp(&b.rel));
     Ok(items)
+}
+
+/// The output's path, relative to the output folder's counterpart of the photo's folder.
+fn output_name(photo: &str, batch: &crate::config::BatchConfig) -> String {
+    let stem = Path::new(photo).file_stem().unwrap_or_default().to_string_lossy();
+    format!("{}.{}", batch.output_pattern.replace("{stem}", &stem), batch.output_format)
+}
+
+/// True if the file name `name` is what `batch.output_pattern` and `batch.output_format` make
+/// of some stem. A pattern with folders is never matched here (its outputs are recognized by
+/// their exact paths, see `drop_outputs`). O(name length).
+fn is_output_name(name: &str, batch: &crate::config::BatchConfig) -> bool {
+    const STEM: &str = "{stem}";
+    let pattern = &batch.output_pattern;
+    let Some(base) = name.strip_suffix(&format!(".{}", batch.output_format)) else { return false };
+    let (n, Some(first)) = (pattern.matches(STEM).count(), pattern.find(STEM)) else { return false };
+    if pattern.contains('/') || pattern.contains('\\') {
+        return false;
+    }
+    // Every {stem} stands for the same text, so its length follows from the name's.
+    let fixed = pattern.len() - n * STEM.len();
+    if base.len() < fixed || !(base.len() - fixed).is_multiple_of(n) {
+        return false;
+    }
+    let len = (base.len() - fixed) / n;
+    base.get(first..first + len).is_some_and(|stem| pattern.replace(STEM, stem) == base)
 }
 
 fn same_dir(a: &Path, b: &Path) -> bool {
@@ -192,16 +234,47 @@ pub fn parse_shard(s: &str) -> std::result::Result<(usize, usize), String> {
     Ok((i, n))
 }
 
+/// What happened to one item (serialized lowercase: "ok", "skipped", "failed", "cancelled").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    /// Rendered and written.
+    Ok,
+    /// Its output is up to date (same inputs and parameters, valid file).
+    Skipped,
+    /// Could not be rendered; `reason` says why.
+    Failed,
+    /// Not started because the batch was interrupted.
+    Cancelled,
+}
+
+impl Status {
+    /// The name used in the JSON summary and in progress lines.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Status::Ok => "ok",
+            Status::Skipped => "skipped",
+            Status::Failed => "failed",
+            Status::Cancelled => "cancelled",
+        }
+    }
+}
+
 /// What happened to one item.
 #[derive(Clone, Debug, Serialize)]
 pub struct ItemResult {
     pub image: String,
-    /// "ok", "skipped", "failed" or "cancelled".
-    pub status: &'static str,
+    pub status: Status,
+    /// Why it was skipped or failed; for "ok", why an existing output was made again.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
     pub output: String,
     pub seconds: f64,
+    /// The fingerprint the output was (or is) made with: 16 hex digits of the inputs' hash,
+    /// then 16 of the parameters' hash (see [`Fingerprint`]); absent when the item did not get
+    /// that far.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fingerprint: Option<String>,
 }
 
 /// The batch summary (also written to `OUTPUT_DIR/drbokeh-batch.json`).
@@ -238,72 +311,169 @@ impl Budget {
     }
 }
 
-/// Pixel count from the file header, without decoding (0 when unknown).
-fn probe_pixels(path: &Path) -> u64 {
-    image::ImageReader::open(path)
-        .ok()
-        .and_then(|r| r.with_guessed_format().ok())
-        .and_then(|r| r.into_dimensions().ok())
-        .map(|(w, h)| w as u64 * h as u64)
-        .unwrap_or(0)
+/// Width and height from an image file's header, without decoding (None when unknown). NPY
+/// files (H x W or H x W x C) through their header, the rest through the `image` crate.
+fn probe_dims(path: &Path) -> Option<(u64, u64)> {
+    if ext_of(path).as_deref() == Some("npy") {
+        let npy = npyz::NpyFile::new(std::io::BufReader::new(std::fs::File::open(path).ok()?)).ok()?;
+        return match npy.shape() {
+            [h, w] | [h, w, _] => Some((*w, *h)),
+            _ => None,
+        };
+    }
+    let (w, h) = image::ImageReader::open(path).ok()?.with_guessed_format().ok()?.into_dimensions().ok()?;
+    Some((w as u64, h as u64))
 }
 
-fn mtime(p: &Path) -> Option<SystemTime> {
-    std::fs::metadata(p).and_then(|m| m.modified()).ok()
+/// An item with everything resolved before any image runs (manifest applied, values checked),
+/// so that a bad value stops the batch with a usage error instead of failing every image.
+struct Plan {
+    item: Item,
+    /// The run's configuration with the manifest's blur applied.
+    cfg: Config,
+    focus: Focus,
 }
 
-/// True if `out` exists and is newer than every input.
-fn up_to_date(out: &Path, inputs: &[PathBuf]) -> bool {
-    let Some(t) = mtime(out) else { return false };
-    inputs.iter().all(|i| mtime(i).is_some_and(|ti| ti <= t))
-}
-
-/// Removes temporary files left next to `output` by an interrupted earlier run.
-fn remove_stale_temps(output: &Path) {
-    let (Some(dir), Some(name)) = (output.parent(), output.file_name()) else { return };
-    let prefix = format!(".{}.", name.to_string_lossy());
-    if let Ok(entries) = std::fs::read_dir(dir) {
-        for e in entries.flatten() {
-            let n = e.file_name().to_string_lossy().into_owned();
-            if n.starts_with(&prefix) && n.ends_with(".drbokeh-tmp") {
-                let _ = std::fs::remove_file(e.path());
+/// Sets each item's output from the manifest; an output that would leave the output folder
+/// (`..`, an absolute path) is an error naming the manifest entry.
+fn apply_manifest_outputs(items: &mut [Item], manifest: &BTreeMap<String, ManifestEntry>, manifest_path: &Path, output_dir: &Path) -> Result<()> {
+    for item in items {
+        if let Some(o) = manifest.get(&item.rel).and_then(|e| e.output.as_ref()) {
+            if !stays_inside(Path::new(o)) {
+                return Err(Error::input(
+                    manifest_path,
+                    format!("image '{}': output '{o}' is outside the output folder {} (give a path relative to it, without '..')", item.rel, output_dir.display()),
+                ));
             }
+            item.output = output_dir.join(o);
         }
     }
+    Ok(())
+}
+
+/// `path` with its folder resolved (symlinks, `..`), to compare files that may not exist yet.
+fn file_key(path: &Path) -> Option<PathBuf> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    Some(std::fs::canonicalize(dir).ok()?.join(path.file_name()?))
+}
+
+/// Drops the items that are another item's earlier output (`-o` equal to the input folder with
+/// a manifest `output` or a pattern with folders; plain pattern names are already left out by
+/// [`discover`]): what the batch writes is never read back as a photo. An output that would
+/// overwrite a photo (one without a fingerprint record beside it) is a usage error.
+fn drop_outputs(items: Vec<Item>) -> Result<Vec<Item>> {
+    let outputs: BTreeMap<PathBuf, String> = items.iter().filter_map(|i| Some((file_key(&i.output)?, i.rel.clone()))).collect();
+    let mut kept = Vec::with_capacity(items.len());
+    for item in items {
+        match file_key(&item.image).and_then(|k| outputs.get(&k)) {
+            Some(_) if record_path(&item.image).exists() => {}
+            Some(writer) => {
+                let photo = &item.rel;
+                return Err(Error::usage(format!(
+                    "the output of {writer} would overwrite the photo {photo}; choose another -o, batch.output_pattern or manifest output (or delete {photo} if it is an earlier output)"
+                )));
+            }
+            None => kept.push(item),
+        }
+    }
+    Ok(kept)
+}
+
+/// Resolves focus, blur and matte of every item and checks them: a non-finite focus, a bad
+/// manifest value or an image without any focus is an error before anything renders.
+fn plan(cfg: &Config, opts: &BatchOptions, items: Vec<Item>, manifest: &BTreeMap<String, ManifestEntry>, manifest_path: &Path) -> Result<Vec<Plan>> {
+    if let Some(Focus::Disparity(f)) = opts.focus
+        && !f.is_finite()
+    {
+        return Err(Error::usage(format!("--focus must be a finite number, got {f}")));
+    }
+    let entry_error = |rel: &str, msg: String| Error::input(manifest_path, format!("image '{rel}': {msg}"));
+    let mut plans = Vec::with_capacity(items.len());
+    let mut unfocused = Vec::new();
+    for mut item in items {
+        let mut cfg = cfg.clone();
+        let mut focus = opts.focus;
+        if let Some(e) = manifest.get(&item.rel) {
+            if let Some(b) = e.blur {
+                cfg.render.blur = Some(b);
+                cfg.validate().map_err(|err| entry_error(&item.rel, err.to_string().replace("render.blur", "blur")))?;
+            }
+            if let Some(m) = &e.matte {
+                item.matte = Some(item.image.parent().unwrap_or(Path::new(".")).join(m));
+            }
+            if let Some(f) = e.focus {
+                if !f.is_finite() {
+                    return Err(entry_error(&item.rel, format!("focus must be a finite number, got {f}")));
+                }
+                focus = Some(Focus::Disparity(f));
+            } else if let Some(xy) = &e.focus_at {
+                let (x, y) = xy
+                    .split_once(',')
+                    .and_then(|(x, y)| Some((x.trim().parse().ok()?, y.trim().parse().ok()?)))
+                    .ok_or_else(|| entry_error(&item.rel, format!("focus_at '{xy}' is not X,Y (two integers)")))?;
+                focus = Some(Focus::At(x, y));
+            }
+        }
+        match focus {
+            Some(focus) => plans.push(Plan { item, cfg, focus }),
+            None => unfocused.push(item.rel),
+        }
+    }
+    if !unfocused.is_empty() {
+        let some = unfocused.iter().take(3).map(String::as_str).collect::<Vec<_>>().join(", ");
+        let more = if unfocused.len() > 3 { format!(" and {} more", unfocused.len() - 3) } else { String::new() };
+        return Err(Error::usage(format!("no focus for {some}{more}: give --focus or --focus-at, or focus/focus_at in a --manifest entry")));
+    }
+    Ok(plans)
 }
 
 /// Runs the batch. `progress` is called after each item with (done, total, result).
+///
+/// Steps: read the manifest, discover the images, resolve their outputs and settings (every
+/// usage error surfaces here, before any image runs), take this shard, remove temporary files
+/// of dead writers, render, write the summary.
 pub fn run(cfg: &Config, opts: &BatchOptions, cancel: &AtomicBool, progress: &(dyn Fn(usize, usize, &ItemResult) + Sync)) -> Result<Summary> {
     let t0 = Instant::now();
+    let manifest_path = opts.manifest.as_deref().unwrap_or(Path::new("manifest"));
     let manifest = match &opts.manifest {
         Some(p) => read_manifest(p)?,
         None => BTreeMap::new(),
     };
     let mut items = discover(opts, cfg)?;
+    apply_manifest_outputs(&mut items, &manifest, manifest_path, &opts.output_dir)?;
+    let items = drop_outputs(items)?;
     for key in manifest.keys() {
         if !items.iter().any(|i| &i.rel == key) {
-            return Err(Error::input(opts.manifest.as_deref().unwrap_or(Path::new("manifest")), format!("image '{key}' is not in {}", opts.input_dir.display())));
+            return Err(Error::input(manifest_path, format!("image '{key}' is not in {}", opts.input_dir.display())));
         }
     }
+    let mut plans = plan(cfg, opts, items, &manifest, manifest_path)?;
     if let Some((i, n)) = opts.shard {
-        items = items.into_iter().enumerate().filter(|(k, _)| k % n == i).map(|(_, it)| it).collect();
+        plans = plans.into_iter().enumerate().filter(|(k, _)| k % n == i).map(|(_, p)| p).collect();
     }
     std::fs::create_dir_all(&opts.output_dir).map_err(|e| Error::io(&opts.output_dir, e))?;
-    let total = items.len();
+    // Once per folder, not per image: one read_dir each.
+    let out_dirs: BTreeSet<&Path> = plans.iter().filter_map(|p| p.item.output.parent()).chain([opts.output_dir.as_path()]).collect();
+    for dir in out_dirs {
+        crate::io::atomic::remove_stale_temps(dir);
+    }
+    let total = plans.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let budget = Budget { limit: cfg.batch.memory_budget_mb.saturating_mul(1 << 20), used: Mutex::new(0), freed: Condvar::new() };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(opts.jobs.max(1)).build().map_err(|e| Error::Internal(e.to_string()))?;
     let results: Vec<ItemResult> = pool.install(|| {
         use rayon::prelude::*;
-        items
+        plans
             .par_iter()
             .with_max_len(1)
-            .map(|item| {
-                let entry = manifest.get(&item.rel);
+            .map(|plan| {
                 let r = if cancel.load(Ordering::SeqCst) {
-                    result(item, "cancelled", Some("interrupted before it started".into()), 0.0)
+                    result(&plan.item, Status::Cancelled, Some("interrupted before it started".into()), 0.0, None)
                 } else {
-                    process(cfg, opts, item, entry, &budget)
+                    process(opts, plan, &budget)
                 };
                 let k = done.fetch_add(1, Ordering::SeqCst) + 1;
                 progress(k, total, &r);
@@ -314,10 +484,10 @@ pub fn run(cfg: &Config, opts: &BatchOptions, cancel: &AtomicBool, progress: &(d
     let mut summary = Summary { shard: opts.shard.map(|(i, n)| format!("{i}/{n}")), ..Default::default() };
     for r in &results {
         match r.status {
-            "ok" => summary.ok += 1,
-            "skipped" => summary.skipped += 1,
-            "cancelled" => summary.cancelled += 1,
-            _ => summary.failed += 1,
+            Status::Ok => summary.ok += 1,
+            Status::Skipped => summary.skipped += 1,
+            Status::Cancelled => summary.cancelled += 1,
+            Status::Failed => summary.failed += 1,
         }
     }
     summary.items = results;
@@ -336,58 +506,131 @@ pub fn summary_path(output_dir: &Path, shard: Option<(usize, usize)>) -> PathBuf
     })
 }
 
-fn result(item: &Item, status: &'static str, reason: Option<String>, seconds: f64) -> ItemResult {
-    ItemResult { image: item.rel.clone(), status, reason, output: item.output.display().to_string(), seconds }
+fn result(item: &Item, status: Status, reason: Option<String>, seconds: f64, fingerprint: Option<&Fingerprint>) -> ItemResult {
+    ItemResult { image: item.rel.clone(), status, reason, output: item.output.display().to_string(), seconds, fingerprint: fingerprint.map(Fingerprint::hex) }
 }
 
-fn process(cfg: &Config, opts: &BatchOptions, item: &Item, entry: Option<&ManifestEntry>, budget: &Budget) -> ItemResult {
+/// What an output is made from: a hash of its inputs (path relative to the input folder, size
+/// and modification time of each: no file is read) and a hash of its effective parameters
+/// (the configuration without `[batch]`, the manifest's blur, the focus, the output format).
+/// Equal fingerprints and a valid output file mean the output is up to date.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Fingerprint {
+    /// 64-bit FNV-1a of the inputs' list, 16 hex digits.
+    pub inputs: String,
+    /// 64-bit FNV-1a of the parameters' JSON, 16 hex digits.
+    pub params: String,
+}
+
+impl Fingerprint {
+    fn of(plan: &Plan, job: &Job, input_dir: &Path) -> Fingerprint {
+        let mut inputs = String::new();
+        for p in job.inputs() {
+            let rel = p.strip_prefix(input_dir).unwrap_or(&p).to_string_lossy().replace('\\', "/");
+            let meta = std::fs::metadata(&p).ok();
+            let nanos = meta.as_ref().and_then(|m| m.modified().ok()).and_then(|t| t.duration_since(SystemTime::UNIX_EPOCH).ok()).map(|d| d.as_nanos());
+            inputs.push_str(&format!("{rel}\t{:?}\t{nanos:?}\n", meta.map(|m| m.len())));
+        }
+        let mut cfg = plan.cfg.clone();
+        // How files are paired and memory is budgeted does not change an output.
+        cfg.batch = Default::default();
+        let focus = match plan.focus {
+            Focus::Disparity(f) => serde_json::json!({ "disparity": f }),
+            Focus::At(x, y) => serde_json::json!({ "at": [x, y] }),
+            Focus::Depth(z) => serde_json::json!({ "depth": z }),
+        };
+        let params = serde_json::json!({ "config": cfg, "focus": focus, "format": ext_of(&job.output) }).to_string();
+        let hex = |t: &str| format!("{:016x}", crate::io::atomic::fnv1a64(t.as_bytes()));
+        Fingerprint { inputs: hex(&inputs), params: hex(&params) }
+    }
+
+    fn hex(&self) -> String {
+        format!("{}{}", self.inputs, self.params)
+    }
+}
+
+/// The sidecar `.NAME.drbokeh-fingerprint` written beside an output once it is complete.
+#[derive(Serialize, Deserialize)]
+struct Record {
+    fingerprint: Fingerprint,
+    /// Size of the output file when it was written: a truncated or replaced file differs.
+    output_bytes: u64,
+    /// The drbokeh version that wrote it (information only; not compared).
+    drbokeh: String,
+}
+
+fn record_path(output: &Path) -> PathBuf {
+    crate::io::atomic::hidden_sibling(output, "drbokeh-fingerprint")
+}
+
+/// Why the existing `output` must be made again, or None if it is up to date: a missing or
+/// different fingerprint, or a file that is not what was written (size, readable header, the
+/// image's width and height). Reads the sidecar and the headers only.
+fn stale_reason(output: &Path, image: &Path, fp: &Fingerprint) -> Option<String> {
+    let record = std::fs::read(record_path(output)).ok().and_then(|b| serde_json::from_slice::<Record>(&b).ok());
+    let Some(record) = record else {
+        return Some("the existing output has no fingerprint (made by an older drbokeh, or interrupted); made again".into());
+    };
+    if record.fingerprint.params != fp.params {
+        return Some("parameters changed since the existing output was made; made again".into());
+    }
+    if record.fingerprint.inputs != fp.inputs {
+        return Some("inputs changed since the existing output was made; made again".into());
+    }
+    let bytes = std::fs::metadata(output).map(|m| m.len()).unwrap_or(0);
+    if bytes == 0 || bytes != record.output_bytes {
+        return Some(format!("the existing output is {bytes} bytes, {} were written; made again", record.output_bytes));
+    }
+    match (probe_dims(output), probe_dims(image)) {
+        (None, _) => Some("the existing output's header is unreadable; made again".into()),
+        (Some(o), Some(i)) if o != i => Some(format!("the existing output is {}x{}, the image {}x{}; made again", o.0, o.1, i.0, i.1)),
+        _ => None,
+    }
+}
+
+fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
     let t = Instant::now();
-    let outcome = (|| -> Result<Option<String>> {
-        let mut cfg = cfg.clone();
-        let mut matte = item.matte.clone();
-        let mut output = item.output.clone();
-        let mut focus = opts.focus;
-        if let Some(e) = entry {
-            if let Some(b) = e.blur {
-                cfg.render.blur = Some(b);
-            }
-            if let Some(m) = &e.matte {
-                matte = Some(item.image.parent().unwrap_or(Path::new(".")).join(m));
-            }
-            if let Some(o) = &e.output {
-                output = opts.output_dir.join(o);
-            }
-            if let Some(f) = e.focus {
-                focus = Some(Focus::Disparity(f));
-            } else if let Some(xy) = &e.focus_at {
-                let (x, y) = xy.split_once(',').and_then(|(x, y)| Some((x.trim().parse().ok()?, y.trim().parse().ok()?))).ok_or_else(|| Error::usage(format!("manifest focus_at '{xy}' is not X,Y")))?;
-                focus = Some(Focus::At(x, y));
-            }
-        }
-        let focus = focus.ok_or_else(|| Error::usage("no focus: give --focus/--focus-at or a manifest entry"))?;
+    let item = &plan.item;
+    let mut fingerprint = None;
+    let outcome = (|| -> Result<(Status, Option<String>)> {
         let depth = item.depth.clone().ok_or_else(|| {
-            Error::input(&item.image, format!("no depth map found (looked for {} with .exr/.png/.tif/.tiff/.npy)", cfg.batch.depth_patterns.join(", ")))
+            Error::input(&item.image, format!("no depth map found (looked for {} with .exr/.png/.tif/.tiff/.npy)", plan.cfg.batch.depth_patterns.join(", ")))
         })?;
-        let job = Job { image: Some(item.image.clone()), depth: Some(depth), matte, layers: Vec::new(), focus, output: output.clone(), save_layers: None };
-        if !opts.force && up_to_date(&output, &job.inputs()) {
-            return Ok(Some("output is newer than its inputs (use --force to redo)".into()));
-        }
+        let output = item.output.clone();
+        let job = Job { image: Some(item.image.clone()), depth: Some(depth), matte: item.matte.clone(), layers: Vec::new(), focus: plan.focus, output: output.clone(), save_layers: None };
+        let fp = fingerprint.insert(Fingerprint::of(plan, &job, &opts.input_dir)).clone();
+        let redo = match (output.exists(), opts.force) {
+            (false, _) => None,
+            (true, true) => Some("--force: made again".to_string()),
+            (true, false) => match stale_reason(&output, &item.image, &fp) {
+                None => return Ok((Status::Skipped, Some("up to date: same inputs and parameters (use --force to redo)".into()))),
+                why => why,
+            },
+        };
         if let Some(dir) = output.parent() {
             std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         }
-        remove_stale_temps(&output);
-        let bytes = probe_pixels(&item.image).saturating_mul(BYTES_PER_PIXEL);
+        // A stale record must not vouch for the new output if this render is interrupted.
+        let record = record_path(&output);
+        match std::fs::remove_file(&record) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(Error::io(&record, e)),
+            _ => {}
+        }
+        let bytes = probe_dims(&item.image).map_or(0, |(w, h)| w * h).saturating_mul(BYTES_PER_PIXEL);
         budget.acquire(bytes);
         // A bug in one image must not take the batch down with it.
-        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Pipeline::from_config(cfg).and_then(|p| job::run(&p, &job))))
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Pipeline::from_config(plan.cfg.clone()).and_then(|p| job::run(&p, &job))))
             .unwrap_or_else(|_| Err(Error::Internal("the renderer panicked on this image (a bug; please report it)".into())));
         budget.release(bytes);
-        r.map(|_| None)
+        r?;
+        let output_bytes = std::fs::metadata(&output).map_err(|e| Error::io(&output, e))?.len();
+        let text = serde_json::to_string_pretty(&Record { fingerprint: fp, output_bytes, drbokeh: env!("CARGO_PKG_VERSION").into() }).map_err(|e| Error::Internal(e.to_string()))?;
+        crate::io::atomic::write_atomic(&record, |w| std::io::Write::write_all(w, text.as_bytes()).map_err(|e| Error::io(&record, e)))?;
+        Ok((Status::Ok, redo))
     })();
     let secs = t.elapsed().as_secs_f64();
     match outcome {
-        Ok(None) => result(item, "ok", None, secs),
-        Ok(Some(why)) => result(item, "skipped", Some(why), secs),
-        Err(e) => result(item, "failed", Some(e.to_string()), secs),
+        Ok((status, why)) => result(item, status, why, secs, fingerprint.as_ref()),
+        Err(e) => result(item, Status::Failed, Some(e.to_string()), secs, None),
     }
 }

@@ -2,7 +2,7 @@
 
 use crate::{config_from, parse_xy, set_threads, PipelineArgs};
 use clap::Args;
-use drbokeh::batch::{self, BatchOptions, ItemResult};
+use drbokeh::batch::{self, BatchOptions, ItemResult, Status};
 use drbokeh::pipeline::Focus;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
@@ -36,7 +36,7 @@ pub struct BatchArgs {
     /// [batch] memory_budget_mb.
     #[arg(long, value_name = "N", default_value_t = 1)]
     jobs: usize,
-    /// Redo images whose output is newer than their inputs.
+    /// Redo images whose output is up to date (same inputs and parameters).
     #[arg(long)]
     force: bool,
     /// Process only slice I of N (0-based), by sorted path: for Slurm arrays, GNU parallel,
@@ -69,7 +69,8 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         let cancel = cancel.clone();
         let _ = ctrlc::set_handler(move || {
             if cancel.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
+                // The images in flight are abandoned: their temporary files go with them.
+                drbokeh::io::atomic::remove_in_flight_temps_and_exit(130);
             }
             eprintln!("\ninterrupted: finishing the images in flight (interrupt again to abort)");
         });
@@ -81,13 +82,13 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         b
     });
     let progress = |done: usize, total: usize, r: &ItemResult| {
-        let line = format!("{} {}{}", r.status, r.image, r.reason.as_ref().map(|w| format!(": {w}")).unwrap_or_default());
+        let line = format!("{} {}{}", r.status.as_str(), r.image, r.reason.as_ref().map(|w| format!(": {w}")).unwrap_or_default());
         match &bar {
             Some(b) => {
                 b.set_length(total as u64);
                 b.set_position(done as u64);
                 b.set_message(r.image.clone());
-                if r.status == "failed" {
+                if r.status == Status::Failed {
                     b.println(line);
                 }
             }
@@ -111,7 +112,7 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
             summary.seconds,
             batch::summary_path(&args.output, args.shard).display()
         );
-        for r in summary.items.iter().filter(|r| r.status == "failed") {
+        for r in summary.items.iter().filter(|r| r.status == Status::Failed) {
             eprintln!("  failed {}: {}", r.image, r.reason.as_deref().unwrap_or(""));
         }
     }

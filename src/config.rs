@@ -168,6 +168,15 @@ impl Config {
         if !self.batch.output_pattern.contains("{stem}") {
             return Err(Error::usage("batch.output_pattern must contain {stem}"));
         }
+        if !stays_inside(Path::new(&self.batch.output_pattern)) {
+            return Err(Error::usage(format!(
+                "batch.output_pattern \"{}\" must stay inside the output folder (a relative path without '..')",
+                self.batch.output_pattern
+            )));
+        }
+        if self.batch.depth_patterns.is_empty() {
+            return Err(Error::usage("batch.depth_patterns must list at least one pattern (e.g. \"{stem}.depth\")"));
+        }
         if self.input.max_pixels == 0 {
             return Err(Error::usage("input.max_pixels must be > 0"));
         }
@@ -189,6 +198,16 @@ impl Config {
         }
         Ok(())
     }
+}
+
+/// True if the relative path `rel` names something inside the folder it is joined to: no root,
+/// no drive prefix, no `..` (checked on the words, not the file system; `.` is allowed).
+pub fn stays_inside(rel: &Path) -> bool {
+    use std::path::Component;
+    // A backslash separates folders on Windows; judged the same everywhere so a manifest means
+    // the same on every system.
+    let unified = rel.to_string_lossy().replace('\\', "/");
+    !unified.is_empty() && Path::new(&unified).components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
 }
 
 /// Turns a TOML/serde error into one line; for an unknown key, suggests the closest valid key.
@@ -236,6 +255,22 @@ mod tests {
         assert!(e.contains("blurr") && e.contains("did you mean `blur`"), "{e}");
         let e = Config::parse("[render]\nblur = \"x\"\n").unwrap_err();
         assert!(e.contains("blur") || e.contains("invalid type"), "{e}");
+    }
+
+    #[test]
+    fn batch_paths_stay_inside_the_output_folder() {
+        for ok in ["{stem}_bokeh", "sub/{stem}", "./{stem}"] {
+            assert!(stays_inside(Path::new(ok)), "{ok}");
+        }
+        for bad in ["../{stem}", "../../escape_{stem}", "/tmp/{stem}", "a/../../{stem}", "..\\{stem}", ""] {
+            assert!(!stays_inside(Path::new(bad)), "{bad}");
+        }
+        let mut cfg = Config::default();
+        cfg.batch.output_pattern = "../../escape_{stem}".into();
+        assert!(matches!(cfg.validate(), Err(Error::Usage(m)) if m.contains("batch.output_pattern")));
+        let mut cfg = Config::default();
+        cfg.batch.depth_patterns.clear();
+        assert!(matches!(cfg.validate(), Err(Error::Usage(m)) if m.contains("batch.depth_patterns")));
     }
 
     #[test]

@@ -278,6 +278,11 @@ pub(crate) fn print_json<T: serde::Serialize>(value: &T) -> anyhow::Result<()> {
 
 fn render(args: RenderArgs) -> anyhow::Result<()> {
     set_threads(args.opts.threads)?;
+    // SIGINT/SIGTERM: nothing is worth finishing; remove the temporary output file, exit 130.
+    let _ = ctrlc::set_handler(|| {
+        eprintln!("\ninterrupted");
+        drbokeh::io::atomic::remove_in_flight_temps_and_exit(130);
+    });
     let t0 = Instant::now();
     let cfg = config_from(&args.opts)?;
     let focus = match (args.focus, args.focus_at, args.focus_depth) {

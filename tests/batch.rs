@@ -65,7 +65,9 @@ fn pairs_renders_resumes_and_reports_failures() {
     assert_eq!(o.status.code(), Some(3), "{err}");
     assert!(err.contains("nodepth.png") && err.contains("no depth map"), "{err}");
     assert!(err.contains("broken.png") && err.contains("PNG"), "{err}");
-    assert_eq!(files(&out), vec!["a_bokeh.png", "b_bokeh.png", "drbokeh-batch.json", "sub/c_bokeh.png"]);
+    // Each output has its fingerprint beside it (hidden).
+    let fp = |n: &str| format!("{n}.drbokeh-fingerprint");
+    assert_eq!(files(&out), [fp(".a_bokeh.png"), fp(".b_bokeh.png"), "a_bokeh.png".into(), "b_bokeh.png".into(), "drbokeh-batch.json".into(), fp("sub/.c_bokeh.png"), "sub/c_bokeh.png".into()]);
     let s = summary(&out, "drbokeh-batch.json");
     assert_eq!((s["ok"].as_u64(), s["failed"].as_u64()), (Some(3), Some(2)));
 
@@ -128,10 +130,6 @@ fn manifest_overrides_focus_blur_and_output() {
     let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--manifest", toml.to_str().unwrap()]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.png"));
-    // Without a focus anywhere, images fail (and say why).
-    let o = bin().args(["batch", inp.to_str().unwrap(), "-o", t.path().join("o2").to_str().unwrap()]).output().unwrap();
-    assert_eq!(o.status.code(), Some(3));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no focus"));
 }
 
 #[test]
@@ -139,4 +137,248 @@ fn bad_input_folder_is_a_usage_error() {
     let o = bin().args(["batch", "/nonexistent/folder", "-o", "/tmp/x", "--focus", "0"]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent/folder"));
+}
+
+/// Runs `drbokeh batch IN -o OUT ARGS --json` and returns (exit code, summary or Null, stderr).
+fn batch_json(inp: &Path, out: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value, String) {
+    let o = bin().arg("batch").arg(inp).arg("-o").arg(out).args(args).arg("--json").env("RAYON_NUM_THREADS", "2").output().unwrap();
+    let s = serde_json::from_slice(&o.stdout).unwrap_or(serde_json::Value::Null);
+    (o.status.code(), s, String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+/// (status, reason) of each item of a summary, by image.
+fn statuses(s: &serde_json::Value) -> Vec<(String, String, String)> {
+    s["items"].as_array().unwrap().iter().map(|it| (it["image"].as_str().unwrap().into(), it["status"].as_str().unwrap().into(), it["reason"].as_str().unwrap_or("").into())).collect()
+}
+
+/// Asserts a usage error: exit 2, stderr naming every needle, no panic, and no file written
+/// under `root` (the test's temporary folder).
+fn assert_usage_error(root: &Path, inp: &Path, out: &Path, args: &[&str], needles: &[&str]) {
+    let before = files(root);
+    let (code, _, err) = batch_json(inp, out, args);
+    assert_eq!(code, Some(2), "batch {args:?} should exit 2: {err}");
+    for n in needles {
+        assert!(err.contains(n), "batch {args:?}: the message should name {n:?}: {err}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(files(root), before, "batch {args:?} wrote files");
+}
+
+/// Issue 10: a second run's cleanup removed the first run's temporary file. Only files whose
+/// writer is gone (no lock held) may go.
+#[test]
+fn cleanup_keeps_live_temps_and_removes_stale_ones() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    std::fs::create_dir_all(&out).unwrap();
+    scene(&inp, "a", Some("a.depth.exr"), None);
+    // A writer that is alive (this test holds the lock, as write_atomic does) …
+    let live = out.join(format!(".a_bokeh.png.{}-1.drbokeh-tmp", std::process::id()));
+    let held = std::fs::File::create(&live).unwrap();
+    held.try_lock().unwrap();
+    // … and one that died (nobody holds its lock), for this output and another.
+    let stale = [out.join(".a_bokeh.png.4000000-2.drbokeh-tmp"), out.join(".gone_bokeh.png.4000000-3.drbokeh-tmp")];
+    for p in &stale {
+        std::fs::write(p, b"half").unwrap();
+    }
+    let (code, s, err) = batch_json(&inp, &out, &["--focus", "1", "--blur", "4"]);
+    assert_eq!((code, s["ok"].as_u64()), (Some(0), Some(1)), "{err}");
+    assert!(live.exists(), "a live writer's temporary file was removed");
+    assert!(stale.iter().all(|p| !p.exists()), "stale temporary files were kept: {:?}", files(&out));
+    drop(held);
+
+    // Two runs on one folder at once: neither may break the other (3 of 10 trials failed).
+    for k in 0..4 {
+        scene(&inp, &format!("img{k}"), Some(&format!("img{k}.depth.exr")), None);
+    }
+    for _ in 0..3 {
+        let spawn = || bin().arg("batch").arg(&inp).arg("-o").arg(&out).args(["--focus", "1", "--blur", "4", "--force"]).env("RAYON_NUM_THREADS", "1").output();
+        let (a, b) = std::thread::scope(|sc| {
+            let a = sc.spawn(spawn);
+            let b = sc.spawn(spawn);
+            (a.join().unwrap().unwrap(), b.join().unwrap().unwrap())
+        });
+        for o in [a, b] {
+            assert!(o.status.success(), "concurrent run failed: {}", String::from_utf8_lossy(&o.stderr));
+        }
+    }
+    assert!(files(&out).iter().all(|f| !f.ends_with(".drbokeh-tmp")), "{:?}", files(&out));
+}
+
+/// Issue 10: `output_pattern` or a manifest `output` must not write outside `-o`.
+#[test]
+fn outputs_stay_inside_the_output_folder() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("a/b/in"), t.path().join("a/b/out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    scene(&inp, "x", Some("x.depth.exr"), None);
+    let cfg = t.path().join("escape.toml");
+    std::fs::write(&cfg, "[batch]\noutput_pattern = \"../../escape_{stem}\"\n").unwrap();
+    assert_usage_error(t.path(), &inp, &out, &["--focus", "1", "--config", cfg.to_str().unwrap()], &["batch.output_pattern", "escape.toml"]);
+    for bad in ["../x_out.png", "sub/../../x_out.png", "/tmp/drbokeh_escape_x.png"] {
+        let m = t.path().join("m.csv");
+        std::fs::write(&m, format!("image,focus,output\nx.png,1,{bad}\n")).unwrap();
+        assert_usage_error(t.path(), &inp, &out, &["--manifest", m.to_str().unwrap()], &["x.png", bad, "m.csv"]);
+        std::fs::remove_file(&m).unwrap();
+    }
+    assert!(!Path::new("/tmp/drbokeh_escape_x.png").exists());
+    // Inside is fine, subfolders included.
+    let m = t.path().join("m.toml");
+    std::fs::write(&m, "[[image]]\nimage = \"x.png\"\nfocus = 1.0\noutput = \"deep/er/x.png\"\n").unwrap();
+    let (code, _, err) = batch_json(&inp, &out, &["--manifest", m.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.join("deep/er/x.png").exists());
+}
+
+/// Issue 10: resume compared modification times only. A rerun with other parameters, a
+/// 0-byte, truncated or corrupt output, or a lost fingerprint must redo the image.
+#[test]
+fn resume_redoes_what_changed() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    scene(&inp, "a", Some("a.depth.exr"), None);
+    scene(&inp, "b", Some("b.depth.exr"), None);
+    let run = |args: &[&str]| {
+        let (code, s, err) = batch_json(&inp, &out, args);
+        assert_eq!(code, Some(0), "{err}");
+        statuses(&s)
+    };
+    let blur4 = ["--focus", "1", "--blur", "4"];
+    assert!(run(&blur4).iter().all(|(_, st, _)| st == "ok"));
+    let (_, s, _) = batch_json(&inp, &out, &blur4);
+    assert!(statuses(&s).iter().all(|(_, st, _)| st == "skipped"), "{s}");
+    assert!(s["items"][0]["fingerprint"].as_str().is_some_and(|f| f.len() == 32), "{s}");
+
+    // Another blur, another focus: everything is redone, and says why.
+    for args in [["--focus", "1", "--blur", "6"], ["--focus", "0", "--blur", "6"]] {
+        let st = run(&args);
+        assert!(st.iter().all(|(_, st, why)| st == "ok" && why.contains("parameters changed")), "{args:?}: {st:?}");
+        assert!(run(&args).iter().all(|(_, st, _)| st == "skipped"));
+    }
+    let now = ["--focus", "0", "--blur", "6"];
+    let out_a = out.join("a_bokeh.png");
+    let good = std::fs::read(&out_a).unwrap();
+    let expect_redo = |why: &str| {
+        let st = run(&now);
+        assert_eq!(st[0], ("a.png".into(), "ok".into(), st[0].2.clone()), "{st:?}");
+        assert!(st[0].2.contains(why), "expected a reason with {why:?}: {st:?}");
+        assert_eq!(st[1].1, "skipped", "{st:?}");
+        assert_eq!(std::fs::read(&out_a).unwrap().len(), good.len());
+    };
+    std::fs::write(&out_a, b"").unwrap();
+    expect_redo("0 bytes");
+    std::fs::write(&out_a, &good[..good.len() / 2]).unwrap();
+    expect_redo("bytes");
+    // Same size, garbage header.
+    std::fs::write(&out_a, vec![7u8; good.len()]).unwrap();
+    expect_redo("header");
+    let sidecar = out.join(".a_bokeh.png.drbokeh-fingerprint");
+    assert!(sidecar.exists(), "{:?}", files(&out));
+    std::fs::remove_file(&sidecar).unwrap();
+    expect_redo("no fingerprint");
+    // Same content, new modification time: the inputs' fingerprint changed.
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    scene(&inp, "a", Some("a.depth.exr"), None);
+    expect_redo("inputs changed");
+    // A manifest's blur is a parameter too.
+    let m = t.path().join("m.csv");
+    std::fs::write(&m, "image,blur\na.png,3\n").unwrap();
+    let (code, s, err) = batch_json(&inp, &out, &["--focus", "0", "--blur", "6", "--manifest", m.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    let st = statuses(&s);
+    assert_eq!((st[0].1.as_str(), st[1].1.as_str()), ("ok", "skipped"), "{st:?}");
+    assert!(st[0].2.contains("parameters changed"), "{st:?}");
+}
+
+/// Issue 10: bad values the user set stop the batch with exit 2 before any image runs.
+#[test]
+fn usage_errors_stop_before_any_image() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    scene(&inp, "a", Some("a.depth.exr"), None);
+    scene(&inp, "b", Some("b.depth.exr"), None);
+    let root = t.path();
+    assert_usage_error(root, &inp, &out, &[], &["no focus", "a.png", "--focus"]);
+    assert_usage_error(root, &inp, &out, &["--focus", "NaN"], &["--focus", "NaN"]);
+    assert_usage_error(root, &inp, &out, &["--focus", "inf"], &["--focus"]);
+    // A manifest that sets some images only: the others have no focus.
+    let m = root.join("m.csv");
+    std::fs::write(&m, "image,focus\na.png,0.5\n").unwrap();
+    assert_usage_error(root, &inp, &out, &["--manifest", m.to_str().unwrap()], &["no focus", "b.png"]);
+    for (row, needle) in [("a.png,NaN,,", "focus"), ("a.png,,\"1;2\",", "focus_at"), ("a.png,0.5,,-1", "blur")] {
+        std::fs::write(&m, format!("image,focus,focus_at,blur\n{row}\n")).unwrap();
+        assert_usage_error(root, &inp, &out, &["--focus", "1", "--manifest", m.to_str().unwrap()], &["a.png", needle, "m.csv"]);
+    }
+    std::fs::remove_file(&m).unwrap();
+    let cfg = root.join("c.toml");
+    std::fs::write(&cfg, "[batch]\ndepth_patterns = []\n").unwrap();
+    assert_usage_error(root, &inp, &out, &["--focus", "1", "--config", cfg.to_str().unwrap()], &["batch.depth_patterns", "c.toml"]);
+}
+
+/// Issue 10: with `-o` equal to the input folder, outputs (even of photos since removed) and the
+/// summary are never taken for photos.
+#[test]
+fn output_folder_equal_to_input_folder() {
+    let t = tempfile::tempdir().unwrap();
+    let inp = t.path().join("in");
+    std::fs::create_dir_all(&inp).unwrap();
+    scene(&inp, "a", Some("a.depth.exr"), None);
+    scene(&inp, "b", Some("b_depth.exr"), None);
+    let images = |s: &serde_json::Value| statuses(s).into_iter().map(|(i, st, _)| format!("{i} {st}")).collect::<Vec<_>>();
+    let (code, s, err) = batch_json(&inp, &inp, &["--focus", "1", "--blur", "4"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(images(&s), ["a.png ok", "b.png ok"]);
+    let (code, s, err) = batch_json(&inp, &inp, &["--focus", "1", "--blur", "4", "--force"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(images(&s), ["a.png ok", "b.png ok"]);
+    // The photo of b_bokeh.png is gone: its output is still not a photo.
+    for f in ["b.png", "b_depth.exr"] {
+        std::fs::remove_file(inp.join(f)).unwrap();
+    }
+    let (code, s, err) = batch_json(&inp, &inp, &["--focus", "1", "--blur", "4"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(images(&s), ["a.png skipped"]);
+    // A manifest output in the input folder: made, then not taken for a photo on the rerun.
+    let m = t.path().join("m.csv");
+    std::fs::write(&m, "image,focus,output\na.png,1,custom_a.png\n").unwrap();
+    for expect in ["a.png ok", "a.png skipped"] {
+        let (code, s, err) = batch_json(&inp, &inp, &["--blur", "4", "--manifest", m.to_str().unwrap()]);
+        assert_eq!(code, Some(0), "{err}");
+        assert_eq!(images(&s), [expect]);
+    }
+    // An output that would overwrite another photo is refused.
+    scene(&inp, "c", Some("c.depth.exr"), None);
+    std::fs::write(&m, "image,focus,output\na.png,1,c.png\n").unwrap();
+    let (code, _, err) = batch_json(&inp, &inp, &["--focus", "1", "--manifest", m.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("overwrite the photo c.png"), "{err}");
+    // An output pattern that would overwrite the photos is refused.
+    let cfg = t.path().join("same.toml");
+    std::fs::write(&cfg, "[batch]\noutput_pattern = \"{stem}\"\n").unwrap();
+    let before = std::fs::read(inp.join("a.png")).unwrap();
+    let (code, _, err) = batch_json(&inp, &inp, &["--focus", "1", "--config", cfg.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("overwrite") && err.contains("a.png"), "{err}");
+    assert_eq!(std::fs::read(inp.join("a.png")).unwrap(), before);
+}
+
+/// Issue 10: an output name near the 255-byte limit made the temporary name too long.
+#[test]
+fn output_names_near_the_length_limit() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    // 240 + "_bokeh.png" = 250 bytes; "é" makes the shortening cut between bytes of a character.
+    let stem = format!("{}{}", "é".repeat(100), "s".repeat(40));
+    scene(&inp, &stem, Some(&format!("{stem}_depth.exr")), None);
+    let (code, s, err) = batch_json(&inp, &out, &["--focus", "1", "--blur", "4"]);
+    assert_eq!((code, s["ok"].as_u64()), (Some(0), Some(1)), "{err}");
+    assert!(out.join(format!("{stem}_bokeh.png")).exists());
+    let names = files(&out);
+    assert!(names.iter().all(|n| n.len() <= 255 && !n.ends_with(".drbokeh-tmp")), "{names:?}");
+    let (code, s, err) = batch_json(&inp, &out, &["--focus", "1", "--blur", "4"]);
+    assert_eq!((code, s["skipped"].as_u64()), (Some(0), Some(1)), "{err}");
 }

@@ -1,21 +1,121 @@
 //! Atomic file output: write to a temporary file in the destination folder, then rename.
 //!
-//! A failure (encoder error, full disk, interrupt) never leaves a half-written file at the
-//! destination; the temporary file is removed on every error path.
+//! A failure (encoder error, full disk) never leaves a half-written file at the destination;
+//! the temporary file is removed on every error path.
+//!
+//! Temporary files are named `.NAME.PID-NONCE.drbokeh-tmp` and are exclusively locked
+//! (`flock`, via [`File::try_lock`]) by their writer for as long as they exist. The kernel drops
+//! the lock when the writer exits, however it exits (SIGKILL included), so
+//! [`remove_stale_temps`] can tell a dead writer's leftover from a live one's file by trying
+//! the lock: a PID check could not, since `/proc/PID` says nothing about a writer on another
+//! host of a shared file system (a Slurm array writing one folder) and a PID is reused.
+//! Every temporary file in flight is also listed in a process-wide registry so that a
+//! signal handler can remove them before exiting ([`remove_in_flight_temps_and_exit`]).
 
 use crate::error::{Error, Result};
-use std::fs::File;
+use std::collections::BTreeSet;
+use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Mutex;
 
-/// Name of the temporary sibling used while `path` is being written.
-pub fn temp_path_for(path: &Path) -> PathBuf {
+/// Longest file name (bytes) that common file systems accept (ext4, XFS, APFS, NTFS in UTF-16
+/// units): a hidden sibling longer than this is shortened, see [`hidden_sibling`].
+const NAME_MAX: usize = 255;
+/// Bytes kept free after `.NAME.` for the suffix of a hidden sibling: a temp suffix is at most
+/// 10 (PID) + 1 + 10 (nonce) + 12 (`.drbokeh-tmp`) = 33 bytes.
+const SUFFIX_RESERVE: usize = 40;
+/// Ending of every temporary file.
+pub const TEMP_SUFFIX: &str = ".drbokeh-tmp";
+
+/// Temporary files of this process that exist now (see [`remove_in_flight_temps_and_exit`]).
+static IN_FLIGHT: Mutex<BTreeSet<PathBuf>> = Mutex::new(BTreeSet::new());
+/// Makes nonces unique within the process (two threads in the same nanosecond).
+static COUNTER: AtomicU32 = AtomicU32::new(0);
+
+/// The `NAME` part of the hidden siblings of `path` (`.NAME.SUFFIX`): the file name itself, or,
+/// when `.NAME.` plus [`SUFFIX_RESERVE`] would exceed [`NAME_MAX`], its first bytes (cut on a
+/// character boundary) followed by `~` and a 64-bit FNV-1a hash of the whole name, so that two
+/// long names sharing a prefix still get different siblings.
+fn sibling_stem(path: &Path) -> String {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let nonce = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    path.with_file_name(format!(".{name}.{}-{nonce}.drbokeh-tmp", std::process::id()))
+    let budget = NAME_MAX - SUFFIX_RESERVE - 2;
+    if name.len() <= budget {
+        return name;
+    }
+    let hash = format!("~{:016x}", fnv1a64(name.as_bytes()));
+    let mut cut = budget - hash.len();
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}{hash}", &name[..cut])
+}
+
+/// `.NAME.SUFFIX` beside `path`, with NAME shortened when needed (see [`sibling_stem`]); always
+/// fits in [`NAME_MAX`] bytes for a `suffix` of up to [`SUFFIX_RESERVE`] bytes.
+pub fn hidden_sibling(path: &Path, suffix: &str) -> PathBuf {
+    debug_assert!(suffix.len() <= SUFFIX_RESERVE, "hidden sibling suffix too long: {suffix}");
+    path.with_file_name(format!(".{}.{suffix}", sibling_stem(path)))
+}
+
+/// 64-bit FNV-1a: a stable hash (unlike `std`'s, which may change between Rust releases), for
+/// names and fingerprints that are stored on disk. O(bytes), no allocation.
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3))
+}
+
+/// Name of a fresh temporary sibling used while `path` is being written:
+/// `.NAME.PID-NONCE.drbokeh-tmp`, NONCE = nanoseconds of the clock plus a process-wide counter.
+pub fn temp_path_for(path: &Path) -> PathBuf {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let nonce = nanos.wrapping_add(COUNTER.fetch_add(1, Ordering::Relaxed).wrapping_mul(1_000_003));
+    hidden_sibling(path, &format!("{}-{nonce}{TEMP_SUFFIX}", std::process::id()))
+}
+
+/// True if `name` is the name of a temporary file of this module (any output).
+fn is_temp_name(name: &str) -> bool {
+    let Some(rest) = name.strip_suffix(TEMP_SUFFIX).filter(|_| name.starts_with('.')) else { return false };
+    let Some((_, id)) = rest.rsplit_once('.') else { return false };
+    let Some((pid, nonce)) = id.split_once('-') else { return false };
+    [pid, nonce].iter().all(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()))
+}
+
+/// Creates, locks and registers a new temporary file for `path`. Retries with a new name when
+/// a concurrent [`remove_stale_temps`] took the file between its creation and the lock.
+fn create_temp(path: &Path) -> Result<(PathBuf, File)> {
+    for _ in 0..16 {
+        let tmp = temp_path_for(path);
+        let file = {
+            // Created and registered under the registry lock, so that a signal handler in
+            // `remove_in_flight_temps_and_exit` never misses a file.
+            let mut reg = IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner());
+            match OpenOptions::new().write(true).create_new(true).open(&tmp) {
+                Ok(f) => {
+                    reg.insert(tmp.clone());
+                    f
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(Error::io(path, e)),
+            }
+        };
+        match file.try_lock() {
+            // Still there once locked: no cleaner can remove it any more.
+            Ok(()) if tmp.exists() => return Ok((tmp, file)),
+            Ok(()) | Err(std::fs::TryLockError::WouldBlock) => {
+                drop(file);
+                let _ = std::fs::remove_file(&tmp);
+                unregister(&tmp);
+            }
+            // No locks on this file system: cleaners cannot lock it either, so they keep it.
+            Err(std::fs::TryLockError::Error(_)) => return Ok((tmp, file)),
+        }
+    }
+    Err(Error::Internal(format!("could not create a temporary file beside {}", path.display())))
+}
+
+fn unregister(tmp: &Path) {
+    IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner()).remove(tmp);
 }
 
 /// Writes `path` atomically with `write`. The closure gets a buffered writer; the data is
@@ -31,18 +131,88 @@ where
     if !dir.is_dir() {
         return Err(Error::input(path, format!("output folder '{}' does not exist", dir.display())));
     }
-    let tmp = temp_path_for(path);
+    let (tmp, file) = create_temp(path)?;
     let result = (|| {
-        let file = File::create(&tmp).map_err(|e| Error::io(path, e))?;
         let mut w = BufWriter::new(file);
         write(&mut w)?;
         w.flush().map_err(|e| Error::io(path, e))?;
         let file = w.into_inner().map_err(|e| Error::io(path, e.into_error()))?;
         file.sync_all().map_err(|e| Error::io(path, e))?;
+        // Renamed while still locked (the lock follows the file, now at `path`, and is
+        // released when `file` is dropped at the end of this closure).
         std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
+    unregister(&tmp);
     result
+}
+
+/// Removes the temporary files of this process that exist now and exits with `code`, keeping
+/// the registry locked so that no new one appears meanwhile: for a SIGINT/SIGTERM handler
+/// (`ctrlc` runs it on an ordinary thread, so taking the lock is allowed). A writer whose file
+/// vanishes fails, but the process is gone before it could report.
+pub fn remove_in_flight_temps_and_exit(code: i32) -> ! {
+    let reg = IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner());
+    for p in reg.iter() {
+        let _ = std::fs::remove_file(p);
+    }
+    std::process::exit(code)
+}
+
+/// Removes the temporary files in `dir` whose writer is gone (their lock is free), whatever
+/// output they belonged to; a file whose writer is alive, here or on another host, is kept, and
+/// so is every file when the file system has no locks. One `read_dir` of `dir` (O(entries));
+/// returns how many files were removed.
+pub fn remove_stale_temps(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else { return 0 };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        if !is_temp_name(&e.file_name().to_string_lossy()) {
+            continue;
+        }
+        // Opened for writing: NFS emulates flock with POSIX locks, whose exclusive form needs it.
+        let Ok(f) = OpenOptions::new().write(true).open(e.path()) else { continue };
+        if f.try_lock().is_ok() && std::fs::remove_file(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temp_names_fit_and_are_recognized() {
+        for len in [1, 200, 213, 214, 250, 255] {
+            // Two-byte characters, so that some cuts fall inside one.
+            let name = format!("{}{}.png", "é".repeat(len / 2), "a".repeat(len % 2));
+            let p = Path::new("/x").join(&name);
+            let t = temp_path_for(&p);
+            let tn = t.file_name().unwrap().to_str().unwrap();
+            assert!(tn.len() <= NAME_MAX, "{} bytes: {tn}", tn.len());
+            assert!(is_temp_name(tn), "{tn}");
+        }
+        assert!(!is_temp_name(".a.png.12-x.drbokeh-tmp"));
+        assert!(!is_temp_name("a.png.12-3.drbokeh-tmp"));
+        // Two long names sharing their first 250 bytes get different stems.
+        let (a, b) = (format!("{}a.png", "x".repeat(250)), format!("{}b.png", "x".repeat(250)));
+        assert_ne!(sibling_stem(Path::new(&a)), sibling_stem(Path::new(&b)));
+    }
+
+    #[test]
+    fn stale_temps_go_live_ones_stay() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path().join("a.png");
+        let (live, _file) = create_temp(&out).unwrap();
+        let stale = temp_path_for(&out);
+        std::fs::write(&stale, b"left by a dead writer").unwrap();
+        std::fs::write(t.path().join(".a.png.notatemp"), b"").unwrap();
+        assert_eq!(remove_stale_temps(t.path()), 1);
+        assert!(live.exists() && !stale.exists() && t.path().join(".a.png.notatemp").exists());
+        unregister(&live);
+    }
 }
