@@ -59,7 +59,7 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         recursive: args.recursive,
         force: args.force,
         shard: args.shard,
-        jobs: args.jobs,
+        jobs: drbokeh::resources::check_threads(args.jobs, "--jobs")?,
         focus: args.focus.map(Focus::Disparity).or(args.focus_at.map(|(x, y)| Focus::At(x, y))),
         manifest: args.manifest.clone(),
     };

@@ -51,7 +51,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             inputs.check_writes(layer_file_names(dir, n).iter().flat_map(LayerFiles::all), "--save-layers file")?;
         }
     }
-    io::OutputFormat::from_path(output)?;
+    let format = io::OutputFormat::from_path(output)?;
     preflight(job, cfg)?;
     let t_read = Instant::now();
     let mut read_warnings = Vec::new();
@@ -110,6 +110,13 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     };
     let Outcome { mut image, layers, mut report } = outcome;
     report.warnings.splice(0..0, read_warnings);
+    if cfg.output.bit_depth != 8 && format != io::OutputFormat::Png {
+        report.warnings.push(format!(
+            "a bit depth of {} (output.bit_depth, --bit-depth) applies to PNG outputs only; {} is written as 32-bit float",
+            cfg.output.bit_depth,
+            output.display()
+        ));
+    }
 
     if let Some(dir) = &job.save_layers {
         let t = Instant::now();

@@ -316,6 +316,9 @@ fn usage_errors_stop_before_any_image() {
     let cfg = root.join("c.toml");
     std::fs::write(&cfg, "[batch]\ndepth_patterns = []\n").unwrap();
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--config", cfg.to_str().unwrap()], &["batch.depth_patterns", "c.toml"]);
+    // Unbounded counts are refused too.
+    assert_usage_error(root, &inp, &out, &["--focus", "1", "--jobs", "100000"], &["--jobs", "100000"]);
+    assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads", "100000"], &["--threads"]);
 }
 
 /// Issue 10: with `-o` equal to the input folder, outputs (even of photos since removed) and the

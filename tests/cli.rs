@@ -1292,3 +1292,18 @@ fn interrupted_render_removes_its_temporary_file() {
     }
     panic!("the render never got interrupted while writing (5 attempts)");
 }
+
+/// Issue 10: a flag that cannot apply to the chosen output says so instead of being ignored.
+#[test]
+fn bit_depth_with_a_float_output_warns() {
+    let s = Scene::new();
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "--bit-depth", "16", "-o", "o.exr"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("warning:") && err.contains("bit depth of 16") && err.contains("o.exr"), "{err}");
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "--bit-depth", "16", "-o", "o.png"]);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("bit depth"));
+    // And -v keeps the line saying where the result went.
+    let out = s.run(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "-v", "-o", "v.png"]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("wrote v.png"));
+}
