@@ -507,7 +507,11 @@ fn tiny_images_render_finite_output() {
                 let back = layer(w, h, colours, &Image::filled(w, h, 1, 1.0), &d);
                 let front = layer(w, h, |_, _| [1.0, 0.0, 0.0], &alpha, &d);
                 for layers in [vec![back.clone()], vec![front, back]] {
-                    for lens in [1, 3, auto_lens(&layers, k, f), 41] {
+                    // The widest window the image can use; one wider is a usage error.
+                    let widest = render::max_lens(w, h);
+                    let too_wide = RenderSettings { blur: k, focus: f, lens: widest + 2, occlusion: true };
+                    assert!(matches!(render::render(&layers, &too_wide, Kernel::Exact), Err(drbokeh::Error::Usage(_))));
+                    for lens in [1, 3, auto_lens(&layers, k, f), widest] {
                         let s = RenderSettings { blur: k, focus: f, lens, occlusion: true };
                         let out = exact(&layers, &s);
                         assert_eq!((out.width, out.height, out.channels), (w, h, 3));
