@@ -2,11 +2,11 @@
 //! Groups: the exact kernel (the baseline), the fast kernel against blur radius at a fixed
 //! size and against size at a fixed radius, threads 1 vs 2, and Telea inpainting vs size.
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use drbokeh::bench::stress::two_layer_scene;
-use drbokeh::render::{render, Kernel};
-use drbokeh::stages::inpaint::{inpaint_telea, TeleaOptions};
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use drbokeh::Image;
+use drbokeh::bench::stress::two_layer_scene;
+use drbokeh::render::{Kernel, render};
+use drbokeh::stages::inpaint::{TeleaOptions, inpaint_telea};
 use std::time::Duration;
 
 const FAST: Kernel = Kernel::Fast { quality: 2 };

@@ -7,12 +7,12 @@
 //! size; with a real model inference dominates and the pre/post figures are the overhead
 //! drbokeh adds. Options: `-- --reps N` (default 5), `-- --batch N` (default 8).
 
+use drbokeh::Image;
 use drbokeh::onnx::session::clear_cache;
-use drbokeh::onnx::{runtime, ModelSpec, OnnxConfig, OnnxReport};
+use drbokeh::onnx::{ModelSpec, OnnxConfig, OnnxReport, runtime};
 use drbokeh::stages::background::InpaintOptions;
 use drbokeh::stages::inpaint_onnx::{self, InpaintMethod};
 use drbokeh::stages::{depth_onnx, segment_onnx};
-use drbokeh::Image;
 use std::path::Path;
 use std::time::Instant;
 
@@ -71,7 +71,9 @@ fn main() {
         w,
         h,
         1,
-        (0..w * h).map(|i| (200.0 - (((i % w) as f32 - 500.0).powi(2) + ((i / w) as f32 - 480.0).powi(2)).sqrt()).clamp(0.0, 1.0)).collect(),
+        (0..w * h)
+            .map(|i| (200.0 - (((i % w) as f32 - 500.0).powi(2) + ((i / w) as f32 - 480.0).powi(2)).sqrt()).clamp(0.0, 1.0))
+            .collect(),
     )
     .unwrap();
     let cases = [
@@ -88,10 +90,20 @@ fn main() {
 
     let t = Instant::now();
     let rt = runtime::runtime(&cfg).expect("ONNX Runtime (run scripts/setup-test-env.sh or set ORT_DYLIB_PATH)");
-    println!("ONNX Runtime {} from {}: loaded in {:.1} ms (once per process)", rt.version, rt.library.display(), t.elapsed().as_secs_f64() * 1e3);
-    println!("image {w}x{h} (1 MP), {reps} repetitions (medians), rayon threads {}, ORT intra-op threads default", rayon::current_num_threads());
+    println!(
+        "ONNX Runtime {} from {}: loaded in {:.1} ms (once per process)",
+        rt.version,
+        rt.library.display(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    println!(
+        "image {w}x{h} (1 MP), {reps} repetitions (medians), rayon threads {}, ORT intra-op threads default",
+        rayon::current_num_threads()
+    );
     println!();
-    println!("| stub | model input | session create ms | first infer ms (new session) | per image ms (warm) | pre ms | infer ms | post ms | (pre+post)/infer | batch {batch}: reuse ms | batch {batch}: new session per image ms |");
+    println!(
+        "| stub | model input | session create ms | first infer ms (new session) | per image ms (warm) | pre ms | infer ms | post ms | (pre+post)/infer | batch {batch}: reuse ms | batch {batch}: new session per image ms |"
+    );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for c in &cases {
         let spec = ModelSpec { model: Some(stubs.join(c.file)), preset: Some(c.preset.into()), ..ModelSpec::default() };

@@ -9,9 +9,9 @@
 //! `cargo run --release --example make_scene -- DIR WIDTH HEIGHT` draws the same scene at
 //! another size into DIR (the end-to-end timing script uses it for a 12 MP photo).
 
+use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io::{write_exr, write_png};
-use drbokeh::Image;
 
 const W: usize = 480;
 const H: usize = 320;
@@ -71,11 +71,7 @@ fn wall(x: f32, y: f32) -> [f32; 3] {
     let n = ((x * 0.37).sin() * (y * 0.53).cos() * 0.5 + 0.5) * 0.08;
     let g = (x / W as f32).min(1.0);
     let n = n * 0.5;
-    if mortar {
-        [0.12, 0.12, 0.11]
-    } else {
-        [0.16 + 0.14 * g + n, 0.06 + 0.06 * (1.0 - g) + n, 0.04 + 0.08 * g + n]
-    }
+    if mortar { [0.12, 0.12, 0.11] } else { [0.16 + 0.14 * g + n, 0.06 + 0.06 * (1.0 - g) + n, 0.04 + 0.08 * g + n] }
 }
 
 /// Small very bright lights on the wall (string lights), radiance above 1 clipped by the PNG.

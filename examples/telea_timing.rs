@@ -4,9 +4,9 @@
 //! covering ~31% of the frame), times drbokeh's Telea (median of 3), and prints the command
 //! that times cv2.inpaint on the same files (scripts/telea_cv_timing.py).
 
-use drbokeh::io::npy::save_npy;
-use drbokeh::stages::inpaint::{inpaint_telea, TeleaOptions};
 use drbokeh::Image;
+use drbokeh::io::npy::save_npy;
+use drbokeh::stages::inpaint::{TeleaOptions, inpaint_telea};
 use std::time::Instant;
 
 fn main() {
@@ -21,7 +21,9 @@ fn main() {
         }
     }
     let (ea, eb) = (w as f32 * 0.30, h as f32 * 0.33);
-    let mask: Vec<bool> = (0..w * h).map(|i| (((i % w) as f32 - w as f32 / 2.0) / ea).powi(2) + (((i / w) as f32 - h as f32 / 2.0) / eb).powi(2) < 1.0).collect();
+    let mask: Vec<bool> = (0..w * h)
+        .map(|i| (((i % w) as f32 - w as f32 / 2.0) / ea).powi(2) + (((i / w) as f32 - h as f32 / 2.0) / eb).powi(2) < 1.0)
+        .collect();
     println!("mask covers {:.1}%", 100.0 * mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64);
     save_npy(&dir.join("telea_img.npy"), &img).unwrap();
     save_npy(&dir.join("telea_mask.npy"), &Image::from_vec(w, h, 1, mask.iter().map(|&m| m as u8 as f32).collect()).unwrap()).unwrap();

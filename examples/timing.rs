@@ -8,12 +8,14 @@
 
 use drbokeh::bench::metrics::psnr;
 use drbokeh::bench::stress::two_layer_scene;
-use drbokeh::render::{render, Kernel};
+use drbokeh::render::{Kernel, render};
 use std::time::Instant;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let num = |i: usize| args.get(i).and_then(|s| s.parse::<f32>().ok()).expect("usage: WIDTH HEIGHT MAX_COC [exact] [fastQ ...] [--runs N] [--threads N]");
+    let num = |i: usize| {
+        args.get(i).and_then(|s| s.parse::<f32>().ok()).expect("usage: WIDTH HEIGHT MAX_COC [exact] [fastQ ...] [--runs N] [--threads N]")
+    };
     let (w, h, coc) = (num(0) as usize, num(1) as usize, num(2));
     let opt = |name: &str| args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|s| s.parse::<usize>().ok());
     let runs = opt("--runs").unwrap_or(3);
@@ -21,7 +23,13 @@ fn main() {
         rayon::ThreadPoolBuilder::new().num_threads(t).build_global().unwrap();
     }
     let (layers, s) = two_layer_scene(w, h, coc, true);
-    println!("{w}x{h} ({:.2} MP), 2 layers, K = {}, lens = {}, {} threads", (w * h) as f64 / 1e6, s.blur, s.lens, rayon::current_num_threads());
+    println!(
+        "{w}x{h} ({:.2} MP), 2 layers, K = {}, lens = {}, {} threads",
+        (w * h) as f64 / 1e6,
+        s.blur,
+        s.lens,
+        rayon::current_num_threads()
+    );
     let mut exact = None;
     for k in args.iter().skip(3).filter(|a| a.as_str() == "exact" || a.starts_with("fast")) {
         let kernel = if k == "exact" { Kernel::Exact } else { Kernel::Fast { quality: k[4..].parse().unwrap_or(2) } };
@@ -43,7 +51,11 @@ fn main() {
             }
             Some((e, te)) => {
                 let m = e.data.iter().zip(&out.data).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
-                println!("{k:8} {med:9.3} s (median of {n})  speed-up {:7.1}x  PSNR vs exact {:6.2} dB  max abs {m:.4}", te / med, psnr(&out, e, 1.0, 0));
+                println!(
+                    "{k:8} {med:9.3} s (median of {n})  speed-up {:7.1}x  PSNR vs exact {:6.2} dB  max abs {m:.4}",
+                    te / med,
+                    psnr(&out, e, 1.0, 0)
+                );
             }
             None => println!("{k:8} {med:9.3} s (median of {n})"),
         }

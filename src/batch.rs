@@ -14,7 +14,7 @@
 //! - Safe beside other runs on the same folder: only temporary files whose writer is gone are
 //!   removed (see [`crate::io::atomic`]).
 
-use crate::config::{stays_inside, Config};
+use crate::config::{Config, stays_inside};
 use crate::error::{Error, Result};
 use crate::job::{self, Job};
 use crate::pipeline::{Focus, Pipeline};
@@ -79,7 +79,9 @@ struct TomlManifest {
 pub fn read_manifest(path: &Path) -> Result<BTreeMap<String, ManifestEntry>> {
     let text = crate::io::read_input_text(path)?;
     let entries: Vec<ManifestEntry> = match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
-        Some("toml") => toml::from_str::<TomlManifest>(&text).map_err(|e| Error::input(path, format!("invalid manifest: {}", e.message())))?.image,
+        Some("toml") => {
+            toml::from_str::<TomlManifest>(&text).map_err(|e| Error::input(path, format!("invalid manifest: {}", e.message())))?.image
+        }
         Some("csv") => {
             let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).from_reader(text.as_bytes());
             let mut v = Vec::new();
@@ -336,13 +338,22 @@ struct Plan {
 
 /// Sets each item's output from the manifest; an output that would leave the output folder
 /// (`..`, an absolute path) is an error naming the manifest entry.
-fn apply_manifest_outputs(items: &mut [Item], manifest: &BTreeMap<String, ManifestEntry>, manifest_path: &Path, output_dir: &Path) -> Result<()> {
+fn apply_manifest_outputs(
+    items: &mut [Item],
+    manifest: &BTreeMap<String, ManifestEntry>,
+    manifest_path: &Path,
+    output_dir: &Path,
+) -> Result<()> {
     for item in items {
         if let Some(o) = manifest.get(&item.rel).and_then(|e| e.output.as_ref()) {
             if !stays_inside(Path::new(o)) {
                 return Err(Error::input(
                     manifest_path,
-                    format!("image '{}': output '{o}' is outside the output folder {} (give a path relative to it, without '..')", item.rel, output_dir.display()),
+                    format!(
+                        "image '{}': output '{o}' is outside the output folder {} (give a path relative to it, without '..')",
+                        item.rel,
+                        output_dir.display()
+                    ),
                 ));
             }
             item.output = output_dir.join(o);
@@ -384,7 +395,13 @@ fn drop_outputs(items: Vec<Item>) -> Result<Vec<Item>> {
 
 /// Resolves focus, blur and matte of every item and checks them: a non-finite focus, a bad
 /// manifest value or an image without any focus is an error before anything renders.
-fn plan(cfg: &Config, opts: &BatchOptions, items: Vec<Item>, manifest: &BTreeMap<String, ManifestEntry>, manifest_path: &Path) -> Result<Vec<Plan>> {
+fn plan(
+    cfg: &Config,
+    opts: &BatchOptions,
+    items: Vec<Item>,
+    manifest: &BTreeMap<String, ManifestEntry>,
+    manifest_path: &Path,
+) -> Result<Vec<Plan>> {
     if let Some(Focus::Disparity(f)) = opts.focus
         && !f.is_finite()
     {
@@ -425,7 +442,9 @@ fn plan(cfg: &Config, opts: &BatchOptions, items: Vec<Item>, manifest: &BTreeMap
     if !unfocused.is_empty() {
         let some = unfocused.iter().take(3).map(String::as_str).collect::<Vec<_>>().join(", ");
         let more = if unfocused.len() > 3 { format!(" and {} more", unfocused.len() - 3) } else { String::new() };
-        return Err(Error::usage(format!("no focus for {some}{more}: give --focus or --focus-at, or focus/focus_at in a --manifest entry")));
+        return Err(Error::usage(format!(
+            "no focus for {some}{more}: give --focus or --focus-at, or focus/focus_at in a --manifest entry"
+        )));
     }
     Ok(plans)
 }
@@ -435,7 +454,12 @@ fn plan(cfg: &Config, opts: &BatchOptions, items: Vec<Item>, manifest: &BTreeMap
 /// Steps: read the manifest, discover the images, resolve their outputs and settings (every
 /// usage error surfaces here, before any image runs), take this shard, remove temporary files
 /// of dead writers, render, write the summary.
-pub fn run(cfg: &Config, opts: &BatchOptions, cancel: &AtomicBool, progress: &(dyn Fn(usize, usize, &ItemResult) + Sync)) -> Result<Summary> {
+pub fn run(
+    cfg: &Config,
+    opts: &BatchOptions,
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(usize, usize, &ItemResult) + Sync),
+) -> Result<Summary> {
     let t0 = Instant::now();
     let manifest_path = opts.manifest.as_deref().unwrap_or(Path::new("manifest"));
     let manifest = match &opts.manifest {
@@ -507,7 +531,14 @@ pub fn summary_path(output_dir: &Path, shard: Option<(usize, usize)>) -> PathBuf
 }
 
 fn result(item: &Item, status: Status, reason: Option<String>, seconds: f64, fingerprint: Option<&Fingerprint>) -> ItemResult {
-    ItemResult { image: item.rel.clone(), status, reason, output: item.output.display().to_string(), seconds, fingerprint: fingerprint.map(Fingerprint::hex) }
+    ItemResult {
+        image: item.rel.clone(),
+        status,
+        reason,
+        output: item.output.display().to_string(),
+        seconds,
+        fingerprint: fingerprint.map(Fingerprint::hex),
+    }
 }
 
 /// What an output is made from: a hash of its inputs (path relative to the input folder, size
@@ -528,7 +559,11 @@ impl Fingerprint {
         for p in job.inputs() {
             let rel = p.strip_prefix(input_dir).unwrap_or(&p).to_string_lossy().replace('\\', "/");
             let meta = std::fs::metadata(&p).ok();
-            let nanos = meta.as_ref().and_then(|m| m.modified().ok()).and_then(|t| t.duration_since(SystemTime::UNIX_EPOCH).ok()).map(|d| d.as_nanos());
+            let nanos = meta
+                .as_ref()
+                .and_then(|m| m.modified().ok())
+                .and_then(|t| t.duration_since(SystemTime::UNIX_EPOCH).ok())
+                .map(|d| d.as_nanos());
             inputs.push_str(&format!("{rel}\t{:?}\t{nanos:?}\n", meta.map(|m| m.len())));
         }
         let mut cfg = plan.cfg.clone();
@@ -594,10 +629,21 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
     let mut fingerprint = None;
     let outcome = (|| -> Result<(Status, Option<String>)> {
         let depth = item.depth.clone().ok_or_else(|| {
-            Error::input(&item.image, format!("no depth map found (looked for {} with .exr/.png/.tif/.tiff/.npy)", plan.cfg.batch.depth_patterns.join(", ")))
+            Error::input(
+                &item.image,
+                format!("no depth map found (looked for {} with .exr/.png/.tif/.tiff/.npy)", plan.cfg.batch.depth_patterns.join(", ")),
+            )
         })?;
         let output = item.output.clone();
-        let job = Job { image: Some(item.image.clone()), depth: Some(depth), matte: item.matte.clone(), layers: Vec::new(), focus: plan.focus, output: output.clone(), save_layers: None };
+        let job = Job {
+            image: Some(item.image.clone()),
+            depth: Some(depth),
+            matte: item.matte.clone(),
+            layers: Vec::new(),
+            focus: plan.focus,
+            output: output.clone(),
+            save_layers: None,
+        };
         let fp = fingerprint.insert(Fingerprint::of(plan, &job, &opts.input_dir)).clone();
         let redo = match (output.exists(), opts.force) {
             (false, _) => None,
@@ -619,12 +665,15 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
         let bytes = probe_dims(&item.image).map_or(0, |(w, h)| w * h).saturating_mul(BYTES_PER_PIXEL);
         budget.acquire(bytes);
         // A bug in one image must not take the batch down with it.
-        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Pipeline::from_config(plan.cfg.clone()).and_then(|p| job::run(&p, &job))))
-            .unwrap_or_else(|_| Err(Error::Internal("the renderer panicked on this image (a bug; please report it)".into())));
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            Pipeline::from_config(plan.cfg.clone()).and_then(|p| job::run(&p, &job))
+        }))
+        .unwrap_or_else(|_| Err(Error::Internal("the renderer panicked on this image (a bug; please report it)".into())));
         budget.release(bytes);
         r?;
         let output_bytes = std::fs::metadata(&output).map_err(|e| Error::io(&output, e))?.len();
-        let text = serde_json::to_string_pretty(&Record { fingerprint: fp, output_bytes, drbokeh: env!("CARGO_PKG_VERSION").into() }).map_err(|e| Error::Internal(e.to_string()))?;
+        let text = serde_json::to_string_pretty(&Record { fingerprint: fp, output_bytes, drbokeh: env!("CARGO_PKG_VERSION").into() })
+            .map_err(|e| Error::Internal(e.to_string()))?;
         crate::io::atomic::write_atomic(&record, |w| std::io::Write::write_all(w, text.as_bytes()).map_err(|e| Error::io(&record, e)))?;
         Ok((Status::Ok, redo))
     })();

@@ -1,6 +1,6 @@
 //! CLI glue of `drbokeh batch` (the work is in `drbokeh::batch`).
 
-use crate::{config_from, parse_xy, set_threads, PipelineArgs};
+use crate::{PipelineArgs, config_from, parse_xy, set_threads};
 use clap::Args;
 use drbokeh::batch::{self, BatchOptions, ItemResult, Status};
 use drbokeh::pipeline::Focus;
@@ -8,8 +8,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Args)]
 pub struct BatchArgs {

@@ -3,12 +3,12 @@
 
 use crate::set_threads;
 use clap::{Args, ValueEnum};
+use drbokeh::Error;
 use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
 use drbokeh::bench::trace::{self, Footprint, Plane, TraceSettings, Window};
 use drbokeh::color::Transfer;
 use drbokeh::io::{self, ReadLimits};
 use drbokeh::render::Layer;
-use drbokeh::Error;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -54,7 +54,6 @@ pub struct TraceArgs {
     #[arg(short, long)]
     verbose: bool,
 }
-
 
 pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
@@ -168,7 +167,9 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         args.methods
             .iter()
             .map(|m| {
-                Method::parse(m).ok_or_else(|| Error::usage(format!("--methods: unknown method '{m}' (known: layers, sliced, pipeline, scatter, gather)")))
+                Method::parse(m).ok_or_else(|| {
+                    Error::usage(format!("--methods: unknown method '{m}' (known: layers, sliced, pipeline, scatter, gather)"))
+                })
             })
             .collect::<Result<Vec<_>, Error>>()?
     };

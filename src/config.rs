@@ -163,7 +163,10 @@ impl Config {
             return Err(Error::usage(format!("output.bit_depth must be 8 or 16, got {}", self.output.bit_depth)));
         }
         if !matches!(self.batch.output_format.as_str(), "png" | "exr" | "npy") {
-            return Err(Error::usage(format!("batch.output_format must be \"png\", \"exr\" or \"npy\", got \"{}\"", self.batch.output_format)));
+            return Err(Error::usage(format!(
+                "batch.output_format must be \"png\", \"exr\" or \"npy\", got \"{}\"",
+                self.batch.output_format
+            )));
         }
         if !self.batch.output_pattern.contains("{stem}") {
             return Err(Error::usage("batch.output_pattern must contain {stem}"));
@@ -216,7 +219,11 @@ fn describe_toml_error(e: &toml::de::Error) -> String {
     let mut out = msg.clone();
     if let Some(rest) = msg.strip_prefix("unknown field `") {
         let key = rest.split('`').next().unwrap_or("");
-        let expected: Vec<&str> = rest.split("expected ").nth(1).map(|s| s.split('`').filter(|t| t.chars().all(|c| c.is_alphanumeric() || c == '_') && !t.is_empty()).collect()).unwrap_or_default();
+        let expected: Vec<&str> = rest
+            .split("expected ")
+            .nth(1)
+            .map(|s| s.split('`').filter(|t| t.chars().all(|c| c.is_alphanumeric() || c == '_') && !t.is_empty()).collect())
+            .unwrap_or_default();
         if let Some(best) = expected.iter().min_by_key(|cand| edit_distance(key, cand)) {
             if edit_distance(key, best) <= key.len().max(3) / 2 + 1 {
                 out = format!("unknown key `{key}` (did you mean `{best}`?); valid keys here: {}", expected.join(", "));

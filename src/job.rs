@@ -92,7 +92,8 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 let (d, r) = crate::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx)?;
                 read_warnings.extend(r.warnings.iter().cloned());
                 let detail = serde_json::to_value(&r).ok();
-                depth_stage = Some(StageReport { name: "depth_model", status: "ran", reason: None, ms: t.elapsed().as_secs_f64() * 1e3, detail });
+                depth_stage =
+                    Some(StageReport { name: "depth_model", status: "ran", reason: None, ms: t.elapsed().as_secs_f64() * 1e3, detail });
                 d
             }
         };
@@ -200,7 +201,10 @@ fn check_writable_folder(output: &Path) -> Result<()> {
 fn check_aspect(map: (usize, usize), rgb: (usize, usize), path: &Path, image_path: &Path) -> Result<()> {
     let (a, b) = (map.0 as f64 / map.1 as f64, rgb.0 as f64 / rgb.1 as f64);
     if (a / b - 1.0).abs() > 0.01 {
-        return Err(Error::input(path, format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.0, map.1, image_path.display(), rgb.0, rgb.1)));
+        return Err(Error::input(
+            path,
+            format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.0, map.1, image_path.display(), rgb.0, rgb.1),
+        ));
     }
     Ok(())
 }

@@ -19,7 +19,7 @@ pub mod render;
 pub mod resources;
 pub mod stages;
 
+pub use config::Config;
 pub use error::{Error, Result};
 pub use image::Image;
-pub use config::Config;
 pub use pipeline::{Focus, Outcome, Pipeline, Scene};

@@ -3,11 +3,11 @@
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use drbokeh::Error;
 use drbokeh::config::{Config, KernelChoice};
 use drbokeh::job::{self, Job};
 use drbokeh::pipeline::{Focus, Pipeline};
 use drbokeh::stages::depth::DepthKind;
-use drbokeh::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -258,7 +258,13 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The library names parameters by their config keys (`render.lens`); on the command line
 /// they are flags.
 pub(crate) fn as_flags(e: Error) -> Error {
-    const KEYS: [(&str, &str); 5] = [("render.blur", "--blur"), ("render.lens", "--lens"), ("render.gamma", "--gamma"), ("render.quality", "--quality"), ("render.focus", "--focus")];
+    const KEYS: [(&str, &str); 5] = [
+        ("render.blur", "--blur"),
+        ("render.lens", "--lens"),
+        ("render.gamma", "--gamma"),
+        ("render.quality", "--quality"),
+        ("render.focus", "--focus"),
+    ];
     match e {
         Error::Usage(m) => Error::Usage(KEYS.iter().fold(m, |m, (key, flag)| m.replace(key, flag))),
         other => other,
@@ -341,4 +347,3 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     }
     Ok(())
 }
-

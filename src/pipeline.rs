@@ -146,7 +146,12 @@ impl Pipeline {
     }
 
     /// Resolves the focus to a normalized disparity, clamping to [0, 1] with a warning.
-    fn resolve_focus(focus: Focus, disparity_at: impl Fn(i64, i64) -> Result<f32>, disp: Option<&Disparity>, report: &mut Report) -> Result<f32> {
+    fn resolve_focus(
+        focus: Focus,
+        disparity_at: impl Fn(i64, i64) -> Result<f32>,
+        disp: Option<&Disparity>,
+        report: &mut Report,
+    ) -> Result<f32> {
         let f = match focus {
             Focus::Disparity(f) => {
                 if !f.is_finite() {
@@ -229,7 +234,13 @@ impl Pipeline {
                 (SegmentMethod::Auto | SegmentMethod::Matte, Some(m)) => segment::from_matte(m),
                 _ => segment::from_disparity(disp, &cfg.segment),
             };
-            let source = if seg_model.is_some() { "onnx" } else if scene.matte.is_some() && cfg.segment.method != SegmentMethod::Depth { "matte" } else { "depth split" };
+            let source = if seg_model.is_some() {
+                "onnx"
+            } else if scene.matte.is_some() && cfg.segment.method != SegmentMethod::Depth {
+                "matte"
+            } else {
+                "depth split"
+            };
             match seg {
                 Segmentation::SingleLayer(why) => {
                     report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 1, "why": why, "model": seg_model})));
@@ -237,18 +248,28 @@ impl Pipeline {
                 }
                 Segmentation::Foreground(alpha) => {
                     let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
-                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})));
+                    report.ran(
+                        "segment",
+                        t,
+                        Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})),
+                    );
                     let t = Instant::now();
                     let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, focus, blur)?;
-                    report.ran("fill_depth", t, Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": fd.reach})));
+                    report.ran(
+                        "fill_depth",
+                        t,
+                        Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": fd.reach})),
+                    );
                     // How deep under the foreground a background value can still be seen: the
                     // foreground shows the background up to its visibility reach inside its
                     // outline, and a background pixel scatters up to σ ≤ max CoC + 1 plus the
                     // soft step's tail (disparities stay in [0, 1], so max_coc bounds σ).
                     let t = Instant::now();
-                    let reach = crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0);
+                    let reach =
+                        crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0);
                     let (bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
-                        let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, &cfg.onnx)?;
+                        let (bg, r) =
+                            crate::stages::inpaint_onnx::inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, &cfg.onnx)?;
                         report.warnings.extend(r.warnings.iter().cloned());
                         (bg, Some(r))
                     } else {
@@ -312,7 +333,12 @@ impl Pipeline {
         let (w, h) = (layers[0].width(), layers[0].height());
         let max_coc = render::max_scatter_radius(&layers, blur, focus) - 1.0;
         if given && rc.kernel == KernelChoice::Auto && max_coc < 0.5 {
-            report.skipped("render", format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px): front-to-back alpha composite"));
+            report.skipped(
+                "render",
+                format!(
+                    "no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px): front-to-back alpha composite"
+                ),
+            );
             report.params = self.params(w, h, blur, focus, 0, "none", layers.len(), max_coc);
             return Ok(Outcome { image: render::alpha_composite(&layers), layers, report });
         }
@@ -354,7 +380,8 @@ impl Pipeline {
     fn check_exact_cost(&self, w: usize, h: usize, lens: usize, layers: &[Layer], report: &mut Report) -> Result<()> {
         let taps = render::aperture::disk_tap_count(lens);
         let shown = layers.iter().filter(|l| !l.is_transparent()).count();
-        let bytes = taps.saturating_mul(std::mem::size_of::<render::aperture::Tap>() as u64) + (w * h) as u64 * crate::resources::layers_bytes_per_pixel(layers.len());
+        let bytes = taps.saturating_mul(std::mem::size_of::<render::aperture::Tap>() as u64)
+            + (w * h) as u64 * crate::resources::layers_bytes_per_pixel(layers.len());
         crate::resources::check_memory(&format!("the exact kernel's {lens}x{lens} window on {w}x{h} layers"), bytes)?;
         let threads = rayon::current_num_threads();
         let secs = render::exact_seconds((w * h) as u64, lens, shown, threads);

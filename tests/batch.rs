@@ -1,8 +1,8 @@
 //! `drbokeh batch`: pairing, resumability, sharding, manifests, failures and exit codes.
 
+use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io::{write_exr, write_png};
-use drbokeh::Image;
 use std::path::Path;
 use std::process::Command;
 
@@ -14,7 +14,9 @@ fn bin() -> Command {
 fn scene(dir: &Path, stem: &str, depth_name: Option<&str>, matte_name: Option<&str>) {
     let (w, h) = (32, 24);
     let inside = |x: usize, y: usize| (10..22).contains(&x) && (6..18).contains(&y);
-    let rgb = Image::from_vec(w, h, 3, (0..w * h).flat_map(|i| if inside(i % w, i / w) { [0.8, 0.2, 0.1] } else { [0.1, 0.3, 0.7] }).collect()).unwrap();
+    let rgb =
+        Image::from_vec(w, h, 3, (0..w * h).flat_map(|i| if inside(i % w, i / w) { [0.8, 0.2, 0.1] } else { [0.1, 0.3, 0.7] }).collect())
+            .unwrap();
     write_png(&dir.join(format!("{stem}.png")), &rgb, 8, Transfer::Srgb).unwrap();
     let depth = Image::from_vec(w, h, 1, (0..w * h).map(|i| if inside(i % w, i / w) { 1.0 } else { 4.0 }).collect()).unwrap();
     if let Some(d) = depth_name {
@@ -60,25 +62,45 @@ fn pairs_renders_resumes_and_reports_failures() {
     std::fs::write(inp.join("broken.png"), b"\x89PNG\r\n\x1a\n garbage").unwrap();
     write_exr(&inp.join("broken.depth.exr"), &Image::filled(32, 24, 1, 2.0), &["Y"]).unwrap();
 
-    let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "1", "--blur", "6", "--recursive"]).output().unwrap();
+    let o = bin()
+        .args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "1", "--blur", "6", "--recursive"])
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(3), "{err}");
     assert!(err.contains("nodepth.png") && err.contains("no depth map"), "{err}");
     assert!(err.contains("broken.png") && err.contains("PNG"), "{err}");
     // Each output has its fingerprint beside it (hidden).
     let fp = |n: &str| format!("{n}.drbokeh-fingerprint");
-    assert_eq!(files(&out), [fp(".a_bokeh.png"), fp(".b_bokeh.png"), "a_bokeh.png".into(), "b_bokeh.png".into(), "drbokeh-batch.json".into(), fp("sub/.c_bokeh.png"), "sub/c_bokeh.png".into()]);
+    assert_eq!(
+        files(&out),
+        [
+            fp(".a_bokeh.png"),
+            fp(".b_bokeh.png"),
+            "a_bokeh.png".into(),
+            "b_bokeh.png".into(),
+            "drbokeh-batch.json".into(),
+            fp("sub/.c_bokeh.png"),
+            "sub/c_bokeh.png".into()
+        ]
+    );
     let s = summary(&out, "drbokeh-batch.json");
     assert_eq!((s["ok"].as_u64(), s["failed"].as_u64()), (Some(3), Some(2)));
 
     // Second run: everything done is skipped; --force redoes it.
-    let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "1", "--blur", "6", "--recursive", "--json"]).output().unwrap();
+    let o = bin()
+        .args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "1", "--blur", "6", "--recursive", "--json"])
+        .output()
+        .unwrap();
     let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!((s["skipped"].as_u64(), s["ok"].as_u64()), (Some(3), Some(0)));
     // A newer input makes its image stale again.
     std::thread::sleep(std::time::Duration::from_millis(20));
     scene(&inp, "a", Some("a.depth.exr"), Some("a.matte.png"));
-    let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "1", "--blur", "6", "--json"]).output().unwrap();
+    let o = bin()
+        .args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "1", "--blur", "6", "--json"])
+        .output()
+        .unwrap();
     let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!((s["ok"].as_u64(), s["skipped"].as_u64()), (Some(1), Some(1)), "{s}");
     // No temporary files anywhere.
@@ -96,7 +118,21 @@ fn shards_partition_the_collection() {
     let mut seen = Vec::new();
     for i in 0..3 {
         let out = t.path().join("out");
-        let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--focus", "0", "--blur", "4", "--shard", &format!("{i}/3")]).output().unwrap();
+        let o = bin()
+            .args([
+                "batch",
+                inp.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+                "--focus",
+                "0",
+                "--blur",
+                "4",
+                "--shard",
+                &format!("{i}/3"),
+            ])
+            .output()
+            .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let s = summary(&out, &format!("drbokeh-batch.shard-{i}-of-3.json"));
         seen.extend(s["items"].as_array().unwrap().iter().map(|it| it["image"].as_str().unwrap().to_string()));
@@ -117,7 +153,8 @@ fn manifest_overrides_focus_blur_and_output() {
     scene(&inp, "b", Some("b.depth.exr"), None);
     let csv = t.path().join("m.csv");
     std::fs::write(&csv, "image,focus,focus_at,blur,matte,output\na.png,0,,0,,custom_a.exr\nb.png,,\"5,5\",3,,\n").unwrap();
-    let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--manifest", csv.to_str().unwrap()]).output().unwrap();
+    let o =
+        bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--manifest", csv.to_str().unwrap()]).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.join("custom_a.exr").exists() && out.join("b_bokeh.png").exists());
     // blur 0 → nothing to render → the EXR output is the decoded input.
@@ -127,7 +164,8 @@ fn manifest_overrides_focus_blur_and_output() {
 
     let toml = t.path().join("m.toml");
     std::fs::write(&toml, "[[image]]\nimage = \"a.png\"\nfocus = 1.0\n[[image]]\nimage = \"missing.png\"\nfocus = 0.0\n").unwrap();
-    let o = bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--manifest", toml.to_str().unwrap()]).output().unwrap();
+    let o =
+        bin().args(["batch", inp.to_str().unwrap(), "-o", out.to_str().unwrap(), "--manifest", toml.to_str().unwrap()]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.png"));
 }
@@ -148,7 +186,12 @@ fn batch_json(inp: &Path, out: &Path, args: &[&str]) -> (Option<i32>, serde_json
 
 /// (status, reason) of each item of a summary, by image.
 fn statuses(s: &serde_json::Value) -> Vec<(String, String, String)> {
-    s["items"].as_array().unwrap().iter().map(|it| (it["image"].as_str().unwrap().into(), it["status"].as_str().unwrap().into(), it["reason"].as_str().unwrap_or("").into())).collect()
+    s["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|it| (it["image"].as_str().unwrap().into(), it["status"].as_str().unwrap().into(), it["reason"].as_str().unwrap_or("").into()))
+        .collect()
 }
 
 /// Asserts a usage error: exit 2, stderr naming every needle, no panic, and no file written
@@ -193,7 +236,16 @@ fn cleanup_keeps_live_temps_and_removes_stale_ones() {
         scene(&inp, &format!("img{k}"), Some(&format!("img{k}.depth.exr")), None);
     }
     for _ in 0..3 {
-        let spawn = || bin().arg("batch").arg(&inp).arg("-o").arg(&out).args(["--focus", "1", "--blur", "4", "--force"]).env("RAYON_NUM_THREADS", "1").output();
+        let spawn = || {
+            bin()
+                .arg("batch")
+                .arg(&inp)
+                .arg("-o")
+                .arg(&out)
+                .args(["--focus", "1", "--blur", "4", "--force"])
+                .env("RAYON_NUM_THREADS", "1")
+                .output()
+        };
         let (a, b) = std::thread::scope(|sc| {
             let a = sc.spawn(spawn);
             let b = sc.spawn(spawn);
@@ -215,7 +267,13 @@ fn outputs_stay_inside_the_output_folder() {
     scene(&inp, "x", Some("x.depth.exr"), None);
     let cfg = t.path().join("escape.toml");
     std::fs::write(&cfg, "[batch]\noutput_pattern = \"../../escape_{stem}\"\n").unwrap();
-    assert_usage_error(t.path(), &inp, &out, &["--focus", "1", "--config", cfg.to_str().unwrap()], &["batch.output_pattern", "escape.toml"]);
+    assert_usage_error(
+        t.path(),
+        &inp,
+        &out,
+        &["--focus", "1", "--config", cfg.to_str().unwrap()],
+        &["batch.output_pattern", "escape.toml"],
+    );
     for bad in ["../x_out.png", "sub/../../x_out.png", "/tmp/drbokeh_escape_x.png"] {
         let m = t.path().join("m.csv");
         std::fs::write(&m, format!("image,focus,output\nx.png,1,{bad}\n")).unwrap();

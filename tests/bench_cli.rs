@@ -3,10 +3,10 @@
 
 mod common;
 
+use drbokeh::Image;
 use drbokeh::bench::metrics::{psnr, rmse, si_rmse, ssim, zncc};
 use drbokeh::bench::run::Method;
 use drbokeh::io::{self, ReadLimits};
-use drbokeh::Image;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -45,7 +45,10 @@ fn trace_writes_a_thin_lens_image() {
     io::write_exr(&dir.join("fg.exr"), &fg, &["R", "G", "B", "A", "D"]).unwrap();
     io::write_exr(&dir.join("bg.exr"), &bg, &["R", "G", "B", "A", "D"]).unwrap();
     // Focus on the foreground: the disk is sharp, the background (flat) stays flat.
-    let o = drbokeh(&dir, &["trace", "--layer", "fg.exr", "--layer", "bg.exr", "--focus", "1", "--blur", "8", "--spp", "64", "-o", "gt.exr", "-v"]);
+    let o = drbokeh(
+        &dir,
+        &["trace", "--layer", "fg.exr", "--layer", "bg.exr", "--focus", "1", "--blur", "8", "--spp", "64", "-o", "gt.exr", "-v"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("estimated noise"), "{}", stderr(&o));
     let img = io::read_photo(&dir.join("gt.exr"), drbokeh::color::Transfer::Linear, &ReadLimits::default()).unwrap();
@@ -54,7 +57,8 @@ fn trace_writes_a_thin_lens_image() {
     assert!((img.pixel(16, 12)[0] - 1.0).abs() < 1e-5, "in-focus centre: {:?}", img.pixel(16, 12));
     assert!((img.pixel(1, 1)[2] - 0.9).abs() < 1e-5, "flat background: {:?}", img.pixel(1, 1));
     // Focus on the background: the disk's edge turns soft and reveals the background.
-    let o = drbokeh(&dir, &["trace", "--layer", "fg.exr", "--layer", "bg.exr", "--focus", "0", "--blur", "4", "--spp", "256", "-o", "bgf.png"]);
+    let o =
+        drbokeh(&dir, &["trace", "--layer", "fg.exr", "--layer", "bg.exr", "--focus", "0", "--blur", "4", "--spp", "256", "-o", "bgf.png"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(dir.join("bgf.png").is_file());
     std::fs::remove_dir_all(&dir).ok();
@@ -117,11 +121,21 @@ fn tiny_bench_run_writes_the_report() {
 fn bench_on_the_shared_groundtruth_folders_and_bad_flags() {
     let dir = tmp("bench-gt");
     let gt = common::shared_dir().join("groundtruth");
-    let o = drbokeh(&dir, &["bench", "--groundtruth", gt.to_str().unwrap(), "--methods", "gather", "--repeats", "1", "--crops", "0", "--out", "rep"]);
+    let o = drbokeh(
+        &dir,
+        &["bench", "--groundtruth", gt.to_str().unwrap(), "--methods", "gather", "--repeats", "1", "--crops", "0", "--out", "rep"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = std::fs::read_to_string(dir.join("rep/report.csv")).unwrap();
     assert!(csv.contains("portrait,focus_fg") && csv.contains("thin_bars,focus_bg,bg_in_focus;thin"), "{csv}");
-    for (name, method) in [("layers", Method::Layers), ("scatter", Method::Scatter), ("no-occlusion", Method::Scatter), ("drbokeh-sliced", Method::Sliced), ("pipeline", Method::Pipeline), ("gather", Method::Gather)] {
+    for (name, method) in [
+        ("layers", Method::Layers),
+        ("scatter", Method::Scatter),
+        ("no-occlusion", Method::Scatter),
+        ("drbokeh-sliced", Method::Sliced),
+        ("pipeline", Method::Pipeline),
+        ("gather", Method::Gather),
+    ] {
         assert_eq!(Method::parse(name), Some(method), "{name}");
     }
     let o = drbokeh(&dir, &["bench", "--methods", "nope", "--out", "x"]);

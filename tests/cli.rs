@@ -9,10 +9,10 @@
 mod common;
 use common::crc32;
 
+use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io::{self, ReadLimits};
 use drbokeh::render::{self, Kernel, Layer, RenderSettings};
-use drbokeh::Image;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -223,7 +223,13 @@ fn scene_layers() -> (Image, Image) {
         for x in 0..W {
             let c = rgb.pixel(x, y);
             let ring = (FG_X.start - 1..FG_X.end + 1).contains(&x) && (FG_Y.start - 1..FG_Y.end + 1).contains(&y);
-            let a = if in_fg(x, y) { 1.0 } else if ring { 0.5 } else { 0.0 };
+            let a = if in_fg(x, y) {
+                1.0
+            } else if ring {
+                0.5
+            } else {
+                0.0
+            };
             fg.pixel_mut(x, y).copy_from_slice(&[0.9, 0.2, 0.1, a, 1.0]);
             bg.pixel_mut(x, y).copy_from_slice(&[c[0], c[1], c[2], 1.0, 0.1 * x as f32 / W as f32]);
         }
@@ -386,7 +392,9 @@ fn gamma_renders_on_powered_colours() {
     let (fg, bg) = scene_layers();
     io::save_npy(&s.path("fg.npy"), &fg).unwrap();
     io::save_npy(&s.path("bg.npy"), &bg).unwrap();
-    let j = s.json(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--gamma", "2.2", "--kernel", "exact", "-o", "g.npy"]);
+    let j = s.json(&[
+        "--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--gamma", "2.2", "--kernel", "exact", "-o", "g.npy",
+    ]);
     assert!((f64_of(&j["params"]["gamma"]) - 2.2).abs() < 1e-6, "{j}");
     let got = read_npy(&s.path("g.npy"));
     let mut layers = layers_of(&[&fg, &bg]);
@@ -425,7 +433,20 @@ fn kernel_exact_and_auto() {
 #[test]
 fn no_occlusion_renders_one_layer() {
     let s = Scene::new();
-    let j = s.json(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "6", "--no-occlusion", "-o", "no.npy"]);
+    let j = s.json(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "6",
+        "--no-occlusion",
+        "-o",
+        "no.npy",
+    ]);
     assert_eq!(j["params"]["occlusion"], false, "{j}");
     assert_eq!(j["params"]["layers"], 1, "{j}");
     let seg = stage(&j, "segment");
@@ -439,7 +460,21 @@ fn no_occlusion_renders_one_layer() {
     let (fg, bg) = scene_layers();
     io::save_npy(&s.path("fg.npy"), &fg).unwrap();
     io::save_npy(&s.path("bg.npy"), &bg).unwrap();
-    let out = s.run(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "3", "--no-occlusion", "--kernel", "exact", "-o", "nl.npy"]);
+    let out = s.run(&[
+        "--layer",
+        "fg.npy",
+        "--layer",
+        "bg.npy",
+        "--focus",
+        "0",
+        "--blur",
+        "3",
+        "--no-occlusion",
+        "--kernel",
+        "exact",
+        "-o",
+        "nl.npy",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stderr).contains("warning"));
     let layers = layers_of(&[&bg]);
@@ -486,8 +521,33 @@ fn bit_depth_16_writes_a_16_bit_png() {
 #[test]
 fn save_layers_writes_exr_layers_that_feed_back() {
     let s = Scene::new();
-    s.ok(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "5", "--kernel", "exact", "--save-layers", "layers", "-o", "out.npy"]);
-    for f in ["0_fg.exr", "1_bg.exr", "0_fg_color.png", "0_fg_alpha.png", "0_fg_disparity.png", "1_bg_color.png", "1_bg_alpha.png", "1_bg_disparity.png"] {
+    s.ok(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "5",
+        "--kernel",
+        "exact",
+        "--save-layers",
+        "layers",
+        "-o",
+        "out.npy",
+    ]);
+    for f in [
+        "0_fg.exr",
+        "1_bg.exr",
+        "0_fg_color.png",
+        "0_fg_alpha.png",
+        "0_fg_disparity.png",
+        "1_bg_color.png",
+        "1_bg_alpha.png",
+        "1_bg_disparity.png",
+    ] {
         assert!(s.path("layers").join(f).is_file(), "missing layers/{f}; have {:?}", s.files());
     }
     // A glob of the EXR files lists them front to back.
@@ -500,7 +560,20 @@ fn save_layers_writes_exr_layers_that_feed_back() {
     assert_eq!(fg.pixel(15, 11)[3], 1.0);
     assert_eq!(fg.pixel(0, 0)[3], 0.0);
     // Feeding the saved layers back renders the same picture.
-    s.ok(&["--layer", "layers/0_fg.exr", "--layer", "layers/1_bg.exr", "--focus", "1", "--blur", "5", "--kernel", "exact", "-o", "again.npy"]);
+    s.ok(&[
+        "--layer",
+        "layers/0_fg.exr",
+        "--layer",
+        "layers/1_bg.exr",
+        "--focus",
+        "1",
+        "--blur",
+        "5",
+        "--kernel",
+        "exact",
+        "-o",
+        "again.npy",
+    ]);
     let e = max_abs_diff(&read_npy(&s.path("out.npy")).data, &read_npy(&s.path("again.npy")).data);
     assert!(e < 1e-6, "re-rendering the saved layers differs by {e}");
 }
@@ -531,8 +604,25 @@ fn writes_never_hit_an_input() {
         s.bad(&with(&["--depth", "depth.exr", "-o", "soft.png"]), &["soft.png"]);
     }
     // --layer inputs and --save-layers into their own folder.
-    s.ok(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "4", "--save-layers", "M", "-o", "m.png"]);
-    s.bad(&["--layer", "M/0_fg.exr", "--layer", "M/1_bg.exr", "--focus", "0", "--blur", "4", "--save-layers", "M", "-o", "n.png"], &["M/0_fg.exr"]);
+    s.ok(&[
+        "image.png",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "4",
+        "--save-layers",
+        "M",
+        "-o",
+        "m.png",
+    ]);
+    s.bad(
+        &["--layer", "M/0_fg.exr", "--layer", "M/1_bg.exr", "--focus", "0", "--blur", "4", "--save-layers", "M", "-o", "n.png"],
+        &["M/0_fg.exr"],
+    );
 }
 
 #[test]
@@ -887,7 +977,6 @@ fn empty_images() {
     s.bad(&["zero.png", "--depth", "depth.exr", "--focus", "0", "-o", "o.npy"], &["zero.png"]);
 }
 
-
 #[test]
 fn matte_with_wrong_size() {
     let s = Scene::new();
@@ -977,7 +1066,6 @@ fn output_in_a_missing_folder() {
     assert!(!s.path("nope").exists());
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // Input variants, threads, links
 // ---------------------------------------------------------------------------------------------
@@ -1021,7 +1109,21 @@ fn input_variants() {
 #[test]
 fn threads_flag_gives_the_same_result() {
     let s = Scene::new();
-    let j = s.json(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "0", "--blur", "5", "--threads", "1", "-o", "t1.npy"]);
+    let j = s.json(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "0",
+        "--blur",
+        "5",
+        "--threads",
+        "1",
+        "-o",
+        "t1.npy",
+    ]);
     assert_eq!(j["params"]["threads"], 1, "{j}");
     s.ok(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "0", "--blur", "5", "-o", "tn.npy"]);
     assert_eq!(read_npy(&s.path("t1.npy")).data, read_npy(&s.path("tn.npy")).data);
@@ -1041,7 +1143,21 @@ fn output_symlinked_to_an_input_is_refused() {
 
 fn save_layers_when_nothing_is_rendered() {
     let s = Scene::new();
-    let out = s.run(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "0", "--save-layers", "L", "-o", "o.png"]);
+    let out = s.run(&[
+        "image.png",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "0",
+        "--save-layers",
+        "L",
+        "-o",
+        "o.png",
+    ]);
     assert!(out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     let wrote = s.path("L/0_fg.exr").is_file() && s.path("L/1_bg.exr").is_file();
@@ -1128,7 +1244,11 @@ fn sizes_are_bounded_and_checked_before_work() {
     std::fs::write(s.path("tall_header.png"), png_header_only(24, 32)).unwrap();
     s.bad(&["image.png", "--depth", "tall_header.png", "--focus", "1", "-o", "o.png"], &["tall_header.png", "aspect"]);
     // bench frames are bounded too.
-    let out = Command::new(env!("CARGO_BIN_EXE_drbokeh")).args(["bench", "--size", "100000x100000", "--out", "b"]).current_dir(s.path(".")).output().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_drbokeh"))
+        .args(["bench", "--size", "100000x100000", "--out", "b"])
+        .current_dir(s.path("."))
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--size"));
 }

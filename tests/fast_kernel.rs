@@ -92,7 +92,13 @@ fn fast_kernel_converges_with_quality() {
 fn fast_kernel_is_deterministic_across_thread_counts() {
     use drbokeh::bench::stress::two_layer_scene;
     let (layers, s) = two_layer_scene(120, 90, 24.0, false);
-    let run = |n: usize| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap());
+    let run = |n: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+            .install(|| render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap())
+    };
     assert_eq!(run(1).data, run(2).data);
     assert_eq!(run(3).data, run(2).data);
 }
@@ -110,7 +116,10 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
             bg.extend_from_slice(&[0.3, 0.6, 0.9, 1.0, (x as f32 / w as f32) * 0.5]);
         }
     }
-    let layers = vec![Layer::new(Image::from_vec(w, h, 5, fg).unwrap(), "fg").unwrap(), Layer::new(Image::from_vec(w, h, 5, bg.clone()).unwrap(), "bg").unwrap()];
+    let layers = vec![
+        Layer::new(Image::from_vec(w, h, 5, fg).unwrap(), "fg").unwrap(),
+        Layer::new(Image::from_vec(w, h, 5, bg.clone()).unwrap(), "bg").unwrap(),
+    ];
     for (k, f) in [(0.0, 0.5), (5.0, 0.9), (30.0, 0.0), (60.0, 0.4)] {
         let s = RenderSettings { blur: k, focus: f, lens: render::auto_lens(&layers, k, f), occlusion: true };
         let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
@@ -135,7 +144,7 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
 #[test]
 fn bright_sources_are_exact_and_capped() {
     use drbokeh::bench::stress::two_layer_scene;
-    use drbokeh::render::fast::{scatter_layer, FastParams};
+    use drbokeh::render::fast::{FastParams, scatter_layer};
     let (layers, s) = two_layer_scene(120, 90, 24.0, true);
     // Most of the background bright (a bright sky), with a few far brighter points.
     let mut bg = layers[1].image().clone();

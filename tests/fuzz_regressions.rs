@@ -4,7 +4,7 @@
 //! the header parser backtrack for minutes.
 
 use drbokeh::color::Transfer;
-use drbokeh::io::{read_depth, read_layer, read_matte, read_photo, ReadLimits};
+use drbokeh::io::{ReadLimits, read_depth, read_layer, read_matte, read_photo};
 
 #[test]
 fn fuzzer_finds_are_refused() {

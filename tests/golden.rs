@@ -3,9 +3,9 @@
 
 mod common;
 
+use drbokeh::Image;
 use drbokeh::io::npy::read_npy;
 use drbokeh::render::{self, Kernel};
-use drbokeh::Image;
 use std::path::Path;
 
 const TOL: f32 = 1e-4;

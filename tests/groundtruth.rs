@@ -5,11 +5,11 @@
 
 mod common;
 
+use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;
 use drbokeh::bench::metrics::{psnr, ssim};
 use drbokeh::color::linear_to_srgb;
 use drbokeh::render::{self, Kernel, RenderSettings};
-use drbokeh::Image;
 
 fn srgb(img: &Image) -> Image {
     let mut o = img.clone();
@@ -32,7 +32,9 @@ fn drbokeh_beats_classical_scatter_against_thin_lens_ground_truth() {
             let ours = render::render(&layers, &rs, Kernel::Exact).unwrap();
             let base = render::render(&single, &RenderSettings { occlusion: false, ..rs }, Kernel::Exact).unwrap();
             let border = s.coc_max.ceil() as usize;
-            let m = |img: &Image| (psnr(img, &s.gt, 1.0, border), psnr(&srgb(img), &srgb(&s.gt), 1.0, border), ssim(&srgb(img), &srgb(&s.gt), 1.0, border));
+            let m = |img: &Image| {
+                (psnr(img, &s.gt, 1.0, border), psnr(&srgb(img), &srgb(&s.gt), 1.0, border), ssim(&srgb(img), &srgb(&s.gt), 1.0, border))
+            };
             let (o, b) = (m(&ours), m(&base));
             println!(
                 "{:10} {:9}  Dr.Bokeh: PSNR lin {:6.2} dB, sRGB {:6.2} dB, SSIM {:.4} | no occlusion: PSNR lin {:6.2} dB, sRGB {:6.2} dB, SSIM {:.4}",

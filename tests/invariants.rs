@@ -11,7 +11,7 @@
 mod common;
 
 use drbokeh::config::Config;
-use drbokeh::render::{self, auto_lens, render_raw, Kernel, Layer, RenderSettings};
+use drbokeh::render::{self, Kernel, Layer, RenderSettings, auto_lens, render_raw};
 use drbokeh::stages::depth::Disparity;
 use drbokeh::{Focus, Image, Pipeline, Scene};
 
@@ -147,10 +147,7 @@ fn alpha_maps(w: usize, h: usize) -> Vec<(&'static str, Image)> {
 fn uniform_colour_two_layers_stays_uniform() {
     let (w, h) = (24, 18);
     let opaque = Image::filled(w, h, 1, 1.0);
-    let front_depths = [
-        ("flat 0.9", Image::filled(w, h, 1, 0.9)),
-        ("ramp", plane(w, h, |x, _| 0.5 + 0.5 * x as f32 / (w - 1) as f32)),
-    ];
+    let front_depths = [("flat 0.9", Image::filled(w, h, 1, 0.9)), ("ramp", plane(w, h, |x, _| 0.5 + 0.5 * x as f32 / (w - 1) as f32))];
     let mut worst_by_k = [0f32; BLURS.len()];
     let mut failures = Vec::new();
     for (aname, alpha) in alpha_maps(w, h) {
@@ -184,16 +181,14 @@ fn uniform_colour_two_layers_stays_uniform() {
 fn uniform_photo_through_the_pipeline_stays_uniform() {
     let (w, h) = (24, 18);
     let rgb = Image::stack(&[&plane(w, h, |_, _| COLOUR[0]), &plane(w, h, |_, _| COLOUR[1]), &plane(w, h, |_, _| COLOUR[2])]);
-    let mattes: Vec<(&str, Option<Image>)> = vec![
-        ("none", None),
-        ("hard square", Some(alpha_maps(w, h).remove(0).1)),
-        ("soft disc", Some(alpha_maps(w, h).remove(1).1)),
-    ];
+    let mattes: Vec<(&str, Option<Image>)> =
+        vec![("none", None), ("hard square", Some(alpha_maps(w, h).remove(0).1)), ("soft disc", Some(alpha_maps(w, h).remove(1).1))];
     let mut worst_by_k = [0f32; BLURS.len()];
     let mut failures = Vec::new();
     for (mname, matte) in &mattes {
         for (dname, d) in depth_maps(w, h) {
-            let scene = Scene { rgb: rgb.clone(), disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: matte.clone() };
+            let scene =
+                Scene { rgb: rgb.clone(), disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: matte.clone() };
             for f in FOCI {
                 for (ki, k) in BLURS.into_iter().enumerate() {
                     let mut cfg = Config::default();
@@ -244,7 +239,9 @@ fn output_is_finite_and_inside_the_input_range() {
     let opaque = Image::filled(w, h, 1, 1.0);
     for seed in 0..4u64 {
         let mut rng = Rng::new(100 + seed);
-        let mut colours = |scale: f32| -> Vec<[f32; 3]> { (0..w * h).map(|_| [rng.next_f32() * scale, rng.next_f32() * scale, rng.next_f32() * scale]).collect() };
+        let mut colours = |scale: f32| -> Vec<[f32; 3]> {
+            (0..w * h).map(|_| [rng.next_f32() * scale, rng.next_f32() * scale, rng.next_f32() * scale]).collect()
+        };
         // HDR values in the back layer for one seed.
         let front_c = colours(1.0);
         let back_c = colours(if seed == 3 { 1e4 } else { 1.0 });
@@ -375,7 +372,11 @@ fn subject_scene(w: usize, h: usize, sq: (usize, usize, usize, usize), focus: f3
         }
     }
     let map = plane(w, h, |x, y| if inside(x, y) { focus } else { 0.0 });
-    Scene { rgb, disparity: Disparity { map, z_range: None, filled_fraction: 0.0 }, matte: Some(plane(w, h, |x, y| inside(x, y) as u8 as f32)) }
+    Scene {
+        rgb,
+        disparity: Disparity { map, z_range: None, filled_fraction: 0.0 },
+        matte: Some(plane(w, h, |x, y| inside(x, y) as u8 as f32)),
+    }
 }
 
 #[test]
@@ -537,8 +538,6 @@ fn tiny_images_render_finite_output() {
     }
 }
 
-
-
 /// DESIGN.md: "huge radii are all legal and give finite, sensible output". A uniform scene
 /// must stay uniform however large K is. Measured on a 24x18 opaque layer of colour
 /// (0.25, 0.5, 0.75) with disparity ramping 0..1 and focus 0: deviation 4.2e-5 at K = 1e4,
@@ -592,10 +591,12 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
         let (lo, hi) = fg.data.chunks_exact(5).map(|px| px[4]).fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
         let reach = (((lo - focus).abs().max((hi - focus).abs()) * p.blur + 1.0) / 2.0).trunc() as i64 + 1;
         let sees = |x: i64, y: i64| {
-            (-reach..=reach).any(|dy| (-reach..=reach).any(|dx| {
-                let (xx, yy) = ((x + dx).clamp(0, w as i64 - 1) as usize, (y + dy).clamp(0, h as i64 - 1) as usize);
-                fg.data[(yy * w + xx) * 5 + 3] > 0.0
-            }))
+            (-reach..=reach).any(|dy| {
+                (-reach..=reach).any(|dx| {
+                    let (xx, yy) = ((x + dx).clamp(0, w as i64 - 1) as usize, (y + dy).clamp(0, h as i64 - 1) as usize);
+                    fg.data[(yy * w + xx) * 5 + 3] > 0.0
+                })
+            })
         };
         let mut rng = Rng::new(5);
         let mut moved = fg.clone();

@@ -5,12 +5,12 @@
 mod common;
 use common::crc32;
 
+use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io::{
-    self, read_decoded, read_depth, read_depth_map, read_layer, read_matte, read_photo, write_exr, write_output,
-    write_png, Encoding, FileFormat, OutputFormat, ReadLimits,
+    self, Encoding, FileFormat, OutputFormat, ReadLimits, read_decoded, read_depth, read_depth_map, read_layer, read_matte, read_photo,
+    write_exr, write_output, write_png,
 };
-use drbokeh::Image;
 use std::path::{Path, PathBuf};
 
 fn lim() -> ReadLimits {
@@ -52,7 +52,6 @@ fn raw_npy(path: &Path, shape: &[u64], data: &[f32]) {
     std::fs::write(path, buf).unwrap();
 }
 
-
 fn png_chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
     out.extend_from_slice(&(data.len() as u32).to_be_bytes());
     let mut body = kind.to_vec();
@@ -84,8 +83,7 @@ where
 }
 
 fn list_dir(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> =
-        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     v.sort();
     v
 }
@@ -580,22 +578,12 @@ fn missing_file() {
 fn garbage_bytes_with_every_extension() {
     let dir = tmp();
     let garbage: Vec<u8> = (0..2000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect();
-    for (ext, expect) in [
-        ("png", "PNG"),
-        ("exr", "EXR"),
-        ("tif", "TIFF"),
-        ("tiff", "TIFF"),
-        ("jpg", "JPEG"),
-        ("jpeg", "JPEG"),
-        ("npy", "NPY"),
-    ] {
+    for (ext, expect) in
+        [("png", "PNG"), ("exr", "EXR"), ("tif", "TIFF"), ("tiff", "TIFF"), ("jpg", "JPEG"), ("jpeg", "JPEG"), ("npy", "NPY")]
+    {
         let p = dir.path().join(format!("garbage.{ext}"));
         std::fs::write(&p, &garbage).unwrap();
-        for e in [
-            err_of(read_photo(&p, Transfer::Srgb, &lim())),
-            err_of(read_depth(&p, &lim())),
-            err_of(read_matte(&p, &lim())),
-        ] {
+        for e in [err_of(read_photo(&p, Transfer::Srgb, &lim())), err_of(read_depth(&p, &lim())), err_of(read_matte(&p, &lim()))] {
             assert!(e.contains(&format!("garbage.{ext}")) && e.contains(expect), "{ext}: {e}");
         }
         let _ = read_layer(&p, &lim()).unwrap_err();
@@ -682,11 +670,7 @@ fn decompression_bomb_is_refused_before_allocation() {
     // 10^10 pixels x 3 bytes would be 30 GB: refused from the header alone (the test would
     // abort on allocation failure or take minutes otherwise).
     let limits = ReadLimits { max_pixels: 200_000_000 };
-    for e in [
-        err_of(read_photo(&p, Transfer::Srgb, &limits)),
-        err_of(read_depth(&p, &limits)),
-        err_of(read_matte(&p, &limits)),
-    ] {
+    for e in [err_of(read_photo(&p, Transfer::Srgb, &limits)), err_of(read_depth(&p, &limits)), err_of(read_matte(&p, &limits))] {
         assert!(e.contains("bomb.png") && e.contains("100000x100000") && e.contains("limit of 200000000 pixels"), "{e}");
     }
 
@@ -991,12 +975,9 @@ fn layer_alpha_outside_unit_range_warns() {
         img.data[5 * 7 + 3] = alpha;
         img
     };
-    for (name, alpha, warns) in [
-        ("in_range.npy", 1.0, false),
-        ("round_off.npy", 1.0 + 1e-4, false),
-        ("above.npy", 1.5, true),
-        ("below.exr", -0.25, true),
-    ] {
+    for (name, alpha, warns) in
+        [("in_range.npy", 1.0, false), ("round_off.npy", 1.0 + 1e-4, false), ("above.npy", 1.5, true), ("below.exr", -0.25, true)]
+    {
         let p = dir.path().join(name);
         write_exr_or_npy_5(&p, &layer(alpha));
         let l = io::read_layer_file(&p, &lim()).unwrap();

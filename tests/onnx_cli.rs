@@ -2,11 +2,11 @@
 //! classical run given the model's matte; classical runs never need ONNX Runtime; runtime and
 //! model errors exit 2 naming the file and write nothing; the committed stubs are up to date.
 
+use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io;
 use drbokeh::onnx::{ModelSpec, OnnxConfig};
 use drbokeh::stages::segment_onnx;
-use drbokeh::Image;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -135,8 +135,14 @@ fn runtime_not_found_is_a_clear_error() {
     let dir = scene();
     let d = dir.path();
     let md = stubs();
-    let args = ["image.png", "--depth", "depth.exr", "--focus", "1", "--segment", "onnx", "--model-dir", md.to_str().unwrap(), "-o", "o.png"];
-    bad(d, &args, &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")], &["/nonexistent/libonnxruntime.so", "ORT_DYLIB_PATH", "onnxruntime==1.31.1"]);
+    let args =
+        ["image.png", "--depth", "depth.exr", "--focus", "1", "--segment", "onnx", "--model-dir", md.to_str().unwrap(), "-o", "o.png"];
+    bad(
+        d,
+        &args,
+        &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")],
+        &["/nonexistent/libonnxruntime.so", "ORT_DYLIB_PATH", "onnxruntime==1.31.1"],
+    );
     // `[onnx] runtime` wins over ORT_DYLIB_PATH.
     std::fs::write(d.join("c.toml"), "[onnx]\nruntime = \"/no/such/libonnxruntime.so\"\n").unwrap();
     bad(d, &[&args[..], &["--config", "c.toml"]].concat(), &[], &["/no/such/libonnxruntime.so", "[onnx] runtime"]);
@@ -157,7 +163,11 @@ fn model_errors_exit_2_naming_the_file() {
     bad(d, &[&base[..], &["--inpaint", "onnx", "--segment", "depth"]].concat(), &[], &["inpaint.onnx", "--model-dir"]);
     // A stub that emits NaN.
     let nan = stubs().join("bad_nan.onnx");
-    std::fs::write(d.join("nan.toml"), format!("[segment]\nmethod = \"onnx\"\n[segment.onnx]\nmodel = {:?}\npreset = \"u2net\"\n", nan.to_str().unwrap())).unwrap();
+    std::fs::write(
+        d.join("nan.toml"),
+        format!("[segment]\nmethod = \"onnx\"\n[segment.onnx]\nmodel = {:?}\npreset = \"u2net\"\n", nan.to_str().unwrap()),
+    )
+    .unwrap();
     bad(d, &[&base[..], &["--config", "nan.toml"]].concat(), &[], &["bad_nan.onnx", "NaN"]);
     // Wrong names.
     let names = stubs().join("bad_names.onnx");
@@ -175,7 +185,8 @@ fn depth_model_when_no_depth_map() {
     let dir = scene();
     let d = dir.path();
     let midas = stubs().join("midas_small.onnx");
-    std::fs::write(d.join("depth.toml"), format!("[depth.onnx]\nmodel = {:?}\npreset = \"midas-small\"\n", midas.to_str().unwrap())).unwrap();
+    std::fs::write(d.join("depth.toml"), format!("[depth.onnx]\nmodel = {:?}\npreset = \"midas-small\"\n", midas.to_str().unwrap()))
+        .unwrap();
     let j = ok(d, &["image.png", "--focus", "0.5", "--blur", "4", "--config", "depth.toml", "-o", "o.png"], &[]);
     assert_eq!(stage(&j, "depth_model")["detail"]["preset"], "midas-small", "{j}");
     // --model-dir with the default depth preset's file (depth_anything_v2.onnx).

@@ -10,7 +10,7 @@ use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, S
 use drbokeh::onnx::prep::{self, Geometry};
 use drbokeh::onnx::{DepthFill, ModelSpec, OnnxConfig};
 use drbokeh::stages::background::InpaintOptions;
-use drbokeh::stages::inpaint::{inpaint_telea, TeleaOptions};
+use drbokeh::stages::inpaint::{TeleaOptions, inpaint_telea};
 use drbokeh::stages::inpaint_onnx::{self, region, seam_weight};
 use drbokeh::stages::mask::{dilate, distance_to};
 use drbokeh::stages::{depth_onnx, segment_onnx};
@@ -196,7 +196,13 @@ fn depth_presets_match_their_function() {
 }
 
 fn disk_alpha(w: usize, h: usize, cx: f32, cy: f32, r: f32) -> Image {
-    Image::from_vec(w, h, 1, (0..w * h).map(|i| (r - (((i % w) as f32 - cx).powi(2) + ((i / w) as f32 - cy).powi(2)).sqrt()).clamp(0.0, 1.0)).collect()).unwrap()
+    Image::from_vec(
+        w,
+        h,
+        1,
+        (0..w * h).map(|i| (r - (((i % w) as f32 - cx).powi(2) + ((i / w) as f32 - cy).powi(2)).sqrt()).clamp(0.0, 1.0)).collect(),
+    )
+    .unwrap()
 }
 
 /// The inpainting stub's function on a model-sized image and binary mask: masked pixels take
@@ -338,20 +344,26 @@ fn wrong_names_list_what_the_model_has() {
     let e = matte_err(&ModelSpec { output: Some(contract::OutputRef::Index(5)), ..spec("u2net.onnx", "u2net") });
     assert!(e.contains("no output #5") && e.contains("\"d0\"") && e.contains("\"d1\""), "{e}");
     // Inpainting stub used with swapped names.
-    let opts = InpaintOptions {
-        onnx: ModelSpec { input: Some("img".into()), ..spec("lama.onnx", "lama") },
-        ..InpaintOptions::default()
-    };
+    let opts = InpaintOptions { onnx: ModelSpec { input: Some("img".into()), ..spec("lama.onnx", "lama") }, ..InpaintOptions::default() };
     let alpha = disk_alpha(16, 12, 8.0, 6.0, 3.0);
-    let e = inpaint_onnx::inpaint_background(&photo(16, 12), &Image::filled(16, 12, 1, 0.5), &alpha, &opts, 10.0, &cfg()).err().unwrap().to_string();
-    assert!(e.contains("lama.onnx") && e.contains("\"img\"") && e.contains("\"image\" f32[1, 3, 512, 512]") && e.contains("\"mask\""), "{e}");
+    let e = inpaint_onnx::inpaint_background(&photo(16, 12), &Image::filled(16, 12, 1, 0.5), &alpha, &opts, 10.0, &cfg())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("lama.onnx") && e.contains("\"img\"") && e.contains("\"image\" f32[1, 3, 512, 512]") && e.contains("\"mask\""),
+        "{e}"
+    );
 }
 
 #[test]
 fn wrong_rank_layout_and_size() {
     // MiDaS's output is rank 3; U^2-Net's contract wants rank 4.
     let e = matte_err(&ModelSpec { model: Some(stub("midas_small.onnx")), size: Some([256, 256]), ..spec("u2net.onnx", "u2net") });
-    assert!(e.contains("midas_small.onnx") && e.contains("rank 3") && e.contains("expects rank 4") && e.contains("\"depth\" f32[1, 256, 256]"), "{e}");
+    assert!(
+        e.contains("midas_small.onnx") && e.contains("rank 3") && e.contains("expects rank 4") && e.contains("\"depth\" f32[1, 256, 256]"),
+        "{e}"
+    );
     // ISNet's fixed 1024 input under the U^2-Net contract (320).
     let e = matte_err(&ModelSpec { model: Some(stub("isnet.onnx")), ..spec("u2net.onnx", "u2net") });
     assert!(e.contains("isnet.onnx") && e.contains("1024x1024") && e.contains("320x320"), "{e}");

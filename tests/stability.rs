@@ -3,8 +3,8 @@
 //! and a uniform colour stays uniform, for extreme K, focus, disparity, alpha and HDR colour.
 //! Also: the f32 accumulation error of the largest windows against f64.
 
-use drbokeh::render::{self, Kernel, Layer, RenderSettings};
 use drbokeh::Image;
+use drbokeh::render::{self, Kernel, Layer, RenderSettings};
 use proptest::prelude::*;
 
 const BLURS: [f32; 5] = [0.0, 1e-6, 1.0, 1e3, 1e6];
@@ -52,7 +52,15 @@ fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u
     let mut bg = Vec::new();
     for y in 0..h {
         for x in 0..w {
-            let c = |v: f32| if uniform { 0.25 * scale } else if v < 0.1 { 0.0 } else { v * scale };
+            let c = |v: f32| {
+                if uniform {
+                    0.25 * scale
+                } else if v < 0.1 {
+                    0.0
+                } else {
+                    v * scale
+                }
+            };
             let alpha = match a {
                 AlphaKind::Zero => 0.0,
                 AlphaKind::One => 1.0,
@@ -88,7 +96,12 @@ fn check(layers: &[Layer], s: &RenderSettings, kernel: Kernel, uniform: bool) ->
             prop_assert!(px[c] <= hi[c] + tol, "{} above the input range [{}, {}]", px[c], lo[c], hi[c]);
             prop_assert!(px[c] >= 0.0f32.min(lo[c]) - tol, "{} below the input range", px[c]);
             if uniform {
-                prop_assert!((px[c] - hi[c]).abs() <= tol || px[c] == 0.0 || (px[c] - hi[c]).abs() / hi[c] < 1e-4, "uniform colour changed: {} vs {}", px[c], hi[c]);
+                prop_assert!(
+                    (px[c] - hi[c]).abs() <= tol || px[c] == 0.0 || (px[c] - hi[c]).abs() / hi[c] < 1e-4,
+                    "uniform colour changed: {} vs {}",
+                    px[c],
+                    hi[c]
+                );
             }
         }
     }
@@ -96,7 +109,14 @@ fn check(layers: &[Layer], s: &RenderSettings, kernel: Kernel, uniform: bool) ->
 }
 
 fn disp_kind() -> impl Strategy<Value = DispKind> {
-    prop_oneof![Just(DispKind::Step), Just(DispKind::Spike), Just(DispKind::Constant), Just(DispKind::Zero), Just(DispKind::One), Just(DispKind::Random)]
+    prop_oneof![
+        Just(DispKind::Step),
+        Just(DispKind::Spike),
+        Just(DispKind::Constant),
+        Just(DispKind::Zero),
+        Just(DispKind::One),
+        Just(DispKind::Random)
+    ]
 }
 
 fn alpha_kind() -> impl Strategy<Value = AlphaKind> {
@@ -149,7 +169,7 @@ fn long_thin_image_with_huge_blur_is_finite() {
 /// f64: the relative error is reported; the exact kernel accumulates in f64 for this reason.
 #[test]
 fn f32_accumulation_error_of_large_windows() {
-    use drbokeh::render::lens::{energy, occlusion, focal_defocus};
+    use drbokeh::render::lens::{energy, focal_defocus, occlusion};
     for p in [16i32, 64, 128] {
         let (mut s32, mut s64) = (0f32, 0f64);
         let (mut c32, mut c64) = (0f32, 0f64);

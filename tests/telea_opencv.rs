@@ -78,14 +78,18 @@ fn test_image(kind: Kind, w: usize, h: usize, seed: u64) -> Image {
                 let n = rng.next() - 0.5;
                 let v = match kind {
                     Kind::Rgb8 => {
-                        let v = 110.0 + 70.0 * (0.09 * xf + 0.05 * yf + 1.3 * c as f32).sin() + 40.0 * (yf / h as f32 - 0.5)
+                        let v = 110.0
+                            + 70.0 * (0.09 * xf + 0.05 * yf + 1.3 * c as f32).sin()
+                            + 40.0 * (yf / h as f32 - 0.5)
                             + 18.0 * checker
                             + 8.0 * stripe
                             + 16.0 * n;
                         v.round().clamp(0.0, 255.0)
                     }
                     Kind::Gray16 => {
-                        let v = 30000.0 + 20000.0 * (0.07 * xf).sin() * (0.11 * yf).cos() + 8000.0 * xf / w as f32
+                        let v = 30000.0
+                            + 20000.0 * (0.07 * xf).sin() * (0.11 * yf).cos()
+                            + 8000.0 * xf / w as f32
                             + 3000.0 * checker
                             + 1500.0 * n;
                         v.round().clamp(0.0, 65535.0)
@@ -307,7 +311,8 @@ fn check(kind: Kind) {
     let dir = tempfile::tempdir().unwrap();
     let oracle = opencv(&cases, dir.path());
     // One print per test, so that tests running in parallel do not interleave their tables.
-    let mut table = format!("{kind:?} vs cv2.inpaint TELEA (OpenCV {}), |diff| in levels (1/255 of range) over filled values\n", cv_version());
+    let mut table =
+        format!("{kind:?} vs cv2.inpaint TELEA (OpenCV {}), |diff| in levels (1/255 of range) over filled values\n", cv_version());
     table += &format!(
         "{:<34} {:>6} | {:>6} {:>7} {:>7} {:>9} | {:>7} {:>7} {:>7}\n",
         "case", "values", "differ", "mean", "p99", "max", "mean*", "p99*", "max*"

@@ -3,12 +3,12 @@
 
 mod common;
 
+use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;
 use drbokeh::bench::metrics::{psnr, rmse};
 use drbokeh::bench::scenes::gt_plane_layers;
-use drbokeh::bench::trace::{trace, trace_split, Footprint, Plane, TraceSettings, Window};
+use drbokeh::bench::trace::{Footprint, Plane, TraceSettings, Window, trace, trace_split};
 use drbokeh::render::Layer;
-use drbokeh::Image;
 
 /// Fraction of a disk of radius `r` that lies beyond a line at signed distance `t` from its
 /// centre (t > 0: the line does not reach the centre).
@@ -131,7 +131,8 @@ fn shared_groundtruth_scenes_are_reproduced() {
             let ts = TraceSettings::new(s.blur, s.focus, 512, 1);
             let (img, half) = trace_split(&planes, &ts, Window::full(scene.bg.width, scene.bg.height), &|_| {}).unwrap();
             let border = s.coc_max.ceil() as usize;
-            let other = Image::from_vec(img.width, img.height, 3, img.data.iter().zip(&half.data).map(|(f, h)| 2.0 * f - h).collect()).unwrap();
+            let other =
+                Image::from_vec(img.width, img.height, 3, img.data.iter().zip(&half.data).map(|(f, h)| 2.0 * f - h).collect()).unwrap();
             let noise = rmse(&half, &other, border) / 2.0;
             let p = psnr(&img, &s.gt, 1.0, border);
             println!(

@@ -8,9 +8,9 @@
 use crate::color::Transfer;
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::io::{read_depth, read_matte, read_photo, ReadLimits};
+use crate::io::{ReadLimits, read_depth, read_matte, read_photo};
 use crate::render::Layer;
-use crate::stages::inpaint::{inpaint_telea, TeleaOptions};
+use crate::stages::inpaint::{TeleaOptions, inpaint_telea};
 use std::path::{Path, PathBuf};
 
 /// One focus setting of a scene, with its ground truth.
@@ -70,7 +70,10 @@ impl GtScene {
             });
         }
         Ok(GtScene {
-            name: p["scene"].as_str().map(str::to_owned).unwrap_or_else(|| dir.file_name().unwrap_or_default().to_string_lossy().into_owned()),
+            name: p["scene"]
+                .as_str()
+                .map(str::to_owned)
+                .unwrap_or_else(|| dir.file_name().unwrap_or_default().to_string_lossy().into_owned()),
             dir: dir.to_path_buf(),
             aif: rgb("aif.exr")?,
             disparity: to_disp(read_depth(&dir.join("depth.exr"), &limits)?),

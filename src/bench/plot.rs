@@ -108,7 +108,12 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
                 if t < tmin * 0.9999 || t > tmax * 1.0001 {
                     continue;
                 }
-                chart.draw_series(std::iter::once(PathElement::new(vec![(t, vmin), (t, vmax)], if major { RGBColor(190, 190, 190) } else { grey }))).map_err(|e| err(&e))?;
+                chart
+                    .draw_series(std::iter::once(PathElement::new(
+                        vec![(t, vmin), (t, vmax)],
+                        if major { RGBColor(190, 190, 190) } else { grey },
+                    )))
+                    .map_err(|e| err(&e))?;
                 let (x, y) = chart.backend_coord(&(t, vmin));
                 let s = fmt_ms(t);
                 labels.push((x - text_width(&s, 1) / 2, y + 8, s, [60, 60, 60], 1));
@@ -120,7 +125,13 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
         while v <= vmax {
             chart.draw_series(std::iter::once(PathElement::new(vec![(tmin, v), (tmax, v)], grey))).map_err(|e| err(&e))?;
             let (x, y) = chart.backend_coord(&(tmin, v));
-            let s = if step >= 1.0 { format!("{v:.0}") } else if step >= 0.1 { format!("{v:.1}") } else { format!("{v:.2}") };
+            let s = if step >= 1.0 {
+                format!("{v:.0}")
+            } else if step >= 0.1 {
+                format!("{v:.1}")
+            } else {
+                format!("{v:.2}")
+            };
             labels.push((x - 8 - text_width(&s, 1), y - 4, s, [60, 60, 60], 1));
             v += step;
         }
@@ -193,7 +204,13 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("p.png");
         let s = vec![
-            Series { name: "a".into(), points: vec![Point { time_ms: 3.0, value: 30.0, label: "q1".into() }, Point { time_ms: 40.0, value: 33.0, label: "exact".into() }] },
+            Series {
+                name: "a".into(),
+                points: vec![
+                    Point { time_ms: 3.0, value: 30.0, label: "q1".into() },
+                    Point { time_ms: 40.0, value: 33.0, label: "exact".into() },
+                ],
+            },
             Series { name: "b".into(), points: vec![Point { time_ms: 0.5, value: 25.0, label: "x".into() }] },
         ];
         error_vs_time(&p, "title", "PSNR", &s).unwrap();

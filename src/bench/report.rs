@@ -3,7 +3,7 @@
 //! `error_vs_time.png` and side-by-side crops in `crops/`.
 
 use super::plot::{self, draw_text, text_width};
-use super::run::{srgb, BenchOptions, BenchResult, Case, Method, Row, Variant};
+use super::run::{BenchOptions, BenchResult, Case, Method, Row, Variant, srgb};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use std::collections::BTreeMap;
@@ -220,7 +220,9 @@ pub fn comparisons(rows: &[Row]) -> String {
             let list: Vec<String> = losses
                 .iter()
                 .take(8)
-                .map(|(o, t)| format!("{} {} [{}] {:+.2} dB", o.scene, o.setting, o.categories.join(","), o.scores.psnr_srgb - t.scores.psnr_srgb))
+                .map(|(o, t)| {
+                    format!("{} {} [{}] {:+.2} dB", o.scene, o.setting, o.categories.join(","), o.scores.psnr_srgb - t.scores.psnr_srgb)
+                })
                 .collect();
             let _ = writeln!(s, "  - worse by PSNR in: {}", list.join("; "));
         }
@@ -262,13 +264,20 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
     let size = rows.first().map(|r| format!("{}x{}", r.width, r.height)).unwrap_or_default();
     match &opts.groundtruth {
         Some(d) => {
-            let _ = writeln!(s, "{} cases from the ground-truth scenes in `{}` (Mitsuba 3 thin-lens renders), {size}, {threads} threads.\n", res.cases, d.display());
+            let _ = writeln!(
+                s,
+                "{} cases from the ground-truth scenes in `{}` (Mitsuba 3 thin-lens renders), {size}, {threads} threads.\n",
+                res.cases,
+                d.display()
+            );
         }
         None => {
             let _ = writeln!(
                 s,
                 "{} generated scenes (seed {}), {size}, 2–5 planes each, ground truth traced by `drbokeh trace` at {} rays per pixel; {threads} threads.",
-                res.cases, opts.seed, opts.spp.next_power_of_two()
+                res.cases,
+                opts.seed,
+                opts.spp.next_power_of_two()
             );
             if !res.gt_noise.is_empty() {
                 let worst = res.gt_noise.iter().cloned().fold(0.0, f64::max);
@@ -320,7 +329,9 @@ pub fn crop_panels(case: &Case, images: &[(String, &Image)], ours: Option<&Image
     let size = 96.min(w - 2 * b).min(h - 2 * b).max(1);
     let (mut best, mut at) = (f64::NEG_INFINITY, (b, b));
     if let (Some(o), Some(s)) = (ours, base) {
-        let lum = |img: &Image, i: usize| 0.2126 * img.data[i * 3] as f64 + 0.7152 * img.data[i * 3 + 1] as f64 + 0.0722 * img.data[i * 3 + 2] as f64;
+        let lum = |img: &Image, i: usize| {
+            0.2126 * img.data[i * 3] as f64 + 0.7152 * img.data[i * 3 + 1] as f64 + 0.0722 * img.data[i * 3 + 2] as f64
+        };
         let (so, ss, sg) = (srgb(o), srgb(s), srgb(gt));
         // Integral image of (scatter error - ours error).
         let mut integ = vec![0f64; (w + 1) * (h + 1)];

@@ -14,13 +14,13 @@
 use super::gather::gather;
 use super::groundtruth::GtScene;
 use super::metrics::{psnr, rmse, si_rmse, ssim, zncc};
-use super::scenes::{generate, gt_plane_layers, FocusKind, SceneInputs};
-use super::trace::{trace_split, Plane, TraceSettings};
-use crate::color::{linear_to_srgb, Transfer};
+use super::scenes::{FocusKind, SceneInputs, generate, gt_plane_layers};
+use super::trace::{Plane, TraceSettings, trace_split};
+use crate::color::{Transfer, linear_to_srgb};
 use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::io::{read_photo, ReadLimits};
+use crate::io::{ReadLimits, read_photo};
 use crate::pipeline::{Focus, Pipeline, Scene};
 use crate::render::{self, Kernel, Layer, RenderSettings};
 use crate::stages::depth::Disparity;
@@ -340,7 +340,8 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
         let (gt, half) = trace_split(&planes, &ts, sc.window(), &|_| {})?;
         let border = sc.max_coc.ceil() as usize;
         // Noise of the mean of all samples: half the RMS difference of the two halves.
-        let other = Image::from_vec(gt.width, gt.height, 3, gt.data.iter().zip(&half.data).map(|(f, h)| 2.0 * f - h).collect()).expect("size");
+        let other =
+            Image::from_vec(gt.width, gt.height, 3, gt.data.iter().zip(&half.data).map(|(f, h)| 2.0 * f - h).collect()).expect("size");
         let noise = rmse(&half, &other, border) / 2.0;
         let mut categories = vec![match sc.focus_kind {
             FocusKind::Foreground => "fg_in_focus",
@@ -508,7 +509,11 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
                 images.extend(refs.iter().map(|(m, img, _)| (m.short().to_string(), img)));
                 let (ours, base) = (find(Method::Layers).map(|r| &r.1), find(Method::Scatter).map(|r| &r.1));
                 // Show where the difference is largest, in whichever direction this case goes.
-                let panel = if worse { super::report::crop_panels(&case, &images, base, ours) } else { super::report::crop_panels(&case, &images, ours, base) };
+                let panel = if worse {
+                    super::report::crop_panels(&case, &images, base, ours)
+                } else {
+                    super::report::crop_panels(&case, &images, ours, base)
+                };
                 let c = CropPanel { name: format!("{}_{}", case.scene, case.setting), gain, panels: panel };
                 if worse {
                     worst = Some(c);

@@ -14,11 +14,11 @@
 //! (see [`super::trace`], "Pixel footprint").
 
 use super::groundtruth::GtScene;
-use super::trace::{splitmix, Plane};
+use super::trace::{Plane, splitmix};
 use crate::error::Result;
 use crate::image::Image;
 use crate::render::Layer;
-use crate::stages::inpaint::{inpaint_telea, TeleaOptions};
+use crate::stages::inpaint::{TeleaOptions, inpaint_telea};
 
 /// Small deterministic PRNG (SplitMix64).
 #[derive(Clone, Debug)]
@@ -468,7 +468,6 @@ pub fn generate(seed: u64, index: usize, width: usize, height: usize, photos: &[
     }
 }
 
-
 /// Front-to-back over-composite of straight-colour planes: (premultiplied colour, alpha).
 fn over(planes: &[(&Image, &Image)]) -> (Image, Image) {
     let (w, h) = (planes[0].0.width, planes[0].0.height);
@@ -643,8 +642,13 @@ pub fn gt_plane_layers(scene: &GtScene) -> Result<Vec<Layer>> {
     distinct(&mut bg_levels);
     for (k, &d) in bg_levels.iter().enumerate() {
         let last = k + 1 == bg_levels.len();
-        let a = Image::from_vec(w, h, 1, scene.bg_disparity.data.iter().map(|&b| if last || (b - d).abs() < 1e-5 { 1.0 } else { 0.0 }).collect())
-            .expect("size");
+        let a = Image::from_vec(
+            w,
+            h,
+            1,
+            scene.bg_disparity.data.iter().map(|&b| if last || (b - d).abs() < 1e-5 { 1.0 } else { 0.0 }).collect(),
+        )
+        .expect("size");
         layers.push(Layer::from_parts(&scene.bg, &a, &Image::filled(w, h, 1, d), &format!("ground-truth background plane {k}"))?);
     }
     Ok(layers)

@@ -3,7 +3,7 @@
 //! so that the largest circle of confusion is a chosen radius.
 
 use crate::image::Image;
-use crate::render::{auto_lens, Layer, RenderSettings};
+use crate::render::{Layer, RenderSettings, auto_lens};
 
 /// Two layers (foreground disk + bars, opaque background) of `width × height` and render
 /// settings whose largest CoC radius is `max_coc` px, focused on the foreground

@@ -200,7 +200,12 @@ pub fn validate(planes: &[Plane], s: &TraceSettings) -> Result<()> {
     }
     let (w, h) = (planes[0].width, planes[0].height);
     if let Some((i, p)) = planes.iter().enumerate().find(|(_, p)| (p.width, p.height) != (w, h)) {
-        return Err(Error::usage(format!("layer {} is {}x{} but layer 1 is {w}x{h}: all layers must have the same size", i + 1, p.width, p.height)));
+        return Err(Error::usage(format!(
+            "layer {} is {}x{} but layer 1 is {w}x{h}: all layers must have the same size",
+            i + 1,
+            p.width,
+            p.height
+        )));
     }
     if w == 0 || h == 0 {
         return Err(Error::usage("nothing to trace: the layers are empty"));

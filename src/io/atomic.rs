@@ -17,8 +17,8 @@ use std::collections::BTreeSet;
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Longest file name (bytes) that common file systems accept (ext4, XFS, APFS, NTFS in UTF-16
 /// units): a hidden sibling longer than this is shortened, see [`hidden_sibling`].

@@ -15,7 +15,7 @@
 //! everywhere (a grey map saved as colour).
 
 use super::exr_file::read_exr_channels;
-use super::format::{detect_format, FileFormat};
+use super::format::{FileFormat, detect_format};
 use super::image_file::read_decoded;
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
@@ -66,10 +66,7 @@ fn read_depth_map_raw(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
             let exr = read_exr_channels(path, limits)?;
             let i = if exr.channels.len() == 1 { Some(0) } else { exr.find_first(&["Z", "Y", "R"]) };
             let i = i.ok_or_else(|| {
-                Error::input(
-                    path,
-                    format!("EXR depth map needs a single channel or a channel named Z, Y or R; found: {}", exr.names()),
-                )
+                Error::input(path, format!("EXR depth map needs a single channel or a channel named Z, Y or R; found: {}", exr.names()))
             })?;
             Ok(DepthMap { image: exr.to_image(&[i]), bit_depth: exr.channels[i].bits, format: FileFormat::Exr, warnings })
         }

@@ -9,7 +9,7 @@
 //! against [`ReadLimits`]. Decoding runs single-threaded (`non_parallel`) so that the panic
 //! guard in [`super::format::guarded`] covers all decoder code.
 
-use super::format::{guarded, open, FileFormat};
+use super::format::{FileFormat, guarded, open};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -38,10 +38,7 @@ pub struct ExrChannels {
 impl ExrChannels {
     /// Index of the channel called `name`: an exact match first, then case-insensitive.
     pub fn find(&self, name: &str) -> Option<usize> {
-        self.channels
-            .iter()
-            .position(|c| c.name == name)
-            .or_else(|| self.channels.iter().position(|c| c.name.eq_ignore_ascii_case(name)))
+        self.channels.iter().position(|c| c.name == name).or_else(|| self.channels.iter().position(|c| c.name.eq_ignore_ascii_case(name)))
     }
 
     /// The first of `names` (in priority order) that exists.
@@ -155,12 +152,8 @@ pub fn write_exr(path: &Path, img: &Image, channel_names: &[&str]) -> Result<()>
         let data: Vec<f32> = img.data.iter().skip(i).step_by(img.channels).copied().collect();
         list.push(x::AnyChannel::new(text, x::FlatSamples::F32(data)));
     }
-    let layer = x::Layer::new(
-        (img.width, img.height),
-        x::LayerAttributes::default(),
-        x::Encoding::SMALL_LOSSLESS,
-        x::AnyChannels::sort(list),
-    );
+    let layer =
+        x::Layer::new((img.width, img.height), x::LayerAttributes::default(), x::Encoding::SMALL_LOSSLESS, x::AnyChannels::sort(list));
     let image = x::Image::from_layer(layer);
     super::atomic::write_atomic(path, |w| {
         image.write().to_buffered(w).map_err(|e| match e {

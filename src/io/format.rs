@@ -100,10 +100,7 @@ pub fn detect_format(path: &Path) -> Result<FileFormat> {
     let known = image::guess_format(head).ok().map(|f| format!("{f:?} files are not supported; "));
     Err(Error::input(
         path,
-        format!(
-            "unrecognised file format ({}supported formats: {SUPPORTED_INPUT_EXTENSIONS})",
-            known.unwrap_or_default()
-        ),
+        format!("unrecognised file format ({}supported formats: {SUPPORTED_INPUT_EXTENSIONS})", known.unwrap_or_default()),
     ))
 }
 
@@ -194,10 +191,7 @@ pub(crate) fn guarded<T>(path: &Path, format: FileFormat, f: impl FnOnce() -> Re
                 .map(|s| s.to_string())
                 .or_else(|| payload.downcast_ref::<String>().cloned())
                 .unwrap_or_else(|| "unknown panic".into());
-            Err(Error::input(
-                path,
-                format!("{} decoder failed on malformed data (decoder panicked: {detail})", format.name()),
-            ))
+            Err(Error::input(path, format!("{} decoder failed on malformed data (decoder panicked: {detail})", format.name())))
         }
     }
 }

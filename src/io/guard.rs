@@ -47,7 +47,10 @@ impl InputFiles {
     pub fn check_write(&self, dest: &Path, what: &str) -> Result<()> {
         let Some(id) = file_id(dest) else { return Ok(()) };
         match self.files.iter().find(|(f, _)| *f == id) {
-            Some((_, input)) if input.as_path() == dest => Err(Error::usage(format!("{what} {} is also an input of this run; it would be overwritten: choose another destination", dest.display()))),
+            Some((_, input)) if input.as_path() == dest => Err(Error::usage(format!(
+                "{what} {} is also an input of this run; it would be overwritten: choose another destination",
+                dest.display()
+            ))),
             Some((_, input)) => Err(Error::usage(format!(
                 "{what} {} is the input {} (the same file); it would be overwritten: choose another destination",
                 dest.display(),

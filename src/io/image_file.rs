@@ -13,7 +13,7 @@
 //! ([`jpeg_eoi_end`]).
 
 use super::exr_file::read_exr_channels;
-use super::format::{detect_format, guarded, open, read_input, FileFormat};
+use super::format::{FileFormat, detect_format, guarded, open, read_input};
 use super::limits::ReadLimits;
 use crate::color::Transfer;
 use crate::error::{Error, Result};
@@ -64,7 +64,10 @@ pub fn read_decoded(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
                 Some(_) => Ok(()),
                 None => Err(Error::input(
                     path,
-                    format!("truncated JPEG: the data stops after {} bytes, before the end-of-image marker (incomplete copy or download?)", bytes.len()),
+                    format!(
+                        "truncated JPEG: the data stops after {} bytes, before the end-of-image marker (incomplete copy or download?)",
+                        bytes.len()
+                    ),
                 )),
             };
             decode_with_image_crate(path, FileFormat::Jpeg, std::io::Cursor::new(&bytes[..]), limits, complete)
@@ -217,10 +220,7 @@ fn decode_exr(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
     } else if exr.channels.len() == 1 {
         vec![0]
     } else {
-        return Err(Error::input(
-            path,
-            format!("EXR image needs channels R,G,B, or Y, or a single channel; found: {}", exr.names()),
-        ));
+        return Err(Error::input(path, format!("EXR image needs channels R,G,B, or Y, or a single channel; found: {}", exr.names())));
     };
     if let Some(a) = alpha.filter(|a| !which.contains(a)) {
         which.push(a);

@@ -7,7 +7,7 @@
 //! [`LayerFile::warnings`]: the renderer assumes coverage in [0, 1].
 
 use super::exr_file::read_exr_channels;
-use super::format::{detect_format, FileFormat};
+use super::format::{FileFormat, detect_format};
 use super::image_file::pixel_of;
 use super::limits::ReadLimits;
 use super::matte::MATTE_TOLERANCE;
@@ -58,11 +58,7 @@ fn read_layer_image(path: &Path, limits: &ReadLimits) -> Result<Image> {
             if !missing.is_empty() {
                 return Err(Error::input(
                     path,
-                    format!(
-                        "EXR layer needs channels R, G, B, A, D; missing {} (found: {})",
-                        missing.join(", "),
-                        exr.names()
-                    ),
+                    format!("EXR layer needs channels R, G, B, A, D; missing {} (found: {})", missing.join(", "), exr.names()),
                 ));
             }
             let idx: Vec<usize> = found.into_iter().flatten().collect();

@@ -16,7 +16,7 @@
 
 use super::depth::{is_grey, single_grey_channel};
 use super::exr_file::read_exr_channels;
-use super::format::{detect_format, FileFormat};
+use super::format::{FileFormat, detect_format};
 use super::image_file::{pixel_of, read_decoded};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
@@ -31,24 +31,15 @@ pub fn read_matte(path: &Path, limits: &ReadLimits) -> Result<Image> {
     let mut img = match detect_format(path)? {
         FileFormat::Exr => {
             let exr = read_exr_channels(path, limits)?;
-            let i = exr
-                .find_first(&["A", "Y", "R"])
-                .or((exr.channels.len() == 1).then_some(0))
-                .ok_or_else(|| {
-                    Error::input(
-                        path,
-                        format!("EXR matte needs a channel named A, Y or R, or a single channel; found: {}", exr.names()),
-                    )
-                })?;
+            let i = exr.find_first(&["A", "Y", "R"]).or((exr.channels.len() == 1).then_some(0)).ok_or_else(|| {
+                Error::input(path, format!("EXR matte needs a channel named A, Y or R, or a single channel; found: {}", exr.names()))
+            })?;
             exr.to_image(&[i])
         }
         FileFormat::Npy => {
             let image = super::format::read_npy_guarded(path, limits)?;
             if image.channels != 1 {
-                return Err(Error::input(
-                    path,
-                    format!("NPY matte has {} channels; expected shape H x W or H x W x 1", image.channels),
-                ));
+                return Err(Error::input(path, format!("NPY matte has {} channels; expected shape H x W or H x W x 1", image.channels)));
             }
             image
         }

@@ -6,7 +6,7 @@
 //! crate supports. Only the first image of a multi-page file is read. Refused with a message:
 //! palette, CMYK, YCbCr, Lab, bilevel and other sub-byte depths, signed integers.
 
-use super::format::{guarded, open, FileFormat};
+use super::format::{FileFormat, guarded, open};
 use super::image_file::{Decoded, Encoding};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
@@ -43,10 +43,7 @@ pub(crate) fn decode_tiff(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
             ColorType::RGB(b) => (3, b),
             ColorType::RGBA(b) => (4, b),
             other => {
-                return Err(Error::input(
-                    path,
-                    format!("unsupported TIFF colour type {other:?}; use grey, grey+alpha, RGB or RGBA"),
-                ));
+                return Err(Error::input(path, format!("unsupported TIFF colour type {other:?}; use grey, grey+alpha, RGB or RGBA")));
             }
         };
         if !matches!(bits, 8 | 16 | 32 | 64) {
@@ -68,21 +65,19 @@ pub(crate) fn decode_tiff(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
         let (mut data, encoding): (Vec<f32>, Encoding) = match buf {
             DecodingResult::U8(v) => (v.into_iter().map(|q| q as f32 / 255.0).collect(), Encoding::Display),
             DecodingResult::U16(v) => (v.into_iter().map(|q| q as f32 / 65535.0).collect(), Encoding::Display),
-            DecodingResult::U32(v) => {
-                (v.into_iter().map(|q| (q as f64 / u32::MAX as f64) as f32).collect(), Encoding::Display)
-            }
+            DecodingResult::U32(v) => (v.into_iter().map(|q| (q as f64 / u32::MAX as f64) as f32).collect(), Encoding::Display),
             DecodingResult::F16(v) => (v.into_iter().map(|x| x.to_f32()).collect(), Encoding::Linear),
             DecodingResult::F32(v) => (v, Encoding::Linear),
             DecodingResult::F64(v) => (v.into_iter().map(|x| x as f32).collect(), Encoding::Linear),
             _ => {
-                return Err(Error::input(path, "unsupported TIFF sample format (signed or 64-bit integers); use unsigned 8/16-bit or float"));
+                return Err(Error::input(
+                    path,
+                    "unsupported TIFF sample format (signed or 64-bit integers); use unsigned 8/16-bit or float",
+                ));
             }
         };
         if data.len() < count {
-            return Err(Error::input(
-                path,
-                format!("corrupt or truncated TIFF: decoded {} samples, expected {count}", data.len()),
-            ));
+            return Err(Error::input(path, format!("corrupt or truncated TIFF: decoded {} samples, expected {count}", data.len())));
         }
         data.truncate(count);
         if planar && channels > 1 {

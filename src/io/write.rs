@@ -28,10 +28,7 @@ impl OutputFormat {
             Some("png") => Ok(OutputFormat::Png),
             Some("exr") => Ok(OutputFormat::Exr),
             Some("npy") => Ok(OutputFormat::Npy),
-            Some(other) => Err(Error::input(
-                path,
-                format!("unsupported output extension '.{other}'; use .png, .exr or .npy"),
-            )),
+            Some(other) => Err(Error::input(path, format!("unsupported output extension '.{other}'; use .png, .exr or .npy"))),
             None => Err(Error::input(path, "output file has no extension; use .png, .exr or .npy")),
         }
     }
@@ -87,9 +84,7 @@ pub fn encode_png<W: Write>(w: W, img: &Image, bit_depth: u8, transfer: Transfer
         return Err(format!("cannot write a {}x{} image as PNG", img.width, img.height));
     }
     let bytes = quantize(img, bit_depth, transfer);
-    PngEncoder::new(w)
-        .write_image(&bytes, img.width as u32, img.height as u32, ct)
-        .map_err(|e| format!("PNG encoder failed: {e}"))
+    PngEncoder::new(w).write_image(&bytes, img.width as u32, img.height as u32, ct).map_err(|e| format!("PNG encoder failed: {e}"))
 }
 
 /// Writes `img` (1 = grey, 2 = grey+alpha, 3 = RGB, 4 = RGBA channels) as an 8 or 16-bit PNG,
@@ -101,11 +96,7 @@ pub fn write_png(path: &Path, img: &Image, bit_depth: u8, transfer: Transfer) ->
     }
     super::atomic::write_atomic(path, |w| {
         encode_png(w, img, bit_depth, transfer).map_err(|msg| {
-            if msg.starts_with("PNG encoder failed") {
-                Error::io(path, std::io::Error::other(msg))
-            } else {
-                Error::input(path, msg)
-            }
+            if msg.starts_with("PNG encoder failed") { Error::io(path, std::io::Error::other(msg)) } else { Error::input(path, msg) }
         })
     })
 }
@@ -118,9 +109,8 @@ pub fn write_output(path: &Path, img: &Image, bit_depth: u8, transfer: Transfer)
     match OutputFormat::from_path(path)? {
         OutputFormat::Png => write_png(path, img, bit_depth, transfer),
         OutputFormat::Exr => {
-            let names = default_channel_names(img.channels).ok_or_else(|| {
-                Error::input(path, format!("cannot write a {}-channel image as EXR (1 to 5 channels)", img.channels))
-            })?;
+            let names = default_channel_names(img.channels)
+                .ok_or_else(|| Error::input(path, format!("cannot write a {}-channel image as EXR (1 to 5 channels)", img.channels)))?;
             write_exr(path, img, names)
         }
         OutputFormat::Npy => {

@@ -172,14 +172,26 @@ pub const PRESETS: &[Preset] = &[
         file: "u2net.onnx",
         source: "U^2-Net (xuebinqin/U-2-Net; rembg's u2net.onnx): 320x320 RGB in [0,1], ImageNet mean/std, \
                  first output d0 already through a sigmoid, min-max normalized",
-        contract: || Contract { size: SizeSpec::Fixed { h: 320, w: 320 }, mean: IMAGENET_MEAN, std: IMAGENET_STD, minmax: true, ..base("u2net", ModelKind::Matte) },
+        contract: || Contract {
+            size: SizeSpec::Fixed { h: 320, w: 320 },
+            mean: IMAGENET_MEAN,
+            std: IMAGENET_STD,
+            minmax: true,
+            ..base("u2net", ModelKind::Matte)
+        },
     },
     Preset {
         name: "isnet",
         file: "isnet.onnx",
         source: "ISNet / DIS (xuebinqin/DIS; rembg's isnet-general-use.onnx): 1024x1024 RGB in [0,1], mean 0.5 std 1, \
                  first output already through a sigmoid, min-max normalized",
-        contract: || Contract { size: SizeSpec::Fixed { h: 1024, w: 1024 }, mean: [0.5; 3], std: [1.0; 3], minmax: true, ..base("isnet", ModelKind::Matte) },
+        contract: || Contract {
+            size: SizeSpec::Fixed { h: 1024, w: 1024 },
+            mean: [0.5; 3],
+            std: [1.0; 3],
+            minmax: true,
+            ..base("isnet", ModelKind::Matte)
+        },
     },
     Preset {
         name: "birefnet",
@@ -213,7 +225,11 @@ pub const PRESETS: &[Preset] = &[
         file: "mediapipe_selfie.onnx",
         source: "MediaPipe selfie segmentation (TFLite converted with tf2onnx): 1x256x256x3 NHWC, RGB in [0,1], \
                  output 1x256x256x1 already through a sigmoid",
-        contract: || Contract { layout: Layout::Nhwc, size: SizeSpec::Fixed { h: 256, w: 256 }, ..base("mediapipe-selfie", ModelKind::Matte) },
+        contract: || Contract {
+            layout: Layout::Nhwc,
+            size: SizeSpec::Fixed { h: 256, w: 256 },
+            ..base("mediapipe-selfie", ModelKind::Matte)
+        },
     },
     Preset {
         name: "lama",
@@ -295,7 +311,7 @@ pub fn resolve(spec: &ModelSpec, kind: ModelKind, onnx: &OnnxConfig) -> Result<(
             return Err(Error::usage(format!(
                 "{key}: no model file: set `model = \"path.onnx\"` in [{key}] or pass --model-dir DIR holding {}",
                 p.file
-            )))
+            )));
         }
     };
     if spec.input.is_some() {
@@ -371,7 +387,11 @@ pub fn bind(c: &Contract, s: &ModelSession) -> Result<Binding> {
             if s.inputs.len() != expected {
                 return Err(Error::input(
                     path,
-                    format!("expected {expected} input(s) (preset {}); {}; name the image input with `input = \"...\"`", c.preset, have_in()),
+                    format!(
+                        "expected {expected} input(s) (preset {}); {}; name the image input with `input = \"...\"`",
+                        c.preset,
+                        have_in()
+                    ),
                 ));
             }
             &s.inputs[0]
@@ -383,7 +403,10 @@ pub fn bind(c: &Contract, s: &ModelSession) -> Result<Binding> {
     };
     let check_4d = |t: &TensorInfo, channels: i64, what: &str| -> Result<()> {
         if t.elem != "f32" {
-            return Err(Error::input(path, format!("{what} \"{}\" is {}, only float32 tensors are supported; {}", t.name, t.elem, have_in())));
+            return Err(Error::input(
+                path,
+                format!("{what} \"{}\" is {}, only float32 tensors are supported; {}", t.name, t.elem, have_in()),
+            ));
         }
         if t.dims.len() != 4 {
             return Err(Error::input(
@@ -415,7 +438,10 @@ pub fn bind(c: &Contract, s: &ModelSession) -> Result<Binding> {
         (SizeSpec::Fixed { h, w }, Some((fh, fw))) if (h, w) != (fh, fw) => {
             return Err(Error::input(
                 path,
-                format!("the model's input \"{}\" has the fixed size {fh}x{fw} (HxW) but the contract (preset {}) says {h}x{w}; set size = [{fh}, {fw}]", image.name, c.preset),
+                format!(
+                    "the model's input \"{}\" has the fixed size {fh}x{fw} (HxW) but the contract (preset {}) says {h}x{w}; set size = [{fh}, {fw}]",
+                    image.name, c.preset
+                ),
             ));
         }
         (SizeSpec::Dynamic { multiple, .. }, Some((fh, fw))) => {
@@ -434,16 +460,19 @@ pub fn bind(c: &Contract, s: &ModelSession) -> Result<Binding> {
     }
     let mask_input = match &c.mask_input {
         Some(n) => {
-            let m = find(n).ok_or_else(|| Error::input(path, format!("no input named \"{n}\" (contract `mask_input` of preset {}); {}", c.preset, have_in())))?;
+            let m = find(n).ok_or_else(|| {
+                Error::input(path, format!("no input named \"{n}\" (contract `mask_input` of preset {}); {}", c.preset, have_in()))
+            })?;
             check_4d(m, 1, "mask input")?;
             Some(m.name.clone())
         }
         None => None,
     };
     let out = match &c.output {
-        OutputRef::Index(i) => s.outputs.get(*i).ok_or_else(|| {
-            Error::input(path, format!("no output #{i} (the model has {} output(s)); {}", s.outputs.len(), have_out()))
-        })?,
+        OutputRef::Index(i) => s
+            .outputs
+            .get(*i)
+            .ok_or_else(|| Error::input(path, format!("no output #{i} (the model has {} output(s)); {}", s.outputs.len(), have_out())))?,
         OutputRef::Name(n) => s
             .outputs
             .iter()
@@ -451,7 +480,10 @@ pub fn bind(c: &Contract, s: &ModelSession) -> Result<Binding> {
             .ok_or_else(|| Error::input(path, format!("no output named \"{n}\" (contract of preset {}); {}", c.preset, have_out())))?,
     };
     if out.elem != "f32" {
-        return Err(Error::input(path, format!("output \"{}\" is {}, only float32 tensors are supported; {}", out.name, out.elem, have_out())));
+        return Err(Error::input(
+            path,
+            format!("output \"{}\" is {}, only float32 tensors are supported; {}", out.name, out.elem, have_out()),
+        ));
     }
     let rank = out.dims.len();
     match c.output_rank {

@@ -102,7 +102,11 @@ impl Model {
         let t = Instant::now();
         let g = self.geometry(img.width, img.height);
         let c = &self.contract;
-        let mut feeds = vec![Feed { name: self.binding.input.clone(), shape: prep::input_shape(&g, c.layout, 3), data: prep::image_tensor(img, c, &g) }];
+        let mut feeds = vec![Feed {
+            name: self.binding.input.clone(),
+            shape: prep::input_shape(&g, c.layout, 3),
+            data: prep::image_tensor(img, c, &g),
+        }];
         if let (Some(name), Some(m)) = (&self.binding.mask_input, mask) {
             feeds.push(Feed { name: name.clone(), shape: prep::input_shape(&g, c.layout, 1), data: prep::mask_tensor(m, c.layout, &g) });
         }

@@ -139,7 +139,6 @@ pub fn resize(img: &Image, w: usize, h: usize) -> Image {
     out
 }
 
-
 /// Tensor shape of a `channels`-channel input for the geometry and layout.
 pub fn input_shape(g: &Geometry, layout: Layout, channels: usize) -> Vec<i64> {
     let (c, h, w) = (channels as i64, g.model_h as i64, g.model_w as i64);
@@ -230,7 +229,12 @@ pub fn decode_output(shape: &[i64], data: &[f32], c: &Contract, g: &Geometry, ch
         },
         [1, h, w] => (1, *h, *w, true),
         [h, w] => (1, *h, *w, true),
-        _ => return Err(Error::input(model, format!("output has shape {shape:?}; expected [1, C, H, W], [1, H, W, C], [1, H, W] or [H, W]"))),
+        _ => {
+            return Err(Error::input(
+                model,
+                format!("output has shape {shape:?}; expected [1, C, H, W], [1, H, W, C], [1, H, W] or [H, W]"),
+            ));
+        }
     };
     if oc < channels {
         return Err(Error::input(model, format!("output has {oc} channel(s) (shape {shape:?}), {channels} needed")));

@@ -170,7 +170,14 @@ fn candidates() -> Vec<PathBuf> {
             }
         }
     }
-    for sys in ["/usr/local/lib", "/usr/lib", "/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/opt/onnxruntime/lib", "/opt/homebrew/lib"] {
+    for sys in [
+        "/usr/local/lib",
+        "/usr/lib",
+        "/usr/lib/x86_64-linux-gnu",
+        "/usr/lib/aarch64-linux-gnu",
+        "/opt/onnxruntime/lib",
+        "/opt/homebrew/lib",
+    ] {
         out.push(PathBuf::from(sys));
     }
     out
@@ -189,7 +196,8 @@ fn find_lib_in(dir: &Path) -> Option<PathBuf> {
         .map(|e| e.path())
         .filter(|p| {
             p.file_name().and_then(|f| f.to_str()).is_some_and(|f| {
-                f.strip_prefix(name.as_str()).is_some_and(|rest| rest.starts_with('.') && rest[1..].chars().all(|c| c.is_ascii_digit() || c == '.'))
+                f.strip_prefix(name.as_str())
+                    .is_some_and(|rest| rest.starts_with('.') && rest[1..].chars().all(|c| c.is_ascii_digit() || c == '.'))
             })
         })
         .collect();

@@ -141,15 +141,19 @@ fn create(path: &Path, cfg: &OnnxConfig, rt: &runtime::Runtime) -> Result<ModelS
                 providers.push(p.ort_name().to_string());
             }
             Err(e) => {
-                warnings.push(format!("execution provider {} could not be registered ({}); falling back to the next provider / CPU", p.ort_name(), e.message()));
+                warnings.push(format!(
+                    "execution provider {} could not be registered ({}); falling back to the next provider / CPU",
+                    p.ort_name(),
+                    e.message()
+                ));
                 b = e.recover();
             }
         }
     }
     providers.push(Provider::Cpu.ort_name().to_string());
-    let session = b.commit_from_memory(&bytes).map_err(|e| {
-        Error::input(path, format!("is not a loadable ONNX model: {}", e.message().lines().next().unwrap_or("").trim()))
-    })?;
+    let session = b
+        .commit_from_memory(&bytes)
+        .map_err(|e| Error::input(path, format!("is not a loadable ONNX model: {}", e.message().lines().next().unwrap_or("").trim())))?;
     let inputs = session.inputs().iter().map(|o| describe(o.name(), o.dtype())).collect();
     let outputs = session.outputs().iter().map(|o| describe(o.name(), o.dtype())).collect();
     Ok(ModelSession {
@@ -176,8 +180,9 @@ impl ModelSession {
     pub fn run(&self, feeds: Vec<Feed>, output: &str) -> Result<(Vec<i64>, Vec<f32>)> {
         let mut values = Vec::with_capacity(feeds.len());
         for f in feeds {
-            let t = Tensor::from_array((f.shape.clone(), f.data))
-                .map_err(|e| Error::Internal(format!("cannot build input \"{}\" {:?} for {}: {e}", f.name, f.shape, self.path.display())))?;
+            let t = Tensor::from_array((f.shape.clone(), f.data)).map_err(|e| {
+                Error::Internal(format!("cannot build input \"{}\" {:?} for {}: {e}", f.name, f.shape, self.path.display()))
+            })?;
             values.push((f.name, t.into_dyn()));
         }
         let mut session = self.session.lock().unwrap_or_else(|e| e.into_inner());

@@ -9,7 +9,7 @@
 //! Cost: O(W·H·taps) with taps ≈ π·(lens/2)²; one transcendental pair (exp, tanh) per tap.
 
 use super::aperture::Tap;
-use super::layer::{Layer, A, D};
+use super::layer::{A, D, Layer};
 use super::lens::{energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;

@@ -28,10 +28,13 @@
 //! The quality knob moves the thresholds; at high quality every source is an exact stencil
 //! and the interpolation nodes are dense, so the kernel converges to the exact one.
 
-use super::aperture::{disk_tap_count, disk_taps_within, Tap};
-use super::layer::{Layer, A, D};
-use super::lens::{density, energy, focal_defocus, FACTORED_STEP_MAX, in_front, scatter_radius, soft_step, step_source_factor, step_tap_factor, visibility_half_size, weight_unit};
-use super::splat::{accumulate, Grid4, Stripe, Window, STRIPE_ROWS};
+use super::aperture::{Tap, disk_tap_count, disk_taps_within};
+use super::layer::{A, D, Layer};
+use super::lens::{
+    FACTORED_STEP_MAX, density, energy, focal_defocus, in_front, scatter_radius, soft_step, step_source_factor, step_tap_factor,
+    visibility_half_size, weight_unit,
+};
+use super::splat::{Grid4, STRIPE_ROWS, Stripe, Window, accumulate};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -225,7 +228,16 @@ struct Survey {
 }
 
 impl Survey {
-    const EMPTY: Survey = Survey { visible: 0, sigma_min: f32::INFINITY, sigma_max: 1.0, full_max: 0.0, bright_max: 0.0, band_pixels: 0, band_lo: f32::INFINITY, band_hi: f32::NEG_INFINITY };
+    const EMPTY: Survey = Survey {
+        visible: 0,
+        sigma_min: f32::INFINITY,
+        sigma_max: 1.0,
+        full_max: 0.0,
+        bright_max: 0.0,
+        band_pixels: 0,
+        band_lo: f32::INFINITY,
+        band_hi: f32::NEG_INFINITY,
+    };
 
     fn merge(a: Survey, b: Survey) -> Survey {
         Survey {
@@ -517,7 +529,8 @@ const BRIGHT_FRACTION: usize = 100;
 /// surroundings, so the brightest sources are the ones that need the exact footprint, and the
 /// cap keeps the cost near-constant per pixel.
 fn bright_level(img: &crate::Image, visible: usize) -> f32 {
-    let mut above: Vec<f32> = img.data.par_chunks_exact(5).filter(|px| px[A] > 0.0).map(|px| px[0].max(px[1]).max(px[2])).filter(|&c| c > BRIGHT_MIN).collect();
+    let mut above: Vec<f32> =
+        img.data.par_chunks_exact(5).filter(|px| px[A] > 0.0).map(|px| px[0].max(px[1]).max(px[2])).filter(|&c| c > BRIGHT_MIN).collect();
     let budget = (visible / BRIGHT_FRACTION).max(1);
     if above.len() <= budget {
         return BRIGHT_MIN;
@@ -597,7 +610,14 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (
 /// allocates the scatter radii (4 bytes per pixel), the coarse grids of the passes that have
 /// large-blur sources (≤ 16/4^ℓ bytes per pixel at level ℓ each) and per-worker stripe
 /// scratch.
-pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams, out: &mut [f32], stride: usize, finish: &(dyn Fn(&[f32; 5], &mut [f32]) + Sync)) -> FastStats {
+pub fn scatter_layer_into(
+    layer: &Layer,
+    s: &RenderSettings,
+    params: FastParams,
+    out: &mut [f32],
+    stride: usize,
+    finish: &(dyn Fn(&[f32; 5], &mut [f32]) + Sync),
+) -> FastStats {
     let img = layer.image();
     let (w, h) = (img.width, img.height);
     assert_eq!(out.len(), w * h * stride, "output buffer size");
@@ -651,7 +671,12 @@ pub fn scatter_layer_into(layer: &Layer, s: &RenderSettings, params: FastParams,
         let level = bright_level(img, survey.visible);
         let max = if level > BRIGHT_MIN {
             let sig = &sigma;
-            img.data.par_chunks_exact(5).enumerate().filter(|(_, px)| px[A] > 0.0 && is_bright(px[0].max(px[1]).max(px[2]), 1.0, level)).map(|(i, _)| drawn_radius(sig[i], p)).reduce(|| 0.0, f32::max)
+            img.data
+                .par_chunks_exact(5)
+                .enumerate()
+                .filter(|(_, px)| px[A] > 0.0 && is_bright(px[0].max(px[1]).max(px[2]), 1.0, level))
+                .map(|(i, _)| drawn_radius(sig[i], p))
+                .reduce(|| 0.0, f32::max)
         } else {
             survey.bright_max
         };
@@ -818,7 +843,9 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
     }
     // The widest full-resolution footprint: a disk with its outer soft edge, a stencil, or a
     // bright source's exact rim.
-    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0).max(pr.stencil_max.min(ctx.full_max) + STENCIL_TAIL).max(ctx.bright_max + STENCIL_TAIL);
+    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0)
+        .max(pr.stencil_max.min(ctx.full_max) + STENCIL_TAIL)
+        .max(ctx.bright_max + STENCIL_TAIL);
     let pad0 = ctx.pad(reach0);
     let lattice = Window::Lattice(ctx.p as i64);
     let (y0i, y1i) = (y0 as i64, y1 as i64);
@@ -998,7 +1025,9 @@ fn visibility_rows(img: &crate::Image, sigma: &[f32], p: usize, y0: usize, y1: u
         let (above, this) = sat[yy * (pw + 1)..(yy + 2) * (pw + 1)].split_at_mut(pw + 1);
         let mut row = 0f64;
         // Replicate padding: the left and right margins repeat the edge pixels.
-        let alpha = std::iter::repeat_n(src[A], nmax).chain(src.chunks_exact(5).map(|px| px[A])).chain(std::iter::repeat_n(src[(w - 1) * 5 + A], nmax));
+        let alpha = std::iter::repeat_n(src[A], nmax)
+            .chain(src.chunks_exact(5).map(|px| px[A]))
+            .chain(std::iter::repeat_n(src[(w - 1) * 5 + A], nmax));
         for ((t, &u), a) in this[1..].iter_mut().zip(&above[1..]).zip(alpha) {
             row += a as f64;
             *t = u + row;

@@ -31,7 +31,12 @@ impl Layer {
             let px = i / 5;
             return Err(Error::input(
                 what,
-                format!("non-finite value in channel {} at pixel ({}, {})", "RGBAD".as_bytes()[i % 5] as char, px % image.width, px / image.width),
+                format!(
+                    "non-finite value in channel {} at pixel ({}, {})",
+                    "RGBAD".as_bytes()[i % 5] as char,
+                    px % image.width,
+                    px / image.width
+                ),
             ));
         }
         Ok(Layer { image })

@@ -13,9 +13,9 @@ pub mod splat;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+pub use layer::Layer;
 use rayon::prelude::*;
 use std::borrow::Borrow;
-pub use layer::Layer;
 
 /// Which per-layer kernel runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -192,7 +192,9 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
         match kernel {
             Kernel::Exact => {
                 let raw = exact::scatter_layer(l, s, &taps);
-                acc.par_chunks_exact_mut(composite::ACC_CHANNELS).enumerate().for_each(|(i, px)| over(raw.pixel(i).try_into().expect("5 channels"), px));
+                acc.par_chunks_exact_mut(composite::ACC_CHANNELS)
+                    .enumerate()
+                    .for_each(|(i, px)| over(raw.pixel(i).try_into().expect("5 channels"), px));
                 stats.push(None);
             }
             Kernel::Fast { quality } => {
@@ -205,7 +207,13 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
     // Finite layers and settings give finite output (see DESIGN.md); anything else is a
     // kernel bug, reported as such instead of being written as a wrong image.
     if !out.all_finite() {
-        return Err(Error::Internal(format!("the {} kernel produced non-finite pixels (blur {}, focus {}, lens {}); please report this", kernel.name(), s.blur, s.focus, s.lens)));
+        return Err(Error::Internal(format!(
+            "the {} kernel produced non-finite pixels (blur {}, focus {}, lens {}); please report this",
+            kernel.name(),
+            s.blur,
+            s.focus,
+            s.lens
+        )));
     }
     Ok((out, stats))
 }

@@ -42,7 +42,8 @@ impl Grid4 {
         let y1 = (y0 + 1).min(self.height - 1);
         let fy = v - y0 as f32;
         // Vertical interpolation once per grid row, then horizontal per output pixel.
-        let (r0, r1) = (&self.data[y0 * self.width * 4..(y0 + 1) * self.width * 4], &self.data[y1 * self.width * 4..(y1 + 1) * self.width * 4]);
+        let (r0, r1) =
+            (&self.data[y0 * self.width * 4..(y0 + 1) * self.width * 4], &self.data[y1 * self.width * 4..(y1 + 1) * self.width * 4]);
         tmp.clear();
         tmp.extend(r0.iter().zip(r1).map(|(a, b)| a + fy * (b - a)));
         let last = (self.width - 1) as f32;

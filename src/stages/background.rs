@@ -4,7 +4,7 @@
 //! included, plus a margin for colour contamination at the edge) is re-synthesized from the
 //! visible background with Telea inpainting, for RGB and disparity alike.
 
-use super::inpaint::{inpaint_telea, TeleaOptions};
+use super::inpaint::{TeleaOptions, inpaint_telea};
 use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;

@@ -3,7 +3,7 @@
 //! Normalized disparity `D` is 1 at the scene's nearest point and 0 at its farthest:
 //! `D = (1/z - 1/z_max) / (1/z_min - 1/z_max)` for depth, min-max for disparity.
 
-use super::inpaint::{inpaint_telea, TeleaOptions};
+use super::inpaint::{TeleaOptions, inpaint_telea};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use std::path::Path;
@@ -52,10 +52,7 @@ impl Disparity {
         if x < 0 || y < 0 || x >= m.width as i64 || y >= m.height as i64 {
             return Err(Error::usage(format!(
                 "--focus-at {x},{y} is outside the {}x{} image (x in 0..{}, y in 0..{})",
-                m.width,
-                m.height,
-                m.width,
-                m.height
+                m.width, m.height, m.width, m.height
             )));
         }
         let r = (m.width.min(m.height) / 200).max(2) as i64;
@@ -81,7 +78,11 @@ pub fn normalize(raw: &Image, kind: DepthKind, path: &Path) -> Result<Disparity>
     }
     let valid = |v: f32| v.is_finite() && (kind == DepthKind::Disparity || v > 0.0);
     // Work in f64: 1/z of large depths loses precision in f32 before the subtraction.
-    let lin: Vec<f64> = raw.data.iter().map(|&v| if valid(v) { if kind == DepthKind::Depth { 1.0 / v as f64 } else { v as f64 } } else { f64::NAN }).collect();
+    let lin: Vec<f64> = raw
+        .data
+        .iter()
+        .map(|&v| if valid(v) { if kind == DepthKind::Depth { 1.0 / v as f64 } else { v as f64 } } else { f64::NAN })
+        .collect();
     let n_valid = lin.iter().filter(|v| !v.is_nan()).count();
     if n_valid == 0 {
         let what = if kind == DepthKind::Depth { "finite and > 0" } else { "finite" };
@@ -93,7 +94,17 @@ pub fn normalize(raw: &Image, kind: DepthKind, path: &Path) -> Result<Disparity>
         raw.width,
         raw.height,
         1,
-        lin.iter().map(|&v| if v.is_nan() { 0.0 } else if span > 0.0 { ((v - lo) / span) as f32 } else { 0.0 }).collect(),
+        lin.iter()
+            .map(|&v| {
+                if v.is_nan() {
+                    0.0
+                } else if span > 0.0 {
+                    ((v - lo) / span) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect(),
     )
     .expect("same size");
     let invalid: Vec<bool> = lin.iter().map(|v| v.is_nan()).collect();

@@ -2,7 +2,7 @@
 //! given: the model's relative disparity, min-max normalized, becomes the scene's normalized
 //! disparity (so `--focus-depth` is not available: there is no metric depth).
 
-use super::depth::{normalize, DepthKind, Disparity};
+use super::depth::{DepthKind, Disparity, normalize};
 use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::{self, ModelKind, ModelSpec, OnnxConfig, OnnxReport};

@@ -5,7 +5,7 @@
 //! as if they were far away. As in the official pipeline, the disparity inside a slightly
 //! shrunk hard mask is kept and everything outside it is Telea-inpainted from it.
 
-use super::inpaint::{inpaint_telea, TeleaOptions};
+use super::inpaint::{TeleaOptions, inpaint_telea};
 use super::mask::{distance_in, distance_to, erode, grown_bbox};
 use crate::error::Result;
 use crate::image::Image;
@@ -66,7 +66,11 @@ pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions
     if !core.iter().any(|&m| m) {
         return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0 });
     }
-    let (lo, hi) = core.iter().zip(&disp.data).filter(|(c, _)| **c).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (_, &d)| (lo.min(d), hi.max(d)));
+    let (lo, hi) = core
+        .iter()
+        .zip(&disp.data)
+        .filter(|(c, _)| **c)
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (_, &d)| (lo.min(d), hi.max(d)));
     let coc = ((lo - focus).abs().max((hi - focus).abs()) * blur).min(1e9);
     let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the

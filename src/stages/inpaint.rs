@@ -107,16 +107,10 @@ pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Resu
     let (w, h, c) = (img.width, img.height, img.channels);
     let pixels = w.checked_mul(h).ok_or_else(|| Error::usage("inpaint: image size overflows"))?;
     if mask.len() != pixels {
-        return Err(Error::usage(format!(
-            "inpaint: mask has {} values but the image is {w}x{h} ({pixels} pixels)",
-            mask.len()
-        )));
+        return Err(Error::usage(format!("inpaint: mask has {} values but the image is {w}x{h} ({pixels} pixels)", mask.len())));
     }
     if pixels.checked_mul(c) != Some(img.data.len()) {
-        return Err(Error::usage(format!(
-            "inpaint: image data has {} values, expected {w}x{h}x{c}",
-            img.data.len()
-        )));
+        return Err(Error::usage(format!("inpaint: image data has {} values, expected {w}x{h}x{c}", img.data.len())));
     }
     if opts.radius.is_nan() || opts.radius < 0.0 {
         return Err(Error::usage(format!("inpaint: radius must be >= 0, got {}", opts.radius)));
@@ -387,7 +381,8 @@ impl March {
                 let (rx, ry) = (-dx as f32, -dy as f32);
                 let len = rx * rx + ry * ry;
                 // OpenCV's 3-channel path takes this root in double, its 1-channel path in float.
-                let dst = if ch == 3 { (1.0 / (len as f64 * (len as f64).sqrt())) as f32 } else { (1.0 / (len * len.sqrt()) as f64) as f32 };
+                let dst =
+                    if ch == 3 { (1.0 / (len as f64 * (len as f64).sqrt())) as f32 } else { (1.0 / (len * len.sqrt()) as f64) as f32 };
                 let grid = dy * gw as isize + dx;
                 let data = (dy * w as isize + dx) * ch as isize;
                 taps.push(Tap { dy, dx, grid, data, rx, ry, dst });
@@ -715,8 +710,10 @@ mod tests {
             let whole = fill_checked(&img, &mask, opts(3.0, compat));
             for c in 0..5 {
                 let single = fill_checked(&img.channel(c), &mask, opts(3.0, compat));
-                assert_eq!(whole.channel(c).data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                    single.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+                assert_eq!(
+                    whole.channel(c).data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    single.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                );
             }
         }
     }

@@ -9,7 +9,7 @@
 //! same model on the disparity replicated to three channels, as the official pipeline does.
 
 use super::background::{Background, InpaintOptions};
-use super::inpaint::{inpaint_telea, TeleaOptions};
+use super::inpaint::{TeleaOptions, inpaint_telea};
 use super::mask::distance_to;
 use crate::error::Result;
 use crate::image::Image;
@@ -45,11 +45,7 @@ pub fn region(mask: &[bool], w: usize, h: usize, fixed_size: bool, context: f32)
 /// Blend weight of the model's result at distance `d` from the mask (0 inside): 1 inside,
 /// falling linearly to 0 at `feather + 1` pixels outside.
 pub fn seam_weight(d: f32, feather: f32) -> f32 {
-    if d <= 0.0 {
-        1.0
-    } else {
-        (1.0 - d / (feather + 1.0)).max(0.0)
-    }
+    if d <= 0.0 { 1.0 } else { (1.0 - d / (feather + 1.0)).max(0.0) }
 }
 
 /// Pastes `filled` (the region's size) into `dst` at (x0, y0) with seam weights; `dist` is
@@ -74,7 +70,14 @@ fn paste(dst: &mut Image, filled: &Image, x0: usize, y0: usize, dist: &[f32], fe
 
 /// Inpaints colour (and disparity) behind the foreground with the `[inpaint.onnx]` model.
 /// Returns the same [`Background`] as the classical stage, plus the model report.
-pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, reach: f32, cfg: &OnnxConfig) -> Result<(Background, OnnxReport)> {
+pub fn inpaint_background(
+    rgb: &Image,
+    disp: &Image,
+    alpha: &Image,
+    opts: &InpaintOptions,
+    reach: f32,
+    cfg: &OnnxConfig,
+) -> Result<(Background, OnnxReport)> {
     let (w, h) = (rgb.width, rgb.height);
     let mask = super::background::inpaint_mask(alpha, opts);
     let mut model = onnx::load(&opts.onnx, ModelKind::Inpaint, cfg)?;

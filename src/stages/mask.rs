@@ -90,8 +90,8 @@ pub fn gaussian_blur(plane: &Image, sigma: f32) -> Image {
     if sigma <= 0.0 || plane.is_empty() {
         return plane.clone();
     }
-    let buf = ImageBuffer::<Luma<f32>, Vec<f32>>::from_raw(plane.width as u32, plane.height as u32, plane.data.clone())
-        .expect("plane size");
+    let buf =
+        ImageBuffer::<Luma<f32>, Vec<f32>>::from_raw(plane.width as u32, plane.height as u32, plane.data.clone()).expect("plane size");
     let out = imageproc::filter::gaussian_blur_f32(&buf, sigma);
     Image::from_vec(plane.width, plane.height, 1, out.into_raw()).expect("plane size")
 }

@@ -41,7 +41,14 @@ pub struct SegmentOptions {
 
 impl Default for SegmentOptions {
     fn default() -> Self {
-        SegmentOptions { method: SegmentMethod::Auto, min_fraction: 0.002, max_fraction: 0.85, min_jump: 0.05, edge_softness: 0.8, onnx: Default::default() }
+        SegmentOptions {
+            method: SegmentMethod::Auto,
+            min_fraction: 0.002,
+            max_fraction: 0.85,
+            min_jump: 0.05,
+            edge_softness: 0.8,
+            onnx: Default::default(),
+        }
     }
 }
 

@@ -3,7 +3,7 @@
 //! Same outcome type as the classical sources ([`Segmentation`]); an empty or full matte
 //! renders one layer.
 
-use super::segment::{from_matte, Segmentation};
+use super::segment::{Segmentation, from_matte};
 use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::{self, ModelKind, ModelSpec, OnnxConfig, OnnxReport};
