@@ -4,4 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup-test-env.sh
+# Form first (seconds): formatting and lints are part of passing.
+cargo fmt --check
+cargo clippy --release --all-targets --locked -- -D warnings
 cargo test --release --locked "$@"

@@ -141,23 +141,23 @@ impl Config {
     /// Checks value ranges that the types cannot express.
     pub fn validate(&self) -> Result<()> {
         let r = &self.render;
-        if let Some(k) = r.blur {
-            if !k.is_finite() || k < 0.0 {
-                return Err(Error::usage(format!("render.blur must be a finite number >= 0, got {k}")));
-            }
+        if let Some(k) = r.blur
+            && (!k.is_finite() || k < 0.0)
+        {
+            return Err(Error::usage(format!("render.blur must be a finite number >= 0, got {k}")));
         }
-        if let Some(l) = r.lens {
-            if l == 0 || l % 2 == 0 {
-                return Err(Error::usage(format!("render.lens must be odd and >= 1, got {l}")));
-            }
+        if let Some(l) = r.lens
+            && (l == 0 || l % 2 == 0)
+        {
+            return Err(Error::usage(format!("render.lens must be odd and >= 1, got {l}")));
         }
         if !(1..=8).contains(&r.quality) {
             return Err(Error::usage(format!("render.quality must be 1..=8, got {}", r.quality)));
         }
-        if let Some(g) = r.gamma {
-            if !(g.is_finite() && g > 0.0) {
-                return Err(Error::usage(format!("render.gamma must be a positive number, got {g}")));
-            }
+        if let Some(g) = r.gamma
+            && !(g.is_finite() && g > 0.0)
+        {
+            return Err(Error::usage(format!("render.gamma must be a positive number, got {g}")));
         }
         if !matches!(self.output.bit_depth, 8 | 16) {
             return Err(Error::usage(format!("output.bit_depth must be 8 or 16, got {}", self.output.bit_depth)));

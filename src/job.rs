@@ -152,10 +152,10 @@ fn preflight(job: &Job, cfg: &Config) -> Result<()> {
         io::check_regular_file(&input)?;
     }
     check_writable_folder(&job.output)?;
-    if let Some(dir) = &job.save_layers {
-        if dir.is_dir() {
-            check_writable_folder(&dir.join("x"))?;
-        }
+    if let Some(dir) = &job.save_layers
+        && dir.is_dir()
+    {
+        check_writable_folder(&dir.join("x"))?;
     }
     let probe = crate::resources::probe_dimensions;
     if let Some((image, (w, h))) = job.image.as_ref().and_then(|p| probe(p).map(|d| (p, d))) {

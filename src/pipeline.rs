@@ -204,7 +204,7 @@ impl Pipeline {
             for name in ["segment", "fill_depth", "inpaint", "render"] {
                 report.skipped(name, why.clone());
             }
-            report.params = self.params(w, h, blur, focus, 0, "none", 0, max_coc);
+            report.params = self.params((w, h), (blur, focus, 0), "none", 0, max_coc);
             report.total_ms = ms(t0);
             return Ok(Outcome { image: scene.rgb.clone(), layers: Vec::new(), report });
         }
@@ -286,7 +286,7 @@ impl Pipeline {
         };
         if sharp {
             report.skipped("render", sharp_why);
-            report.params = self.params(w, h, blur, focus, 0, "none", layers.len(), max_coc);
+            report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
             report.total_ms = ms(t0);
             return Ok(Outcome { image: scene.rgb.clone(), layers, report });
         }
@@ -339,7 +339,7 @@ impl Pipeline {
                     "no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px): front-to-back alpha composite"
                 ),
             );
-            report.params = self.params(w, h, blur, focus, 0, "none", layers.len(), max_coc);
+            report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
             return Ok(Outcome { image: render::alpha_composite(&layers), layers, report });
         }
         let lens = rc.lens.unwrap_or_else(|| render::auto_lens(&layers, blur, focus));
@@ -370,7 +370,7 @@ impl Pipeline {
         if shown.is_empty() {
             report.skipped("render", "every layer is fully transparent: the result is black");
         }
-        report.params = self.params(w, h, blur, focus, lens, &kernel_name, layers.len(), max_coc);
+        report.params = self.params((w, h), (blur, focus, lens), &kernel_name, layers.len(), max_coc);
         Ok(Outcome { image, layers, report })
     }
 
@@ -395,7 +395,15 @@ impl Pipeline {
         Ok(())
     }
 
-    fn params(&self, w: usize, h: usize, blur: f32, focus: f32, lens: usize, kernel: &str, layers: usize, max_coc: f32) -> UsedParams {
+    /// `lens` 0 and kernel "none" when nothing was rendered.
+    fn params(
+        &self,
+        (w, h): (usize, usize),
+        (blur, focus, lens): (f32, f32, usize),
+        kernel: &str,
+        layers: usize,
+        max_coc: f32,
+    ) -> UsedParams {
         UsedParams {
             width: w,
             height: h,

@@ -84,7 +84,7 @@ fn worst_deviation(img: &Image, c: [f32; 3]) -> (f32, usize) {
     for (i, px) in img.data.chunks_exact(3).enumerate() {
         for k in 0..3 {
             let e = (px[k] - c[k]).abs();
-            if !(e <= worst.0) {
+            if e.is_nan() || e > worst.0 {
                 worst = (if e.is_nan() { f32::INFINITY } else { e }, i);
             }
         }

@@ -757,7 +757,7 @@ fn npy_header_with_huge_shape_unlimited() {
     let p = dir.path().join("huge.npy");
     let dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296, 3), }";
     let mut header = dict.to_string();
-    while (10 + header.len() + 1) % 64 != 0 {
+    while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
     header.push('\n');

@@ -94,8 +94,8 @@ fn expected_conv(rgb: &Image, c: &contract::Contract, g: &Geometry, sigmoid_out:
     if c.minmax {
         minmax(&mut y);
     }
-    let out = prep::resize(&Image::from_vec(g.w, g.h, 1, y).unwrap(), rgb.width, rgb.height);
-    out
+
+    prep::resize(&Image::from_vec(g.w, g.h, 1, y).unwrap(), rgb.width, rgb.height)
 }
 
 fn contract_of(model: &str, preset: &str) -> contract::Contract {
@@ -326,7 +326,7 @@ fn sessions_are_created_once_and_reused() {
 
 /// Runs a matte model and returns its error message (asserting it is a user error).
 fn matte_err(s: &ModelSpec) -> String {
-    let e = segment_onnx::predict_matte(&photo(16, 12), s, &cfg()).err().expect("must fail");
+    let e = segment_onnx::predict_matte(&photo(16, 12), s, &cfg()).expect_err("must fail");
     assert!(e.is_user_error(), "exit 2 expected: {e}");
     assert!(matches!(e, Error::Input { .. } | Error::Usage(_)), "{e:?}");
     e.to_string()

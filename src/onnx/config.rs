@@ -106,33 +106,33 @@ impl ModelSpec {
         if self.size.is_some() && self.multiple.is_some() {
             return Err(Error::usage(format!("{key}: set either `size` (fixed) or `multiple` (dynamic), not both")));
         }
-        if let Some([h, w]) = self.size {
-            if h == 0 || w == 0 {
-                return Err(Error::usage(format!("{key}.size must be two positive numbers [height, width], got [{h}, {w}]")));
-            }
+        if let Some([h, w]) = self.size
+            && (h == 0 || w == 0)
+        {
+            return Err(Error::usage(format!("{key}.size must be two positive numbers [height, width], got [{h}, {w}]")));
         }
         if self.multiple == Some(0) || self.max_side == Some(0) {
             return Err(Error::usage(format!("{key}.multiple and {key}.max_side must be >= 1")));
         }
-        if let Some(r) = self.output_rank {
-            if !(2..=4).contains(&r) {
-                return Err(Error::usage(format!("{key}.output_rank must be 2, 3 or 4, got {r}")));
-            }
+        if let Some(r) = self.output_rank
+            && !(2..=4).contains(&r)
+        {
+            return Err(Error::usage(format!("{key}.output_rank must be 2, 3 or 4, got {r}")));
         }
-        if let Some(s) = self.std {
-            if s.iter().any(|v| !(v.is_finite() && *v != 0.0)) {
-                return Err(Error::usage(format!("{key}.std must be finite and non-zero, got {s:?}")));
-            }
+        if let Some(s) = self.std
+            && s.iter().any(|v| !(v.is_finite() && *v != 0.0))
+        {
+            return Err(Error::usage(format!("{key}.std must be finite and non-zero, got {s:?}")));
         }
-        if let Some(m) = self.mean {
-            if m.iter().any(|v| !v.is_finite()) {
-                return Err(Error::usage(format!("{key}.mean must be finite, got {m:?}")));
-            }
+        if let Some(m) = self.mean
+            && m.iter().any(|v| !v.is_finite())
+        {
+            return Err(Error::usage(format!("{key}.mean must be finite, got {m:?}")));
         }
-        if let Some([lo, hi]) = self.output_range {
-            if !(lo.is_finite() && hi.is_finite() && hi > lo) {
-                return Err(Error::usage(format!("{key}.output_range must be [lo, hi] with lo < hi, got [{lo}, {hi}]")));
-            }
+        if let Some([lo, hi]) = self.output_range
+            && !(lo.is_finite() && hi.is_finite() && hi > lo)
+        {
+            return Err(Error::usage(format!("{key}.output_range must be [lo, hi] with lo < hi, got [{lo}, {hi}]")));
         }
         for (name, v) in [("context", self.context), ("feather", self.feather)] {
             if let Some(v) = v {

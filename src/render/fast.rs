@@ -37,6 +37,7 @@ use super::lens::{
 use super::splat::{Grid4, STRIPE_ROWS, Stripe, Window, accumulate};
 use super::{RawLayer, RenderSettings};
 use rayon::prelude::*;
+use std::f32::consts::FRAC_PI_3;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The fast kernel's accuracy/speed trade-off, derived from the quality level.
@@ -98,7 +99,8 @@ pub struct FastStats {
 
 /// The soft step's edge as a mixture of hard disks: radius offsets and weights of a 3-point
 /// quadrature of the logistic distribution (scale 1/3 px, standard deviation π/(3√3) px).
-const SOFT_EDGE: [(f32, f32); 3] = [(-1.047_2, 1.0 / 6.0), (0.0, 2.0 / 3.0), (1.047_2, 1.0 / 6.0)];
+/// The nodes are ±√3 standard deviations = ±π/3 px (3-point Gauss–Hermite).
+const SOFT_EDGE: [(f32, f32); 3] = [(-FRAC_PI_3, 1.0 / 6.0), (0.0, 2.0 / 3.0), (FRAC_PI_3, 1.0 / 6.0)];
 const HARD_EDGE: [(f32, f32); 1] = [(0.0, 1.0)];
 
 /// Stencil taps reach `σ + STENCIL_TAIL` px: beyond, the soft step is below 5.5e-5 of its
@@ -547,7 +549,7 @@ const RIM: f32 = 4.0;
 /// lens window `|offset| < p` and to the stripe, in O(σ) writes: per row, one span of the
 /// plateau (`r ≤ σ - RIM`, soft step taken as 1) and explicit taps on the rim out to
 /// `σ + STENCIL_TAIL`. Returns the number of writes.
-fn rim_disk(st: &mut Stripe, sx: i64, sy: i64, sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
+fn rim_disk(st: &mut Stripe, (sx, sy): (i64, i64), sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
     let (y0, y1) = st.rows();
     let (reach, inner) = (sigma + STENCIL_TAIL, sigma - RIM);
     let rr = (reach.min(1e9).ceil() as i64).min(p);
@@ -883,7 +885,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                 // error into a visible one), so draw the exact footprint at full resolution.
                 n_br += own;
                 for &(slot, f) in &sc.dests {
-                    ops += rim_disk(&mut sc.accs[slot], sx, sy, sig, dens, ctx.p as i64, v.map(|c| c * f), &mut sc.rim);
+                    ops += rim_disk(&mut sc.accs[slot], (sx, sy), sig, dens, ctx.p as i64, v.map(|c| c * f), &mut sc.rim);
                 }
             } else if sig < pr.stencil_max {
                 n_st += own;

@@ -138,7 +138,7 @@ pub fn validate<L: Borrow<Layer>>(layers: &[L], s: &RenderSettings) -> Result<()
     if !s.focus.is_finite() {
         return Err(Error::usage(format!("render.focus must be finite, got {}", s.focus)));
     }
-    if s.lens % 2 == 0 {
+    if s.lens.is_multiple_of(2) {
         return Err(Error::usage(format!("render.lens must be odd and >= 1, got {}", s.lens)));
     }
     let max = max_lens(first.width(), first.height());

@@ -137,8 +137,8 @@ impl Stripe {
         let col = col.clamp(-1, self.width as i64) + 1;
         self.spans = true;
         let i = (((row - self.y0) as usize) * (self.width + 2) + col as usize) * 4;
-        for c in 0..4 {
-            self.diff[i + c] += v[c] as f64 * f;
+        for (d, &vc) in self.diff[i..i + 4].iter_mut().zip(&v) {
+            *d += vc as f64 * f;
         }
     }
 
@@ -176,7 +176,7 @@ impl Stripe {
         }
         let d = &self.diff[r * (w + 2) * 4..(r + 1) * (w + 2) * 4];
         // Column -1 holds spans clipped at the left edge: start the prefix sum there.
-        let mut acc = [d[0] as f64, d[1] as f64, d[2] as f64, d[3] as f64];
+        let mut acc = [d[0], d[1], d[2], d[3]];
         for (x, o) in out.chunks_exact_mut(4).enumerate() {
             for c in 0..4 {
                 acc[c] += d[(x + 1) * 4 + c];

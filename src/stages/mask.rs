@@ -108,6 +108,6 @@ mod tests {
         let d = dilate(&m, w, h, 2.0);
         assert_eq!(d.iter().filter(|&&v| v).count(), 13);
         assert_eq!(erode(&d, w, h, 1.0).iter().filter(|&&v| v).count(), 5);
-        assert!(distance_to(&vec![false; 4], 2, 2).iter().all(|d| d.is_infinite()));
+        assert!(distance_to(&[false; 4], 2, 2).iter().all(|d| d.is_infinite()));
     }
 }
