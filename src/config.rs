@@ -100,11 +100,22 @@ pub struct RenderConfig {
     pub gamma: Option<f32>,
     /// false: classical scatter without occlusion (one layer), for comparison.
     pub occlusion: bool,
+    /// Lens calibration: "official" (the Dr.Bokeh formula, the default for now) or "physical"
+    /// (calibrated to the thin lens; exact kernel only so far).
+    pub profile: crate::render::Profile,
 }
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        RenderConfig { kernel: KernelChoice::Auto, quality: 2, blur: None, lens: None, gamma: None, occlusion: true }
+        RenderConfig {
+            kernel: KernelChoice::Auto,
+            quality: 2,
+            blur: None,
+            lens: None,
+            gamma: None,
+            occlusion: true,
+            profile: crate::render::Profile::Official,
+        }
     }
 }
 

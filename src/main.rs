@@ -35,6 +35,14 @@ enum Command {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum ProfileArg {
+    /// Calibrated to the thin lens (CoC exactly K|d|, uniform disks, coverage visibility).
+    Physical,
+    /// The official Dr.Bokeh formula (golden vectors).
+    Official,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum KernelArg {
     /// The official formula, tap by tap; always run, even when nothing is out of focus.
     Exact,
@@ -139,6 +147,10 @@ pub(crate) struct PipelineArgs {
     /// Classical scatter without occlusion terms, one layer (a baseline for comparisons).
     #[arg(long)]
     no_occlusion: bool,
+    /// Lens calibration: official (the Dr.Bokeh formula) or physical (calibrated to the thin
+    /// lens; needs --kernel exact for now) [default: official].
+    #[arg(long, value_enum)]
+    profile: Option<ProfileArg>,
     /// PNG bit depth (8 or 16).
     #[arg(long, value_name = "BITS", value_parser = clap::builder::PossibleValuesParser::new(["8", "16"]))]
     bit_depth: Option<String>,
@@ -220,6 +232,12 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     if let Some(q) = args.quality {
         r.quality = q;
     }
+    if let Some(p) = args.profile {
+        r.profile = match p {
+            ProfileArg::Physical => drbokeh::render::Profile::Physical,
+            ProfileArg::Official => drbokeh::render::Profile::Official,
+        };
+    }
     if args.no_occlusion {
         r.occlusion = false;
     }
@@ -258,12 +276,14 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The library names parameters by their config keys (`render.lens`); on the command line
 /// they are flags.
 pub(crate) fn as_flags(e: Error) -> Error {
-    const KEYS: [(&str, &str); 5] = [
+    const KEYS: [(&str, &str); 7] = [
         ("render.blur", "--blur"),
         ("render.lens", "--lens"),
         ("render.gamma", "--gamma"),
         ("render.quality", "--quality"),
         ("render.focus", "--focus"),
+        ("render.profile", "--profile"),
+        ("render.kernel", "--kernel"),
     ];
     match e {
         Error::Usage(m) => Error::Usage(KEYS.iter().fold(m, |m, (key, flag)| m.replace(key, flag))),

@@ -343,7 +343,7 @@ impl Pipeline {
             return Ok(Outcome { image: render::alpha_composite(&layers), layers, report });
         }
         let lens = rc.lens.unwrap_or_else(|| render::auto_lens(&layers, blur, focus));
-        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion };
+        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile };
         let (kernel, kernel_name) = match rc.kernel {
             KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),
             KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),

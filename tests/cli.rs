@@ -401,7 +401,13 @@ fn gamma_renders_on_powered_colours() {
     for l in &mut layers {
         l.map_colors(|c| (c.max(0.0) as f64).powf(2.2) as f32);
     }
-    let st = RenderSettings { blur: 5.0, focus: 0.0, lens: render::auto_lens(&layers, 5.0, 0.0), occlusion: true };
+    let st = RenderSettings {
+        blur: 5.0,
+        focus: 0.0,
+        lens: render::auto_lens(&layers, 5.0, 0.0),
+        occlusion: true,
+        profile: drbokeh::render::Profile::Official,
+    };
     let mut want = render::render(&layers, &st, Kernel::Exact).unwrap();
     want.map_inplace(|v| v.max(0.0).powf(1.0 / 2.2));
     let e = max_abs_diff(&got.data, &want.data);
@@ -478,7 +484,13 @@ fn no_occlusion_renders_one_layer() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stderr).contains("warning"));
     let layers = layers_of(&[&bg]);
-    let st = RenderSettings { blur: 3.0, focus: 0.0, lens: render::auto_lens(&layers, 3.0, 0.0), occlusion: false };
+    let st = RenderSettings {
+        blur: 3.0,
+        focus: 0.0,
+        lens: render::auto_lens(&layers, 3.0, 0.0),
+        occlusion: false,
+        profile: drbokeh::render::Profile::Official,
+    };
     let want = render::render(&layers, &st, Kernel::Exact).unwrap();
     assert!(max_abs_diff(&read_npy(&s.path("nl.npy")).data, &want.data) < 1e-6);
 }
@@ -798,7 +810,13 @@ fn npy_output_of_layers_equals_the_library_render() {
         s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", &fs, "--blur", &bs, "--kernel", "exact", "-o", "r.npy"]);
         let got = read_npy(&s.path("r.npy"));
         let layers = layers_of(&[&fg, &bg]);
-        let st = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true };
+        let st = RenderSettings {
+            blur,
+            focus,
+            lens: render::auto_lens(&layers, blur, focus),
+            occlusion: true,
+            profile: drbokeh::render::Profile::Official,
+        };
         let want = render::render(&layers, &st, Kernel::Exact).unwrap();
         let e = max_abs_diff(&got.data, &want.data);
         assert!(e <= 1e-6, "focus {focus}, K {blur}: CLI and library differ by {e}");

@@ -41,7 +41,13 @@ fn fast_matches_exact_on_groundtruth_scenes() {
         let scene = GtScene::load(&dir).unwrap();
         let layers = scene.exact_layers().unwrap();
         for st in &scene.settings {
-            let s = RenderSettings { blur: st.blur, focus: st.focus, lens: render::auto_lens(&layers, st.blur, st.focus), occlusion: true };
+            let s = RenderSettings {
+                blur: st.blur,
+                focus: st.focus,
+                lens: render::auto_lens(&layers, st.blur, st.focus),
+                occlusion: true,
+                profile: drbokeh::render::Profile::Official,
+            };
             let name = format!("{} {}", scene.name, st.name);
             let (p, m) = compare(&name, &layers, &s, 2);
             worst = (worst.0.min(p), worst.1.max(m));
@@ -121,7 +127,13 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
         Layer::new(Image::from_vec(w, h, 5, bg.clone()).unwrap(), "bg").unwrap(),
     ];
     for (k, f) in [(0.0, 0.5), (5.0, 0.9), (30.0, 0.0), (60.0, 0.4)] {
-        let s = RenderSettings { blur: k, focus: f, lens: render::auto_lens(&layers, k, f), occlusion: true };
+        let s = RenderSettings {
+            blur: k,
+            focus: f,
+            lens: render::auto_lens(&layers, k, f),
+            occlusion: true,
+            profile: drbokeh::render::Profile::Official,
+        };
         let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
         for px in out.data.chunks_exact(3) {
             assert!((px[0] - 0.3).abs() < 1e-5 && (px[1] - 0.6).abs() < 1e-5 && (px[2] - 0.9).abs() < 1e-5, "K={k} f={f}: {px:?}");
@@ -134,7 +146,13 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
         }
     }
     let layers = vec![Layer::new(Image::from_vec(w, h, 5, bg).unwrap(), "bg").unwrap()];
-    let s = RenderSettings { blur: 40.0, focus: 1.0, lens: render::auto_lens(&layers, 40.0, 1.0), occlusion: true };
+    let s = RenderSettings {
+        blur: 40.0,
+        focus: 1.0,
+        lens: render::auto_lens(&layers, 40.0, 1.0),
+        occlusion: true,
+        profile: drbokeh::render::Profile::Official,
+    };
     assert!(render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap().all_finite());
 }
 

@@ -28,7 +28,7 @@ fn drbokeh_beats_classical_scatter_against_thin_lens_ground_truth() {
         let (mut ours_sum, mut base_sum) = (0f64, 0f64);
         for s in &scene.settings {
             let lens = render::auto_lens(&layers, s.blur, s.focus);
-            let rs = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: true };
+            let rs = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: true, profile: drbokeh::render::Profile::Official };
             let ours = render::render(&layers, &rs, Kernel::Exact).unwrap();
             let base = render::render(&single, &RenderSettings { occlusion: false, ..rs }, Kernel::Exact).unwrap();
             let border = s.coc_max.ceil() as usize;
@@ -48,4 +48,48 @@ fn drbokeh_beats_classical_scatter_against_thin_lens_ground_truth() {
         println!("{:10} mean sRGB PSNR: Dr.Bokeh {:.2} dB vs no occlusion {:.2} dB", scene.name, ours_sum / n, base_sum / n);
         assert!(ours_sum > base_sum, "{}: Dr.Bokeh is not better than the classical scatter", scene.name);
     }
+}
+
+/// Issue 11: the physical profile (exact kernel) against the same thin-lens truth: per
+/// setting and scene mean, with the official formula and the classical scatter on the same
+/// inputs. Physical with in-layer depth groups, and without (one group: the plain layered
+/// scatter).
+#[test]
+fn physical_profile_against_thin_lens_ground_truth() {
+    use drbokeh::render::Profile;
+    let scenes = common::case_dirs(&common::shared_dir().join("groundtruth"));
+    let mut sums = [0f64; 4];
+    let mut n = 0f64;
+    let mut below_scatter = Vec::new();
+    for dir in scenes {
+        let scene = GtScene::load(&dir).unwrap();
+        let layers = scene.exact_layers().unwrap();
+        let single = vec![scene.single_layer().unwrap()];
+        for s in &scene.settings {
+            let lens = render::auto_lens(&layers, s.blur, s.focus);
+            let off = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: true, profile: Profile::Official };
+            let phys = RenderSettings { profile: Profile::Physical, ..off };
+            let border = s.coc_max.ceil() as usize;
+            let score = |img: &Image| psnr(&srgb(img), &srgb(&s.gt), 1.0, border);
+            let p = score(&render::render(&layers, &phys, Kernel::Exact).unwrap());
+            let p1 = score(&render::render(&layers, &RenderSettings { occlusion: false, ..phys }, Kernel::Exact).unwrap());
+            let o = score(&render::render(&layers, &off, Kernel::Exact).unwrap());
+            let b = score(&render::render(&single, &RenderSettings { occlusion: false, ..off }, Kernel::Exact).unwrap());
+            println!(
+                "{:10} {:9}  physical {p:6.2} | physical, one group {p1:6.2} | official {o:6.2} | no occlusion {b:6.2} (PSNR sRGB, dB)",
+                scene.name, s.name
+            );
+            for (acc, v) in sums.iter_mut().zip([p, p1, o, b]) {
+                *acc += v;
+            }
+            n += 1.0;
+            if p < b {
+                below_scatter.push(format!("{} {}: {p:.2} < {b:.2}", scene.name, s.name));
+            }
+        }
+    }
+    let m = sums.map(|v| v / n);
+    println!("mean: physical {:.2} | physical, one group {:.2} | official {:.2} | no occlusion {:.2}", m[0], m[1], m[2], m[3]);
+    assert!(m[0] >= m[2] + 3.0, "physical {:.2} dB is not 3 dB above official {:.2} dB", m[0], m[2]);
+    assert!(below_scatter.is_empty(), "physical below the no-occlusion scatter in: {below_scatter:?}");
 }

@@ -51,7 +51,7 @@ fn layer(w: usize, h: usize, rgb: impl Fn(usize, usize) -> [f32; 3], alpha: &Ima
 }
 
 fn settings(layers: &[Layer], blur: f32, focus: f32) -> RenderSettings {
-    RenderSettings { blur, focus, lens: auto_lens(layers, blur, focus), occlusion: true }
+    RenderSettings { blur, focus, lens: auto_lens(layers, blur, focus), occlusion: true, profile: drbokeh::render::Profile::Official }
 }
 
 fn exact(layers: &[Layer], s: &RenderSettings) -> Image {
@@ -510,10 +510,16 @@ fn tiny_images_render_finite_output() {
                 for layers in [vec![back.clone()], vec![front, back]] {
                     // The widest window the image can use; one wider is a usage error.
                     let widest = render::max_lens(w, h);
-                    let too_wide = RenderSettings { blur: k, focus: f, lens: widest + 2, occlusion: true };
+                    let too_wide = RenderSettings {
+                        blur: k,
+                        focus: f,
+                        lens: widest + 2,
+                        occlusion: true,
+                        profile: drbokeh::render::Profile::Official,
+                    };
                     assert!(matches!(render::render(&layers, &too_wide, Kernel::Exact), Err(drbokeh::Error::Usage(_))));
                     for lens in [1, 3, auto_lens(&layers, k, f), widest] {
-                        let s = RenderSettings { blur: k, focus: f, lens, occlusion: true };
+                        let s = RenderSettings { blur: k, focus: f, lens, occlusion: true, profile: drbokeh::render::Profile::Official };
                         let out = exact(&layers, &s);
                         assert_eq!((out.width, out.height, out.channels), (w, h, 3));
                         assert!(out.all_finite(), "{w}x{h}, focus {f}, K {k}, lens {lens}: {:?}", out.data);
@@ -584,7 +590,7 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
         cfg.render.kernel = if kernel == "exact" { drbokeh::config::KernelChoice::Exact } else { drbokeh::config::KernelChoice::Fast };
         let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(focus)).unwrap();
         let p = &out.report.params;
-        let s = RenderSettings { blur: p.blur, focus: p.focus, lens: p.lens, occlusion: true };
+        let s = RenderSettings { blur: p.blur, focus: p.focus, lens: p.lens, occlusion: true, profile: drbokeh::render::Profile::Official };
         let k = if kernel == "exact" { Kernel::Exact } else { Kernel::Fast { quality: 2 } };
         assert_eq!(out.layers.len(), 2);
         let fg = out.layers[0].image();
@@ -615,5 +621,138 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
         assert_eq!(base.data, other.data, "focus {focus}, {kernel}: a disparity beyond the reach changed the render");
         // And the pipeline's own render is that of its layers.
         assert_eq!(out.image.data, base.data);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The physical profile (issue 11)
+// ---------------------------------------------------------------------------------------------
+
+fn physical(layers: &[Layer], blur: f32, focus: f32) -> RenderSettings {
+    RenderSettings { profile: drbokeh::render::Profile::Physical, ..settings(layers, blur, focus) }
+}
+
+/// A uniform layer stays uniform (1e-5) at any depth map, focus and blur; and with an opaque
+/// uniform layer every pixel's coverage is exactly what a lens gives: the colour itself.
+#[test]
+fn physical_uniform_layer_stays_uniform() {
+    let (w, h) = (24, 18);
+    for (name, d) in depth_maps(w, h) {
+        for &(k, f) in &[(0.0f32, 0.5f32), (3.0, 0.0), (9.0, 1.0), (15.0, 0.3)] {
+            let l = vec![layer(w, h, |_, _| [0.3, 0.6, 0.9], &Image::filled(w, h, 1, 1.0), &d)];
+            let out = exact(&l, &physical(&l, k, f));
+            let (worst, i) = worst_deviation(&out, [0.3, 0.6, 0.9]);
+            assert!(worst < 1e-5, "{name}, K {k}, focus {f}: pixel {i} off by {worst}");
+        }
+    }
+}
+
+/// In focus (CoC below half a pixel everywhere) the physical profile returns the input, bit
+/// for bit, with the exact kernel (which renders even then), and a pixel no defocused
+/// neighbour reaches keeps its value exactly in a partly defocused scene.
+#[test]
+fn physical_in_focus_is_the_identity() {
+    let (w, h) = (20, 16);
+    let mut rng = Rng::new(5);
+    let rgb = |_: usize, _: usize| [0.0f32; 3];
+    let _ = rgb;
+    let mut colours = Vec::new();
+    for _ in 0..w * h {
+        colours.push([rng.next_f32(), rng.next_f32() * 4.0, rng.next_f32()]);
+    }
+    let col = |x: usize, y: usize| colours[y * w + x];
+    let d = random_plane(w, h, 9);
+    let l = vec![layer(w, h, col, &Image::filled(w, h, 1, 1.0), &d)];
+    // K = 0.4: every CoC is at most 0.4 px.
+    let out = exact(&l, &physical(&l, 0.4, 0.5));
+    for (i, px) in out.data.chunks_exact(3).enumerate() {
+        assert_eq!(px, &colours[i][..], "pixel {i}");
+    }
+    // Left half in focus (d = 0.5), right half far out of focus (d = 0): the left columns
+    // farther than the blur reaches keep their exact values.
+    let split = plane(w, h, |x, _| if x < w / 2 { 0.5 } else { 0.0 });
+    let l = vec![layer(w, h, col, &Image::filled(w, h, 1, 1.0), &split)];
+    let out = exact(&l, &physical(&l, 6.0, 0.5));
+    for y in 0..h {
+        for x in 0..w / 2 - 5 {
+            assert_eq!(out.pixel(x, y), &colours[y * w + x][..], "({x}, {y})");
+        }
+    }
+}
+
+/// Flux: a single bright source far from the borders spreads its light without gain or loss
+/// (1e-3), at every radius, including fractional ones.
+#[test]
+fn physical_conserves_flux() {
+    let (w, h) = (41, 41);
+    for r in [0.3f32, 0.7, 1.0, 2.5, 6.2, 13.0] {
+        // One white opaque source at the centre of a transparent layer (in front of nothing);
+        // its disparity gives the radius.
+        let d = plane(w, h, |x, y| if (x, y) == (20, 20) { 1.0 } else { 0.0 });
+        let alpha = plane(w, h, |x, y| if (x, y) == (20, 20) { 1.0 } else { 0.0 });
+        // Over a black backdrop, so the source's layer is seen by its coverage alone.
+        let l = vec![
+            layer(w, h, |_, _| [1.0; 3], &alpha, &d),
+            layer(w, h, |_, _| [0.0; 3], &Image::filled(w, h, 1, 1.0), &Image::new(w, h, 1)),
+        ];
+        // Focus at 0: the backdrop is sharp, the source is at d = 1, radius K.
+        let s = RenderSettings { occlusion: false, ..physical(&l, r, 0.0) };
+        let out = exact(&l, &s);
+        let flux: f64 = out.data.chunks_exact(3).map(|p| p[0] as f64).sum();
+        assert!((flux - 1.0).abs() < 1e-3, "r {r}: flux {flux}");
+    }
+}
+
+/// No colour bleeding inside one layer: an in-focus subject with a blurred, brighter surface
+/// behind it in the same layer keeps its own colour exactly (the official model's on-focal
+/// occlusion, kept by the physical profile).
+#[test]
+fn physical_no_bleeding_inside_a_layer() {
+    let (w, h) = (30, 24);
+    let fg = |x: usize, y: usize| (10..20).contains(&x) && (8..16).contains(&y);
+    let d = plane(w, h, |x, y| if fg(x, y) { 0.9 } else { 0.1 });
+    let l = vec![layer(w, h, |x, y| if fg(x, y) { [0.2, 0.3, 0.4] } else { [5.0, 5.0, 5.0] }, &Image::filled(w, h, 1, 1.0), &d)];
+    let out = exact(&l, &physical(&l, 12.0, 0.9));
+    for y in 8..16 {
+        for x in 10..20 {
+            // The background's depth-group weight there is ~1e-8 (the soft depth test), no more.
+            let e = out.pixel(x, y).iter().zip([0.2, 0.3, 0.4]).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+            assert!(e < 1e-5, "({x}, {y}) bled: {:?}", out.pixel(x, y));
+        }
+    }
+    // Without the depth groups (--no-occlusion) the bright background does bleed in.
+    let plain = exact(&l, &RenderSettings { occlusion: false, ..physical(&l, 12.0, 0.9) });
+    assert!(plain.pixel(10, 8)[0] > 0.5);
+}
+
+/// Partial occlusion with the thin lens's weights: a layer of two fronto-parallel planes (a
+/// blurred near half-plane beside a sharp far one) renders like the same planes as two layers
+/// where the near plane's blurred edge lies over the far one.
+#[test]
+fn physical_planes_in_one_layer_match_planes_as_layers() {
+    let (w, h) = (32, 20);
+    let front = |x: usize| x < 12;
+    let mut rng = Rng::new(3);
+    let tex: Vec<[f32; 3]> = (0..w * h).map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()]).collect();
+    let col = |x: usize, y: usize| tex[y * w + x];
+    let d = plane(w, h, |x, _| if front(x) { 1.0 } else { 0.2 });
+    let one = vec![layer(w, h, col, &Image::filled(w, h, 1, 1.0), &d)];
+    let fa = plane(w, h, |x, _| if front(x) { 1.0 } else { 0.0 });
+    let two = vec![
+        layer(w, h, col, &fa, &Image::filled(w, h, 1, 1.0)),
+        layer(w, h, col, &plane(w, h, |x, _| if front(x) { 0.0 } else { 1.0 }), &Image::filled(w, h, 1, 0.2)),
+    ];
+    // Focus on the back plane, front plane blurred by 4 px.
+    let a = exact(&one, &physical(&one, 4.0 / 0.8, 0.2));
+    let b = exact(&two, &physical(&two, 4.0 / 0.8, 0.2));
+    // On the back plane, where the blurred front edge lies over it (hidden content, which
+    // neither set-up has, does not matter there), away from replicated borders.
+    for y in 6..h - 6 {
+        for x in 12..w - 6 {
+            for c in 0..3 {
+                let (p, q) = (a.pixel(x, y)[c], b.pixel(x, y)[c]);
+                assert!((p - q).abs() < 2e-3, "({x}, {y}) channel {c}: one layer {p} vs two layers {q}");
+            }
+        }
     }
 }

@@ -135,7 +135,7 @@ proptest! {
         let layers = make_layers(w, h, d, a, hdr, seed, false);
         let (blur, focus) = (BLURS[k], FOCI[f]);
         let lens = render::auto_lens(&layers, blur, focus);
-        let s = RenderSettings { blur, focus, lens, occlusion: true };
+        let s = RenderSettings { blur, focus, lens, occlusion: true, profile: drbokeh::render::Profile::Official };
         check(&layers, &s, Kernel::Exact, false)?;
         check(&layers, &s, Kernel::Fast { quality: 2 }, false)?;
         check(&layers, &RenderSettings { occlusion: false, ..s }, Kernel::Fast { quality: 2 }, false)?;
@@ -149,7 +149,7 @@ proptest! {
         let (w, h) = shape;
         let layers = make_layers(w, h, d, AlphaKind::One, hdr, seed, true);
         let (blur, focus) = (BLURS[k], FOCI[f]);
-        let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true };
+        let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true, profile: drbokeh::render::Profile::Official };
         check(&layers, &s, Kernel::Exact, true)?;
         check(&layers, &s, Kernel::Fast { quality: 2 }, true)?;
     }
@@ -159,7 +159,13 @@ proptest! {
 fn long_thin_image_with_huge_blur_is_finite() {
     for k in [1e3f32, 1e6] {
         let layers = make_layers(1000, 3, DispKind::Random, AlphaKind::Random, true, 7, false);
-        let s = RenderSettings { blur: k, focus: 0.5, lens: render::auto_lens(&layers, k, 0.5), occlusion: true };
+        let s = RenderSettings {
+            blur: k,
+            focus: 0.5,
+            lens: render::auto_lens(&layers, k, 0.5),
+            occlusion: true,
+            profile: drbokeh::render::Profile::Official,
+        };
         let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
         assert!(out.all_finite());
     }
@@ -257,7 +263,7 @@ proptest! {
         for coc in [0.0f32, 0.4, 1.0, 3.0, 8.0, 20.0, 35.0, 60.0, 150.0, 1e3, 5e3, 1e5, 1e8] {
             let blur = coc / 0.85;
             for occlusion in [true, false] {
-                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion };
+                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion, profile: drbokeh::render::Profile::Official };
                 let exact = render::render(&layers, &s, Kernel::Exact).unwrap();
                 prop_assert!(exact.all_finite(), "exact: non-finite output at CoC {coc}");
                 let me = channel_means(&exact);

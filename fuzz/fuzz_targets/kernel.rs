@@ -54,7 +54,7 @@ fuzz_target!(|data: &[u8]| {
     // An explicit odd window up to the largest useful one, or the automatic one.
     let lb = b.u8();
     let lens = if lb == 0 { render::auto_lens(&layers, blur, focus) } else { (1 + 2 * (lb as usize)).min(render::max_lens(w, h) | 1) };
-    let s = RenderSettings { blur, focus, lens, occlusion };
+    let s = RenderSettings { blur, focus, lens, occlusion, profile: drbokeh::render::Profile::Official };
     let exact = render::render(&layers, &s, Kernel::Exact).expect("finite layers render");
     let fast = render::render(&layers, &s, Kernel::Fast { quality }).expect("finite layers render");
     let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);

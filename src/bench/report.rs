@@ -6,6 +6,7 @@ use super::plot::{self, draw_text, text_width};
 use super::run::{BenchOptions, BenchResult, Case, Method, Row, Variant, srgb};
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render::Profile;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -158,7 +159,17 @@ pub fn csv(rows: &[Row]) -> String {
 
 /// The reference rows (exact kernel) of one method, keyed by case.
 fn reference_rows(rows: &[Row], m: Method) -> BTreeMap<(String, String), &Row> {
-    rows.iter().filter(|r| r.method == m && r.variant == m.reference()).map(|r| ((r.scene.clone(), r.setting.clone()), r)).collect()
+    profile_rows(rows, m, Profile::Official)
+}
+
+/// The rows of one method rendered with `profile` by the exact kernel (the gather, which has
+/// no profile, with its only setting), keyed by case.
+fn profile_rows(rows: &[Row], m: Method, profile: Profile) -> BTreeMap<(String, String), &Row> {
+    let v = match profile {
+        Profile::Physical if m.variants().contains(&Variant::PhysicalExact) => Variant::PhysicalExact,
+        _ => m.reference(),
+    };
+    rows.iter().filter(|r| r.method == m && r.variant == v).map(|r| ((r.scene.clone(), r.setting.clone()), r)).collect()
 }
 
 /// The summary table (the part of report.md that README shows).
@@ -230,8 +241,8 @@ pub fn comparisons(rows: &[Row]) -> String {
     s
 }
 
-/// Mean sRGB PSNR / SSIM per category and method (reference settings).
-pub fn category_table(rows: &[Row]) -> String {
+/// Mean sRGB PSNR / SSIM per category and method, every method with `profile` (exact kernel).
+pub fn category_table(rows: &[Row], profile: Profile) -> String {
     let methods: Vec<Method> = Method::ALL.into_iter().filter(|m| rows.iter().any(|r| r.method == *m)).collect();
     let mut s = String::from("| category | cases |");
     for m in &methods {
@@ -241,13 +252,13 @@ pub fn category_table(rows: &[Row]) -> String {
     s.push_str(&" ---: |".repeat(methods.len()));
     s.push('\n');
     for (cat, desc) in CATEGORIES {
-        let n = reference_rows(rows, methods[0]).values().filter(|r| r.categories.contains(&cat)).count();
+        let n = profile_rows(rows, methods[0], profile).values().filter(|r| r.categories.contains(&cat)).count();
         if n == 0 {
             continue;
         }
         let _ = write!(s, "| {desc} | {n} |");
         for &m in &methods {
-            let group: Vec<&Row> = reference_rows(rows, m).into_values().filter(|r| r.categories.contains(&cat)).collect();
+            let group: Vec<&Row> = profile_rows(rows, m, profile).into_values().filter(|r| r.categories.contains(&cat)).collect();
             let x = summarize(&group);
             let _ = write!(s, " {:.2} / {:.4} |", x.psnr_srgb, x.ssim_srgb);
         }
@@ -305,11 +316,15 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
     s.push_str("\nMethods: ");
     let names: Vec<String> = Method::ALL.iter().map(|m| format!("`{}` = {}", m.name(), m.label())).collect();
     s.push_str(&names.join("; "));
-    s.push_str(". Settings: `exact` = the exact (oracle) kernel, `fast-qN` = the fast kernel at quality N.\n\n");
+    s.push_str(". Settings: `exact` = the exact (oracle) kernel, `fast-qN` = the fast kernel at quality N (both the official profile), `physical-exact` = the physical lens profile with the exact kernel.\n\n");
     s.push_str("## Dr.Bokeh (exact 2 layers, exact kernel) against the others\n\n");
     s.push_str(&comparisons(rows));
-    s.push_str("\n## Per category (mean PSNR sRGB / SSIM sRGB, reference settings)\n\n");
-    s.push_str(&category_table(rows));
+    s.push_str("\n## Per category (mean PSNR sRGB / SSIM sRGB, official profile, exact kernel)\n\n");
+    s.push_str(&category_table(rows, Profile::Official));
+    if rows.iter().any(|r| r.variant == Variant::PhysicalExact) {
+        s.push_str("\n## Per category (mean PSNR sRGB / SSIM sRGB, physical profile, exact kernel; the gather has no profile)\n\n");
+        s.push_str(&category_table(rows, Profile::Physical));
+    }
     s.push_str("\n![error vs time](error_vs_time.png)\n");
     if !res.crops.is_empty() {
         s.push_str("\n## Crops (ground truth | methods, sRGB)\n\nThe cases where Dr.Bokeh (exact layers) gains most over the scatter baseline, and the one where it loses most;\neach crop is the window where the scatter's error most exceeds Dr.Bokeh's (or the reverse).\n\n");

@@ -94,8 +94,8 @@ impl Method {
     pub fn variants(self) -> Vec<Variant> {
         use Variant::*;
         match self {
-            Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8)],
-            Method::Sliced | Method::Pipeline | Method::Scatter => vec![Exact, Fast(2)],
+            Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact],
+            Method::Sliced | Method::Pipeline | Method::Scatter => vec![Exact, Fast(2), PhysicalExact],
             Method::Gather => vec![Plain],
         }
     }
@@ -111,6 +111,8 @@ impl Method {
 pub enum Variant {
     Exact,
     Fast(u32),
+    /// The physical lens profile, exact kernel.
+    PhysicalExact,
     /// Methods with no kernel choice.
     Plain,
 }
@@ -120,8 +122,12 @@ impl Variant {
         match self {
             Variant::Exact => "exact".into(),
             Variant::Fast(q) => format!("fast-q{q}"),
+            Variant::PhysicalExact => "physical-exact".into(),
             Variant::Plain => "default".into(),
         }
+    }
+    fn profile(self) -> crate::render::Profile {
+        if self == Variant::PhysicalExact { crate::render::Profile::Physical } else { crate::render::Profile::Official }
     }
     fn kernel(self) -> Kernel {
         match self {
@@ -396,7 +402,7 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
     let (blur, focus) = (case.blur, case.focus);
     let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
         let lens = render::auto_lens(layers, blur, focus);
-        render::render(layers, &RenderSettings { blur, focus, lens, occlusion }, v.kernel())
+        render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile() }, v.kernel())
     };
     match m {
         Method::Layers => renderer(&inp.two_layers, true),
@@ -417,6 +423,7 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
                 }
                 _ => cfg.render.kernel = KernelChoice::Exact,
             }
+            cfg.render.profile = v.profile();
             let scene = Scene {
                 rgb: inp.aif.clone(),
                 disparity: Disparity { map: inp.disparity.clone(), z_range: None, filled_fraction: 0.0 },

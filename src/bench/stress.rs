@@ -35,5 +35,5 @@ pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool
     let (focus, dmax) = if focus_fg { (1.0, 1.0) } else { (0.5, 0.5) };
     let blur = (max_coc / dmax).max(0.0);
     let lens = auto_lens(&layers, blur, focus);
-    (layers, RenderSettings { blur, focus, lens, occlusion: true })
+    (layers, RenderSettings { blur, focus, lens, occlusion: true, profile: crate::render::Profile::Official })
 }

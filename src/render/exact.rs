@@ -10,14 +10,22 @@
 
 use super::aperture::Tap;
 use super::layer::{A, D, Layer};
-use super::lens::{energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
-use super::{RawLayer, RenderSettings};
+use super::lens::{self, Profile, energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
+use super::{RawLayer, RenderSettings, Role};
 use rayon::prelude::*;
 
 /// Renders one layer into its raw sums: per pixel `[ΣR, ΣG, ΣB, W, o]` where the colour sums
 /// are weighted by `w·O·α`, `W` is the total weight and `o` the non-focal visibility (eq. 4).
 /// Allocates the 5-channel output and two planes of per-pixel terms.
-pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLayer {
+pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap], role: Role) -> RawLayer {
+    match s.profile {
+        Profile::Official => scatter_layer_official(layer, s, taps),
+        Profile::Physical => scatter_layer_physical(layer, s, taps, role),
+    }
+}
+
+/// The official formula (golden vectors).
+fn scatter_layer_official(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLayer {
     let img = layer.image();
     let (w, h) = (img.width, img.height);
     let p = s.lens / 2;
@@ -55,6 +63,61 @@ pub fn scatter_layer(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> RawLaye
             }
             let o = box_alpha(img, x, y, visibility_half_size(sigma[i], p));
             row[x * 5..x * 5 + 5].copy_from_slice(&[sr as f32, sg as f32, sb as f32, sw as f32, o]);
+        }
+    });
+    RawLayer::new(w, h, out, layer)
+}
+
+/// The physical profile, tap by tap: every visible source spreads its premultiplied colour
+/// and its alpha over a uniform disk of radius `K·|d|` with a one-pixel ramp edge, normalized
+/// to unit flux ([`lens::disk_coverage`] / [`lens::disk_norm`]). At each target the sources
+/// are split by depth relative to the target ([`lens::depth_groups`]: in front, the same
+/// surface, behind; with occlusion off, all one group) and the groups are composited front to
+/// back ([`lens::over_groups`]). The raw pixel is `[P_r, P_g, P_b, A, V]`: the colour
+/// `P / A` and visibility `V = A` composite to `P` (premultiplied), as a lens would; the
+/// backdrop layer's visibility is at least its own alpha (see [`Role::Backdrop`]).
+/// Allocates the output and three planes of per-pixel terms.
+fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role: Role) -> RawLayer {
+    let img = layer.image();
+    let (w, h) = (img.width, img.height);
+    let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
+    let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur)).collect();
+    let norm: Vec<f32> = radius.iter().map(|&r| lens::disk_norm(r)).collect();
+    let mut out = vec![0f32; w * h * 5];
+    out.par_chunks_mut(w * 5).enumerate().for_each(|(y, row)| {
+        for x in 0..w {
+            let dx = d[y * w + x];
+            // [in front, same surface, behind] × [P_r, P_g, P_b, A], f64 as in the official kernel.
+            let mut groups = [[0f64; 4]; 3];
+            for t in taps {
+                let yy = (y as i64 + t.di as i64).clamp(0, h as i64 - 1) as usize;
+                let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
+                let j = yy * w + xx;
+                let px = &img.data[j * 5..j * 5 + 5];
+                let cov = lens::disk_coverage(radius[j], t.r);
+                if px[A] == 0.0 || cov == 0.0 {
+                    continue;
+                }
+                // cov / norm, not cov · (1/norm): an in-focus source's weight is exactly 1.
+                let wt = (px[A] * (cov / norm[j])) as f64;
+                let g = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(d[j], dx) };
+                for (acc, &gk) in groups.iter_mut().zip(&g) {
+                    if gk > 0.0 {
+                        let k = wt * gk as f64;
+                        acc[0] += k * px[0] as f64;
+                        acc[1] += k * px[1] as f64;
+                        acc[2] += k * px[2] as f64;
+                        acc[3] += k;
+                    }
+                }
+            }
+            let p = lens::over_groups(&groups);
+            let a = p[3] as f32;
+            let vis = match role {
+                Role::Front => a,
+                Role::Backdrop => a.max(img.data[(y * w + x) * 5 + A]),
+            };
+            row[x * 5..x * 5 + 5].copy_from_slice(&[p[0] as f32, p[1] as f32, p[2] as f32, a, vis]);
         }
     });
     RawLayer::new(w, h, out, layer)

@@ -14,6 +14,7 @@ pub mod splat;
 use crate::error::{Error, Result};
 use crate::image::Image;
 pub use layer::Layer;
+pub use lens::Profile;
 use rayon::prelude::*;
 use std::borrow::Borrow;
 
@@ -37,6 +38,25 @@ impl Kernel {
     }
 }
 
+/// Where a layer sits in the stack, for the physical profile's visibility.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// Something is behind it: its visibility is its coverage, and where a blurred edge
+    /// thins out, the layers behind show through.
+    Front,
+    /// The last layer: nothing behind it to reveal. Where it is opaque, a coverage deficit
+    /// (a blurred near part of it meeting a sharp far part, whose hidden content the layer
+    /// does not have) is filled with the mean colour that reaches the pixel, not with black.
+    Backdrop,
+}
+
+impl Role {
+    /// The role of layer `n` (0-based, front first) of `count`.
+    pub fn of(n: usize, count: usize) -> Role {
+        if n + 1 == count { Role::Backdrop } else { Role::Front }
+    }
+}
+
 /// Lens and model parameters of one render.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -46,8 +66,11 @@ pub struct RenderSettings {
     pub focus: f32,
     /// Odd side of the square lens window, in pixels.
     pub lens: usize,
-    /// `false` gives the classical scatter baseline (O ≡ 1).
+    /// `false` gives the classical scatter baseline (O ≡ 1; in the physical profile, one
+    /// depth group per layer).
     pub occlusion: bool,
+    /// Which calibration of the lens terms (see [`lens::Profile`]).
+    pub profile: lens::Profile,
 }
 
 /// A layer's raw render: per pixel `[ΣR, ΣG, ΣB, W, o]` (weighted colour sums, total weight,
@@ -168,6 +191,16 @@ pub fn exact_seconds(pixels: u64, lens: usize, layers: usize, threads: usize) ->
     pixels as f64 * aperture::disk_tap_count(lens) as f64 * layers as f64 / (TAPS_PER_SECOND_PER_THREAD * threads.max(1) as f64)
 }
 
+/// Refuses a kernel that does not implement the settings' profile yet.
+fn check_kernel(s: &RenderSettings, kernel: Kernel) -> Result<()> {
+    if s.profile == lens::Profile::Physical && kernel != Kernel::Exact {
+        return Err(Error::usage(
+            "render.profile physical is implemented in the exact kernel only so far: use render.kernel exact (--kernel exact) or render.profile official",
+        ));
+    }
+    Ok(())
+}
+
 /// Renders each layer with `kernel` and composites them front to back. Returns linear RGB.
 pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Image> {
     let refs: Vec<&Layer> = layers.iter().collect();
@@ -182,16 +215,17 @@ pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Im
 /// never a whole raw layer.
 pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     validate(layers, s)?;
+    check_kernel(s, kernel)?;
     let (w, h) = (layers[0].width(), layers[0].height());
     let mut acc = composite::accumulator(w, h);
     let mut stats = Vec::with_capacity(layers.len());
     let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
-    for l in layers {
+    for (n, l) in layers.iter().enumerate() {
         let range = l.colour_range();
         let over = |raw: &[f32; 5], px: &mut [f32]| composite::over(raw, &range, px);
         match kernel {
             Kernel::Exact => {
-                let raw = exact::scatter_layer(l, s, &taps);
+                let raw = exact::scatter_layer(l, s, &taps, Role::of(n, layers.len()));
                 acc.par_chunks_exact_mut(composite::ACC_CHANNELS)
                     .enumerate()
                     .for_each(|(i, px)| over(raw.pixel(i).try_into().expect("5 channels"), px));
@@ -224,8 +258,9 @@ pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<R
     let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
     layers
         .iter()
-        .map(|l| match kernel {
-            Kernel::Exact => exact::scatter_layer(l, s, &taps),
+        .enumerate()
+        .map(|(n, l)| match kernel {
+            Kernel::Exact => exact::scatter_layer(l, s, &taps, Role::of(n, layers.len())),
             Kernel::Fast { quality } => fast::scatter_layer(l, s, fast::FastParams::from_quality(quality)).0,
         })
         .collect()

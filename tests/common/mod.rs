@@ -63,6 +63,7 @@ pub fn golden_case(dir: &std::path::Path) -> (Vec<drbokeh::render::Layer>, drbok
         focus: params["focus"].as_f64().unwrap() as f32,
         lens: params["lens"].as_u64().unwrap() as usize,
         occlusion: true,
+        profile: drbokeh::render::Profile::Official,
     };
     (layers, s, names, gamma)
 }
