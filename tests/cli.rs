@@ -1445,3 +1445,43 @@ fn bit_depth_with_a_float_output_warns() {
     let out = s.run(&["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "2", "-v", "-o", "v.png"]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("wrote v.png"));
 }
+
+/// Issue 11: `--profile physical` renders with the exact kernel and says clearly that the fast
+/// kernel does not have it yet; in focus it returns the photo unchanged.
+#[test]
+fn physical_profile_from_the_command_line() {
+    let s = Scene::new();
+    s.bad(
+        &["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "--profile", "physical", "-o", "o.npy"],
+        &["--profile", "--kernel exact"],
+    );
+    let j = s.json(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "4",
+        "--profile",
+        "physical",
+        "--kernel",
+        "exact",
+        "-o",
+        "p.npy",
+    ]);
+    assert!(j["warnings"].as_array().unwrap().is_empty(), "{j}");
+    let out = read_npy(&s.path("p.npy"));
+    assert!(out.all_finite());
+    // Blur 0 on one opaque layer: every pixel is in focus, the output is the input, bit for bit.
+    let rgb = texture(W, H, 3);
+    let mut l = Image::new(W, H, 5);
+    for (o, c) in l.data.chunks_exact_mut(5).zip(rgb.data.chunks_exact(3)) {
+        o.copy_from_slice(&[c[0], c[1], c[2], 1.0, 0.5]);
+    }
+    io::save_npy(&s.path("one.npy"), &l).unwrap();
+    s.ok(&["--layer", "one.npy", "--focus", "1", "--blur", "0", "--profile", "physical", "--kernel", "exact", "-o", "same.npy"]);
+    assert!(read_npy(&s.path("same.npy")).data == rgb.data, "blur 0 changed the layer");
+}
