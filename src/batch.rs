@@ -35,9 +35,13 @@ const BYTES_PER_PIXEL: u64 = 200;
 /// Options of a batch run (the CLI's flags).
 #[derive(Clone, Debug)]
 pub struct BatchOptions {
+    /// The folder the photos are found in (`INPUT_DIR`); item paths are relative to it.
     pub input_dir: PathBuf,
+    /// The folder outputs, fingerprints and the summary go to (created if missing).
     pub output_dir: PathBuf,
+    /// Also process subfolders, mirrored in the output folder.
     pub recursive: bool,
+    /// Render every item again, even when its output is up to date.
     pub force: bool,
     /// `(i, n)`: process items `i, i + n, i + 2n, …` (0-based).
     pub shard: Option<(usize, usize)>,
@@ -45,6 +49,7 @@ pub struct BatchOptions {
     pub jobs: usize,
     /// Focus for images the manifest does not set.
     pub focus: Option<Focus>,
+    /// Per-image overrides (see [`read_manifest`]), if any.
     pub manifest: Option<PathBuf>,
 }
 
@@ -54,13 +59,16 @@ pub struct BatchOptions {
 pub struct ManifestEntry {
     /// The image, relative to the input folder.
     pub image: String,
+    /// Focal plane as normalized disparity (0 far … 1 near), finite; wins over `focus_at`.
     #[serde(default)]
     pub focus: Option<f32>,
     /// "X,Y"
     #[serde(default)]
     pub focus_at: Option<String>,
+    /// Blur strength K for this image (pixels of CoC radius per unit of disparity, >= 0).
     #[serde(default)]
     pub blur: Option<f32>,
+    /// The image's matte, relative to the image's folder (overrides the pattern's match).
     #[serde(default)]
     pub matte: Option<String>,
     /// Output path, relative to the output folder.
@@ -107,9 +115,13 @@ pub fn read_manifest(path: &Path) -> Result<BTreeMap<String, ManifestEntry>> {
 pub struct Item {
     /// Path relative to the input folder (the sort key and the manifest key).
     pub rel: String,
+    /// The photo's path (input folder joined with `rel`).
     pub image: PathBuf,
+    /// Its depth map, found by `batch.depth_patterns`; None makes the item fail.
     pub depth: Option<PathBuf>,
+    /// Its optional matte, found by `batch.matte_patterns` (or set by the manifest).
     pub matte: Option<PathBuf>,
+    /// Where its result goes, inside the output folder.
     pub output: PathBuf,
 }
 
@@ -195,7 +207,7 @@ pub fn discover(opts: &BatchOptions, cfg: &Config) -> Result<Vec<Item>> {
 /// The output's path, relative to the output folder's counterpart of the photo's folder.
 fn output_name(photo: &str, batch: &crate::config::BatchConfig) -> String {
     let stem = Path::new(photo).file_stem().unwrap_or_default().to_string_lossy();
-    format!("{}.{}", batch.output_pattern.replace("{stem}", &stem), batch.output_format)
+    format!("{}.{}", batch.output_pattern.replace("{stem}", &stem), batch.output_format.extension())
 }
 
 /// True if the file name `name` is what `batch.output_pattern` and `batch.output_format` make
@@ -204,7 +216,7 @@ fn output_name(photo: &str, batch: &crate::config::BatchConfig) -> String {
 fn is_output_name(name: &str, batch: &crate::config::BatchConfig) -> bool {
     const STEM: &str = "{stem}";
     let pattern = &batch.output_pattern;
-    let Some(base) = name.strip_suffix(&format!(".{}", batch.output_format)) else { return false };
+    let Some(base) = name.strip_suffix(&format!(".{}", batch.output_format.extension())) else { return false };
     let (n, Some(first)) = (pattern.matches(STEM).count(), pattern.find(STEM)) else { return false };
     if pattern.contains('/') || pattern.contains('\\') {
         return false;
@@ -265,12 +277,16 @@ impl Status {
 /// What happened to one item.
 #[derive(Clone, Debug, Serialize)]
 pub struct ItemResult {
+    /// The item's path relative to the input folder.
     pub image: String,
+    /// What happened to it.
     pub status: Status,
     /// Why it was skipped or failed; for "ok", why an existing output was made again.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// The output path (as given: the output folder joined with the item's output name).
     pub output: String,
+    /// Wall-clock time spent on the item, seconds (0 for cancelled items).
     pub seconds: f64,
     /// The fingerprint the output was (or is) made with: 16 hex digits of the inputs' hash,
     /// then 16 of the parameters' hash (see [`Fingerprint`]); absent when the item did not get
@@ -282,12 +298,19 @@ pub struct ItemResult {
 /// The batch summary (also written to `OUTPUT_DIR/drbokeh-batch.json`).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Summary {
+    /// Items rendered and written by this run.
     pub ok: usize,
+    /// Items whose output was already up to date.
     pub skipped: usize,
+    /// Items that could not be rendered (each has a `reason`).
     pub failed: usize,
+    /// Items not started because the run was interrupted.
     pub cancelled: usize,
+    /// `"I/N"` when the run processed one shard only.
     pub shard: Option<String>,
+    /// Wall-clock time of the whole run, seconds.
     pub seconds: f64,
+    /// One result per item of this run (or shard), in sorted path order.
     pub items: Vec<ItemResult>,
 }
 
@@ -402,10 +425,8 @@ fn plan(
     manifest: &BTreeMap<String, ManifestEntry>,
     manifest_path: &Path,
 ) -> Result<Vec<Plan>> {
-    if let Some(Focus::Disparity(f)) = opts.focus
-        && !f.is_finite()
-    {
-        return Err(Error::usage(format!("--focus must be a finite number, got {f}")));
+    if let Some(Focus::Disparity(f)) = opts.focus {
+        crate::render::check_focus("render.focus", f)?;
     }
     let entry_error = |rel: &str, msg: String| Error::input(manifest_path, format!("image '{rel}': {msg}"));
     let mut plans = Vec::with_capacity(items.len());
@@ -422,9 +443,7 @@ fn plan(
                 item.matte = Some(item.image.parent().unwrap_or(Path::new(".")).join(m));
             }
             if let Some(f) = e.focus {
-                if !f.is_finite() {
-                    return Err(entry_error(&item.rel, format!("focus must be a finite number, got {f}")));
-                }
+                crate::render::check_focus("focus", f).map_err(|e| entry_error(&item.rel, e.to_string()))?;
                 focus = Some(Focus::Disparity(f));
             } else if let Some(xy) = &e.focus_at {
                 let (x, y) = xy
@@ -443,7 +462,7 @@ fn plan(
         let some = unfocused.iter().take(3).map(String::as_str).collect::<Vec<_>>().join(", ");
         let more = if unfocused.len() > 3 { format!(" and {} more", unfocused.len() - 3) } else { String::new() };
         return Err(Error::usage(format!(
-            "no focus for {some}{more}: give --focus or --focus-at, or focus/focus_at in a --manifest entry"
+            "no focus for {some}{more}: give render.focus or render.focus_at, or focus/focus_at in a batch.manifest entry"
         )));
     }
     Ok(plans)

@@ -1,6 +1,6 @@
 //! CLI glue of `drbokeh batch` (the work is in `drbokeh::batch`).
 
-use crate::{PipelineArgs, config_from, parse_xy, set_threads};
+use crate::{PipelineArgs, as_flags, config_from, flag_names, parse_xy, set_threads};
 use clap::Args;
 use drbokeh::batch::{self, BatchOptions, ItemResult, Status};
 use drbokeh::pipeline::Focus;
@@ -82,7 +82,9 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         b
     });
     let progress = |done: usize, total: usize, r: &ItemResult| {
-        let line = format!("{} {}{}", r.status.as_str(), r.image, r.reason.as_ref().map(|w| format!(": {w}")).unwrap_or_default());
+        // The summary (file and --json) keeps the library's names; lines for people get flags.
+        let line =
+            format!("{} {}{}", r.status.as_str(), r.image, r.reason.as_ref().map(|w| format!(": {}", flag_names(w))).unwrap_or_default());
         match &bar {
             Some(b) => {
                 b.set_length(total as u64);
@@ -96,7 +98,7 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
             None => {}
         }
     };
-    let summary = batch::run(&cfg, &opts, &cancel, &progress)?;
+    let summary = batch::run(&cfg, &opts, &cancel, &progress).map_err(as_flags)?;
     if let Some(b) = bar {
         b.finish_and_clear();
     }
@@ -113,7 +115,7 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
             batch::summary_path(&args.output, args.shard).display()
         );
         for r in summary.items.iter().filter(|r| r.status == Status::Failed) {
-            eprintln!("  failed {}: {}", r.image, r.reason.as_deref().unwrap_or(""));
+            eprintln!("  failed {}: {}", r.image, flag_names(r.reason.as_deref().unwrap_or("")));
         }
     }
     Ok(if summary.cancelled > 0 {

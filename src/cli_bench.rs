@@ -1,7 +1,7 @@
 //! The `trace` and `bench` subcommands: flag parsing and progress display; the work is in
 //! `drbokeh::bench::{trace, run}`.
 
-use crate::set_threads;
+use crate::{as_flags, set_threads};
 use clap::{Args, ValueEnum};
 use drbokeh::Error;
 use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
@@ -21,6 +21,38 @@ pub enum FootprintArg {
     Analytic,
     /// Rays spread over the pixel square (stratified), planes read as box texels.
     Sampled,
+}
+
+/// `--methods`: the bench's rendering methods, by their short names (the full report names and
+/// `no-occlusion` are accepted too, as [`Method::parse`] does).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// Dr.Bokeh on the exact two layers.
+    #[value(alias = "drbokeh-layers")]
+    Layers,
+    /// Dr.Bokeh on one exact layer per depth plane.
+    #[value(alias = "drbokeh-sliced")]
+    Sliced,
+    /// Dr.Bokeh from the classical pipeline.
+    #[value(alias = "drbokeh-pipeline")]
+    Pipeline,
+    /// Classical scatter without occlusion, one layer.
+    #[value(alias = "no-occlusion", alias = "scatter-no-occlusion")]
+    Scatter,
+    /// Per-pixel gather within its own CoC.
+    Gather,
+}
+
+impl From<MethodArg> for Method {
+    fn from(m: MethodArg) -> Method {
+        match m {
+            MethodArg::Layers => Method::Layers,
+            MethodArg::Sliced => Method::Sliced,
+            MethodArg::Pipeline => Method::Pipeline,
+            MethodArg::Scatter => Method::Scatter,
+            MethodArg::Gather => Method::Gather,
+        }
+    }
 }
 
 #[derive(Args)]
@@ -78,11 +110,11 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
         FootprintArg::Analytic => Footprint::Analytic,
         FootprintArg::Sampled => Footprint::Sampled,
     };
-    trace::validate(&planes, &s)?;
+    trace::validate(&planes, &s).map_err(as_flags)?;
     let (w, h) = (planes[0].width, planes[0].height);
     let bar = ProgressBar::new(h as u64);
     bar.set_style(ProgressStyle::with_template("tracing {bar:40} {pos}/{len} rows, {elapsed} (eta {eta})").expect("template"));
-    let (img, half) = trace::trace_split(&planes, &s, Window::full(w, h), &|n| bar.inc(n as u64))?;
+    let (img, half) = trace::trace_split(&planes, &s, Window::full(w, h), &|n| bar.inc(n as u64)).map_err(as_flags)?;
     bar.finish_and_clear();
     io::write_output(&args.output, &img, 8, Transfer::Srgb)?;
     if args.verbose {
@@ -119,9 +151,9 @@ pub struct BenchArgs {
     /// Texture the generated planes with crops of these photos (else procedural textures).
     #[arg(long, value_name = "DIR")]
     textures: Option<PathBuf>,
-    /// Methods to run (comma-separated): layers, sliced, pipeline, scatter, gather [default: all].
-    #[arg(long, value_name = "LIST", value_delimiter = ',', num_args = 1..)]
-    methods: Vec<String>,
+    /// Methods to run (comma-separated) [default: all].
+    #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
+    methods: Vec<MethodArg>,
     /// Report folder (report.csv, report.md, error_vs_time.png, crops/).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -161,18 +193,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     let (w, h) = args.size;
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
-    let methods = if args.methods.is_empty() {
-        Method::ALL.to_vec()
-    } else {
-        args.methods
-            .iter()
-            .map(|m| {
-                Method::parse(m).ok_or_else(|| {
-                    Error::usage(format!("--methods: unknown method '{m}' (known: layers, sliced, pipeline, scatter, gather)"))
-                })
-            })
-            .collect::<Result<Vec<_>, Error>>()?
-    };
+    let methods = if args.methods.is_empty() { Method::ALL.to_vec() } else { args.methods.iter().map(|&m| m.into()).collect() };
     if args.scenes == 0 && args.groundtruth.is_none() {
         return Err(Error::usage("--scenes must be at least 1").into());
     }
@@ -207,10 +228,28 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
             eprintln!("[{:7.1} s] {msg}", t0.elapsed().as_secs_f64());
         }
         bar.set_message(msg.to_string());
-    })?;
+    })
+    .map_err(as_flags)?;
     bar.finish_and_clear();
     eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
     eprint!("{}", drbokeh::bench::report::comparisons(&res.rows));
     eprintln!("wrote {}", opts.out.join("report.md").display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every spelling `--methods` accepts means what the library's `Method::parse` makes of it.
+    #[test]
+    fn method_flags_agree_with_the_library() {
+        for arg in MethodArg::value_variants() {
+            let pv = arg.to_possible_value().expect("no hidden variants");
+            for name in pv.get_name_and_aliases() {
+                assert_eq!(Method::parse(name), Some(Method::from(*arg)), "{name}");
+            }
+        }
+        assert_eq!(MethodArg::value_variants().len(), Method::ALL.len());
+    }
 }

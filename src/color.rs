@@ -33,11 +33,15 @@ impl Transfer {
     }
 }
 
+/// The sRGB decoding curve (IEC 61966-2-1): encoded value in [0, 1] → linear light.
+/// Values above 1 follow the power law; negative values are divided by 12.92.
 #[inline]
 pub fn srgb_to_linear(v: f32) -> f32 {
     if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
 }
 
+/// The sRGB encoding curve: linear light → encoded value (1 → 1; negatives → 0). Not
+/// clipped above 1.
 #[inline]
 pub fn linear_to_srgb(v: f32) -> f32 {
     if v <= 0.003_130_8 { v.max(0.0) * 12.92 } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 }

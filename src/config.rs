@@ -4,6 +4,8 @@
 //! it (and the closest valid key), so a typo never silently falls back to a default.
 
 use crate::error::{Error, Result};
+use crate::io::{BitDepth, OutputFormat};
+use crate::render;
 use crate::stages::background::InpaintOptions;
 use crate::stages::depth::DepthKind;
 use crate::stages::fill_depth::FillDepthOptions;
@@ -11,14 +13,22 @@ use crate::stages::segment::SegmentOptions;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// The whole `pipeline.toml`: one table per stage plus input, output, models and batch.
+/// Every key has a default (`Config::default()` is the bundled file).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
+    /// `[input]`: what the depth file holds and the decoding limit.
     pub input: InputConfig,
+    /// `[segment]`: where the foreground layer comes from.
     pub segment: SegmentOptions,
+    /// `[fill_depth]`: how the foreground's disparity is extended under its outline.
     pub fill_depth: FillDepthOptions,
+    /// `[inpaint]`: how the background behind the foreground is filled.
     pub inpaint: InpaintOptions,
+    /// `[render]`: kernel, blur strength, lens window, gamma, occlusion.
     pub render: RenderConfig,
+    /// `[output]`: PNG bit depth.
     pub output: OutputConfig,
     /// `[depth]`: the optional depth-estimation model (used when no depth map is given).
     pub depth: crate::onnx::DepthConfig,
@@ -28,6 +38,7 @@ pub struct Config {
     pub batch: BatchConfig,
 }
 
+/// `[batch]`: file pairing, output names and memory budget of `drbokeh batch`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BatchConfig {
@@ -38,8 +49,8 @@ pub struct BatchConfig {
     pub matte_patterns: Vec<String>,
     /// Output name pattern (`{stem}`), without extension.
     pub output_pattern: String,
-    /// Output format: "png", "exr" or "npy".
-    pub output_format: String,
+    /// Output format, also the outputs' extension: "png", "exr" or "npy".
+    pub output_format: OutputFormat,
     /// Images in flight never need more than this much memory (estimated from their size:
     /// about 200 bytes per pixel); one image is always allowed.
     pub memory_budget_mb: u64,
@@ -51,12 +62,13 @@ impl Default for BatchConfig {
             depth_patterns: vec!["{stem}.depth".into(), "{stem}_depth".into()],
             matte_patterns: vec!["{stem}.matte".into(), "{stem}_matte".into()],
             output_pattern: "{stem}_bokeh".into(),
-            output_format: "png".into(),
+            output_format: OutputFormat::Png,
             memory_budget_mb: 4096,
         }
     }
 }
 
+/// `[input]`: how input files are read.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct InputConfig {
@@ -85,9 +97,11 @@ pub enum KernelChoice {
     Fast,
 }
 
+/// `[render]`: the lens model's settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderConfig {
+    /// Which kernel renders the layers (see [`KernelChoice`]).
     pub kernel: KernelChoice,
     /// Fast-kernel quality, 1 (fastest) … 8 (converges to exact); 2 is the default.
     pub quality: u32,
@@ -119,16 +133,17 @@ impl Default for RenderConfig {
     }
 }
 
+/// `[output]`: how results are written.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
-    /// PNG bit depth: 8 or 16.
-    pub bit_depth: u8,
+    /// PNG bit depth: 8 or 16 (EXR and NPY outputs are always 32-bit float).
+    pub bit_depth: BitDepth,
 }
 
 impl Default for OutputConfig {
     fn default() -> Self {
-        OutputConfig { bit_depth: 8 }
+        OutputConfig { bit_depth: BitDepth::Eight }
     }
 }
 
@@ -152,15 +167,11 @@ impl Config {
     /// Checks value ranges that the types cannot express.
     pub fn validate(&self) -> Result<()> {
         let r = &self.render;
-        if let Some(k) = r.blur
-            && (!k.is_finite() || k < 0.0)
-        {
-            return Err(Error::usage(format!("render.blur must be a finite number >= 0, got {k}")));
+        if let Some(k) = r.blur {
+            render::check_blur("render.blur", k)?;
         }
-        if let Some(l) = r.lens
-            && (l == 0 || l % 2 == 0)
-        {
-            return Err(Error::usage(format!("render.lens must be odd and >= 1, got {l}")));
+        if let Some(l) = r.lens {
+            render::check_lens("render.lens", l)?;
         }
         if !(1..=8).contains(&r.quality) {
             return Err(Error::usage(format!("render.quality must be 1..=8, got {}", r.quality)));
@@ -169,15 +180,6 @@ impl Config {
             && !(g.is_finite() && g > 0.0)
         {
             return Err(Error::usage(format!("render.gamma must be a positive number, got {g}")));
-        }
-        if !matches!(self.output.bit_depth, 8 | 16) {
-            return Err(Error::usage(format!("output.bit_depth must be 8 or 16, got {}", self.output.bit_depth)));
-        }
-        if !matches!(self.batch.output_format.as_str(), "png" | "exr" | "npy") {
-            return Err(Error::usage(format!(
-                "batch.output_format must be \"png\", \"exr\" or \"npy\", got \"{}\"",
-                self.batch.output_format
-            )));
         }
         if !self.batch.output_pattern.contains("{stem}") {
             return Err(Error::usage("batch.output_pattern must contain {stem}"));

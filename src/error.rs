@@ -6,18 +6,27 @@ use std::path::{Path, PathBuf};
 /// Result alias used across the library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// Every error of the library, by whose fault it is: [`Error::Io`], [`Error::Input`] and
+/// [`Error::Usage`] are the user's (exit code 2), [`Error::Internal`] is not (exit code 1).
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// The file could not be opened, read or written.
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file at fault.
         path: PathBuf,
+        /// What the operating system said.
         #[source]
         source: std::io::Error,
     },
     /// The file was read but its content is unusable (corrupt, wrong format, wrong size, NaN...).
     #[error("{}: {msg}", path.display())]
-    Input { path: PathBuf, msg: String },
+    Input {
+        /// The file at fault.
+        path: PathBuf,
+        /// What is wrong with its content.
+        msg: String,
+    },
     /// A parameter (flag, config key) is invalid; the message names it.
     #[error("{0}")]
     Usage(String),
@@ -27,14 +36,17 @@ pub enum Error {
 }
 
 impl Error {
+    /// An [`Error::Io`] on `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
         Error::Io { path: path.as_ref().to_path_buf(), source }
     }
 
+    /// An [`Error::Input`]: `path`'s content is unusable because of `msg`.
     pub fn input(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
         Error::Input { path: path.as_ref().to_path_buf(), msg: msg.into() }
     }
 
+    /// An [`Error::Usage`]; `msg` names the parameter (config key) at fault.
     pub fn usage(msg: impl Into<String>) -> Self {
         Error::Usage(msg.into())
     }

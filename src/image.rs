@@ -4,10 +4,15 @@
 //! says (linear radiance, alpha, disparity...); the type carries no colour space. Every stage,
 //! loader and kernel works on this one type so that nothing is written twice per pixel type.
 
+/// A `width × height` raster of `channels` interleaved `f32` values per pixel (see the
+/// module doc).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
+    /// Pixels per row.
     pub width: usize,
+    /// Rows, top first.
     pub height: usize,
+    /// Values per pixel (1 grey/matte/disparity, 3 RGB, 5 layer R,G,B,A,D...).
     pub channels: usize,
     /// `height * width * channels` values, interleaved.
     pub data: Vec<f32>,
@@ -19,6 +24,7 @@ impl Image {
         Self::filled(width, height, channels, 0.0)
     }
 
+    /// An image with every value `value`. Allocates `width * height * channels` floats.
     pub fn filled(width: usize, height: usize, channels: usize, value: f32) -> Self {
         Image { width, height, channels, data: vec![value; width * height * channels] }
     }
@@ -28,10 +34,12 @@ impl Image {
         (data.len() == width * height * channels).then_some(Image { width, height, channels, data })
     }
 
+    /// `width * height` (not counting channels).
     pub fn pixel_count(&self) -> usize {
         self.width * self.height
     }
 
+    /// True when the image has no pixels (zero width or height).
     pub fn is_empty(&self) -> bool {
         self.width == 0 || self.height == 0
     }
@@ -42,12 +50,14 @@ impl Image {
         (y * self.width + x) * self.channels
     }
 
+    /// The `channels` values of pixel (x, y); `x < width`, `y < height` (beyond the data, panics).
     #[inline]
     pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
         let i = self.index(x, y);
         &self.data[i..i + self.channels]
     }
 
+    /// The `channels` values of pixel (x, y), writable; same bounds as [`Image::pixel`].
     #[inline]
     pub fn pixel_mut(&mut self, x: usize, y: usize) -> &mut [f32] {
         let i = self.index(x, y);

@@ -7,22 +7,29 @@ use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::io::{self, ReadLimits};
-use crate::pipeline::{Focus, Outcome, Pipeline, Report, Scene, StageReport};
+use crate::pipeline::{BuildLayers, Focus, Outcome, Pipeline, Report, Scene, StageReport};
 use crate::render::Layer;
 use crate::stages::depth;
+use crate::timing::ms_since;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The files of one job and where its result goes.
 #[derive(Clone, Debug)]
 pub struct Job {
+    /// The photo (PNG/JPEG/TIFF/EXR); None with `layers`.
     pub image: Option<PathBuf>,
+    /// Its depth map; None asks the configured depth model.
     pub depth: Option<PathBuf>,
+    /// Its optional foreground matte.
     pub matte: Option<PathBuf>,
     /// Ready-made layers (front first) instead of image + depth.
     pub layers: Vec<PathBuf>,
+    /// Where the focal plane is.
     pub focus: Focus,
+    /// The result file; its extension picks the format (png, exr, npy).
     pub output: PathBuf,
+    /// Folder to write the rendered layers to (see [`save_layers`]), if any.
     pub save_layers: Option<PathBuf>,
 }
 
@@ -48,7 +55,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         // Every name the layers may get (the pipeline makes one or two), before the run
         // spends any time; `save_layers` checks again what it actually writes.
         for n in [1, 2, job.layers.len()] {
-            inputs.check_writes(layer_file_names(dir, n).iter().flat_map(LayerFiles::all), "--save-layers file")?;
+            inputs.check_writes(layer_file_names(dir, n).iter().flat_map(LayerFiles::all), "job.save_layers file")?;
         }
     }
     let format = io::OutputFormat::from_path(output)?;
@@ -70,12 +77,12 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 Ok(l)
             })
             .collect::<Result<Vec<_>>>()?;
-        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
+        let read_ms = ms_since(t_read);
         let mut out = pipeline.render_layers(layers, focus)?;
-        out.report.stages.insert(0, stage("read", read_ms));
+        out.report.stages.insert(0, StageReport::ran("read", read_ms, None));
         out
     } else {
-        let image_path = job.image.as_ref().ok_or_else(|| Error::usage("an IMAGE (or --layer) is required"))?;
+        let image_path = job.image.as_ref().ok_or_else(|| Error::usage("a job needs an image (or layers)"))?;
         let rgb = io::read_photo(image_path, transfer, &limits)?;
         let mut depth_stage = None;
         let disparity = match &job.depth {
@@ -92,8 +99,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 let (d, r) = crate::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx)?;
                 read_warnings.extend(r.warnings.iter().cloned());
                 let detail = serde_json::to_value(&r).ok();
-                depth_stage =
-                    Some(StageReport { name: "depth_model", status: "ran", reason: None, ms: t.elapsed().as_secs_f64() * 1e3, detail });
+                depth_stage = Some(StageReport::ran("depth_model", ms_since(t), detail));
                 d
             }
         };
@@ -101,20 +107,21 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             Some(p) => Some(fit_to(io::read_matte(p, &limits)?, &rgb, p, image_path, &mut read_warnings)?),
             None => None,
         };
-        let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
-        let mut out = pipeline.run_with(&Scene { rgb, disparity, matte }, focus, job.save_layers.is_some())?;
+        let read_ms = ms_since(t_read);
+        let build = if job.save_layers.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
+        let mut out = pipeline.run_with(&Scene { rgb, disparity, matte }, focus, build)?;
         if let Some(s) = depth_stage {
             out.report.stages.insert(0, s);
         }
-        out.report.stages.insert(0, stage("read", read_ms));
+        out.report.stages.insert(0, StageReport::ran("read", read_ms, None));
         out
     };
     let Outcome { mut image, layers, mut report } = outcome;
     report.warnings.splice(0..0, read_warnings);
-    if cfg.output.bit_depth != 8 && format != io::OutputFormat::Png {
+    if cfg.output.bit_depth != io::BitDepth::Eight && format != io::OutputFormat::Png {
         report.warnings.push(format!(
-            "a bit depth of {} (output.bit_depth, --bit-depth) applies to PNG outputs only; {} is written as 32-bit float",
-            cfg.output.bit_depth,
+            "a bit depth of {} (output.bit_depth) applies to PNG outputs only; {} is written as 32-bit float",
+            cfg.output.bit_depth.bits(),
             output.display()
         ));
     }
@@ -122,7 +129,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     if let Some(dir) = &job.save_layers {
         let t = Instant::now();
         save_layers(dir, &layers, &inputs)?;
-        report.stages.push(stage("save_layers", t.elapsed().as_secs_f64() * 1e3));
+        report.stages.push(StageReport::ran("save_layers", ms_since(t), None));
     }
 
     let t_write = Instant::now();
@@ -133,15 +140,11 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         }
         None => Transfer::Srgb,
     };
-    io::write_output(output, &image, cfg.output.bit_depth, png_transfer)?;
-    report.stages.push(stage("write", t_write.elapsed().as_secs_f64() * 1e3));
+    io::write_output(output, &image, cfg.output.bit_depth.bits(), png_transfer)?;
+    report.stages.push(StageReport::ran("write", ms_since(t_write), None));
     report.output = Some(output.display().to_string());
-    report.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+    report.total_ms = ms_since(t0);
     Ok(report)
-}
-
-pub(crate) fn stage(name: &'static str, ms: f64) -> StageReport {
-    StageReport { name, status: "ran", reason: None, ms, detail: None }
 }
 
 /// Cheap checks before anything is decoded or rendered, from file headers and the file
@@ -227,7 +230,9 @@ pub struct LayerFiles {
     pub exr: PathBuf,
     /// Previews: sRGB colour, alpha, 16-bit disparity.
     pub color: PathBuf,
+    /// Preview of the layer's alpha (8-bit grey PNG).
     pub alpha: PathBuf,
+    /// Preview of the layer's disparity (16-bit grey PNG, 0 far … 1 near).
     pub disparity: PathBuf,
 }
 
@@ -266,7 +271,7 @@ pub fn layer_file_names(dir: &Path, n: usize) -> Vec<LayerFiles> {
 /// name that is one of the run's `inputs`.
 pub fn save_layers(dir: &Path, layers: &[Layer], inputs: &io::InputFiles) -> Result<()> {
     let files = layer_file_names(dir, layers.len());
-    inputs.check_writes(files.iter().flat_map(LayerFiles::all), "--save-layers file")?;
+    inputs.check_writes(files.iter().flat_map(LayerFiles::all), "job.save_layers file")?;
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     for (f, l) in files.iter().zip(layers) {
         let img = l.image();

@@ -5,6 +5,8 @@
 //! lens model and composites front to back; `pipeline` ties it together for the CLI and for
 //! library users.
 
+#![warn(missing_docs)]
+
 pub mod batch;
 pub mod bench;
 pub mod color;
@@ -18,6 +20,7 @@ pub mod pipeline;
 pub mod render;
 pub mod resources;
 pub mod stages;
+pub mod timing;
 
 pub use config::Config;
 pub use error::{Error, Result};

@@ -5,9 +5,11 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use drbokeh::Error;
 use drbokeh::config::{Config, KernelChoice};
+use drbokeh::io::BitDepth;
 use drbokeh::job::{self, Job};
 use drbokeh::pipeline::{Focus, Pipeline};
 use drbokeh::stages::depth::DepthKind;
+use drbokeh::timing::ms_since;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -70,6 +72,26 @@ enum InpaintArg {
     Telea,
     /// The inpainting model of [inpaint.onnx] (or lama.onnx in --model-dir).
     Onnx,
+}
+
+/// `--bit-depth`: bits per sample of a PNG output.
+#[derive(Clone, Copy, ValueEnum)]
+enum BitDepthArg {
+    /// 8 bits per sample.
+    #[value(name = "8")]
+    Eight,
+    /// 16 bits per sample.
+    #[value(name = "16")]
+    Sixteen,
+}
+
+impl From<BitDepthArg> for BitDepth {
+    fn from(b: BitDepthArg) -> BitDepth {
+        match b {
+            BitDepthArg::Eight => BitDepth::Eight,
+            BitDepthArg::Sixteen => BitDepth::Sixteen,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -152,8 +174,8 @@ pub(crate) struct PipelineArgs {
     #[arg(long, value_enum)]
     profile: Option<ProfileArg>,
     /// PNG bit depth (8 or 16).
-    #[arg(long, value_name = "BITS", value_parser = clap::builder::PossibleValuesParser::new(["8", "16"]))]
-    bit_depth: Option<String>,
+    #[arg(long, value_name = "BITS", value_enum)]
+    bit_depth: Option<BitDepthArg>,
     /// Worker threads [default: all cores].
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
@@ -241,8 +263,8 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     if args.no_occlusion {
         r.occlusion = false;
     }
-    if let Some(b) = &args.bit_depth {
-        cfg.output.bit_depth = b.parse().expect("validated by clap");
+    if let Some(b) = args.bit_depth {
+        cfg.output.bit_depth = b.into();
     }
     if let Some(s) = args.segment {
         use drbokeh::stages::segment::SegmentMethod;
@@ -273,20 +295,44 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     Ok(cfg)
 }
 
+/// The names the library gives parameters in its messages (config keys such as `render.lens`,
+/// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
+/// starts another key comes after it (`render.focus_at` before `render.focus`).
+const FLAGS: [(&str, &str); 21] = [
+    ("render.occlusion = false", "--no-occlusion"),
+    ("render.profile", "--profile"),
+    ("render.kernel", "--kernel"),
+    ("render.focus_depth", "--focus-depth"),
+    ("render.focus_at", "--focus-at"),
+    ("render.focus", "--focus"),
+    ("render.blur", "--blur"),
+    ("render.lens", "--lens"),
+    ("render.gamma", "--gamma"),
+    ("render.quality", "--quality"),
+    ("input.depth_kind = \"depth\"", "--depth-kind depth"),
+    ("output.bit_depth", "--bit-depth"),
+    ("batch.manifest", "--manifest"),
+    ("job.save_layers", "--save-layers"),
+    ("job.depth", "--depth"),
+    ("onnx.model_dir", "--model-dir"),
+    ("trace.blur", "--blur"),
+    ("trace.focus", "--focus"),
+    ("trace.spp", "--spp"),
+    ("bench.size", "--size"),
+    ("bench.methods", "--methods"),
+];
+
+/// `msg` with every library parameter name replaced by its flag (see [`FLAGS`]).
+pub(crate) fn flag_names(msg: &str) -> String {
+    FLAGS.iter().fold(msg.to_owned(), |m, (key, flag)| m.replace(key, flag))
+}
+
 /// The library names parameters by their config keys (`render.lens`); on the command line
-/// they are flags.
+/// they are flags. Only usage errors are rewritten: an error in a config file (an input error
+/// naming the file) keeps the file's keys.
 pub(crate) fn as_flags(e: Error) -> Error {
-    const KEYS: [(&str, &str); 7] = [
-        ("render.blur", "--blur"),
-        ("render.lens", "--lens"),
-        ("render.gamma", "--gamma"),
-        ("render.quality", "--quality"),
-        ("render.focus", "--focus"),
-        ("render.profile", "--profile"),
-        ("render.kernel", "--kernel"),
-    ];
     match e {
-        Error::Usage(m) => Error::Usage(KEYS.iter().fold(m, |m, (key, flag)| m.replace(key, flag))),
+        Error::Usage(m) => Error::Usage(flag_names(&m)),
         other => other,
     }
 }
@@ -336,11 +382,19 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     let shown = std::sync::Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
     let seen = shown.clone();
     let pipeline = Pipeline::from_config(cfg)?.with_notice(Box::new(move |m| {
+        let m = flag_names(m);
         eprintln!("warning: {m}");
-        seen.lock().map(|mut s| s.push(m.to_owned())).ok();
+        seen.lock().map(|mut s| s.push(m)).ok();
     }));
     let mut report = job::run(&pipeline, &job).map_err(as_flags)?;
-    report.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+    // The report speaks the library's names too: the JSON and the messages get the flags.
+    for w in &mut report.warnings {
+        *w = flag_names(w);
+    }
+    for r in report.stages.iter_mut().filter_map(|s| s.reason.as_mut()) {
+        *r = flag_names(r);
+    }
+    report.total_ms = ms_since(t0);
     let output = job.output;
 
     let shown = shown.lock().map(|s| s.clone()).unwrap_or_default();
@@ -366,4 +420,20 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         eprintln!("wrote {}", output.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn longer_keys_are_replaced_first() {
+        // A key replaced first must not be the start of one replaced after it.
+        for (i, (first, _)) in FLAGS.iter().enumerate() {
+            for (after, _) in &FLAGS[i + 1..] {
+                assert!(!after.starts_with(first), "{after} must come before {first}");
+            }
+        }
+        assert_eq!(flag_names("render.focus_at 3,4 and render.focus"), "--focus-at 3,4 and --focus");
+    }
 }

@@ -7,11 +7,12 @@
 use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render::{self, Kernel, Layer, RenderSettings};
+use crate::render::{self, Kernel, Layer, RenderSettings, lens};
 use crate::stages::background::inpaint_background;
 use crate::stages::depth::Disparity;
 use crate::stages::fill_depth::foreground_disparity;
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
+use crate::timing::ms_since;
 use serde::Serialize;
 use std::time::Instant;
 
@@ -36,57 +37,96 @@ pub enum Focus {
     Depth(f64),
 }
 
+/// Whether a stage ran (serialized lowercase: "ran", "skipped").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StageStatus {
+    /// The stage did its work; `ms` is how long it took.
+    Ran,
+    /// The stage was not needed; `reason` says why and `ms` is 0.
+    Skipped,
+}
+
 /// What happened in one stage.
 #[derive(Clone, Debug, Serialize)]
 pub struct StageReport {
+    /// The stage: "read", "depth_model", "segment", "fill_depth", "inpaint", "render",
+    /// "save_layers" or "write".
     pub name: &'static str,
-    /// "ran" or "skipped".
-    pub status: &'static str,
+    /// Whether it ran.
+    pub status: StageStatus,
+    /// Why it was skipped (absent when it ran).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// Wall-clock time it took, milliseconds (0 when skipped).
     pub ms: f64,
+    /// Stage-specific numbers (pixels filled, kernel used, model report...), as JSON.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub detail: Option<serde_json::Value>,
+}
+
+impl StageReport {
+    /// A stage that ran for `ms` milliseconds, with optional `detail`.
+    pub fn ran(name: &'static str, ms: f64, detail: Option<serde_json::Value>) -> Self {
+        StageReport { name, status: StageStatus::Ran, reason: None, ms, detail }
+    }
+
+    /// A stage that was skipped, and why.
+    pub fn skipped(name: &'static str, reason: impl Into<String>) -> Self {
+        StageReport { name, status: StageStatus::Skipped, reason: Some(reason.into()), ms: 0.0, detail: None }
+    }
 }
 
 /// The parameters a render actually used.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct UsedParams {
+    /// Image width, pixels.
     pub width: usize,
+    /// Image height, pixels.
     pub height: usize,
+    /// Blur strength K used: pixels of CoC radius per unit of normalized disparity.
     pub blur: f32,
+    /// Focal plane used, normalized disparity in [0, 1] (after clamping).
     pub focus: f32,
+    /// Lens window side, pixels (odd); 0 when nothing was rendered.
     pub lens: usize,
+    /// The kernel: "exact", "fast (quality Q)", or "none" when nothing was rendered.
     pub kernel: String,
+    /// False for the classical scatter baseline (no occlusion terms).
     pub occlusion: bool,
+    /// The naive gamma G when used; None: exact sRGB transfer.
     pub gamma: Option<f32>,
+    /// Number of layers (1 or 2 from the pipeline; as given otherwise).
     pub layers: usize,
+    /// Largest circle-of-confusion radius in the scene, pixels.
     pub max_coc_radius_px: f32,
+    /// Worker threads the render used.
     pub threads: usize,
 }
 
 /// Machine-readable summary of a run (`--json`).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Report {
+    /// Every stage, in order, ran or skipped.
     pub stages: Vec<StageReport>,
+    /// The parameters the render actually used.
     pub params: UsedParams,
+    /// What the user should know (filled depth, clamped focus, long renders...).
     pub warnings: Vec<String>,
+    /// The written file (set by [`crate::job::run`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub output: Option<String>,
+    /// Wall-clock time of the whole run, milliseconds.
     pub total_ms: f64,
 }
 
 impl Report {
     fn ran(&mut self, name: &'static str, t: Instant, detail: Option<serde_json::Value>) {
-        self.stages.push(StageReport { name, status: "ran", reason: None, ms: ms(t), detail });
+        self.stages.push(StageReport::ran(name, ms_since(t), detail));
     }
     fn skipped(&mut self, name: &'static str, reason: impl Into<String>) {
-        self.stages.push(StageReport { name, status: "skipped", reason: Some(reason.into()), ms: 0.0, detail: None });
+        self.stages.push(StageReport::skipped(name, reason));
     }
-}
-
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 /// The result of a run.
@@ -95,12 +135,16 @@ pub struct Outcome {
     pub image: Image,
     /// The layers that were rendered, front first (empty when rendering was skipped).
     pub layers: Vec<Layer>,
+    /// What ran, what was skipped and why, with timings.
     pub report: Report,
 }
 
 /// Receives a warning the moment it is known (a long exact render is announced before it
 /// starts, not in the report after it).
 pub type Notice = Box<dyn Fn(&str) + Send + Sync>;
+
+/// Why the scene is one layer when occlusion is off (the `segment` stage's skip reason).
+const NO_OCCLUSION_ONE_LAYER: &str = "render.occlusion = false renders the scene as one layer";
 
 /// The configured pipeline.
 pub struct Pipeline {
@@ -111,6 +155,39 @@ pub struct Pipeline {
 /// An exact-kernel render estimated to take longer than this (seconds) is announced.
 const LONG_EXACT_SECONDS: f64 = 60.0;
 
+/// A circle of confusion smaller than this radius (pixels) moves no pixel's colour visibly:
+/// below it everywhere, the scene counts as all in focus.
+const SHARP_COC_PX: f32 = 0.5;
+
+/// The "nothing is out of focus" rule: with the automatic kernel choice and every circle of
+/// confusion below [`SHARP_COC_PX`] (`max_coc` = the largest radius, pixels), rendering is
+/// skipped; returns the reason for the report. None when something must be rendered (an
+/// explicitly chosen kernel always runs).
+fn nothing_out_of_focus(kernel: KernelChoice, max_coc: f32) -> Option<String> {
+    (kernel == KernelChoice::Auto && max_coc < SHARP_COC_PX)
+        .then(|| format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px)"))
+}
+
+/// Whether [`Pipeline::run_with`] builds the layers when nothing is out of focus.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BuildLayers {
+    /// Only when they are rendered: an all-in-focus scene returns the photo at once.
+    WhenRendered,
+    /// Always (for `--save-layers`), even when rendering is skipped.
+    Always,
+}
+
+/// Where the layers given to `render_prepared` come from, which decides who applies the
+/// "nothing out of focus" rule.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum LayerOrigin {
+    /// Built by [`Pipeline::run_with`], which has applied the rule on the scene's disparity.
+    Built,
+    /// Given by the caller: the rule is applied here, on the layers, and an all-sharp set is
+    /// alpha-composited.
+    Given,
+}
+
 /// Default blur strength for an image: the official K = 30 at 1 MP, scaled with the image's
 /// linear size so the look does not change with resolution.
 pub fn default_blur(width: usize, height: usize) -> f32 {
@@ -118,6 +195,7 @@ pub fn default_blur(width: usize, height: usize) -> f32 {
 }
 
 impl Pipeline {
+    /// A pipeline running `config`, after [`Config::validate`] (a bad value is a usage error naming its key).
     pub fn from_config(config: Config) -> Result<Self> {
         config.validate()?;
         Ok(Pipeline { config, notice: None })
@@ -137,6 +215,7 @@ impl Pipeline {
         report.warnings.push(msg);
     }
 
+    /// The configuration it runs with.
     pub fn config(&self) -> &Config {
         &self.config
     }
@@ -153,16 +232,11 @@ impl Pipeline {
         report: &mut Report,
     ) -> Result<f32> {
         let f = match focus {
-            Focus::Disparity(f) => {
-                if !f.is_finite() {
-                    return Err(Error::usage(format!("--focus must be a finite number, got {f}")));
-                }
-                f
-            }
+            Focus::Disparity(f) => render::check_focus("render.focus", f)?,
             Focus::At(x, y) => disparity_at(x, y)?,
             Focus::Depth(z) => match disp {
                 Some(d) => d.disparity_of_depth(z)?,
-                None => return Err(Error::usage("--focus-depth needs a depth map; with --layer inputs use --focus")),
+                None => return Err(Error::usage("render.focus_depth needs a depth map; with given layers use render.focus")),
             },
         };
         if !(0.0..=1.0).contains(&f) {
@@ -175,12 +249,12 @@ impl Pipeline {
 
     /// Runs segmentation, depth filling, inpainting and rendering on a decoded scene.
     pub fn run(&self, scene: &Scene, focus: Focus) -> Result<Outcome> {
-        self.run_with(scene, focus, false)
+        self.run_with(scene, focus, BuildLayers::WhenRendered)
     }
 
-    /// [`Pipeline::run`]; with `need_layers`, the layers are built even when nothing is out
-    /// of focus and rendering is skipped (for `--save-layers`).
-    pub fn run_with(&self, scene: &Scene, focus: Focus, need_layers: bool) -> Result<Outcome> {
+    /// [`Pipeline::run`]; with [`BuildLayers::Always`], the layers are built even when nothing
+    /// is out of focus and rendering is skipped (for `--save-layers`).
+    pub fn run_with(&self, scene: &Scene, focus: Focus, build: BuildLayers) -> Result<Outcome> {
         let t0 = Instant::now();
         let cfg = &self.config;
         let (w, h) = (scene.rgb.width, scene.rgb.height);
@@ -194,18 +268,16 @@ impl Pipeline {
         }
         let focus = Self::resolve_focus(focus, |x, y| scene.disparity.disparity_at(x, y), Some(&scene.disparity), &mut report)?;
         let blur = self.blur_for(w, h);
-        let max_coc = disp.data.iter().map(|&d| (d - focus).abs() * blur).fold(0.0, f32::max);
+        let max_coc = disp.data.iter().map(|&d| lens::coc_radius(d - focus, blur)).fold(0.0, f32::max);
 
-        // Nothing is out of focus: the photo is its own answer (unless the exact kernel is asked for).
-        let sharp = cfg.render.kernel == KernelChoice::Auto && max_coc < 0.5;
-        let sharp_why = format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px)");
-        if sharp && !need_layers {
-            let why = sharp_why;
+        // Nothing is out of focus: the photo is its own answer (unless a kernel is asked for).
+        let sharp = nothing_out_of_focus(cfg.render.kernel, max_coc);
+        if let (Some(why), BuildLayers::WhenRendered) = (&sharp, build) {
             for name in ["segment", "fill_depth", "inpaint", "render"] {
                 report.skipped(name, why.clone());
             }
             report.params = self.params((w, h), (blur, focus, 0), "none", 0, max_coc);
-            report.total_ms = ms(t0);
+            report.total_ms = ms_since(t0);
             return Ok(Outcome { image: scene.rgb.clone(), layers: Vec::new(), report });
         }
 
@@ -218,8 +290,8 @@ impl Pipeline {
         };
 
         let layers = if !cfg.render.occlusion {
-            report.skipped("segment", "--no-occlusion renders the scene as one layer");
-            single(&mut report, "--no-occlusion renders the scene as one layer")?
+            report.skipped("segment", NO_OCCLUSION_ONE_LAYER);
+            single(&mut report, NO_OCCLUSION_ONE_LAYER)?
         } else {
             let t = Instant::now();
             let mut seg_model = None;
@@ -230,7 +302,7 @@ impl Pipeline {
                     seg_model = Some(r);
                     s
                 }
-                (SegmentMethod::Matte, None) => return Err(Error::usage("segment.method = \"matte\" needs --matte")),
+                (SegmentMethod::Matte, None) => return Err(Error::usage("segment.method = \"matte\" needs a matte (the scene has none)")),
                 (SegmentMethod::Auto | SegmentMethod::Matte, Some(m)) => segment::from_matte(m),
                 _ => segment::from_disparity(disp, &cfg.segment),
             };
@@ -284,14 +356,14 @@ impl Pipeline {
                 }
             }
         };
-        if sharp {
-            report.skipped("render", sharp_why);
+        if let Some(why) = sharp {
+            report.skipped("render", why);
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
-            report.total_ms = ms(t0);
+            report.total_ms = ms_since(t0);
             return Ok(Outcome { image: scene.rgb.clone(), layers, report });
         }
-        let mut out = self.render_prepared(layers, focus, blur, report, false)?;
-        out.report.total_ms = ms(t0);
+        let mut out = self.render_prepared(layers, focus, blur, report, LayerOrigin::Built)?;
+        out.report.total_ms = ms_since(t0);
         Ok(out)
     }
 
@@ -306,7 +378,7 @@ impl Pipeline {
         let mut report = Report::default();
         let at = |x: i64, y: i64| -> Result<f32> {
             if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-                return Err(Error::usage(format!("--focus-at {x},{y} is outside the {w}x{h} layers")));
+                return Err(Error::usage(format!("render.focus_at {x},{y} is outside the {w}x{h} layers")));
             }
             let i = y as usize * w + x as usize;
             // The front-most layer that is mostly opaque there is what the user clicked on.
@@ -320,25 +392,20 @@ impl Pipeline {
         let blur = self.blur_for(w, h);
         let mut layers = layers;
         if !self.config.render.occlusion && layers.len() > 1 {
-            report.warnings.push("--no-occlusion renders only the back layer of the given layers".into());
+            report.warnings.push("render.occlusion = false renders only the back layer of the given layers".into());
             layers = vec![layers.pop().expect("non-empty")];
         }
-        let mut out = self.render_prepared(layers, focus, blur, report, true)?;
-        out.report.total_ms = ms(t0);
+        let mut out = self.render_prepared(layers, focus, blur, report, LayerOrigin::Given)?;
+        out.report.total_ms = ms_since(t0);
         Ok(out)
     }
 
-    fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, mut report: Report, given: bool) -> Result<Outcome> {
+    fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, mut report: Report, origin: LayerOrigin) -> Result<Outcome> {
         let rc = &self.config.render;
         let (w, h) = (layers[0].width(), layers[0].height());
         let max_coc = render::max_scatter_radius(&layers, blur, focus) - 1.0;
-        if given && rc.kernel == KernelChoice::Auto && max_coc < 0.5 {
-            report.skipped(
-                "render",
-                format!(
-                    "no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px): front-to-back alpha composite"
-                ),
-            );
+        if let (LayerOrigin::Given, Some(why)) = (origin, nothing_out_of_focus(rc.kernel, max_coc)) {
+            report.skipped("render", format!("{why}: front-to-back alpha composite"));
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
             return Ok(Outcome { image: render::alpha_composite(&layers), layers, report });
         }

@@ -396,7 +396,7 @@ fn nan_output_missing_and_invalid_files() {
     let e = matte_err(&spec("lama.onnx", "lama"));
     assert!(e.contains("\"lama\""), "{e}");
     let e = matte_err(&ModelSpec::default());
-    assert!(e.contains("--model-dir") && e.contains("u2net.onnx"), "{e}");
+    assert!(e.contains("onnx.model_dir") && e.contains("u2net.onnx"), "{e}");
 }
 
 #[test]

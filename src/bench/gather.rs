@@ -9,6 +9,7 @@
 //! (O(r) per pixel). Borders replicate.
 
 use crate::image::Image;
+use crate::render::lens::coc_radius;
 use rayon::prelude::*;
 
 /// Gathers `rgb` (linear, 3 channels) with per-pixel CoC radii from `disparity` (one channel).
@@ -31,7 +32,7 @@ pub fn gather(rgb: &Image, disparity: &Image, blur: f32, focus: f32) -> Image {
     let mut out = Image::new(w, h, 3);
     out.data.par_chunks_mut(w * 3).enumerate().for_each(|(y, row)| {
         for x in 0..w {
-            let r = blur * (disparity.data[y * w + x] - focus).abs();
+            let r = coc_radius(disparity.data[y * w + x] - focus, blur);
             if r < 0.5 {
                 row[x * 3..x * 3 + 3].copy_from_slice(rgb.pixel(x, y));
                 continue;

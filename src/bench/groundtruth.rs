@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 
 /// One focus setting of a scene, with its ground truth.
 pub struct GtSetting {
+    /// The setting's name as the scene's params.json gives it (e.g. "focus_fg").
     pub name: String,
     /// Blur strength in normalized-disparity units (`K_norm`).
     pub blur: f32,
@@ -22,21 +23,29 @@ pub struct GtSetting {
     pub focus: f32,
     /// Largest visible CoC radius, px: the border to leave out when scoring.
     pub coc_max: f32,
+    /// The ground-truth render of this setting: linear RGB, the scene's size.
     pub gt: Image,
 }
 
 /// A loaded scene.
 pub struct GtScene {
+    /// The scene's name in reports: params.json's `scene`, else the folder's name.
     pub name: String,
+    /// The scene folder.
     pub dir: PathBuf,
+    /// The all-in-focus photo: linear RGB.
     pub aif: Image,
     /// Normalized disparity of the frontmost surface at each pixel centre.
     pub disparity: Image,
+    /// Foreground coverage in [0, 1] (one channel).
     pub alpha: Image,
     /// Premultiplied foreground colour.
     pub fg: Image,
+    /// The background alone (behind the foreground), linear RGB.
     pub bg: Image,
+    /// Normalized disparity of the background alone (one channel).
     pub bg_disparity: Image,
+    /// The focus settings, each with its ground truth.
     pub settings: Vec<GtSetting>,
 }
 
@@ -45,6 +54,7 @@ fn num(v: &serde_json::Value, key: &str, file: &Path) -> Result<f64> {
 }
 
 impl GtScene {
+    /// Reads a scene folder: `params.json` and the images it names; every error names the file.
     pub fn load(dir: &Path) -> Result<GtScene> {
         let pfile = dir.join("params.json");
         let text = crate::io::read_input_text(&pfile)?;

@@ -43,15 +43,20 @@ pub fn text_width(text: &str, scale: i32) -> i32 {
 /// One point of a series: median run time (ms), error value, label.
 #[derive(Clone, Debug)]
 pub struct Point {
+    /// Median run time, milliseconds (the x axis, logarithmic).
     pub time_ms: f64,
+    /// The error measure plotted (the y axis), e.g. PSNR in dB.
     pub value: f64,
+    /// Text drawn beside the point (the setting, e.g. "q2").
     pub label: String,
 }
 
 /// One method's settings.
 #[derive(Clone, Debug)]
 pub struct Series {
+    /// The legend entry.
     pub name: String,
+    /// The points, joined by a line in this order.
     pub points: Vec<Point>,
 }
 

@@ -49,17 +49,27 @@ fn cap(p: f64) -> f64 {
 /// Mean scores of a group of rows.
 #[derive(Clone, Copy, Debug)]
 pub struct Summary {
+    /// Rows averaged.
     pub n: usize,
+    /// Mean PSNR, dB, on sRGB-encoded output clipped to [0, 1] (each capped at `PSNR_CAP`).
     pub psnr_srgb: f64,
+    /// Mean SSIM (0 … 1, 1 = identical) on sRGB-encoded output clipped to [0, 1].
     pub ssim_srgb: f64,
+    /// Mean PSNR, dB, in linear light (peak 1, each capped at `PSNR_CAP`).
     pub psnr: f64,
+    /// Mean SSIM in linear light.
     pub ssim: f64,
+    /// Mean root-mean-square error in linear light.
     pub rmse: f64,
+    /// Mean RMSE after the best gain (exposure-insensitive), linear light.
     pub si_rmse: f64,
+    /// Mean zero-normalized cross-correlation, -1 … 1 (1 = identical up to gain and offset).
     pub zncc: f64,
+    /// Median run time, milliseconds.
     pub time_ms: f64,
 }
 
+/// Means of the rows' scores (PSNR capped first) and the median of their times.
 pub fn summarize(rows: &[&Row]) -> Summary {
     Summary {
         n: rows.len(),

@@ -24,6 +24,7 @@ use crate::io::{ReadLimits, read_photo};
 use crate::pipeline::{Focus, Pipeline, Scene};
 use crate::render::{self, Kernel, Layer, RenderSettings};
 use crate::stages::depth::Disparity;
+use crate::timing::ms_since;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -43,8 +44,10 @@ pub enum Method {
 }
 
 impl Method {
+    /// Every method, in report order (the default of `--methods`).
     pub const ALL: [Method; 5] = [Method::Layers, Method::Sliced, Method::Pipeline, Method::Scatter, Method::Gather];
 
+    /// The method's name in report.csv and report.md ("drbokeh-layers", ...).
     pub fn name(self) -> &'static str {
         match self {
             Method::Layers => "drbokeh-layers",
@@ -66,6 +69,7 @@ impl Method {
         }
     }
 
+    /// The method's legend in the plot and the crops.
     pub fn label(self) -> &'static str {
         match self {
             Method::Layers => "Dr.Bokeh, exact 2 layers",
@@ -109,7 +113,9 @@ impl Method {
 /// A kernel setting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Variant {
+    /// The exact kernel.
     Exact,
+    /// The fast kernel at this quality (1 … 8).
     Fast(u32),
     /// The physical lens profile, exact kernel.
     PhysicalExact,
@@ -118,6 +124,7 @@ pub enum Variant {
 }
 
 impl Variant {
+    /// The setting's name in reports: "exact", "fast-qQ" or "default".
     pub fn name(self) -> String {
         match self {
             Variant::Exact => "exact".into(),
@@ -140,15 +147,21 @@ impl Variant {
 /// Benchmark options (the `bench` subcommand's flags).
 #[derive(Clone, Debug)]
 pub struct BenchOptions {
+    /// Generated scenes (each is evaluated at several focus settings).
     pub scenes: usize,
+    /// Frame width of the generated scenes, pixels (>= 16).
     pub width: usize,
+    /// Frame height of the generated scenes, pixels (>= 16).
     pub height: usize,
+    /// Seed of the scene generator and of the tracer: equal seeds, equal scenes and truths.
     pub seed: u64,
     /// Evaluate on folders in the shared ground-truth format instead of generated scenes.
     pub groundtruth: Option<PathBuf>,
     /// Photos to texture the generated planes with (else procedural textures).
     pub textures: Option<PathBuf>,
+    /// The methods to run, at least one.
     pub methods: Vec<Method>,
+    /// The report folder (created).
     pub out: PathBuf,
     /// Rays per pixel of the traced ground truth.
     pub spp: u32,
@@ -181,33 +194,47 @@ impl Default for BenchOptions {
 
 /// One evaluated case: a scene at one focus setting, with its ground truth and inputs.
 pub struct Case {
+    /// The scene's name.
     pub scene: String,
+    /// The focus setting's name ("focus_fg", ...).
     pub setting: String,
     /// Report categories this case belongs to (`fg_in_focus`, `bg_in_focus`, `between`,
     /// `thin`, `highlights`).
     pub categories: Vec<&'static str>,
+    /// Blur strength K, pixels of CoC radius per unit of normalized disparity.
     pub blur: f32,
+    /// Focal plane, normalized disparity.
     pub focus: f32,
+    /// Largest CoC radius in the frame, pixels.
     pub max_coc: f32,
     /// Pixels left out at each border when scoring.
     pub border: usize,
+    /// The ground truth: linear RGB, the frame's size.
     pub gt: Image,
     /// Estimated RMS noise of `gt` (two-halves estimate), when it was traced here.
     pub gt_noise: Option<f64>,
+    /// What every method renders from (layers, photo, disparity, matte).
     pub inputs: SceneInputs,
 }
 
 /// The scores of one render against the ground truth.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Scores {
-    /// Linear light: RMSE, scale-invariant RMSE, PSNR (peak 1), SSIM (luminance, peak 1), ZNCC.
+    /// Root-mean-square error, linear light (the metrics below are linear too, up to the sRGB
+    /// ones).
     pub rmse: f64,
+    /// RMSE after the best gain (exposure-insensitive), linear light.
     pub si_rmse: f64,
+    /// PSNR, dB, linear light, peak 1 (+inf for identical images).
     pub psnr: f64,
+    /// Mean SSIM on luminance, linear light, peak 1 (1 = identical).
     pub ssim: f64,
+    /// Zero-normalized cross-correlation, -1 … 1 (1 = identical up to gain and offset).
     pub zncc: f64,
-    /// sRGB-encoded, clipped to [0, 1]: PSNR and SSIM (the headline figures).
+    /// PSNR, dB, of the sRGB-encoded images clipped to [0, 1] (a headline figure, with
+    /// `ssim_srgb`).
     pub psnr_srgb: f64,
+    /// Mean SSIM on luminance of the sRGB-encoded, clipped images.
     pub ssim_srgb: f64,
     /// sRGB PSNR over the whole frame, borders included.
     pub psnr_srgb_full: f64,
@@ -220,6 +247,8 @@ pub fn srgb(img: &Image) -> Image {
     o
 }
 
+/// Scores `img` against `gt` (both linear RGB, same size), leaving `border` pixels out at
+/// each side (except `psnr_srgb_full`). Allocates two sRGB copies of each image.
 pub fn score(img: &Image, gt: &Image, border: usize) -> Scores {
     let (a, b) = (srgb(img), srgb(gt));
     Scores {
@@ -237,21 +266,35 @@ pub fn score(img: &Image, gt: &Image, border: usize) -> Scores {
 /// One row of report.csv.
 #[derive(Clone, Debug)]
 pub struct Row {
+    /// The scene's name.
     pub scene: String,
+    /// The focus setting's name.
     pub setting: String,
+    /// Report categories of the case (see [`Case::categories`]).
     pub categories: Vec<&'static str>,
+    /// The method rendered.
     pub method: Method,
+    /// Its kernel setting.
     pub variant: Variant,
+    /// Frame width, pixels.
     pub width: usize,
+    /// Frame height, pixels.
     pub height: usize,
+    /// Worker threads the render used.
     pub threads: usize,
+    /// Blur strength K, pixels of CoC radius per unit of normalized disparity.
     pub blur: f32,
+    /// Focal plane, normalized disparity.
     pub focus: f32,
+    /// Largest CoC radius in the frame, pixels.
     pub max_coc: f32,
+    /// Pixels left out at each border when scoring.
     pub border: usize,
+    /// Renders timed for the median.
     pub runs: usize,
     /// Median wall time of one render, ms.
     pub time_ms: f64,
+    /// The render's scores against the ground truth.
     pub scores: Scores,
 }
 
@@ -267,7 +310,7 @@ pub fn load_textures(dir: &Path) -> Result<Vec<Image>> {
         .collect();
     paths.sort();
     if paths.is_empty() {
-        return Err(Error::input(dir, "--textures folder holds no PNG, JPEG, TIFF or EXR image"));
+        return Err(Error::input(dir, "the textures folder holds no PNG, JPEG, TIFF or EXR image"));
     }
     paths
         .iter()
@@ -291,7 +334,7 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
             .collect();
         dirs.sort();
         if dirs.is_empty() {
-            return Err(Error::input(dir, "no scene folder (with params.json) found for --groundtruth"));
+            return Err(Error::input(dir, "no scene folder (with params.json) found in this ground-truth folder"));
         }
         let mut n = 0;
         for d in dirs {
@@ -385,7 +428,7 @@ fn timed(repeats: usize, mut f: impl FnMut() -> Result<Image>) -> Result<(Image,
     loop {
         let t = Instant::now();
         out = f()?;
-        times.push(t.elapsed().as_secs_f64() * 1e3);
+        times.push(ms_since(t));
         if times.len() >= repeats.max(1) || t_all.elapsed().as_secs_f64() > 1.0 {
             break;
         }
@@ -436,6 +479,7 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
 
 /// A side-by-side crop kept for the report.
 pub struct CropPanel {
+    /// `SCENE_SETTING`, the crop's file name stem.
     pub name: String,
     /// How much better Dr.Bokeh (exact layers) is than the scatter baseline here (sRGB dB).
     pub gain: f64,
@@ -445,9 +489,13 @@ pub struct CropPanel {
 
 /// Everything a run produced.
 pub struct BenchResult {
+    /// One row per (case, method, setting), as in report.csv.
     pub rows: Vec<Row>,
+    /// The side-by-side crops written.
     pub crops: Vec<CropPanel>,
+    /// Estimated RMS noise of each traced ground truth (empty for loaded ground truths).
     pub gt_noise: Vec<f64>,
+    /// Cases evaluated.
     pub cases: usize,
 }
 
@@ -455,10 +503,10 @@ pub struct BenchResult {
 /// `opts.out`. `log` receives one line per case.
 pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult> {
     if opts.groundtruth.is_none() && (opts.width < 16 || opts.height < 16) {
-        return Err(Error::usage(format!("--size must be at least 16x16, got {}x{}", opts.width, opts.height)));
+        return Err(Error::usage(format!("bench.size must be at least 16x16, got {}x{}", opts.width, opts.height)));
     }
     if opts.methods.is_empty() {
-        return Err(Error::usage("--methods: no method selected"));
+        return Err(Error::usage("bench.methods: no method selected"));
     }
     std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
     let threads = rayon::current_num_threads();

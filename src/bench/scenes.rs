@@ -25,9 +25,11 @@ use crate::stages::inpaint::{TeleaOptions, inpaint_telea};
 pub struct Rng(u64);
 
 impl Rng {
+    /// A generator seeded with `seed` (equal seeds give equal sequences).
     pub fn new(seed: u64) -> Self {
         Rng(splitmix(seed))
     }
+    /// The next 64 uniformly distributed bits.
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         splitmix(self.0)
@@ -36,6 +38,7 @@ impl Rng {
     pub fn f32(&mut self) -> f32 {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
     }
+    /// Uniform in `[lo, hi)`.
     pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
         lo + (hi - lo) * self.f32()
     }
@@ -43,6 +46,7 @@ impl Rng {
     pub fn int(&mut self, lo: usize, hi: usize) -> usize {
         lo + (self.next_u64() % (hi - lo + 1) as u64) as usize
     }
+    /// True with probability `p` (0 never, 1 always).
     pub fn chance(&mut self, p: f32) -> bool {
         self.f32() < p
     }
@@ -51,12 +55,16 @@ impl Rng {
 /// Where the focal plane is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FocusKind {
+    /// On the front-most foreground plane (disparity 1).
     Foreground,
+    /// On the background (disparity 0).
     Background,
+    /// On the second-nearest foreground plane if there is one, else at disparity 0.5.
     Between,
 }
 
 impl FocusKind {
+    /// The name used in reports and scene names: "focus_fg", "focus_bg", "focus_mid".
     pub fn name(self) -> &'static str {
         match self {
             FocusKind::Foreground => "focus_fg",
@@ -69,30 +77,42 @@ impl FocusKind {
 /// One plane of a generated scene (padded size).
 #[derive(Clone, Debug)]
 pub struct SynthPlane {
+    /// The plane's name in reports ("bg" for the background).
     pub name: String,
+    /// True for foreground planes, false for the opaque background plane(s).
     pub foreground: bool,
     /// Straight linear RGB.
     pub rgb: Image,
+    /// Coverage in [0, 1] (one channel); all 1 for the background.
     pub alpha: Image,
+    /// Normalized disparity of the plane, constant over it (0 far … 1 near).
     pub disparity: f32,
 }
 
 /// A generated scene with its lens setting.
 #[derive(Clone, Debug)]
 pub struct SynthScene {
+    /// Scene name, "sNNN" by generation index.
     pub name: String,
+    /// Output width, pixels (the planes are `2·margin` wider).
     pub width: usize,
+    /// Output height, pixels (the planes are `2·margin` taller).
     pub height: usize,
     /// Off-frame content on each side of the planes, px.
     pub margin: usize,
     /// Front first.
     pub planes: Vec<SynthPlane>,
+    /// Blur strength K (pixels of CoC radius per unit of disparity), chosen to give `max_coc`.
     pub blur: f32,
+    /// Focal plane, normalized disparity.
     pub focus: f32,
+    /// Which plane the focus is on.
     pub focus_kind: FocusKind,
     /// Largest CoC radius in the scene, px.
     pub max_coc: f32,
+    /// True when a foreground plane is a bundle of thin bars (1–4 px wide).
     pub thin: bool,
+    /// True when the background carries small HDR highlights (radiance 5–50, radius 1.5–3 px).
     pub highlights: bool,
 }
 
@@ -462,7 +482,7 @@ pub fn generate(seed: u64, index: usize, width: usize, height: usize, photos: &[
         blur,
         focus,
         focus_kind,
-        max_coc: blur * dmax,
+        max_coc: crate::render::lens::coc_radius(dmax, blur),
         thin,
         highlights,
     }
@@ -517,6 +537,7 @@ impl SynthScene {
         self.planes.iter().map(|p| Plane::from_rgb_alpha(&p.rgb, &p.alpha, p.disparity)).collect()
     }
 
+    /// The output frame within the padded planes: `width × height` at (`margin`, `margin`).
     pub fn window(&self) -> super::trace::Window {
         super::trace::Window { x0: self.margin, y0: self.margin, width: self.width, height: self.height }
     }

@@ -63,7 +63,9 @@ pub enum Footprint {
 /// One fronto-parallel plane: premultiplied RGBA texels and a constant disparity.
 #[derive(Clone, Debug)]
 pub struct Plane {
+    /// Texels per row.
     pub width: usize,
+    /// Rows of texels.
     pub height: usize,
     /// Normalized disparity of the plane.
     pub disparity: f32,
@@ -167,11 +169,14 @@ pub struct TraceSettings {
     pub focus: f32,
     /// Rays per pixel (rounded up to a power of two: the sequence is stratified there).
     pub spp: u32,
+    /// Seed of the sample scrambles: equal seeds give bit-identical traces.
     pub seed: u64,
+    /// How the pixel footprint is integrated.
     pub footprint: Footprint,
 }
 
 impl TraceSettings {
+    /// Settings with the analytic footprint.
     pub fn new(blur: f32, focus: f32, spp: u32, seed: u64) -> Self {
         TraceSettings { blur, focus, spp, seed, footprint: Footprint::Analytic }
     }
@@ -181,13 +186,18 @@ impl TraceSettings {
 /// pixel (`x0`, `y0`). Planes may be larger than the output (a margin of off-frame content).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Window {
+    /// First column of the window, in plane pixels.
     pub x0: usize,
+    /// First row of the window, in plane pixels.
     pub y0: usize,
+    /// Output width, pixels.
     pub width: usize,
+    /// Output height, pixels.
     pub height: usize,
 }
 
 impl Window {
+    /// The whole `width × height` grid (no margin).
     pub fn full(width: usize, height: usize) -> Self {
         Window { x0: 0, y0: 0, width, height }
     }
@@ -210,14 +220,10 @@ pub fn validate(planes: &[Plane], s: &TraceSettings) -> Result<()> {
     if w == 0 || h == 0 {
         return Err(Error::usage("nothing to trace: the layers are empty"));
     }
-    if !s.blur.is_finite() || s.blur < 0.0 {
-        return Err(Error::usage(format!("--blur must be a finite number >= 0, got {}", s.blur)));
-    }
-    if !s.focus.is_finite() {
-        return Err(Error::usage(format!("--focus must be finite, got {}", s.focus)));
-    }
+    crate::render::check_blur("trace.blur", s.blur)?;
+    crate::render::check_focus("trace.focus", s.focus)?;
     if s.spp == 0 || s.spp > 1 << 20 {
-        return Err(Error::usage(format!("--spp must be in 1..=1048576, got {}", s.spp)));
+        return Err(Error::usage(format!("trace.spp must be in 1..=1048576, got {}", s.spp)));
     }
     Ok(())
 }

@@ -29,6 +29,7 @@ pub struct DepthMap {
     pub image: Image,
     /// Bits per sample in the file (8, 16, 32, 64). 8 means only 256 depth levels: worth a warning.
     pub bit_depth: u8,
+    /// The file's format (detected from its content).
     pub format: FileFormat,
     /// What the caller should tell the user (each names the file): today the precision warning
     /// of an 8-bit map.

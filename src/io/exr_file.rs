@@ -20,6 +20,7 @@ use std::path::Path;
 /// One channel of an EXR file, converted to `f32`.
 #[derive(Clone, Debug)]
 pub struct ExrChannel {
+    /// The channel's name in the file ("R", "A", "Z", "depth"...).
     pub name: String,
     /// `width * height` samples, row-major.
     pub data: Vec<f32>,
@@ -30,8 +31,11 @@ pub struct ExrChannel {
 /// All channels of the first layer of an EXR file, in the file's (alphabetical) order.
 #[derive(Clone, Debug)]
 pub struct ExrChannels {
+    /// Pixels per row.
     pub width: usize,
+    /// Rows.
     pub height: usize,
+    /// The channels, in the file's (alphabetical) order.
     pub channels: Vec<ExrChannel>,
 }
 

@@ -14,10 +14,15 @@ use std::path::Path;
 /// The input formats the readers understand.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FileFormat {
+    /// PNG: grey or RGB, optional alpha, up to 16 bits.
     Png,
+    /// JPEG, 8 bits.
     Jpeg,
+    /// TIFF: 8/16/32-bit unsigned or 16/32/64-bit float samples.
     Tiff,
+    /// OpenEXR: half or float channels, linear.
     Exr,
+    /// NumPy `.npy`: float32, float64, uint8 or uint16, H x W or H x W x C.
     Npy,
 }
 

@@ -38,6 +38,7 @@ pub struct Decoded {
     /// 1 (grey), 2 (grey + alpha), 3 (RGB) or 4 (RGBA) interleaved channels. Integer formats are
     /// scaled to [0, 1]; float formats hold the raw values.
     pub image: Image,
+    /// Whether the values are display-encoded (sRGB) or already linear.
     pub encoding: Encoding,
     /// Bits per sample in the file: 8 or 16 for integer formats, 16/32 for EXR (half/float),
     /// 32 for float TIFF and NPY.

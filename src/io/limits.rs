@@ -18,6 +18,7 @@ impl ReadLimits {
     /// The default limit: 200 million pixels (e.g. 16000 x 12500).
     pub const DEFAULT_MAX_PIXELS: u64 = 200_000_000;
 
+    /// Limits of at most `max_pixels` pixels per image.
     pub fn new(max_pixels: u64) -> Self {
         ReadLimits { max_pixels }
     }

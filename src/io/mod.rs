@@ -35,4 +35,4 @@ pub use layer::{LAYER_CHANNELS, LayerFile, read_layer, read_layer_file};
 pub use limits::ReadLimits;
 pub use matte::{MATTE_TOLERANCE, read_matte};
 pub use npy::{read_npy, save_npy};
-pub use write::{OutputFormat, default_channel_names, encode_png, write_output, write_png};
+pub use write::{BitDepth, OutputFormat, default_channel_names, encode_png, write_output, write_png};

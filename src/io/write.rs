@@ -11,15 +11,29 @@ use image::{ExtendedColorType, ImageEncoder};
 use std::io::Write;
 use std::path::Path;
 
-/// Output file formats, chosen from the extension.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+/// Output file formats, chosen from the extension (serialized lowercase, as the extension:
+/// "png", "exr", "npy").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum OutputFormat {
+    /// 8- or 16-bit PNG, transfer-encoded (sRGB or the naive gamma), clipped to [0, 1].
     Png,
+    /// OpenEXR, 32-bit float, linear, unclipped.
     Exr,
+    /// NumPy `.npy`, float32, linear, unclipped (H x W or H x W x C).
     Npy,
 }
 
 impl OutputFormat {
+    /// The file extension, without the dot (lowercase; also the serialized name).
+    pub fn extension(self) -> &'static str {
+        match self {
+            OutputFormat::Png => "png",
+            OutputFormat::Exr => "exr",
+            OutputFormat::Npy => "npy",
+        }
+    }
+
     /// `.png`, `.exr` or `.npy` (case-insensitive); anything else is an error naming the
     /// extension and the supported ones.
     pub fn from_path(path: &Path) -> Result<OutputFormat> {
@@ -30,6 +44,45 @@ impl OutputFormat {
             Some("npy") => Ok(OutputFormat::Npy),
             Some(other) => Err(Error::input(path, format!("unsupported output extension '.{other}'; use .png, .exr or .npy"))),
             None => Err(Error::input(path, "output file has no extension; use .png, .exr or .npy")),
+        }
+    }
+}
+
+/// Bits per sample of a PNG output. Serialized as the number (8 or 16), so `output.bit_depth`
+/// reads and writes as before; any other number is refused when the config is parsed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(try_from = "u8", into = "u8")]
+pub enum BitDepth {
+    /// 8 bits per sample: 256 levels, enough for display.
+    #[default]
+    Eight,
+    /// 16 bits per sample: 65536 levels, for further editing without banding.
+    Sixteen,
+}
+
+impl BitDepth {
+    /// The number of bits, 8 or 16, as [`write_png`] takes it.
+    pub fn bits(self) -> u8 {
+        match self {
+            BitDepth::Eight => 8,
+            BitDepth::Sixteen => 16,
+        }
+    }
+}
+
+impl From<BitDepth> for u8 {
+    fn from(b: BitDepth) -> u8 {
+        b.bits()
+    }
+}
+
+impl TryFrom<u8> for BitDepth {
+    type Error = String;
+    fn try_from(bits: u8) -> std::result::Result<BitDepth, String> {
+        match bits {
+            8 => Ok(BitDepth::Eight),
+            16 => Ok(BitDepth::Sixteen),
+            other => Err(format!("output.bit_depth must be 8 or 16, got {other}")),
         }
     }
 }

@@ -62,7 +62,9 @@ pub struct ModelSpec {
     pub output: Option<OutputRef>,
     /// Rank of the output tensor (2, 3 or 4); unset: the preset's.
     pub output_rank: Option<usize>,
+    /// Input tensor layout: "nchw" or "nhwc"; unset: the preset's.
     pub layout: Option<Layout>,
+    /// Channel order the model expects: "rgb" or "bgr"; unset: the preset's.
     pub color: Option<ColorOrder>,
     /// Fixed model input size [height, width].
     pub size: Option<[usize; 2]>,
@@ -70,11 +72,13 @@ pub struct ModelSpec {
     pub multiple: Option<usize>,
     /// Dynamic input size: longest side at most this many pixels (larger images are shrunk).
     pub max_side: Option<usize>,
+    /// How the image is brought to the model size: "stretch" or "letterbox"; unset: the preset's.
     pub resize: Option<ResizeMode>,
     /// Input value scaling: "0-1" or "0-255".
     pub scale: Option<ValueScale>,
     /// Per-channel mean and std (RGB order, in the units of `scale`): x' = (x - mean) / std.
     pub mean: Option<[f32; 3]>,
+    /// Per-channel standard deviation (RGB order, units of `scale`), non-zero; see `mean`.
     pub std: Option<[f32; 3]>,
     /// Activation applied to the raw output: "none" or "sigmoid".
     pub activation: Option<Activation>,
@@ -163,6 +167,8 @@ pub struct DepthConfig {
 }
 
 impl OnnxConfig {
+    /// Checks `providers` (known names) and `threads` without loading ONNX Runtime; errors name
+    /// the `onnx.*` key.
     pub fn validate(&self) -> Result<()> {
         for p in &self.providers {
             if super::runtime::Provider::parse(p).is_none() {

@@ -21,10 +21,13 @@ pub enum Layout {
     Nhwc,
 }
 
+/// Order of the colour channels in the model's input tensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ColorOrder {
+    /// Red, green, blue (PyTorch conventions).
     Rgb,
+    /// Blue, green, red (OpenCV / Caffe conventions).
     Bgr,
 }
 
@@ -41,16 +44,21 @@ pub enum ResizeMode {
 /// Input value scaling of sRGB-encoded colours before mean/std.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ValueScale {
+    /// Colours in [0, 1].
     #[serde(rename = "0-1")]
     Unit,
+    /// Colours in [0, 255].
     #[serde(rename = "0-255")]
     Byte,
 }
 
+/// Function applied to the raw model output before `output_range`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Activation {
+    /// The output is used as is.
     None,
+    /// `1 / (1 + e^-x)`, for models that output logits.
     Sigmoid,
 }
 
@@ -58,7 +66,9 @@ pub enum Activation {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(untagged)]
 pub enum OutputRef {
+    /// The output at this position, 0 = first.
     Index(usize),
+    /// The output with this name.
     Name(String),
 }
 
@@ -75,6 +85,7 @@ pub enum ModelKind {
 }
 
 impl ModelKind {
+    /// The config table of this kind's model, as errors name it ("segment.onnx", ...).
     pub fn section(self) -> &'static str {
         match self {
             ModelKind::Matte => "segment.onnx",
@@ -95,9 +106,21 @@ impl ModelKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum SizeSpec {
     /// Exactly `h` x `w`.
-    Fixed { h: usize, w: usize },
+    /// Exactly `h` x `w`.
+    Fixed {
+        /// Input height, pixels.
+        h: usize,
+        /// Input width, pixels.
+        w: usize,
+    },
     /// Any size whose sides are multiples of `multiple`, longest side at most `max_side`.
-    Dynamic { multiple: usize, max_side: Option<usize> },
+    /// Any size whose sides are multiples of `multiple`, longest side at most `max_side`.
+    Dynamic {
+        /// Each side is rounded to a multiple of this (e.g. 32, the network's stride).
+        multiple: usize,
+        /// Longest side, pixels; larger images are shrunk. None: no limit.
+        max_side: Option<usize>,
+    },
 }
 
 /// A complete contract.
@@ -105,20 +128,35 @@ pub enum SizeSpec {
 pub struct Contract {
     /// Preset the contract started from.
     pub preset: String,
+    /// What the model is used for.
     pub kind: ModelKind,
+    /// Name of the image input; None: the model's only input.
     pub input: Option<String>,
+    /// Name of the mask input (inpainting: 1 = fill); None for other kinds.
     pub mask_input: Option<String>,
+    /// Which output holds the result.
     pub output: OutputRef,
+    /// Expected rank of that output (2, 3 or 4); None: not checked.
     pub output_rank: Option<usize>,
+    /// Input tensor layout.
     pub layout: Layout,
+    /// Channel order of the input tensor.
     pub color: ColorOrder,
+    /// The input size the image is brought to.
     pub size: SizeSpec,
+    /// How the image is brought to that size.
     pub resize: ResizeMode,
+    /// Units of the input colours before normalization.
     pub scale: ValueScale,
+    /// Per-channel mean, RGB order, in the units of `scale`: `x' = (x - mean) / std`.
     pub mean: [f32; 3],
+    /// Per-channel standard deviation, RGB order, in the units of `scale` (non-zero).
     pub std: [f32; 3],
+    /// Function applied to the raw output.
     pub activation: Activation,
+    /// The activated output's value range `[lo, hi]`, mapped linearly to [0, 1].
     pub output_range: [f32; 2],
+    /// Min-max normalize the output over the image (saliency maps, relative depth).
     pub minmax: bool,
     /// Inpainting: context fraction around the mask's bounding box (fixed-size models).
     pub context: f32,
@@ -130,11 +168,13 @@ pub struct Contract {
 
 /// A documented preset.
 pub struct Preset {
+    /// The preset's name as `preset = "..."` spells it.
     pub name: &'static str,
     /// Default model file name in `onnx.model_dir`.
     pub file: &'static str,
     /// Where the conventions come from.
     pub source: &'static str,
+    /// Builds the preset's contract.
     pub contract: fn() -> Contract,
 }
 
@@ -309,7 +349,7 @@ pub fn resolve(spec: &ModelSpec, kind: ModelKind, onnx: &OnnxConfig) -> Result<(
         (None, Some(dir)) => dir.join(p.file),
         (None, None) => {
             return Err(Error::usage(format!(
-                "{key}: no model file: set `model = \"path.onnx\"` in [{key}] or pass --model-dir DIR holding {}",
+                "{key}: no model file: set `model = \"path.onnx\"` in [{key}], or give a model folder (onnx.model_dir) holding {}",
                 p.file
             )));
         }
@@ -359,9 +399,13 @@ pub fn resolve(spec: &ModelSpec, kind: ModelKind, onnx: &OnnxConfig) -> Result<(
 /// The contract bound to a model: resolved tensor names and the model's fixed size if any.
 #[derive(Clone, Debug)]
 pub struct Binding {
+    /// Name of the model's image input.
     pub input: String,
+    /// Name of the model's mask input (inpainting only).
     pub mask_input: Option<String>,
+    /// Name of the model output read.
     pub output: String,
+    /// Rank of that output (2, 3 or 4).
     pub output_rank: usize,
     /// The input's spatial size when the model fixes it (h, w).
     pub fixed: Option<(usize, usize)>,

@@ -17,6 +17,7 @@ pub use contract::{Binding, Contract, ModelKind};
 
 use crate::error::Result;
 use crate::image::Image;
+use crate::timing::ms_since;
 use serde::Serialize;
 use session::{Feed, ModelSession};
 use std::path::PathBuf;
@@ -26,7 +27,9 @@ use std::time::Instant;
 /// What one ONNX stage did (goes into the run's report).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct OnnxReport {
+    /// The model file's path.
     pub model: String,
+    /// The preset its contract started from.
     pub preset: String,
     /// The session came from the cache (created by an earlier image of this process).
     pub session_cached: bool,
@@ -42,18 +45,26 @@ pub struct OnnxReport {
     pub post_ms: f64,
     /// Model input size used, [height, width].
     pub model_size: [usize; 2],
+    /// Inference runs (`Session::run` calls) made with this model for the image.
     pub runs: usize,
+    /// Execution providers registered for the session, in priority order.
     pub providers: Vec<String>,
+    /// Warnings to show (not serialized: they go into the run's report warnings).
     #[serde(skip)]
     pub warnings: Vec<String>,
 }
 
 /// A stage's model, ready to run: session, contract and binding.
 pub struct Model {
+    /// The model file.
     pub path: PathBuf,
+    /// The loaded session (shared: sessions are cached per process).
     pub session: Arc<ModelSession>,
+    /// The conventions the model is fed and read with.
     pub contract: Contract,
+    /// The contract resolved against the model's actual inputs and outputs.
     pub binding: Binding,
+    /// Timings and counts of this use of the model.
     pub report: OnnxReport,
 }
 
@@ -76,10 +87,6 @@ pub fn load(spec: &ModelSpec, kind: ModelKind, cfg: &OnnxConfig) -> Result<Model
         ..OnnxReport::default()
     };
     Ok(Model { path, session, contract, binding, report })
-}
-
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 impl Model {
@@ -110,13 +117,13 @@ impl Model {
         if let (Some(name), Some(m)) = (&self.binding.mask_input, mask) {
             feeds.push(Feed { name: name.clone(), shape: prep::input_shape(&g, c.layout, 1), data: prep::mask_tensor(m, c.layout, &g) });
         }
-        self.report.pre_ms += ms(t);
+        self.report.pre_ms += ms_since(t);
         let t = Instant::now();
         let (shape, data) = self.session.run(feeds, &self.binding.output)?;
-        self.report.infer_ms += ms(t);
+        self.report.infer_ms += ms_since(t);
         let t = Instant::now();
         let out = prep::decode_output(&shape, &data, c, &g, channels, &self.path)?;
-        self.report.post_ms += ms(t);
+        self.report.post_ms += ms_since(t);
         self.report.runs += 1;
         self.report.model_size = [g.model_h, g.model_w];
         Ok(out)

@@ -16,14 +16,19 @@ use std::path::Path;
 pub struct Geometry {
     /// Size of the image fed in (before resizing).
     pub src_w: usize,
+    /// Height of the image fed in (before resizing).
     pub src_h: usize,
     /// Model input size.
     pub model_w: usize,
+    /// Model input height.
     pub model_h: usize,
     /// The rectangle of the canvas holding the resized image (the rest is padding).
     pub x0: usize,
+    /// Top row of the image's rectangle in the canvas.
     pub y0: usize,
+    /// Width of the image's rectangle in the canvas (its resized width).
     pub w: usize,
+    /// Height of the image's rectangle in the canvas (its resized height).
     pub h: usize,
 }
 

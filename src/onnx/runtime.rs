@@ -9,6 +9,7 @@
 
 use super::config::OnnxConfig;
 use crate::error::{Error, Result};
+use crate::timing::ms_since;
 use ort::environment::Environment;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock};
@@ -23,16 +24,23 @@ const INSTALL_HINT: &str = "install ONNX Runtime with `scripts/setup-test-env.sh
 /// An execution provider the config may ask for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Provider {
+    /// ONNX Runtime's default CPU provider (always available).
     Cpu,
+    /// NVIDIA CUDA.
     Cuda,
+    /// NVIDIA TensorRT.
     TensorRt,
+    /// Apple Core ML.
     CoreMl,
+    /// Microsoft DirectML (also spelled "dml").
     DirectMl,
 }
 
 impl Provider {
+    /// The names `onnx.providers` accepts, as error messages list them.
     pub const NAMES: &'static [&'static str] = &["cpu", "cuda", "tensorrt", "coreml", "directml"];
 
+    /// The provider named `s` (case-insensitive; "dml" for DirectML); None if unknown.
     pub fn parse(s: &str) -> Option<Provider> {
         Some(match s.to_ascii_lowercase().as_str() {
             "cpu" => Provider::Cpu,
@@ -58,8 +66,11 @@ impl Provider {
 
 /// The loaded runtime.
 pub struct Runtime {
+    /// The shared library that was loaded.
     pub library: PathBuf,
+    /// ONNX Runtime's version string, as the library reports it.
     pub version: String,
+    /// The process-wide ONNX Runtime environment.
     pub env: Environment,
     /// How long loading the library and creating the environment took.
     pub load_ms: f64,
@@ -92,7 +103,7 @@ pub fn runtime(cfg: &OnnxConfig) -> Result<&'static Runtime> {
         .map_err(|e| Error::input(&library, format!("cannot create the ONNX Runtime environment: {e}")))?;
     env.set_log_level(ort::logging::LogLevel::Error);
     let version = ort_version_string(&library);
-    let rt = Runtime { library, version, env, load_ms: t.elapsed().as_secs_f64() * 1e3 };
+    let rt = Runtime { library, version, env, load_ms: ms_since(t) };
     Ok(RUNTIME.get_or_init(|| rt))
 }
 

@@ -4,6 +4,7 @@
 use super::config::OnnxConfig;
 use super::runtime::{self, Provider};
 use crate::error::{Error, Result};
+use crate::timing::ms_since;
 use ort::ep::{self, ExecutionProvider};
 use ort::session::Session;
 use ort::value::{Tensor, ValueType};
@@ -17,8 +18,11 @@ use std::time::Instant;
 /// Name, element type and dims (-1 = dynamic) of a model input or output.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TensorInfo {
+    /// The tensor's name in the model.
     pub name: String,
+    /// Element type as ONNX names it ("float", "uint8", ...).
     pub elem: String,
+    /// Dimensions; -1 where the model leaves one dynamic.
     pub dims: Vec<i64>,
 }
 
@@ -31,8 +35,11 @@ impl fmt::Display for TensorInfo {
 
 /// A loaded model.
 pub struct ModelSession {
+    /// The model file.
     pub path: PathBuf,
+    /// The model's inputs, in declaration order.
     pub inputs: Vec<TensorInfo>,
+    /// The model's outputs, in declaration order.
     pub outputs: Vec<TensorInfo>,
     /// Session creation time (model load, graph optimization, provider setup), ms.
     pub create_ms: f64,
@@ -160,7 +167,7 @@ fn create(path: &Path, cfg: &OnnxConfig, rt: &runtime::Runtime) -> Result<ModelS
         path: path.to_path_buf(),
         inputs,
         outputs,
-        create_ms: t.elapsed().as_secs_f64() * 1e3,
+        create_ms: ms_since(t),
         providers,
         warnings,
         session: Mutex::new(session),
@@ -169,8 +176,11 @@ fn create(path: &Path, cfg: &OnnxConfig, rt: &runtime::Runtime) -> Result<ModelS
 
 /// One input of a run: name, shape and data (float32).
 pub struct Feed {
+    /// The model input it feeds.
     pub name: String,
+    /// Its dimensions (no dynamic ones).
     pub shape: Vec<i64>,
+    /// Its values, row-major, `shape`'s product in length.
     pub data: Vec<f32>,
 }
 

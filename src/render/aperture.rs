@@ -6,8 +6,11 @@
 /// One tap of the lens window: row offset `di`, column offset `dj`, distance `r` in pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Tap {
+    /// Row offset from the window centre, pixels.
     pub di: i32,
+    /// Column offset from the window centre, pixels.
     pub dj: i32,
+    /// Distance from the centre, `sqrt(di² + dj²)` pixels.
     pub r: f32,
 }
 

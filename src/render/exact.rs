@@ -81,7 +81,8 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     let img = layer.image();
     let (w, h) = (img.width, img.height);
     let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
-    let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur)).collect();
+    // The thin lens's CoC, capped far beyond any image so ratios stay finite.
+    let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
     let norm: Vec<f32> = radius.iter().map(|&r| lens::disk_norm(r)).collect();
     let mut out = vec![0f32; w * h * 5];
     out.par_chunks_mut(w * 5).enumerate().for_each(|(y, row)| {

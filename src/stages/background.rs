@@ -33,11 +33,15 @@ impl Default for InpaintOptions {
 
 /// The background layer's colour and disparity, and the work done.
 pub struct Background {
+    /// Background colour: the photo, inpainted under the foreground; linear RGB.
     pub rgb: Image,
+    /// Background disparity: inpainted the same way, clamped to [0, 1].
     pub disparity: Image,
     /// The region that was (or would have been) inpainted.
     pub mask: Vec<bool>,
+    /// Pixels inpainted.
     pub filled: usize,
+    /// Pixels of the mask left as they were: too deep under the foreground for any blur to show.
     pub skipped: usize,
 }
 

@@ -24,7 +24,7 @@ pub enum DepthKind {
 pub struct Disparity {
     /// One channel, values in [0, 1].
     pub map: Image,
-    /// `(z_min, z_max)` of the valid depths (depth maps only): needed for `--focus-depth`.
+    /// `(z_min, z_max)` of the valid depths (depth maps only): needed for a focus given as a metric depth.
     pub z_range: Option<(f64, f64)>,
     /// Fraction of pixels that were invalid and filled from their valid neighbours.
     pub filled_fraction: f64,
@@ -34,10 +34,10 @@ impl Disparity {
     /// Normalized disparity of metric depth `z` (depth maps only).
     pub fn disparity_of_depth(&self, z: f64) -> Result<f32> {
         let Some((zmin, zmax)) = self.z_range else {
-            return Err(Error::usage("--focus-depth needs a depth map (--depth-kind depth), not a disparity map"));
+            return Err(Error::usage("render.focus_depth needs a depth map (input.depth_kind = \"depth\"), not a disparity map"));
         };
         if !(z.is_finite() && z > 0.0) {
-            return Err(Error::usage(format!("--focus-depth must be a positive distance, got {z}")));
+            return Err(Error::usage(format!("render.focus_depth must be a positive distance, got {z}")));
         }
         let span = 1.0 / zmin - 1.0 / zmax;
         let span = if span > 0.0 { span } else { 1.0 };
@@ -51,7 +51,7 @@ impl Disparity {
         let m = &self.map;
         if x < 0 || y < 0 || x >= m.width as i64 || y >= m.height as i64 {
             return Err(Error::usage(format!(
-                "--focus-at {x},{y} is outside the {}x{} image (x in 0..{}, y in 0..{})",
+                "render.focus_at {x},{y} is outside the {}x{} image (x in 0..{}, y in 0..{})",
                 m.width, m.height, m.width, m.height
             )));
         }

@@ -6,33 +6,34 @@ use super::depth::{DepthKind, Disparity, normalize};
 use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::{self, ModelKind, ModelSpec, OnnxConfig, OnnxReport};
+use crate::timing::ms_since;
 
 /// Predicts the normalized disparity of `rgb` (linear RGB).
 pub fn estimate_disparity(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Result<(Disparity, OnnxReport)> {
     let mut model = onnx::load(spec, ModelKind::Depth, cfg)?;
     let t = std::time::Instant::now();
     let input = onnx::to_model_rgb(rgb);
-    model.report.pre_ms += t.elapsed().as_secs_f64() * 1e3;
+    model.report.pre_ms += ms_since(t);
     let raw = model.predict(&input, 1)?;
     let t = std::time::Instant::now();
     let disparity = normalize(&raw, DepthKind::Disparity, &model.path)?;
-    model.report.post_ms += t.elapsed().as_secs_f64() * 1e3;
+    model.report.post_ms += ms_since(t);
     Ok((disparity, model.report))
 }
 
 /// The disparity of a photo given without a depth map: the `[depth.onnx]` model's, or the
 /// default depth preset's file in `onnx.model_dir`. With neither, a usage error that names
-/// `--depth` and how to configure a model.
+/// `job.depth` (the depth map) and how to configure a model.
 pub fn estimate_without_depth_map(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Result<(Disparity, OnnxReport)> {
     if !spec.is_configured() {
-        let hint = "give --depth DEPTH, or configure a depth model ([depth.onnx] model = \"midas_small.onnx\", preset = \"midas-small\" in --config, or --model-dir DIR holding depth_anything_v2.onnx)";
+        let hint = "give job.depth, or configure a depth model ([depth.onnx] model = \"midas_small.onnx\", preset = \"midas-small\" in the config, or a model folder (onnx.model_dir) holding depth_anything_v2.onnx)";
         match &cfg.model_dir {
-            None => return Err(crate::error::Error::usage(format!("--depth is required: no depth map and no depth model; {hint}"))),
+            None => return Err(crate::error::Error::usage(format!("job.depth is required: no depth map and no depth model; {hint}"))),
             Some(dir) => {
                 let (path, _) = crate::onnx::contract::resolve(spec, ModelKind::Depth, cfg)?;
                 if !path.is_file() {
                     return Err(crate::error::Error::usage(format!(
-                        "--depth is required: no depth map, and the model folder {} has no {}; {hint}",
+                        "job.depth is required: no depth map, and the model folder {} has no {}; {hint}",
                         dir.display(),
                         path.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default()
                     )));

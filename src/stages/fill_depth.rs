@@ -9,6 +9,7 @@ use super::inpaint::{TeleaOptions, inpaint_telea};
 use super::mask::{distance_in, distance_to, erode, grown_bbox};
 use crate::error::Result;
 use crate::image::Image;
+use crate::render::lens::coc_radius;
 
 /// `[fill_depth]` options.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -30,6 +31,7 @@ impl Default for FillDepthOptions {
 
 /// Result of the fill: the foreground layer's disparity and how much work was done.
 pub struct FilledDepth {
+    /// The foreground layer's disparity (one channel, normalized).
     pub disparity: Image,
     /// Pixels whose disparity was inpainted.
     pub filled: usize,
@@ -71,7 +73,7 @@ pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions
         .zip(&disp.data)
         .filter(|(c, _)| **c)
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (_, &d)| (lo.min(d), hi.max(d)));
-    let coc = ((lo - focus).abs().max((hi - focus).abs()) * blur).min(1e9);
+    let coc = coc_radius(lo - focus, blur).max(coc_radius(hi - focus, blur)).min(1e9);
     let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the
     // core lies inside it): exact wherever the fill can matter.

@@ -15,6 +15,7 @@ use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::contract::SizeSpec;
 use crate::onnx::{self, DepthFill, ModelKind, OnnxConfig, OnnxReport};
+use crate::timing::ms_since;
 use std::time::Instant;
 
 /// The rectangle (x0, y0, w, h) the model works on: the whole image for a dynamic-size model,
@@ -96,13 +97,13 @@ pub fn inpaint_background(
     // exact there.
     let dist = distance_to(&crop_mask.data.iter().map(|&m| m > 0.5).collect::<Vec<_>>(), cw, ch);
     let feather = model.contract.feather;
-    model.report.pre_ms += t.elapsed().as_secs_f64() * 1e3;
+    model.report.pre_ms += ms_since(t);
 
     let mut filled = model.predict_with_mask(&crop_rgb, Some(&crop_mask), 3)?;
     let t = Instant::now();
     onnx::from_model_rgb(&mut filled.data);
     paste(&mut rgb_out, &filled, x0, y0, &dist, feather);
-    model.report.post_ms += t.elapsed().as_secs_f64() * 1e3;
+    model.report.post_ms += ms_since(t);
 
     match model.contract.depth {
         DepthFill::Telea => {
@@ -113,12 +114,12 @@ pub fn inpaint_background(
             let t = Instant::now();
             let d = disp.crop(x0, y0, cw, ch);
             let d3 = Image::stack(&[&d, &d, &d]);
-            model.report.pre_ms += t.elapsed().as_secs_f64() * 1e3;
+            model.report.pre_ms += ms_since(t);
             let out = model.predict_with_mask(&d3, Some(&crop_mask), 3)?;
             let t = Instant::now();
             let mean = Image::from_vec(cw, ch, 1, out.data.chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0).collect()).expect("size");
             paste(&mut disp_out, &mean, x0, y0, &dist, feather);
-            model.report.post_ms += t.elapsed().as_secs_f64() * 1e3;
+            model.report.post_ms += ms_since(t);
         }
     }
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));

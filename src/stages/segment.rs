@@ -25,6 +25,7 @@ pub enum SegmentMethod {
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SegmentOptions {
+    /// Where the foreground comes from.
     pub method: SegmentMethod,
     /// Smallest foreground, as a fraction of the image.
     pub min_fraction: f64,

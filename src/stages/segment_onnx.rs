@@ -7,13 +7,14 @@ use super::segment::{Segmentation, from_matte};
 use crate::error::Result;
 use crate::image::Image;
 use crate::onnx::{self, ModelKind, ModelSpec, OnnxConfig, OnnxReport};
+use crate::timing::ms_since;
 
 /// The model's matte (one channel in [0, 1] at the image's size) and what the model run did.
 pub fn predict_matte(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Result<(Image, OnnxReport)> {
     let mut model = onnx::load(spec, ModelKind::Matte, cfg)?;
     let t = std::time::Instant::now();
     let input = onnx::to_model_rgb(rgb);
-    model.report.pre_ms += t.elapsed().as_secs_f64() * 1e3;
+    model.report.pre_ms += ms_since(t);
     let mut matte = model.predict(&input, 1)?;
     matte.map_inplace(|a| a.clamp(0.0, 1.0));
     Ok((matte, model.report))
