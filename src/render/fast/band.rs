@@ -63,6 +63,8 @@ impl Band {
     }
 
     /// Disparity `δ_k` of node k.
+    // Inline: called per band target and node from the stripes (another module).
+    #[inline]
     pub(super) fn node(&self, k: usize) -> f32 {
         self.lo + self.step * k as f32
     }

@@ -199,6 +199,9 @@ impl<'a> Ctx<'a> {
 
     /// Which sources pass `slot` scatters and with what value: slot 0 is `A`, 1 is `F`,
     /// `2 + k` is `U_k`.
+    // Inline: called per source and coarse level from `coarse::aggregate`, another module
+    // (codegen unit) since the split.
+    #[inline]
     fn value(&self, slot: usize, j: usize) -> Option<[f32; 4]> {
         let v = self.base(j)?;
         match (slot, self.band) {

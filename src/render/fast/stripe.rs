@@ -64,8 +64,9 @@ pub(super) fn render_stripes(
         let y1 = (y0 + STRIPE_ROWS).min(ctx.h);
         render_stripe(ctx, coarse, empty, y0, y1, &mut sc, counts);
         // Hand the finished pixels over.
-        for (px, r) in chunk.chunks_exact_mut(stride).zip(sc.raw.chunks_exact(raw::CHANNELS)) {
-            finish(r.try_into().expect("raw pixel"), px);
+        for (k, px) in chunk.chunks_exact_mut(stride).enumerate() {
+            let r: &raw::Pixel = sc.raw[k * raw::CHANNELS..(k + 1) * raw::CHANNELS].try_into().expect("raw pixel");
+            finish(r, px);
         }
         if let Ok(mut p) = pool.lock() {
             p.push(sc);
