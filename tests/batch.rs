@@ -1,5 +1,7 @@
 //! `drbokeh batch`: pairing, resumability, sharding, manifests, failures and exit codes.
 
+mod common;
+
 use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io::{write_exr, write_png};
@@ -7,7 +9,7 @@ use std::path::Path;
 use std::process::Command;
 
 fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_drbokeh"))
+    common::drbokeh_bin()
 }
 
 /// A 32x24 photo with a near square, its depth (EXR) and optionally a matte.
@@ -32,22 +34,9 @@ fn summary(out: &Path, name: &str) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join(name)).unwrap()).unwrap()
 }
 
+/// Every file under `dir` (recursive), sorted relative paths.
 fn files(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = walk(dir).into_iter().map(|p| p.strip_prefix(dir).unwrap().to_string_lossy().into_owned()).collect();
-    v.sort();
-    v
-}
-
-fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
-    let mut v = Vec::new();
-    for e in std::fs::read_dir(dir).unwrap().flatten() {
-        if e.path().is_dir() {
-            v.extend(walk(&e.path()));
-        } else {
-            v.push(e.path());
-        }
-    }
-    v
+    common::list_files(dir).into_iter().collect()
 }
 
 #[test]
@@ -104,7 +93,7 @@ fn pairs_renders_resumes_and_reports_failures() {
     let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!((s["ok"].as_u64(), s["skipped"].as_u64()), (Some(1), Some(1)), "{s}");
     // No temporary files anywhere.
-    assert!(walk(&out).iter().all(|p| !p.to_string_lossy().ends_with(".drbokeh-tmp")));
+    assert!(files(&out).iter().all(|p| !p.ends_with(".drbokeh-tmp")));
 }
 
 #[test]
@@ -179,9 +168,18 @@ fn bad_input_folder_is_a_usage_error() {
 
 /// Runs `drbokeh batch IN -o OUT ARGS --json` and returns (exit code, summary or Null, stderr).
 fn batch_json(inp: &Path, out: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value, String) {
-    let o = bin().arg("batch").arg(inp).arg("-o").arg(out).args(args).arg("--json").env("RAYON_NUM_THREADS", "2").output().unwrap();
+    let o = batch_json_output(inp, out, args);
     let s = serde_json::from_slice(&o.stdout).unwrap_or(serde_json::Value::Null);
     (o.status.code(), s, String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+/// The raw output of `drbokeh batch IN -o OUT ARGS --json`.
+fn batch_json_output(inp: &Path, out: &Path, args: &[&str]) -> std::process::Output {
+    common::run({
+        let mut c = bin();
+        c.arg("batch").arg(inp).arg("-o").arg(out).args(args).arg("--json").env("RAYON_NUM_THREADS", "2");
+        c
+    })
 }
 
 /// (status, reason) of each item of a summary, by image.
@@ -197,14 +195,7 @@ fn statuses(s: &serde_json::Value) -> Vec<(String, String, String)> {
 /// Asserts a usage error: exit 2, stderr naming every needle, no panic, and no file written
 /// under `root` (the test's temporary folder).
 fn assert_usage_error(root: &Path, inp: &Path, out: &Path, args: &[&str], needles: &[&str]) {
-    let before = files(root);
-    let (code, _, err) = batch_json(inp, out, args);
-    assert_eq!(code, Some(2), "batch {args:?} should exit 2: {err}");
-    for n in needles {
-        assert!(err.contains(n), "batch {args:?}: the message should name {n:?}: {err}");
-    }
-    assert!(!err.contains("panicked"), "{err}");
-    assert_eq!(files(root), before, "batch {args:?} wrote files");
+    common::assert_usage_error(root, &format!("batch {args:?}"), needles, || batch_json_output(inp, out, args));
 }
 
 /// Issue 10: a second run's cleanup removed the first run's temporary file. Only files whose

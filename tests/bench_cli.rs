@@ -8,7 +8,7 @@ use drbokeh::bench::metrics::{psnr, rmse, si_rmse, ssim, zncc};
 use drbokeh::bench::run::Method;
 use drbokeh::io::{self, ReadLimits};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("drbokeh-bench-cli-{name}-{}", std::process::id()));
@@ -18,12 +18,12 @@ fn tmp(name: &str) -> PathBuf {
 }
 
 fn drbokeh(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_drbokeh")).current_dir(dir).args(args).output().unwrap()
+    let mut c = common::drbokeh_bin();
+    c.current_dir(dir).args(args);
+    common::run(c)
 }
 
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use common::stderr;
 
 /// A W x H layer: colour `rgb`, alpha from `alpha(x, y)`, disparity from `d(x, y)`.
 fn layer(w: usize, h: usize, rgb: [f32; 3], alpha: impl Fn(usize, usize) -> f32, d: impl Fn(usize, usize) -> f32) -> Image {

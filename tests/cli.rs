@@ -7,7 +7,7 @@
 //! file runs in seconds.
 
 mod common;
-use common::crc32;
+use common::{crc32, list_files, max_abs_diff, run_within, snapshot};
 
 use drbokeh::Image;
 use drbokeh::color::Transfer;
@@ -15,8 +15,8 @@ use drbokeh::io::{self, ReadLimits};
 use drbokeh::render::{self, Kernel, Layer, RenderSettings};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Output};
+use std::time::Duration;
 
 const W: usize = 32;
 const H: usize = 24;
@@ -134,17 +134,7 @@ impl Scene {
         self.bad_with(args, needles, |a| run_within(drbokeh_cmd(self.dir.path(), a), limit))
     }
     fn bad_with(&self, args: &[&str], needles: &[&str], run: impl FnOnce(&[&str]) -> Output) -> String {
-        let before = snapshot(self.dir.path());
-        let out = run(args);
-        let err = String::from_utf8_lossy(&out.stderr).into_owned();
-        assert_eq!(out.status.code(), Some(2), "drbokeh {} should exit 2; stderr: {err}", args.join(" "));
-        for n in needles {
-            assert!(err.contains(n), "drbokeh {}: the message should name {n:?}; got: {err}", args.join(" "));
-        }
-        assert!(!err.contains("panicked"), "panic on user input: {err}");
-        let after = snapshot(self.dir.path());
-        assert_eq!(before, after, "drbokeh {} changed the folder (wrote output?)", args.join(" "));
-        err
+        common::assert_usage_error(self.dir.path(), &format!("drbokeh render {}", args.join(" ")), needles, || run(args))
     }
 }
 
@@ -154,49 +144,9 @@ fn drbokeh_in(dir: &Path, args: &[&str]) -> Output {
 
 /// `drbokeh render ARGS` in `dir`, not started yet.
 fn drbokeh_cmd(dir: &Path, args: &[&str]) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_drbokeh"));
-    c.arg("render").args(args).current_dir(dir).env("RAYON_NUM_THREADS", "2");
+    let mut c = common::drbokeh(dir);
+    c.arg("render").args(args);
     c
-}
-
-/// Runs `cmd` to completion, or kills it and fails the test after `limit`. Output is read
-/// after exit, so it suits commands that print little (error cases), not a pipe-filling log.
-fn run_within(mut cmd: Command, limit: Duration) -> Output {
-    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("cannot run drbokeh");
-    let t0 = Instant::now();
-    while child.try_wait().expect("wait").is_none() {
-        if t0.elapsed() > limit {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{cmd:?} still running after {limit:?} (blocked on an input?)");
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    child.wait_with_output().expect("output")
-}
-
-/// Every file under `dir` (recursive), as relative paths.
-fn list_files(dir: &Path) -> BTreeSet<String> {
-    snapshot(dir).into_iter().map(|(p, _)| p).collect()
-}
-
-/// Every file under `dir` (recursive) with its content.
-fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
-                out.push((rel, std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 fn read_npy(p: &Path) -> Image {
@@ -206,11 +156,6 @@ fn read_npy(p: &Path) -> Image {
 fn read_exr(p: &Path) -> Image {
     let d = io::read_decoded(p, &ReadLimits::default()).unwrap_or_else(|e| panic!("cannot read {}: {e}", p.display()));
     d.image
-}
-
-fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len(), "sizes differ");
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
 }
 
 /// Two RGBAD layers of the standard scene: a front square (alpha 1 inside, 0 outside, soft
@@ -1262,13 +1207,9 @@ fn sizes_are_bounded_and_checked_before_work() {
     std::fs::write(s.path("tall_header.png"), png_header_only(24, 32)).unwrap();
     s.bad(&["image.png", "--depth", "tall_header.png", "--focus", "1", "-o", "o.png"], &["tall_header.png", "aspect"]);
     // bench frames are bounded too.
-    let out = Command::new(env!("CARGO_BIN_EXE_drbokeh"))
-        .args(["bench", "--size", "100000x100000", "--out", "b"])
-        .current_dir(s.path("."))
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--size"));
+    let mut bench = common::drbokeh(s.dir.path());
+    bench.args(["bench", "--size", "100000x100000", "--out", "b"]);
+    common::assert_usage_error(s.dir.path(), "drbokeh bench --size 100000x100000", &["--size"], || common::run(bench));
 }
 
 /// Issue 10: a photo whose header declares more pixels than the memory available can render
@@ -1336,13 +1277,11 @@ fn fifo_and_device_inputs_are_refused_without_blocking() {
         s.bad_within(&["image.png", "--depth", "depth.exr", "--focus", "1", "--config", special, "-o", "o.png"], &n, limit);
     }
     // The batch manifest.
-    let mut batch = Command::new(env!("CARGO_BIN_EXE_drbokeh"));
+    let mut batch = common::drbokeh(s.dir.path());
     let out_dir = other.path().join("out");
     batch.args(["batch", s.dir.path().to_str().unwrap(), "-o", out_dir.to_str().unwrap(), "--focus", "0", "--manifest", fifo]);
-    let o = run_within(batch, limit);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("pipe.exr") && err.contains("FIFO"), "{err}");
+    // The scene folder stays as it was (the FIFO's folder cannot be read to check).
+    common::assert_usage_error(s.dir.path(), "drbokeh batch --manifest FIFO", &["pipe.exr", "FIFO"], || run_within(batch, limit));
 }
 
 /// An 8-bit depth map renders, with a precision warning naming the file on stderr and in
@@ -1399,10 +1338,8 @@ fn interrupted_render_removes_its_temporary_file() {
     io::write_exr(&p.join("flat.exr"), &Image::filled(w, h, 1, 4.0), &["Z"]).unwrap();
     let temps = || list_files(p).into_iter().filter(|f| f.ends_with(".drbokeh-tmp")).collect::<Vec<_>>();
     for _attempt in 0..5 {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_drbokeh"))
+        let mut child = common::drbokeh(p)
             .args(["render", "big.png", "--depth", "flat.exr", "--focus", "0.5", "--blur", "0", "--bit-depth", "16", "-o", "out.png"])
-            .current_dir(p)
-            .env("RAYON_NUM_THREADS", "2")
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap();

@@ -8,14 +8,8 @@ mod common;
 use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;
 use drbokeh::bench::metrics::{psnr, ssim};
-use drbokeh::color::linear_to_srgb;
+use drbokeh::bench::run::srgb;
 use drbokeh::render::{self, Kernel, RenderSettings};
-
-fn srgb(img: &Image) -> Image {
-    let mut o = img.clone();
-    o.map_inplace(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
-    o
-}
 
 #[test]
 fn drbokeh_beats_classical_scatter_against_thin_lens_ground_truth() {

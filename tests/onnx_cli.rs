@@ -2,6 +2,8 @@
 //! classical run given the model's matte; classical runs never need ONNX Runtime; runtime and
 //! model errors exit 2 naming the file and write nothing; the committed stubs are up to date.
 
+mod common;
+
 use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io;
@@ -44,8 +46,8 @@ fn scene() -> tempfile::TempDir {
 }
 
 fn drbokeh(dir: &Path, args: &[&str], envs: &[(&str, &str)]) -> Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_drbokeh"));
-    c.arg("render").args(args).current_dir(dir).env("RAYON_NUM_THREADS", "2");
+    let mut c = common::drbokeh(dir);
+    c.arg("render").args(args);
     for (k, v) in envs {
         c.env(k, v);
     }
@@ -60,19 +62,9 @@ fn ok(dir: &Path, args: &[&str], envs: &[(&str, &str)]) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
-/// Must exit 2, name every needle, and leave the folder as it was.
+/// Must exit 2, name every needle, and leave the folder as it was (`common::assert_usage_error`).
 fn bad(dir: &Path, args: &[&str], envs: &[(&str, &str)], needles: &[&str]) -> String {
-    let before: Vec<_> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
-    let out = drbokeh(dir, args, envs);
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(2), "drbokeh {} should exit 2: {err}", args.join(" "));
-    for n in needles {
-        assert!(err.contains(n), "message should contain {n:?}: {err}");
-    }
-    assert!(!err.contains("panicked"), "{err}");
-    let after: Vec<_> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
-    assert_eq!(before.len(), after.len(), "wrote a file: {after:?}");
-    err
+    common::assert_usage_error(dir, &format!("drbokeh render {}", args.join(" ")), needles, || drbokeh(dir, args, envs))
 }
 
 fn stage<'a>(j: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {

@@ -5,7 +5,8 @@
 //! ONNX Runtime comes from the test environment (`scripts/setup-test-env.sh` installs the
 //! onnxruntime wheel into .venv; the library finds it there) or ORT_DYLIB_PATH.
 
-use drbokeh::color::{linear_to_srgb, srgb_to_linear};
+use drbokeh::bench::run::srgb;
+use drbokeh::color::srgb_to_linear;
 use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, SizeSpec};
 use drbokeh::onnx::prep::{self, Geometry};
 use drbokeh::onnx::{DepthFill, ModelSpec, OnnxConfig};
@@ -47,12 +48,6 @@ fn photo(w: usize, h: usize) -> Image {
         }
     }
     img
-}
-
-fn srgb(img: &Image) -> Image {
-    let mut o = img.clone();
-    o.map_inplace(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
-    o
 }
 
 fn sigmoid(v: f32) -> f32 {

@@ -9,9 +9,9 @@
 //! Cost: O(W·H·taps) with taps ≈ π·(lens/2)²; one transcendental pair (exp, tanh) per tap.
 
 use super::aperture::Tap;
-use super::layer::{A, D, Layer};
+use super::layer::{A, CHANNELS, D, Layer};
 use super::lens::{self, Profile, energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
-use super::{RawLayer, RenderSettings, Role};
+use super::{RawLayer, RenderSettings, Role, raw};
 use rayon::prelude::*;
 
 /// Renders one layer into its raw sums: per pixel `[ΣR, ΣG, ΣB, W, o]` where the colour sums
@@ -30,12 +30,12 @@ fn scatter_layer_official(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> Ra
     let (w, h) = (img.width, img.height);
     let p = s.lens / 2;
     // Per-pixel terms that every tap reads: relative disparity and scatter radius.
-    let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
+    let d: Vec<f32> = img.data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
     let sigma: Vec<f32> = d.iter().map(|&d| scatter_radius(d, s.blur)).collect();
     let unit = weight_unit(super::min_visible_radius(img, &sigma));
 
-    let mut out = vec![0f32; w * h * 5];
-    out.par_chunks_mut(w * 5).enumerate().for_each(|(y, row)| {
+    let mut out = vec![0f32; w * h * raw::CHANNELS];
+    out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each(|(y, row)| {
         for x in 0..w {
             let i = y * w + x;
             let dp = d[i];
@@ -47,7 +47,7 @@ fn scatter_layer_official(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> Ra
                 let yy = (y as i64 + t.di as i64).clamp(0, h as i64 - 1) as usize;
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
                 let j = yy * w + xx;
-                let px = &img.data[j * 5..j * 5 + 5];
+                let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
                 // Both skips are exact: a transparent tap adds +0, and at q == 1 the
                 // occlusion is exactly 1 whatever the tanh gives.
                 if px[A] == 0.0 {
@@ -62,7 +62,7 @@ fn scatter_layer_official(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> Ra
                 sw += k as f64;
             }
             let o = box_alpha(img, x, y, visibility_half_size(sigma[i], p));
-            row[x * 5..x * 5 + 5].copy_from_slice(&[sr as f32, sg as f32, sb as f32, sw as f32, o]);
+            row[x * raw::CHANNELS..(x + 1) * raw::CHANNELS].copy_from_slice(&[sr as f32, sg as f32, sb as f32, sw as f32, o]);
         }
     });
     RawLayer::new(w, h, out, layer)
@@ -80,12 +80,12 @@ fn scatter_layer_official(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> Ra
 fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role: Role) -> RawLayer {
     let img = layer.image();
     let (w, h) = (img.width, img.height);
-    let d: Vec<f32> = img.data.chunks_exact(5).map(|px| px[D] - s.focus).collect();
+    let d: Vec<f32> = img.data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
     // The thin lens's CoC, capped far beyond any image so ratios stay finite.
     let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
     let norm: Vec<f32> = radius.iter().map(|&r| lens::disk_norm(r)).collect();
-    let mut out = vec![0f32; w * h * 5];
-    out.par_chunks_mut(w * 5).enumerate().for_each(|(y, row)| {
+    let mut out = vec![0f32; w * h * raw::CHANNELS];
+    out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each(|(y, row)| {
         for x in 0..w {
             let dx = d[y * w + x];
             // [in front, same surface, behind] × [P_r, P_g, P_b, A], f64 as in the official kernel.
@@ -94,7 +94,7 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                 let yy = (y as i64 + t.di as i64).clamp(0, h as i64 - 1) as usize;
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
                 let j = yy * w + xx;
-                let px = &img.data[j * 5..j * 5 + 5];
+                let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
                 let cov = lens::disk_coverage(radius[j], t.r);
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;
@@ -116,23 +116,24 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
             let a = p[3] as f32;
             let vis = match role {
                 Role::Front => a,
-                Role::Backdrop => a.max(img.data[(y * w + x) * 5 + A]),
+                Role::Backdrop => a.max(img.data[(y * w + x) * CHANNELS + A]),
             };
-            row[x * 5..x * 5 + 5].copy_from_slice(&[p[0] as f32, p[1] as f32, p[2] as f32, a, vis]);
+            row[x * raw::CHANNELS..(x + 1) * raw::CHANNELS].copy_from_slice(&[p[0] as f32, p[1] as f32, p[2] as f32, a, vis]);
         }
     });
     RawLayer::new(w, h, out, layer)
 }
 
-/// Mean alpha over the `(2n+1)²` box centred on (x, y), replicate-padded (eq. 4).
-fn box_alpha(img: &crate::Image, x: usize, y: usize, n: usize) -> f32 {
+/// Mean alpha over the `(2n+1)²` box centred on (x, y), replicate-padded (eq. 4), summed in
+/// f64. O(n²): the plain formula, the oracle of the fast kernel's summed-area visibility.
+pub(crate) fn box_alpha(img: &crate::Image, x: usize, y: usize, n: usize) -> f32 {
     let (w, h) = (img.width as i64, img.height as i64);
     let n = n as i64;
     let mut sum = 0f64;
     for yy in (y as i64 - n)..=(y as i64 + n) {
         let row = yy.clamp(0, h - 1) * w;
         for xx in (x as i64 - n)..=(x as i64 + n) {
-            sum += img.data[((row + xx.clamp(0, w - 1)) * 5) as usize + A] as f64;
+            sum += img.data[((row + xx.clamp(0, w - 1)) * CHANNELS as i64) as usize + A] as f64;
         }
     }
     (sum / ((2 * n + 1) * (2 * n + 1)) as f64) as f32

@@ -4,12 +4,22 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use rayon::prelude::*;
 
-/// Channel indices of a layer image.
+/// Channels of a layer pixel: R, G, B (linear light, not premultiplied), A, D. A layer image
+/// is row-major, `width·height·CHANNELS` f32, pixel `i` at `data[i·CHANNELS..(i+1)·CHANNELS]`.
+pub const CHANNELS: usize = 5;
+/// Index of red in a layer pixel; green and blue follow it (`R..R + 3`).
 pub const R: usize = 0;
-/// Alpha: coverage in [0, 1], not premultiplied into R, G, B.
+/// Index of alpha in a layer pixel, in [0, 1].
 pub const A: usize = 3;
-/// Normalized disparity (1 near … 0 far).
+/// Index of normalized disparity in a layer pixel (1 near … 0 far).
 pub const D: usize = 4;
+
+/// The largest of a pixel's three colour channels (`px` starts with R, G, B: a layer pixel or
+/// a premultiplied `[r·a, g·a, b·a, a]` value).
+#[inline(always)]
+pub fn max_rgb(px: &[f32]) -> f32 {
+    px[R].max(px[R + 1]).max(px[R + 2])
+}
 
 /// An RGBA layer with its own disparity: a 5-channel [`Image`] (R, G, B, A, D).
 ///
@@ -23,19 +33,19 @@ pub struct Layer {
 impl Layer {
     /// Checks the shape and that every value is finite. `what` names the source in errors.
     pub fn new(image: Image, what: &str) -> Result<Self> {
-        if image.channels != 5 {
+        if image.channels != CHANNELS {
             return Err(Error::input(what, format!("a layer needs 5 channels (R,G,B,A,D), found {}", image.channels)));
         }
         if image.is_empty() {
             return Err(Error::input(what, "layer is empty (0 pixels)"));
         }
         if let Some(i) = image.data.iter().position(|v| !v.is_finite()) {
-            let px = i / 5;
+            let px = i / CHANNELS;
             return Err(Error::input(
                 what,
                 format!(
                     "non-finite value in channel {} at pixel ({}, {})",
-                    "RGBAD".as_bytes()[i % 5] as char,
+                    "RGBAD".as_bytes()[i % CHANNELS] as char,
                     px % image.width,
                     px / image.width
                 ),
@@ -52,39 +62,39 @@ impl Layer {
         Layer::new(Image::stack(&[rgb, alpha, disparity]), what)
     }
 
-    /// The 5-channel image (R, G, B, A, D).
+    /// The layer's 5-channel image (see [`CHANNELS`]).
     pub fn image(&self) -> &Image {
         &self.image
     }
 
-    /// The 5-channel image, without copying.
+    /// The layer's 5-channel image, by value.
     pub fn into_image(self) -> Image {
         self.image
     }
 
-    /// Width, pixels.
+    /// Width in pixels.
     pub fn width(&self) -> usize {
         self.image.width
     }
 
-    /// Height, pixels.
+    /// Height in pixels.
     pub fn height(&self) -> usize {
         self.image.height
     }
 
-    /// Alpha of pixel `i` (row-major index), in [0, 1].
+    /// Alpha of pixel `i` (row-major index).
     pub fn alpha(&self, i: usize) -> f32 {
-        self.image.data[i * 5 + A]
+        self.image.data[i * CHANNELS + A]
     }
 
-    /// Normalized disparity of pixel `i` (row-major index).
+    /// Normalized disparity of pixel `i` (row-major index), before the focus is subtracted.
     pub fn disparity(&self, i: usize) -> f32 {
-        self.image.data[i * 5 + D]
+        self.image.data[i * CHANNELS + D]
     }
 
     /// True if no pixel has alpha > 0: such a layer contributes nothing.
     pub fn is_transparent(&self) -> bool {
-        self.image.data.par_chunks_exact(5).all(|px| px[A] <= 0.0)
+        self.image.data.par_chunks_exact(CHANNELS).all(|px| px[A] <= 0.0)
     }
 
     /// Per-channel `[min, max]` of the colours of visible pixels (alpha > 0); `[0, 0]` when
@@ -94,7 +104,7 @@ impl Layer {
         let r = self
             .image
             .data
-            .par_chunks_exact(5)
+            .par_chunks_exact(CHANNELS)
             .filter(|px| px[A] > 0.0)
             .fold(
                 || empty,
@@ -111,12 +121,12 @@ impl Layer {
 
     /// True if every pixel has alpha ≥ 1.
     pub fn is_opaque(&self) -> bool {
-        self.image.data.par_chunks_exact(5).all(|px| px[A] >= 1.0)
+        self.image.data.par_chunks_exact(CHANNELS).all(|px| px[A] >= 1.0)
     }
 
     /// Applies `f` to the colour channels only (e.g. the official naive gamma).
     pub fn map_colors(&mut self, f: impl Fn(f32) -> f32) {
-        for px in self.image.data.chunks_exact_mut(5) {
+        for px in self.image.data.chunks_exact_mut(CHANNELS) {
             for c in &mut px[..3] {
                 *c = f(*c);
             }

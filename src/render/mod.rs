@@ -9,6 +9,7 @@ pub mod exact;
 pub mod fast;
 pub mod layer;
 pub mod lens;
+pub mod raw;
 pub mod splat;
 
 use crate::error::{Error, Result};

@@ -17,21 +17,21 @@ pub const STRIPE_ROWS: usize = 64;
 /// A grid of 4-channel values (R, G, B, W), interleaved, `width * height * 4` f32.
 #[derive(Clone, Debug)]
 pub struct Grid4 {
-    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
+    /// Width in grid pixels.
     pub width: usize,
-    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
+    /// Height in grid pixels.
     pub height: usize,
-    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
+    /// Row-major values, 4 per pixel.
     pub data: Vec<f32>,
 }
 
 impl Grid4 {
-    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
+    /// A zeroed grid (allocates `width·height·4` f32).
     pub fn new(width: usize, height: usize) -> Self {
         Grid4 { width, height, data: vec![0.0; width * height * 4] }
     }
 
-    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
+    /// The 4 values of pixel `i` (row-major index).
     #[inline]
     pub fn at(&self, i: usize) -> &[f32] {
         &self.data[i * 4..i * 4 + 4]
@@ -132,7 +132,7 @@ impl Stripe {
         (self.spans, self.taps) = (false, false);
     }
 
-    #[allow(missing_docs)] // TEMP: documented by the fast.rs/splat.rs split
+    /// The rows `[y0, y1)` being accumulated.
     pub fn rows(&self) -> (i64, i64) {
         (self.y0, self.y1)
     }

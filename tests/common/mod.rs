@@ -1,7 +1,12 @@
-//! Helpers shared by the integration tests.
+//! Helpers shared by the integration tests: the shared data folder, a seeded generator, the
+//! `drbokeh` executable and its usage-error contract ([`assert_usage_error`]), and a place
+//! for failing renders ([`save_failure`]).
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 /// The `shared/` data folder (golden vectors, ground truth): `$DRBOKEH_SHARED`, else `../shared`.
 pub fn shared_dir() -> PathBuf {
@@ -78,4 +83,110 @@ pub fn crc32(bytes: &[u8]) -> u32 {
         }
     }
     !crc
+}
+
+/// The `drbokeh` executable this test binary was built with, as a plain command (the test
+/// process's folder and environment). Add the subcommand and its arguments.
+pub fn drbokeh_bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_drbokeh"))
+}
+
+/// [`drbokeh_bin`] run in `dir` (its working directory), with two rayon threads so runs are
+/// alike on any machine.
+pub fn drbokeh(dir: &Path) -> Command {
+    let mut c = drbokeh_bin();
+    c.current_dir(dir).env("RAYON_NUM_THREADS", "2");
+    c
+}
+
+/// Runs `cmd` to completion and returns its output.
+pub fn run(mut cmd: Command) -> Output {
+    cmd.output().unwrap_or_else(|e| panic!("cannot run {cmd:?}: {e}"))
+}
+
+/// Runs `cmd` to completion, or kills it and fails the test after `limit`. Output is read
+/// after exit, so it suits commands that print little (error cases), not a pipe-filling log.
+pub fn run_within(mut cmd: Command, limit: Duration) -> Output {
+    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("cannot run drbokeh");
+    let t0 = Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{cmd:?} still running after {limit:?} (blocked on an input?)");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    child.wait_with_output().expect("output")
+}
+
+/// A command's stderr, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Every file under `dir` (recursive) with its content, sorted by relative path.
+pub fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
+                out.push((rel, std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Every file under `dir` (recursive), as relative paths.
+pub fn list_files(dir: &Path) -> BTreeSet<String> {
+    snapshot(dir).into_iter().map(|(p, _)| p).collect()
+}
+
+/// The usage-error contract of every `drbokeh` command: `run` (described as `what` in
+/// messages) exits 2, its stderr names every entry of `needles` (the file or flag at fault),
+/// nothing panicked, and no file under `root` was created or changed. Returns stderr.
+pub fn assert_usage_error(root: &Path, what: &str, needles: &[&str], run: impl FnOnce() -> Output) -> String {
+    let before = snapshot(root);
+    let out = run();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{what} should exit 2; stderr: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{what}: the message should name {n:?}; got: {err}");
+    }
+    assert!(!err.contains("panicked"), "{what}: panic on user input: {err}");
+    let after = snapshot(root);
+    if before != after {
+        let names = |s: &[(String, Vec<u8>)]| s.iter().map(|(p, _)| p.clone()).collect::<Vec<_>>();
+        panic!("{what} changed the folder (wrote output?): before {:?}, after {:?}", names(&before), names(&after));
+    }
+    err
+}
+
+/// Where a failing test leaves its evidence: `target/test-failures/` (created).
+pub fn failure_dir() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target").join("test-failures");
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("cannot create {}: {e}", dir.display()));
+    dir
+}
+
+/// Saves a failing render as `target/test-failures/NAME.npy` (NAME made file-safe) and
+/// returns the path, for the failure message.
+pub fn save_failure(name: &str, img: &drbokeh::Image) -> PathBuf {
+    let safe: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' }).collect();
+    let path = failure_dir().join(format!("{safe}.npy"));
+    drbokeh::io::npy::save_npy(&path, img).unwrap_or_else(|e| panic!("cannot save {}: {e}", path.display()));
+    path
+}
+
+/// Fails with every entry of `failures` (one per line) if there are any: a test checks every
+/// case first, then asserts once.
+pub fn assert_no_failures(what: &str, failures: &[String]) {
+    assert!(failures.is_empty(), "{what}: {} failing case(s):\n{}", failures.len(), failures.join("\n"));
 }

@@ -1,0 +1,196 @@
+//! Coarse grids: the large-blur sources of a pass, aggregated per cell and radius bin on a
+//! grid `2^ℓ` times coarser than the image, where their radius is again below `2·r0`,
+//! scattered there as disks and upsampled bilinearly by the stripes (cost O(1) per source).
+//!
+//! Level ℓ ≥ 1 takes drawn radii in `[r0·2^ℓ, r0·2^(ℓ+1))`; a layer keeps one grid per level
+//! present and per pass, `16/4^ℓ` bytes per pixel each.
+
+use super::bright::is_bright;
+use super::footprint::{drawn_radius, equivalent_radius};
+use super::{Counts, Ctx, Presence};
+use crate::render::layer::max_rgb;
+use crate::render::lens::density;
+use crate::render::splat::{Grid4, Window, accumulate};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Coarse level of a source: level ℓ ≥ 1 takes σ in `[r0·2^ℓ, r0·2^(ℓ+1))`; None below `2·r0`.
+#[inline]
+pub(super) fn level_of(sigma: f32, r0: f32) -> Option<usize> {
+    (sigma >= 2.0 * r0).then(|| ((sigma / r0).log2().floor() as usize).clamp(1, 63))
+}
+
+/// One coarse level of a pass: a grid `factor` times coarser than the image.
+pub(super) struct Coarse {
+    /// `2^ℓ`.
+    pub(super) factor: f32,
+    /// The level's scattered sums (R, G, B, W), in grid pixels.
+    pub(super) grid: Grid4,
+}
+
+/// One aggregated source on a coarse grid: value-weighted centroid and equivalent radius (grid
+/// pixels) and the summed value times density.
+#[derive(Clone, Copy)]
+struct Agg {
+    cx: f32,
+    cy: f32,
+    rho: f32,
+    v: [f32; 4],
+}
+
+/// The coarse levels of every pass, indexed by slot (0 = `A`, 1 = `F`, `2 + k` = `U_k`); a
+/// pass without sources of its class gets none. Adds the sources and writes to `counts`.
+pub(super) fn passes(ctx: &Ctx, presence: &Presence, counts: &Counts) -> Vec<Vec<Coarse>> {
+    let mut coarse = vec![levels(ctx, 0, presence.levels_all, counts)];
+    coarse.push(if ctx.has_front { levels(ctx, 1, presence.levels_front, counts) } else { Vec::new() });
+    for k in 0..ctx.band.map_or(0, |b| b.n) {
+        coarse.push(if ctx.has_partial { levels(ctx, 2 + k, presence.levels_partial, counts) } else { Vec::new() });
+    }
+    coarse
+}
+
+/// The coarse levels of pass `slot`, for the levels in `mask` (bit ℓ = level ℓ present).
+fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
+    let (w, h) = (ctx.w, ctx.h);
+    let r0 = ctx.params.r0;
+    let mut out = Vec::new();
+    for level in 1..64u32 {
+        if mask & (1 << level) == 0 {
+            continue;
+        }
+        let f = (1u64 << level) as f32;
+        let aggs = aggregate(ctx, level, slot);
+        let n: usize = aggs.iter().map(|r| r.len()).sum();
+        counts.coarse.fetch_add(n as u64, Ordering::Relaxed);
+        if n == 0 {
+            continue;
+        }
+        let (cw, ch) = ((w as f32 / f).ceil() as usize, (h as f32 / f).ceil() as usize);
+        let mut grid = Grid4::new(cw, ch);
+        let window = Window::Disk(ctx.p as f32 / f);
+        let reach = 2.0 * r0 + 2.0;
+        let pad = ctx.pad(ctx.sigma_max + 3.0) as f32;
+        let rows = AtomicU64::new(0);
+        accumulate(&mut grid, |st| {
+            let (y0, y1) = st.rows();
+            let mut spans = 0f32;
+            for (i, row) in aggs.iter().enumerate() {
+                // Centres of cell row i lie within ±1 of this coarse coordinate.
+                let cy = (i as f32 * f - pad + 0.5 * f) / f - 0.5;
+                if cy + 1.0 + reach < y0 as f32 || cy - 1.0 - reach > y1 as f32 {
+                    continue;
+                }
+                for a in row {
+                    spans += st.disk(a.cx, a.cy, a.rho, window, a.v).min(1.0).ceil();
+                }
+            }
+            rows.fetch_add(spans as u64, Ordering::Relaxed);
+        });
+        counts.ops.fetch_add(rows.into_inner() + (w * h) as u64, Ordering::Relaxed);
+        out.push(Coarse { factor: f, grid });
+    }
+    out
+}
+
+/// Aggregates the sources of pass `slot` at coarse level `level` per cell and radius bin
+/// (value-weighted centroid and radius, so a cell's light stays where it was); one Vec per
+/// cell row. Bright sources are left out: the stripes draw them exactly.
+fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
+    let f = 1i64 << level;
+    let ff = f as f32;
+    let (lo, hi) = (ctx.params.r0 * ff, ctx.params.r0 * 2.0 * ff);
+    let bins = ctx.params.r0 as usize;
+    let pad = ctx.pad(ctx.sigma_max + 3.0);
+    let (x0, x1) = (-pad, ctx.w as i64 + pad);
+    let (y0, y1) = (-pad, ctx.h as i64 + pad);
+    let cols = ((x1 - x0) + f - 1) / f;
+    let rows = ((y1 - y0) + f - 1) / f;
+    (0..rows)
+        .into_par_iter()
+        .map(|ci| {
+            let mut out = Vec::new();
+            // Per radius bin: Σ value·density (4), Σ weight·centre x, y, Σ weight·radius.
+            let mut acc = vec![[0f64; 7]; bins];
+            for cj in 0..cols {
+                let mut any = false;
+                for sy in (y0 + ci * f)..(y0 + (ci + 1) * f).min(y1) {
+                    for sx in (x0 + cj * f)..(x0 + (cj + 1) * f).min(x1) {
+                        let j = ctx.clamp_index(sx, sy);
+                        let sig = ctx.sigma[j];
+                        let drawn = drawn_radius(sig, ctx.p);
+                        if drawn < lo || drawn >= hi {
+                            continue;
+                        }
+                        let Some(v) = ctx.value(slot, j) else { continue };
+                        if is_bright(max_rgb(&v), v[3], ctx.bright_level) {
+                            // Drawn exactly at full resolution (stripe::scan_sources).
+                            continue;
+                        }
+                        let dens = density(sig, ctx.unit);
+                        let wgt = (v[3] * dens) as f64;
+                        if wgt <= 0.0 {
+                            continue;
+                        }
+                        let b = (((drawn - lo) / ff) as usize).min(bins - 1);
+                        let a = &mut acc[b];
+                        for c in 0..4 {
+                            a[c] += (v[c] * dens) as f64;
+                        }
+                        a[4] += wgt * ((sx as f32 + 0.5) / ff - 0.5) as f64;
+                        a[5] += wgt * ((sy as f32 + 0.5) / ff - 0.5) as f64;
+                        a[6] += wgt * (equivalent_radius(drawn) / ff) as f64;
+                        any = true;
+                    }
+                }
+                if !any {
+                    continue;
+                }
+                for a in acc.iter_mut() {
+                    if a[3] > 0.0 {
+                        out.push(Agg {
+                            cx: (a[4] / a[3]) as f32,
+                            cy: (a[5] / a[3]) as f32,
+                            rho: (a[6] / a[3]) as f32,
+                            v: [a[0] as f32, a[1] as f32, a[2] as f32, a[3] as f32],
+                        });
+                    }
+                    *a = [0.0; 7];
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn level_brackets_the_radius() {
+        let mut x = 0x5851_F42D_4C95_7F2Du64;
+        for r0 in [4.0f32, 8.0, 16.0, 32.0, 256.0] {
+            assert_eq!(level_of(2.0 * r0 - 1e-3, r0), None);
+            assert_eq!(level_of(1.0, r0), None);
+            for _ in 0..2000 {
+                x ^= x >> 12;
+                x ^= x << 25;
+                x ^= x >> 27;
+                let u = (x.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32;
+                // Log-uniform radii from 2·r0 to 2^20·r0.
+                let sigma = 2.0 * r0 * 2f32.powf(u * 19.0);
+                let l = level_of(sigma, r0).expect("a coarse radius has a level");
+                let f = (1u64 << l) as f32;
+                assert!(l >= 1 && r0 * f <= sigma && sigma < 2.0 * r0 * f, "r0={r0} σ={sigma}: level {l}");
+                // On that grid the radius is again one the stripes draw directly.
+                assert!(sigma / f < 2.0 * r0);
+            }
+            // Every power of two starts its own level.
+            for l in 1..20usize {
+                let sigma = r0 * (1u64 << l) as f32;
+                assert_eq!(level_of(sigma, r0), Some(l), "r0={r0} l={l}");
+            }
+        }
+        assert_eq!(level_of(f32::MAX, 1.0), Some(63));
+    }
+}

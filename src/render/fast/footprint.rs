@@ -1,0 +1,244 @@
+//! How one source's footprint is drawn at full resolution: the exact taps of a small source
+//! (a stencil table shared by every source of a layer), the hard disk of the same area for a
+//! mid-sized one (with the soft step's edge as 3 nested disks where it shows), and the exact
+//! footprint of a bright source at any radius in O(σ) writes ([`rim_disk`]).
+//!
+//! Radii are in pixels. A source's footprint is the model's soft step `S(σ, r)` times the
+//! energy density `1/σ²` (see [`super::super::lens::energy`]), clipped to the lens window.
+
+use super::super::aperture::Tap;
+use super::super::lens::{FACTORED_STEP_MAX, STEP_GAIN, STEP_LN_OFFSET, soft_step, step_source_factor, step_tap_factor};
+use super::super::splat::Stripe;
+use std::f32::consts::{FRAC_PI_3, PI};
+
+/// The soft step's edge as a mixture of hard disks: radius offsets and weights of a 3-point
+/// quadrature of the logistic distribution (scale 1/3 px, standard deviation π/(3√3) px).
+/// The nodes are ±√3 standard deviations = ±π/3 px (3-point Gauss–Hermite).
+pub(super) const SOFT_EDGE: [(f32, f32); 3] = [(-FRAC_PI_3, 1.0 / 6.0), (0.0, 2.0 / 3.0), (FRAC_PI_3, 1.0 / 6.0)];
+/// One hard disk at the equivalent radius (the soft edge's cost is 3× the spans).
+pub(super) const HARD_EDGE: [(f32, f32); 1] = [(0.0, 1.0)];
+
+/// Stencil taps reach `σ + STENCIL_TAIL` px: beyond, the soft step is below 5.5e-5 of its
+/// plateau (a ring that holds < 0.1% of a source's energy).
+pub(super) const STENCIL_TAIL: f32 = 2.5;
+
+/// Inside this distance from the edge (`r ≤ σ - RIM`) the soft step is within `10·e^-12`
+/// (6.2e-5) of 1.
+pub(super) const RIM: f32 = 4.0;
+
+/// Radius of the hard disk with the same area as the soft step's footprint
+/// (`∫ 2πr·S(σ, r) dr = π·((σ - ln10/3)² + π²/27)`, a Fermi–Dirac integral: the step is
+/// at 1/2 where `r = σ - ln10/3`; the neglected term is `O(e^{-3(σ - ln10/3)})` of the area).
+#[inline]
+pub(super) fn equivalent_radius(sigma: f32) -> f32 {
+    let m = (sigma - STEP_LN_OFFSET / STEP_GAIN).max(0.0);
+    (m * m + PI * PI / 27.0).sqrt()
+}
+
+/// The radius a source is drawn with: its scatter radius σ, capped at `p + RIM` for a
+/// window of half-size `p`. Beyond `p + RIM` the soft step is within 6.2e-5 of 1 at every tap
+/// of the window, so the footprint is the window itself whatever σ is; only the energy
+/// density `1/σ²` still depends on σ. Without the cap a circle far larger than the image went
+/// to a coarse grid whose cells are larger than the window, and its light was lost.
+#[inline]
+pub(super) fn drawn_radius(sigma: f32, p: usize) -> f32 {
+    sigma.min(p as f32 + RIM)
+}
+
+/// The lens window's taps out to the stencil reach, laid out for [`Stencil::weights`]:
+/// built once per layer, O(reach²).
+pub(super) struct Stencil {
+    /// Distances of the taps, sorted by row offset.
+    r: Vec<f32>,
+    /// Their soft-step tap factors (`lens::step_tap_factor`; infinite beyond the factored
+    /// form's range).
+    factor: Vec<f32>,
+    /// Where each row offset `-p..=p` starts in `r` and `factor` (`2p + 2` entries).
+    rows: Vec<usize>,
+    /// Largest row offset of a tap.
+    pub(super) p: i64,
+}
+
+impl Stencil {
+    /// The taps of the lens window `taps` (as [`super::super::aperture::disk_taps_within`]
+    /// lists them: row offset outer).
+    pub(super) fn new(taps: &[Tap]) -> Self {
+        let p = taps.iter().map(|t| t.di.abs() as i64).max().unwrap_or(0);
+        let rows = (-p..=p + 1).map(|di| taps.partition_point(|t| (t.di as i64) < di)).collect();
+        Stencil { r: taps.iter().map(|t| t.r).collect(), factor: taps.iter().map(|t| step_tap_factor(t.r)).collect(), rows, p }
+    }
+
+    /// The exact taps `E(σ, r)` of a source with scatter radius `sigma` (energy density
+    /// `dens`), per stencil row `-p..=p` as (first column offset `-jm`, weights of columns
+    /// `-jm..=jm`), out to `σ + STENCIL_TAIL`. Reuses `out`'s buffers.
+    pub(super) fn weights(&self, sigma: f32, dens: f32, out: &mut Vec<(i64, Vec<f32>)>) {
+        let rows = (2 * self.p + 1) as usize;
+        out.resize_with(rows, Default::default);
+        let reach = sigma + STENCIL_TAIL;
+        let fs = step_source_factor(sigma);
+        for (k, (jm_out, e)) in out.iter_mut().enumerate() {
+            let di = k as i64 - self.p;
+            e.clear();
+            // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
+            let (start, end) = (self.rows[k], self.rows[k + 1]);
+            let rem = reach * reach - (di * di) as f32;
+            if rem <= 0.0 || end == start {
+                continue;
+            }
+            let m = (end - start) / 2;
+            let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
+            let (a, b) = (start + m - jm, start + m + jm + 1);
+            if sigma <= FACTORED_STEP_MAX {
+                e.extend(self.factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
+            } else {
+                // Beyond the factored form's range (quality 8 draws every radius as a stencil):
+                // the plain stable step, one exponential per tap.
+                e.extend(self.r[a..b].iter().map(|&r| dens * soft_step(sigma, r)));
+            }
+            *jm_out = jm as i64;
+        }
+    }
+}
+
+/// The exact footprint `E(σ, r)` of one source at integer position (sx, sy), clipped to the
+/// lens window `|offset| < p` and to the stripe, in O(σ) writes: per row, one span of the
+/// plateau (`r ≤ σ - RIM`, soft step taken as 1) and explicit taps on the rim out to
+/// `σ + STENCIL_TAIL`. `e` is scratch (one rim row). Returns the number of writes.
+pub(super) fn rim_disk(st: &mut Stripe, (sx, sy): (i64, i64), sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
+    let (y0, y1) = st.rows();
+    let (reach, inner) = (sigma + STENCIL_TAIL, sigma - RIM);
+    let rr = (reach.min(1e9).ceil() as i64).min(p);
+    let mut ops = 0;
+    for row in (sy - rr).max(y0)..=(sy + rr).min(y1 - 1) {
+        let dy = row - sy;
+        let rem = p * p - dy * dy;
+        if rem <= 0 {
+            continue;
+        }
+        // Largest |dx| inside the window (strict disk, as the official mask).
+        let m = ((rem as f64).sqrt().ceil() as i64 - 1).max(0);
+        let dyf = (dy * dy) as f32;
+        let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { continue };
+        let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
+        if xi >= 0 {
+            st.pixels(row, sx - xi, sx + xi, v.map(|c| c * dens));
+            ops += 4;
+        }
+        if xo > xi {
+            e.clear();
+            e.extend((xi + 1..=xo).map(|dx| dens * soft_step(sigma, ((dx * dx) as f32 + dyf).sqrt())));
+            st.tap_row(sx + xi + 1, row, e, v);
+            if xi >= 0 || xo > 0 {
+                // The left rim mirrors the right one (without the centre column when xi < 0).
+                let skip = usize::from(xi < 0);
+                e.reverse();
+                let left = &e[..e.len() - skip];
+                st.tap_row(sx - xo, row, left, v);
+            }
+            ops += 2 * e.len() as u64;
+        }
+    }
+    ops
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::super::aperture::{disk_taps, disk_taps_within};
+    use super::super::super::lens::energy;
+    use super::*;
+
+    /// The soft step in f64, the literal official formula.
+    fn step_f64(sigma: f64, r: f64) -> f64 {
+        0.1 / (0.1 + (-3.0 * (sigma - r)).exp())
+    }
+
+    #[test]
+    fn equivalent_radius_has_the_soft_footprint_area() {
+        // Radii the kernel draws as disks (σ ≥ stencil_max ≥ 3) and beyond.
+        for sigma in [3.0f32, 3.7, 5.0, 8.0, 13.5, 30.0, 64.0, 150.0] {
+            // ∫ 2πr·S(σ, r) dr by the midpoint rule (the integrand is smooth; 1e-3 px steps).
+            let (dr, end) = (1e-3f64, sigma as f64 + 20.0);
+            let area: f64 = (0..(end / dr) as usize)
+                .map(|i| (i as f64 + 0.5) * dr)
+                .map(|r| 2.0 * std::f64::consts::PI * r * step_f64(sigma as f64, r) * dr)
+                .sum();
+            let rho = equivalent_radius(sigma) as f64;
+            let disk = std::f64::consts::PI * rho * rho;
+            assert!((disk - area).abs() <= 1e-4 * area, "σ={sigma}: disk {disk} vs footprint {area}");
+        }
+    }
+
+    #[test]
+    fn drawn_radius_caps_where_the_window_is_flat() {
+        for p in [1usize, 2, 7, 30, 200, 1500] {
+            let cap = p as f32 + RIM;
+            assert_eq!(drawn_radius(0.5 * p as f32 + 1.0, p), 0.5 * p as f32 + 1.0);
+            assert_eq!(drawn_radius(cap + 1.0, p), cap);
+            assert_eq!(drawn_radius(1e30, p), cap);
+            // At the cap (and so beyond: the step grows with σ) every tap of the window is
+            // within 6.2e-5 of the plateau.
+            let rmax = disk_taps(2 * p + 1).iter().map(|t| t.r).fold(0.0, f32::max);
+            let low = step_f64(cap as f64, rmax as f64);
+            assert!(1.0 - low <= 6.2e-5, "p={p}: 1 - S = {}", 1.0 - low);
+            assert!((1.0 - soft_step(cap, rmax)) <= 6.2e-5);
+        }
+    }
+
+    #[test]
+    fn stencil_weights_are_the_exact_taps() {
+        for (lens, sigma) in [(15usize, 1.0f32), (31, 3.3), (61, 7.9), (61, 24.0), (301, 40.0)] {
+            let taps = disk_taps_within(lens, sigma + STENCIL_TAIL);
+            let stencil = Stencil::new(&taps);
+            let dens = 1.0 / (sigma * sigma);
+            let mut w = Vec::new();
+            stencil.weights(sigma, dens, &mut w);
+            let mut seen = 0;
+            for (k, (jm, e)) in w.iter().enumerate() {
+                let di = k as i64 - stencil.p;
+                for (c, &got) in e.iter().enumerate() {
+                    let dj = c as i64 - jm;
+                    let r = ((di * di + dj * dj) as f32).sqrt();
+                    let want = energy(sigma, r, 1.0);
+                    assert!((got - want).abs() <= 2e-6 * dens, "lens {lens} σ={sigma} ({di},{dj}): {got} vs {want}");
+                    seen += 1;
+                }
+            }
+            // Every dropped tap is beyond the tail, where the step is negligible.
+            assert!(seen <= taps.len());
+            let kept: f32 = w.iter().flat_map(|(_, e)| e.iter()).sum();
+            let all: f32 = disk_taps(lens).iter().map(|t| energy(sigma, t.r, 1.0)).sum();
+            assert!((all - kept).abs() <= 1e-3 * all, "lens {lens} σ={sigma}: kept {kept} of {all}");
+        }
+    }
+
+    #[test]
+    fn rim_disk_is_the_exact_footprint() {
+        let (w, h) = (120usize, 96usize);
+        for (sigma, p, (sx, sy)) in [(6.0f32, 40i64, (50i64, 40i64)), (19.3, 60, (60, 50)), (35.0, 30, (10, 90)), (80.0, 200, (-5, 20))] {
+            let dens = 1.0 / (sigma * sigma);
+            let v = [2.0, 0.5, 7.0, 1.0];
+            let mut st = Stripe::new(w);
+            st.reset(0, h);
+            let mut scratch = Vec::new();
+            rim_disk(&mut st, (sx, sy), sigma, dens, p, v, &mut scratch);
+            let mut row = vec![0f32; w * 4];
+            for y in 0..h {
+                row.fill(0.0);
+                st.add_row_to(y, &mut row);
+                for x in 0..w {
+                    let (dx, dy) = (x as i64 - sx, y as i64 - sy);
+                    let inside = dx * dx + dy * dy < p * p;
+                    let want = if inside { energy(sigma, ((dx * dx + dy * dy) as f32).sqrt(), 1.0) } else { 0.0 };
+                    for c in 0..4 {
+                        let got = row[x * 4 + c];
+                        assert!(
+                            (got - v[c] * want).abs() <= 6.2e-5 * v[c] * dens + 1e-7,
+                            "σ={sigma} ({x},{y})[{c}]: {got} vs {}",
+                            v[c] * want
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,302 @@
+//! The stripes: each worker renders `STRIPE_ROWS` rows at a time. It scatters the
+//! full-resolution sources that reach the stripe into reusable accumulators for every pass
+//! at once (the tap weight is computed once and shared by `A`, `F` and the `U_k`), adds the
+//! coarse levels, combines `q·A + (1-q)·B` and hands each finished raw pixel to the caller.
+
+use super::band::{Class, band_coc, in_band};
+use super::bright::is_bright;
+use super::coarse::Coarse;
+use super::footprint::{HARD_EDGE, SOFT_EDGE, STENCIL_TAIL, drawn_radius, equivalent_radius, rim_disk};
+use super::visibility::visibility_rows;
+use super::{Counts, Ctx};
+use crate::render::layer::max_rgb;
+use crate::render::lens::{density, energy, focal_defocus, in_front};
+use crate::render::raw;
+use crate::render::splat::{STRIPE_ROWS, Stripe, Window};
+use rayon::prelude::*;
+use std::sync::atomic::Ordering;
+
+/// A worker's reusable buffers (sized on first use, then recycled from stripe to stripe).
+#[derive(Default)]
+struct Scratch {
+    /// Accumulators: `[A, F, U_ka, …, U_kb]` for the stripe's nodes.
+    accs: Vec<Stripe>,
+    /// `q` of the stripe's targets.
+    q: Vec<f32>,
+    /// The stripe's finished raw pixels ([`raw::CHANNELS`] each).
+    raw: Vec<f32>,
+    /// One row of `A`, of `B` and of one `U_k` (4 channels per pixel), and one coarse row.
+    row_a: Vec<f32>,
+    row_b: Vec<f32>,
+    row_u: Vec<f32>,
+    tmp: Vec<f32>,
+    /// Tap weights per stencil row `-stencil.p..=stencil.p` (first column offset, weights)
+    /// of a source with scatter radius `stencil_sigma` (reused while σ repeats: in-focus
+    /// regions and planes of constant depth).
+    stencil_w: Vec<(i64, Vec<f32>)>,
+    stencil_sigma: f32,
+    /// One rim row of a bright source.
+    rim: Vec<f32>,
+    /// (accumulator, factor) pairs a source scatters into.
+    dests: Vec<(usize, f32)>,
+    /// The visibility's summed-area table and the stripe's visibilities.
+    sat: Vec<f64>,
+    vis: Vec<f32>,
+}
+
+/// Renders every stripe in parallel and hands each finished raw pixel to `finish` with its
+/// `stride` values of `out`. `empty`: nothing visible to scatter (only the visibility).
+pub(super) fn render_stripes(
+    ctx: &Ctx,
+    coarse: &[Vec<Coarse>],
+    empty: bool,
+    out: &mut [f32],
+    stride: usize,
+    finish: &(dyn Fn(&raw::Pixel, &mut [f32]) + Sync),
+    counts: &Counts,
+) {
+    // Scratch is pooled, not made per rayon split: a worker's first stripe sizes its buffers
+    // and later stripes reuse them without new pages.
+    let pool = std::sync::Mutex::new(Vec::<Scratch>::new());
+    out.par_chunks_mut(STRIPE_ROWS * ctx.w * stride).enumerate().for_each(|(si, chunk)| {
+        let mut sc = pool.lock().map(|mut p| p.pop()).ok().flatten().unwrap_or_default();
+        let y0 = si * STRIPE_ROWS;
+        let y1 = (y0 + STRIPE_ROWS).min(ctx.h);
+        render_stripe(ctx, coarse, empty, y0, y1, &mut sc, counts);
+        // Hand the finished pixels over.
+        for (k, px) in chunk.chunks_exact_mut(stride).enumerate() {
+            let r: &raw::Pixel = sc.raw[k * raw::CHANNELS..(k + 1) * raw::CHANNELS].try_into().expect("raw pixel");
+            finish(r, px);
+        }
+        if let Ok(mut p) = pool.lock() {
+            p.push(sc);
+        }
+    });
+}
+
+/// Renders rows `[y0, y1)` into `sc.raw` as raw pixels.
+fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: usize, sc: &mut Scratch, counts: &Counts) {
+    let w = ctx.w;
+    let rows = y1 - y0;
+    visibility_rows(ctx.img, &ctx.sigma, ctx.p, y0, y1, &mut sc.sat, &mut sc.vis);
+    let mut raw = std::mem::take(&mut sc.raw);
+    raw.clear();
+    raw.resize(rows * w * raw::CHANNELS, 0.0);
+    if empty {
+        for (o, &v) in raw.chunks_exact_mut(raw::CHANNELS).zip(&sc.vis) {
+            o[raw::VISIBILITY] = v;
+        }
+        sc.raw = raw;
+        return;
+    }
+
+    // Targets of this stripe: q, and the band's nodes they need.
+    sc.q.clear();
+    let bc = band_coc();
+    let (mut blo, mut bhi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for i in y0 * w..y1 * w {
+        // q < 1 marks a band target; the others count as q = 1 (occlusion ≡ 1).
+        let d = ctx.d(i);
+        let q = if in_band(d, ctx.s, bc) {
+            blo = blo.min(d);
+            bhi = bhi.max(d);
+            focal_defocus(d, ctx.s.blur)
+        } else {
+            1.0
+        };
+        sc.q.push(q);
+    }
+    let nodes = match ctx.band {
+        Some(b) if blo <= bhi && (ctx.has_front || ctx.has_partial) => Some(b.nodes_for(blo, bhi)),
+        _ => None,
+    };
+    let n_acc = match nodes {
+        Some((ka, kb)) if ctx.has_partial => 2 + kb - ka + 1,
+        Some(_) => 2,
+        None => 1,
+    };
+    if nodes.is_some() {
+        counts.band_stripes.fetch_add(1, Ordering::Relaxed);
+    }
+    while sc.accs.len() < n_acc {
+        sc.accs.push(Stripe::new(w));
+    }
+    for a in &mut sc.accs[..n_acc] {
+        a.reset(y0, y1);
+    }
+
+    scan_sources(ctx, nodes, y0, y1, sc, counts);
+    combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw);
+    counts.ops.fetch_add((rows * w * n_acc) as u64, Ordering::Relaxed);
+    sc.raw = raw;
+}
+
+/// Scatters the full-resolution sources that reach rows `[y0, y1)` (exact stencils and
+/// directly drawn disks) into the stripe accumulators `sc.accs`: `A`, and for a stripe with
+/// band targets `F` and the `U_k` of `nodes`.
+// Out of line (unchanged by the module split) so profiles show the stripe's phases apart.
+#[inline(never)]
+fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, sc: &mut Scratch, counts: &Counts) {
+    let (w, h) = (ctx.w, ctx.h);
+    let rows = y1 - y0;
+    let pr = ctx.params;
+    if ctx.full_max <= 0.0 && ctx.bright_max <= 0.0 {
+        // Every visible source lives on a coarse grid.
+        return;
+    }
+    // The widest full-resolution footprint: a disk with its outer soft edge, a stencil, or a
+    // bright source's exact rim.
+    let reach0 = (equivalent_radius(ctx.full_max) + SOFT_EDGE[2].0)
+        .max(pr.stencil_max.min(ctx.full_max) + STENCIL_TAIL)
+        .max(ctx.bright_max + STENCIL_TAIL);
+    let pad0 = ctx.pad(reach0);
+    let lattice = Window::Lattice(ctx.p as i64);
+    let stencil_p = ctx.stencil.p;
+    let (y0i, y1i) = (y0 as i64, y1 as i64);
+    let (mut n_st, mut n_sp, mut n_br, mut ops) = (0u64, 0u64, 0u64, 0u64);
+    for sy in (y0i - pad0).max(-pad0)..(y1i + pad0).min(h as i64 + pad0) {
+        let own_row = sy >= y0i && sy < y1i;
+        for sx in -pad0..w as i64 + pad0 {
+            // Counted once: in the stripe that owns it, not as a replicated border copy.
+            let own = (own_row && sx >= 0 && sx < w as i64) as u64;
+            let j = ctx.clamp_index(sx, sy);
+            // Footprint from the drawn radius, energy density from the true one.
+            let (sig, true_sig) = (drawn_radius(ctx.sigma[j], ctx.p), ctx.sigma[j]);
+            if sig >= 2.0 * pr.r0 && sig > ctx.bright_max {
+                continue;
+            }
+            let Some(v) = ctx.base(j) else { continue };
+            let bright = is_bright(max_rgb(&v), v[3], ctx.bright_level);
+            if sig >= 2.0 * pr.r0 && !bright {
+                continue;
+            }
+            sc.dests.clear();
+            sc.dests.push((0, 1.0));
+            if let (Some((ka, kb)), Some(b)) = (nodes, ctx.band) {
+                let dj = ctx.d(j);
+                match b.class(dj) {
+                    Class::Front => sc.dests.push((1, 1.0)),
+                    Class::Partial => sc.dests.extend((ka..=kb).map(|k| (2 + k - ka, in_front(dj, b.node(k))))),
+                    Class::Hidden => {}
+                }
+            }
+            let dens = density(true_sig, ctx.unit);
+            if sig >= pr.stencil_max && bright {
+                // Bright (HDR) sources, whatever their radius: a disk's edge approximation errs
+                // in proportion to the source's value (a highlight of 50 turns an LDR-sized
+                // error into a visible one), so draw the exact footprint at full resolution.
+                n_br += own;
+                for &(slot, f) in &sc.dests {
+                    ops += rim_disk(&mut sc.accs[slot], (sx, sy), sig, dens, ctx.p as i64, v.map(|c| c * f), &mut sc.rim);
+                }
+            } else if sig < pr.stencil_max {
+                n_st += own;
+                // Keyed by the true σ: two sources drawn with the same capped radius can
+                // still differ in density.
+                if true_sig != sc.stencil_sigma {
+                    ctx.stencil.weights(sig, dens, &mut sc.stencil_w);
+                    sc.stencil_sigma = true_sig;
+                }
+                // Visit only this stripe's rows.
+                let (ra, rb) = ((y0i - sy).max(-stencil_p), (y1i - 1 - sy).min(stencil_p));
+                for di in ra..=rb {
+                    let (jm, ref e) = sc.stencil_w[(di + stencil_p) as usize];
+                    if e.is_empty() {
+                        continue;
+                    }
+                    for &(slot, f) in &sc.dests {
+                        sc.accs[slot].tap_row(sx - jm, sy + di, e, v.map(|c| c * f));
+                    }
+                    ops += (e.len() * sc.dests.len()) as u64;
+                }
+            } else {
+                n_sp += own;
+                let rho = equivalent_radius(sig);
+                // Small disks show their soft edge most: draw its profile there.
+                let edge = if pr.soft_edge || sig < 2.0 * pr.stencil_max { &SOFT_EDGE[..] } else { &HARD_EDGE[..] };
+                for &(off, wt) in edge {
+                    for &(slot, f) in &sc.dests {
+                        let area = sc.accs[slot].disk(sx as f32, sy as f32, rho + off, lattice, v.map(|c| c * dens * wt * f));
+                        ops += (area > 0.0) as u64 * (2.0 * (rho + off)).ceil().min(rows as f32) as u64;
+                    }
+                }
+            }
+        }
+    }
+
+    counts.stencil.fetch_add(n_st, Ordering::Relaxed);
+    counts.span.fetch_add(n_sp, Ordering::Relaxed);
+    counts.bright.fetch_add(n_br, Ordering::Relaxed);
+    counts.ops.fetch_add(ops, Ordering::Relaxed);
+}
+
+/// Resolves the stripe accumulators row by row, adds the coarse levels and combines:
+/// `A` everywhere; `q·A + (1-q)·B` plus the centre correction in the band. Writes `raw`.
+// Out of line, like scan_sources: profiles show the combine apart.
+#[inline(never)]
+fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>, y0: usize, y1: usize, sc: &mut Scratch, raw: &mut [f32]) {
+    const RAW: usize = raw::CHANNELS;
+    let w = ctx.w;
+    let (row_a, row_b, row_u, tmp) = (&mut sc.row_a, &mut sc.row_b, &mut sc.row_u, &mut sc.tmp);
+    for r in 0..y1 - y0 {
+        let y = y0 + r;
+        row_a.clear();
+        row_a.resize(w * 4, 0.0);
+        sc.accs[0].add_row_to(r, row_a);
+        for c in &coarse[0] {
+            c.grid.add_upsampled_row(y, c.factor, row_a, tmp);
+        }
+        let q = &sc.q[r * w..(r + 1) * w];
+        let out = &mut raw[r * w * RAW..(r + 1) * w * RAW];
+        for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
+            o[..4].copy_from_slice(&row_a[x * 4..x * 4 + 4]);
+            o[raw::VISIBILITY] = sc.vis[r * w + x];
+        }
+        let (Some((ka, kb)), Some(band)) = (nodes, ctx.band) else { continue };
+        // B = F + Σ_k hat_k(d_x)·U_k (the hats sum to 1 over the band), held in row_b.
+        row_b.clear();
+        row_b.resize(w * 4, 0.0);
+        if ctx.has_front {
+            sc.accs[1].add_row_to(r, row_b);
+            for c in &coarse[1] {
+                c.grid.add_upsampled_row(y, c.factor, row_b, tmp);
+            }
+        }
+        if ctx.has_partial {
+            for k in ka..=kb {
+                row_u.clear();
+                row_u.resize(w * 4, 0.0);
+                sc.accs[2 + k - ka].add_row_to(r, row_u);
+                for c in &coarse[2 + k] {
+                    c.grid.add_upsampled_row(y, c.factor, row_u, tmp);
+                }
+                for x in 0..w {
+                    if q[x] < 1.0 {
+                        let wk = band.hat(k, ctx.d(y * w + x));
+                        if wk > 0.0 {
+                            for c in 0..4 {
+                                row_b[x * 4 + c] += wk * row_u[x * 4 + c];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
+            let qi = q[x];
+            if qi >= 1.0 {
+                continue;
+            }
+            let i = y * w + x;
+            let di = ctx.d(i);
+            // The centre tap has occlusion 1, not q + (1-q)·g(0) as in A and B.
+            let corr = ctx.base(i).map(|v| {
+                let e = energy(ctx.sigma[i], 0.0, ctx.unit) * (1.0 - qi) * (1.0 - in_front(di, di));
+                v.map(|c| c * e)
+            });
+            for c in 0..4 {
+                o[c] = qi * row_a[x * 4 + c] + (1.0 - qi) * row_b[x * 4 + c] + corr.map_or(0.0, |v| v[c]);
+            }
+        }
+    }
+}

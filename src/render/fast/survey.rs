@@ -1,0 +1,150 @@
+//! The layer-wide passes before any scattering: the survey (scatter radii, what is visible,
+//! the on-focal band) and the presence of source classes per coarse level.
+
+use super::band::{Band, Class, band_coc, in_band};
+use super::bright::{BRIGHT_MIN, is_bright};
+use super::coarse::level_of;
+use super::footprint::drawn_radius;
+use super::{Ctx, FastParams};
+use crate::Image;
+use crate::render::RenderSettings;
+use crate::render::layer::{A, CHANNELS, D, max_rgb};
+use crate::render::lens::scatter_radius;
+use rayon::prelude::*;
+
+/// What one parallel pre-pass learns about a layer.
+#[derive(Clone, Copy)]
+pub(super) struct Survey {
+    /// Visible sources (alpha > 0).
+    pub(super) visible: usize,
+    /// Smallest scatter radius σ of a visible source (∞ if none).
+    pub(super) sigma_min: f32,
+    /// Largest drawn radius (see [`drawn_radius`]) of a visible source, at least 1.
+    pub(super) sigma_max: f32,
+    /// Largest drawn radius of a visible source drawn at full resolution (below `2·r0`);
+    /// 0 if none.
+    pub(super) full_max: f32,
+    /// Largest drawn radius of a visible bright source (a colour above
+    /// [`BRIGHT_MIN`], see [`is_bright`]); 0 if none.
+    pub(super) bright_max: f32,
+    /// Targets in the on-focal band, and the range `[band_lo, band_hi]` of their relative
+    /// disparities (empty: lo > hi).
+    pub(super) band_pixels: usize,
+    pub(super) band_lo: f32,
+    pub(super) band_hi: f32,
+}
+
+impl Survey {
+    const EMPTY: Survey = Survey {
+        visible: 0,
+        sigma_min: f32::INFINITY,
+        sigma_max: 1.0,
+        full_max: 0.0,
+        bright_max: 0.0,
+        band_pixels: 0,
+        band_lo: f32::INFINITY,
+        band_hi: f32::NEG_INFINITY,
+    };
+
+    fn merge(a: Survey, b: Survey) -> Survey {
+        Survey {
+            visible: a.visible + b.visible,
+            sigma_min: a.sigma_min.min(b.sigma_min),
+            sigma_max: a.sigma_max.max(b.sigma_max),
+            full_max: a.full_max.max(b.full_max),
+            bright_max: a.bright_max.max(b.bright_max),
+            band_pixels: a.band_pixels + b.band_pixels,
+            band_lo: a.band_lo.min(b.band_lo),
+            band_hi: a.band_hi.max(b.band_hi),
+        }
+    }
+
+    /// The interpolation nodes of the on-focal band; None when no target is in it.
+    pub(super) fn band(&self, node_step: f32) -> Option<Band> {
+        (self.band_pixels > 0).then(|| Band::new(self.band_lo, self.band_hi, node_step))
+    }
+}
+
+/// One parallel pass over the layer: the scatter radius of every pixel (allocated, 4 bytes
+/// per pixel) and the [`Survey`].
+pub(super) fn survey(img: &Image, s: &RenderSettings, params: FastParams) -> (Vec<f32>, Survey) {
+    let (w, h) = (img.width, img.height);
+    let p = s.lens / 2;
+    let mut sigma = vec![0f32; w * h];
+    let bc = band_coc();
+    let survey = sigma
+        .par_chunks_mut(w)
+        .zip(img.data.par_chunks(w * CHANNELS))
+        .map(|(srow, prow)| {
+            let mut sv = Survey::EMPTY;
+            for (sg, px) in srow.iter_mut().zip(prow.chunks_exact(CHANNELS)) {
+                let d = px[D] - s.focus;
+                *sg = scatter_radius(d, s.blur);
+                if px[A] > 0.0 {
+                    sv.visible += 1;
+                    sv.sigma_min = sv.sigma_min.min(*sg);
+                    let drawn = drawn_radius(*sg, p);
+                    sv.sigma_max = sv.sigma_max.max(drawn);
+                    if drawn < 2.0 * params.r0 {
+                        sv.full_max = sv.full_max.max(drawn);
+                    }
+                    if is_bright(max_rgb(px), 1.0, BRIGHT_MIN) {
+                        sv.bright_max = sv.bright_max.max(drawn);
+                    }
+                }
+                if in_band(d, s, bc) {
+                    sv.band_pixels += 1;
+                    sv.band_lo = sv.band_lo.min(d);
+                    sv.band_hi = sv.band_hi.max(d);
+                }
+            }
+            sv
+        })
+        .reduce(|| Survey::EMPTY, Survey::merge);
+    (sigma, survey)
+}
+
+/// Which source classes a layer has, per coarse level: what decides the passes and their
+/// coarse grids.
+pub(super) struct Presence {
+    /// Coarse levels present (bit ℓ = level ℓ) among all visible sources (pass `A`), those in
+    /// front of every band node (`F`) and the partly occluding ones (the `U_k`).
+    pub(super) levels_all: u64,
+    pub(super) levels_front: u64,
+    pub(super) levels_partial: u64,
+    /// Whether any visible source is in front of every node / partly occluding.
+    pub(super) has_front: bool,
+    pub(super) has_partial: bool,
+    /// Visible sources hidden behind every node (skipped by the band passes).
+    pub(super) hidden: usize,
+}
+
+/// One parallel pass over the visible sources: their coarse levels per class.
+pub(super) fn presence(ctx: &Ctx) -> Presence {
+    let (r0, p, band) = (ctx.params.r0, ctx.p, ctx.band);
+    // Bit 0 tags that the class has a visible source at all; [3] counts the sources hidden
+    // behind every node.
+    let masks = (0..ctx.w * ctx.h)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&j| ctx.img.data[j * CHANNELS + A] > 0.0)
+        .map(|j| {
+            let bit = level_of(drawn_radius(ctx.sigma[j], p), r0).map_or(0, |l| 1u64 << l);
+            let tag = bit | 1;
+            match band.map(|b| b.class(ctx.d(j))) {
+                Some(Class::Front) => [tag, tag, 0, 0],
+                Some(Class::Partial) => [tag, 0, tag, 0],
+                Some(Class::Hidden) => [tag, 0, 0, 1],
+                None => [tag, 0, 0, 0],
+            }
+        })
+        .reduce(|| [0u64; 4], |a, b| [a[0] | b[0], a[1] | b[1], a[2] | b[2], a[3] + b[3]]);
+    Presence {
+        levels_all: masks[0] & !1,
+        levels_front: masks[1] & !1,
+        levels_partial: masks[2] & !1,
+        has_front: masks[1] & 1 != 0,
+        has_partial: masks[2] & 1 != 0,
+        hidden: masks[3] as usize,
+    }
+}
