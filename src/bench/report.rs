@@ -98,15 +98,22 @@ pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
     let out = &opts.out;
     write_text(&out.join("report.csv"), &csv(&res.rows))?;
     write_text(&out.join("report.md"), &markdown(opts, res))?;
-    let series: Vec<plot::Series> = Method::ALL
-        .iter()
-        .filter_map(|&m| {
-            let pts: Vec<plot::Point> = by_method(&res.rows)
+    // One series per method and lens profile, so a line joins only settings of one model.
+    let means = by_method(&res.rows);
+    let series: Vec<plot::Series> = [Profile::Official, Profile::Physical]
+        .into_iter()
+        .flat_map(|profile| Method::ALL.iter().map(move |&m| (m, profile)))
+        .filter_map(|(m, profile)| {
+            let pts: Vec<plot::Point> = means
                 .iter()
-                .filter(|((mm, _), _)| *mm == m)
+                .filter(|((mm, v), _)| *mm == m && v.profile() == profile)
                 .map(|((_, v), s)| plot::Point { time_ms: s.time_ms, value: s.psnr_srgb, label: v.name() })
                 .collect();
-            (!pts.is_empty()).then(|| plot::Series { name: m.name().into(), points: pts })
+            let name = match profile {
+                Profile::Official => m.name().to_owned(),
+                Profile::Physical => format!("{} (physical)", m.name()),
+            };
+            (!pts.is_empty()).then(|| plot::Series { name, points: pts })
         })
         .collect();
     plot::error_vs_time(

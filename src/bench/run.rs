@@ -133,7 +133,8 @@ impl Variant {
             Variant::Plain => "default".into(),
         }
     }
-    fn profile(self) -> crate::render::Profile {
+    /// The lens profile this setting renders with.
+    pub fn profile(self) -> crate::render::Profile {
         if self == Variant::PhysicalExact { crate::render::Profile::Physical } else { crate::render::Profile::Official }
     }
     fn kernel(self) -> Kernel {
