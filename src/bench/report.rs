@@ -113,7 +113,7 @@ pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
                 Profile::Official => m.name().to_owned(),
                 Profile::Physical => format!("{} (physical)", m.name()),
             };
-            (!pts.is_empty()).then(|| plot::Series { name, points: pts })
+            (!pts.is_empty()).then_some(plot::Series { name, points: pts })
         })
         .collect();
     plot::error_vs_time(
