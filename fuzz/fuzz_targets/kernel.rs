@@ -47,7 +47,7 @@ fuzz_target!(|data: &[u8]| {
             let a = if back { 1.0 } else { b.unit() };
             px.extend_from_slice(&[r, g, bl, a, b.unit()]);
         }
-        let Ok(img) = Image::from_vec(w, h, 5, px) else { return };
+        let Some(img) = Image::from_vec(w, h, 5, px) else { return };
         let Ok(layer) = Layer::new(img, "fuzz") else { return };
         layers.push(layer);
     }
