@@ -369,7 +369,10 @@ fn physical_fast_uniform_in_focus_and_flux() {
                 profile: drbokeh::render::Profile::Physical,
             };
             let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
-            let bad = out.data.chunks_exact(3).position(|px| px.iter().zip(&colour).any(|(v, c)| !((v - c).abs() < UNIFORM_TOL)));
+            let bad = out
+                .data
+                .chunks_exact(3)
+                .position(|px| px.iter().zip(&colour).any(|(v, c)| (v - c).abs().is_nan() || (v - c).abs() >= UNIFORM_TOL));
             if let Some(i) = bad {
                 let saved = common::save_failure(&format!("fast-physical-uniform-K{k}-f{f}-occ{occlusion}"), &out);
                 failures.push(format!(
