@@ -1,14 +1,15 @@
 //! Wall-clock timing of the kernels on the synthetic two-layer scene, one process, one run
 //! after another (so ratios are measured side by side):
 //!
-//! `cargo run --release --example timing -- WIDTH HEIGHT MAX_COC [exact] [fast1 fast2 ...] [--runs N] [--threads N]`
+//! `cargo run --release --example timing -- WIDTH HEIGHT MAX_COC [exact] [fast1 fast2 ...] [--runs N] [--threads N] [--profile official,physical]`
 //!
 //! Prints the median of N runs per kernel (exact runs once: it is slow), the speed-up and the
-//! fast kernel's PSNR / max abs error against the exact one when both ran.
+//! fast kernel's PSNR / max abs error against the exact one when both ran. `--profile` lists
+//! the lens profiles to time, one after another in the same process (default: official).
 
 use drbokeh::bench::metrics::psnr;
 use drbokeh::bench::stress::two_layer_scene;
-use drbokeh::render::{Kernel, render};
+use drbokeh::render::{Kernel, Profile, RenderSettings, render};
 use std::time::Instant;
 
 fn main() {
@@ -22,7 +23,27 @@ fn main() {
     if let Some(t) = opt("--threads") {
         rayon::ThreadPoolBuilder::new().num_threads(t).build_global().unwrap();
     }
+    let profiles: Vec<Profile> = match args.iter().position(|a| a == "--profile").and_then(|i| args.get(i + 1)) {
+        None => vec![Profile::Official],
+        Some(list) => list
+            .split(',')
+            .map(|p| match p {
+                "official" => Profile::Official,
+                "physical" => Profile::Physical,
+                other => panic!("unknown profile {other:?} (official, physical)"),
+            })
+            .collect(),
+    };
     let (layers, s) = two_layer_scene(w, h, coc, true);
+    for profile in profiles {
+        time_kernels(&args, &layers, &RenderSettings { profile, ..s }, runs);
+    }
+}
+
+/// Times the kernels `args` names on `layers` with settings `s`, `runs` times each.
+fn time_kernels(args: &[String], layers: &[drbokeh::render::Layer], s: &RenderSettings, runs: usize) {
+    let (w, h) = (layers[0].width(), layers[0].height());
+    println!("profile {}:", s.profile.name());
     println!(
         "{w}x{h} ({:.2} MP), 2 layers, K = {}, lens = {}, {} threads",
         (w * h) as f64 / 1e6,
@@ -38,7 +59,7 @@ fn main() {
         let mut out = None;
         for _ in 0..n {
             let t = Instant::now();
-            out = Some(render(&layers, &s, kernel).unwrap());
+            out = Some(render(layers, s, kernel).unwrap());
             times.push(t.elapsed().as_secs_f64());
         }
         times.sort_by(f64::total_cmp);

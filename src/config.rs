@@ -115,7 +115,7 @@ pub struct RenderConfig {
     /// false: classical scatter without occlusion (one layer), for comparison.
     pub occlusion: bool,
     /// Lens calibration: "official" (the Dr.Bokeh formula, the default for now) or "physical"
-    /// (calibrated to the thin lens; exact kernel only so far).
+    /// (calibrated to the thin lens; the fast kernel composites each layer as one depth group).
     pub profile: crate::render::Profile,
 }
 

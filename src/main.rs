@@ -170,7 +170,7 @@ pub(crate) struct PipelineArgs {
     #[arg(long)]
     no_occlusion: bool,
     /// Lens calibration: official (the Dr.Bokeh formula) or physical (calibrated to the thin
-    /// lens; needs --kernel exact for now) [default: official].
+    /// lens; the fast kernel approximates its in-layer depth groups) [default: official].
     #[arg(long, value_enum)]
     profile: Option<ProfileArg>,
     /// PNG bit depth (8 or 16).

@@ -216,16 +216,6 @@ pub fn exact_seconds(pixels: u64, lens: usize, layers: usize, threads: usize) ->
     pixels as f64 * aperture::disk_tap_count(lens) as f64 * layers as f64 / (TAPS_PER_SECOND_PER_THREAD * threads.max(1) as f64)
 }
 
-/// Refuses a kernel that does not implement the settings' profile yet.
-fn check_kernel(s: &RenderSettings, kernel: Kernel) -> Result<()> {
-    if s.profile == lens::Profile::Physical && kernel != Kernel::Exact {
-        return Err(Error::usage(
-            "render.profile physical is implemented in the exact kernel only so far: use render.kernel exact (--kernel exact) or render.profile official",
-        ));
-    }
-    Ok(())
-}
-
 /// Renders each layer with `kernel` and composites them front to back. Returns linear RGB.
 pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Image> {
     let refs: Vec<&Layer> = layers.iter().collect();
@@ -240,7 +230,6 @@ pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Im
 /// never a whole raw layer.
 pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     validate(layers, s)?;
-    check_kernel(s, kernel)?;
     let (w, h) = (layers[0].width(), layers[0].height());
     let mut acc = composite::accumulator(w, h);
     let mut stats = Vec::with_capacity(layers.len());
@@ -257,7 +246,15 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
                 stats.push(None);
             }
             Kernel::Fast { quality } => {
-                let st = fast::scatter_layer_into(l, s, fast::FastParams::from_quality(quality), &mut acc, composite::ACC_CHANNELS, &over);
+                let st = fast::scatter_layer_into(
+                    l,
+                    s,
+                    fast::FastParams::from_quality(quality),
+                    Role::of(n, layers.len()),
+                    &mut acc,
+                    composite::ACC_CHANNELS,
+                    &over,
+                );
                 stats.push(Some(st));
             }
         }
@@ -286,7 +283,7 @@ pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<R
         .enumerate()
         .map(|(n, l)| match kernel {
             Kernel::Exact => exact::scatter_layer(l, s, &taps, Role::of(n, layers.len())),
-            Kernel::Fast { quality } => fast::scatter_layer(l, s, fast::FastParams::from_quality(quality)).0,
+            Kernel::Fast { quality } => fast::scatter_layer(l, s, fast::FastParams::from_quality(quality), Role::of(n, layers.len())).0,
         })
         .collect()
 }

@@ -7,7 +7,7 @@
 //! ([`Class`]) so the passes skip what adds nothing.
 
 use super::super::RenderSettings;
-use super::super::lens::STEP_GAIN;
+use super::super::lens::{Profile, STEP_GAIN};
 
 /// `1 - q` below which a target counts as defocused (occlusion ≡ 1).
 const BAND_EPS: f32 = 1e-6;
@@ -21,10 +21,11 @@ pub(super) fn band_coc() -> f32 {
     ((1.0 / BAND_EPS as f64).ln() / STEP_GAIN as f64).sqrt() as f32
 }
 
-/// Whether a target at relative disparity `d` is in the on-focal band.
+/// Whether a target at relative disparity `d` is in the on-focal band (never in the physical
+/// profile, which has no on-focal occlusion term).
 #[inline]
 pub(super) fn in_band(d: f32, s: &RenderSettings, band_coc: f32) -> bool {
-    s.occlusion && d.abs() * s.blur < band_coc
+    s.occlusion && s.profile == Profile::Official && d.abs() * s.blur < band_coc
 }
 
 /// How a source relates to the on-focal band's nodes.

@@ -6,10 +6,9 @@
 //! present and per pass, `16/4^ℓ` bytes per pixel each.
 
 use super::bright::is_bright;
-use super::footprint::{drawn_radius, equivalent_radius};
+use super::footprint::equivalent;
 use super::{Counts, Ctx, Presence};
 use crate::render::layer::max_rgb;
-use crate::render::lens::density;
 use crate::render::splat::{Grid4, Window, accumulate};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -117,7 +116,7 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                     for sx in (x0 + cj * f)..(x0 + (cj + 1) * f).min(x1) {
                         let j = ctx.clamp_index(sx, sy);
                         let sig = ctx.sigma[j];
-                        let drawn = drawn_radius(sig, ctx.p);
+                        let drawn = ctx.drawn(sig);
                         if drawn < lo || drawn >= hi {
                             continue;
                         }
@@ -126,7 +125,7 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                             // Drawn exactly at full resolution (stripe::scan_sources).
                             continue;
                         }
-                        let dens = density(sig, ctx.unit);
+                        let dens = ctx.density(sig);
                         let wgt = (v[3] * dens) as f64;
                         if wgt <= 0.0 {
                             continue;
@@ -138,7 +137,7 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                         }
                         a[4] += wgt * ((sx as f32 + 0.5) / ff - 0.5) as f64;
                         a[5] += wgt * ((sy as f32 + 0.5) / ff - 0.5) as f64;
-                        a[6] += wgt * (equivalent_radius(drawn) / ff) as f64;
+                        a[6] += wgt * (equivalent(ctx.s.profile, drawn) / ff) as f64;
                         any = true;
                     }
                 }

@@ -34,22 +34,27 @@
 //! [`coarse`] (the coarse grids), [`visibility`] (eq. 4 from a summed-area table), [`survey`]
 //! (the layer-wide passes) and [`stripe`] (scatter and combine, one stripe of rows at a time).
 //! [`scatter_layer_into`] reads as their sequence.
+//!
+//! The physical profile ([`super::lens::Profile::Physical`]) runs the same stripes and coarse
+//! grids with its own footprint ([`physical`]: uniform disks of unit flux, drawn exactly up to
+//! `2·r0`) and no on-focal band; each finished pixel's sums are turned into `[P, A, V]` there.
 
 mod band;
 mod bright;
 mod coarse;
 mod footprint;
+mod physical;
 mod stripe;
 mod survey;
 mod visibility;
 
 use super::aperture::{disk_tap_count, disk_taps_within};
 use super::layer::{A, CHANNELS, D, Layer};
-use super::lens::{in_front, weight_unit};
+use super::lens::{Profile, density, disk_norm, in_front, weight_unit};
 use super::splat::STRIPE_ROWS;
-use super::{RawLayer, RenderSettings, raw};
+use super::{RawLayer, RenderSettings, Role, raw};
 use band::{Band, Class};
-use footprint::{STENCIL_TAIL, Stencil, drawn_radius};
+use footprint::{STENCIL_TAIL, Stencil};
 use std::sync::atomic::AtomicU64;
 use survey::{Presence, Survey};
 
@@ -120,17 +125,22 @@ pub struct FastStats {
 struct Ctx<'a> {
     img: &'a crate::Image,
     s: &'a RenderSettings,
+    /// Where the layer sits in the stack (the physical profile's visibility).
+    role: Role,
     w: usize,
     h: usize,
     /// Window half-size `lens/2`.
     p: usize,
-    /// Scatter radius σ of every pixel.
+    /// Footprint radius of every pixel (see [`footprint::source_radius`]): the scatter radius σ
+    /// (official) or the CoC r (physical).
     sigma: Vec<f32>,
     /// See `Survey::sigma_max`.
     sigma_max: f32,
     /// See `Survey::full_max`; `bright_max` is `Survey::bright_max` for sources above
     /// `bright_level` (see [`bright::bright_level`]).
     full_max: f32,
+    /// Whether any visible source is drawn at full resolution (see `Survey::full`).
+    has_full: bool,
     bright_max: f32,
     bright_level: f32,
     /// Weight unit of the layer (see `lens::weight_unit`).
@@ -148,13 +158,15 @@ struct Ctx<'a> {
 impl<'a> Ctx<'a> {
     /// The thresholds of one layer from its survey: weight unit, band nodes, stencil table
     /// and bright level. Reads the image again only when bright sources are many.
-    fn new(img: &'a crate::Image, s: &'a RenderSettings, params: FastParams, sigma: Vec<f32>, survey: &Survey) -> Self {
+    fn new(img: &'a crate::Image, s: &'a RenderSettings, role: Role, params: FastParams, sigma: Vec<f32>, survey: &Survey) -> Self {
         let p = s.lens / 2;
         let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
-        let (bright_level, bright_max) = bright::bright_sources(img, survey.visible, survey.bright_max, |i| drawn_radius(sigma[i], p));
+        let (bright_level, bright_max) =
+            bright::bright_sources(img, survey.visible, survey.bright_max, |i| footprint::drawn(s.profile, sigma[i], p));
         Ctx {
             img,
             s,
+            role,
             w: img.width,
             h: img.height,
             p,
@@ -163,12 +175,29 @@ impl<'a> Ctx<'a> {
             sigma,
             sigma_max: survey.sigma_max,
             full_max: survey.full_max,
+            has_full: survey.full > 0,
             bright_max,
             bright_level,
             params,
             band: survey.band(params.node_step),
             has_front: false,
             has_partial: false,
+        }
+    }
+
+    /// The radius a source of footprint radius `radius` is drawn with (see [`footprint::drawn`]).
+    #[inline]
+    fn drawn(&self, radius: f32) -> f32 {
+        footprint::drawn(self.s.profile, radius, self.p)
+    }
+
+    /// A source's flux per unit of footprint, from its true footprint radius: the energy
+    /// density `1/σ²` in weight units (official) or `1/disk_norm(r)` (physical).
+    #[inline]
+    fn density(&self, radius: f32) -> f32 {
+        match self.s.profile {
+            Profile::Official => density(radius, self.unit),
+            Profile::Physical => 1.0 / disk_norm(radius),
         }
     }
 
@@ -240,16 +269,18 @@ impl Counts {
     }
 }
 
-/// Renders one layer into its raw sums `[ΣR, ΣG, ΣB, W, o]`, like [`super::exact::scatter_layer`].
-/// Allocates the raw output (`width·height·raw::CHANNELS` f32).
-pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams) -> (RawLayer, FastStats) {
+/// Renders one layer (at `role` in the stack) into its raw sums, like
+/// [`super::exact::scatter_layer`]: `[ΣR, ΣG, ΣB, W, o]` (official) or `[P_r, P_g, P_b, A, V]`
+/// (physical). Allocates the raw output (`width·height·raw::CHANNELS` f32).
+pub fn scatter_layer(layer: &Layer, s: &RenderSettings, params: FastParams, role: Role) -> (RawLayer, FastStats) {
     let (w, h) = (layer.width(), layer.height());
     let mut out = vec![0f32; w * h * raw::CHANNELS];
-    let stats = scatter_layer_into(layer, s, params, &mut out, raw::CHANNELS, &|raw, px| px.copy_from_slice(raw));
+    let stats = scatter_layer_into(layer, s, params, role, &mut out, raw::CHANNELS, &|raw, px| px.copy_from_slice(raw));
     (RawLayer::new(w, h, out, layer), stats)
 }
 
-/// Renders one layer and hands each pixel's raw sums `[ΣR, ΣG, ΣB, W, o]` to `finish`, with
+/// Renders one layer at `role` in the stack and hands each pixel's raw sums (see
+/// [`scatter_layer`]) to `finish`, with
 /// that pixel's `stride` values of `out` (row-major, `width·height·stride` f32): storing them
 /// ([`scatter_layer`]) or compositing them on the fly (`render::render`). Besides `out`,
 /// allocates the scatter radii (4 bytes per pixel), the coarse grids of the passes that have
@@ -259,6 +290,7 @@ pub fn scatter_layer_into(
     layer: &Layer,
     s: &RenderSettings,
     params: FastParams,
+    role: Role,
     out: &mut [f32],
     stride: usize,
     finish: &(dyn Fn(&raw::Pixel, &mut [f32]) + Sync),
@@ -269,7 +301,7 @@ pub fn scatter_layer_into(
     // Survey: scatter radii, what is visible, the on-focal band.
     let (sigma, survey) = survey::survey(img, s, params);
     // Thresholds: weight unit, band nodes, stencil table, bright level.
-    let mut ctx = Ctx::new(img, s, params, sigma, &survey);
+    let mut ctx = Ctx::new(img, s, role, params, sigma, &survey);
     // Masks: which passes have sources, and on which coarse levels.
     let presence = survey::presence(&ctx);
     (ctx.has_front, ctx.has_partial) = (presence.has_front, presence.has_partial);

@@ -8,9 +8,9 @@ use super::bright::is_bright;
 use super::coarse::Coarse;
 use super::footprint::{HARD_EDGE, SOFT_EDGE, STENCIL_TAIL, drawn_radius, equivalent_radius, rim_disk};
 use super::visibility::visibility_rows;
-use super::{Counts, Ctx};
+use super::{Counts, Ctx, physical};
 use crate::render::layer::max_rgb;
-use crate::render::lens::{density, energy, focal_defocus, in_front};
+use crate::render::lens::{Profile, density, energy, focal_defocus, in_front};
 use crate::render::raw;
 use crate::render::splat::{STRIPE_ROWS, Stripe, Window};
 use rayon::prelude::*;
@@ -18,9 +18,9 @@ use std::sync::atomic::Ordering;
 
 /// A worker's reusable buffers (sized on first use, then recycled from stripe to stripe).
 #[derive(Default)]
-struct Scratch {
+pub(super) struct Scratch {
     /// Accumulators: `[A, F, U_ka, …, U_kb]` for the stripe's nodes.
-    accs: Vec<Stripe>,
+    pub(super) accs: Vec<Stripe>,
     /// `q` of the stripe's targets.
     q: Vec<f32>,
     /// The stripe's finished raw pixels ([`raw::CHANNELS`] each).
@@ -33,10 +33,10 @@ struct Scratch {
     /// Tap weights per stencil row `-stencil.p..=stencil.p` (first column offset, weights)
     /// of a source with scatter radius `stencil_sigma` (reused while σ repeats: in-focus
     /// regions and planes of constant depth).
-    stencil_w: Vec<(i64, Vec<f32>)>,
-    stencil_sigma: f32,
+    pub(super) stencil_w: Vec<(i64, Vec<f32>)>,
+    pub(super) stencil_sigma: f32,
     /// One rim row of a bright source.
-    rim: Vec<f32>,
+    pub(super) rim: Vec<f32>,
     /// (accumulator, factor) pairs a source scatters into.
     dests: Vec<(usize, f32)>,
     /// The visibility's summed-area table and the stripe's visibilities.
@@ -78,13 +78,21 @@ pub(super) fn render_stripes(
 fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: usize, sc: &mut Scratch, counts: &Counts) {
     let w = ctx.w;
     let rows = y1 - y0;
-    visibility_rows(ctx.img, &ctx.sigma, ctx.p, y0, y1, &mut sc.sat, &mut sc.vis);
+    let physical = ctx.s.profile == Profile::Physical;
+    if physical {
+        physical::own_alpha_rows(ctx, y0, y1, &mut sc.vis);
+    } else {
+        visibility_rows(ctx.img, &ctx.sigma, ctx.p, y0, y1, &mut sc.sat, &mut sc.vis);
+    }
     let mut raw = std::mem::take(&mut sc.raw);
     raw.clear();
     raw.resize(rows * w * raw::CHANNELS, 0.0);
     if empty {
         for (o, &v) in raw.chunks_exact_mut(raw::CHANNELS).zip(&sc.vis) {
             o[raw::VISIBILITY] = v;
+        }
+        if physical {
+            physical::finish_rows(ctx, &mut raw);
         }
         sc.raw = raw;
         return;
@@ -125,8 +133,15 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
         a.reset(y0, y1);
     }
 
-    scan_sources(ctx, nodes, y0, y1, sc, counts);
+    if physical {
+        physical::scan_sources(ctx, y0, y1, sc, counts);
+    } else {
+        scan_sources(ctx, nodes, y0, y1, sc, counts);
+    }
     combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw);
+    if physical {
+        physical::finish_rows(ctx, &mut raw);
+    }
     counts.ops.fetch_add((rows * w * n_acc) as u64, Ordering::Relaxed);
     sc.raw = raw;
 }

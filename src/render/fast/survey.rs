@@ -4,12 +4,11 @@
 use super::band::{Band, Class, band_coc, in_band};
 use super::bright::{BRIGHT_MIN, is_bright};
 use super::coarse::level_of;
-use super::footprint::drawn_radius;
+use super::footprint::{drawn, source_radius};
 use super::{Ctx, FastParams};
 use crate::Image;
 use crate::render::RenderSettings;
 use crate::render::layer::{A, CHANNELS, D, max_rgb};
-use crate::render::lens::scatter_radius;
 use rayon::prelude::*;
 
 /// What one parallel pre-pass learns about a layer.
@@ -17,13 +16,16 @@ use rayon::prelude::*;
 pub(super) struct Survey {
     /// Visible sources (alpha > 0).
     pub(super) visible: usize,
-    /// Smallest scatter radius σ of a visible source (∞ if none).
+    /// Smallest footprint radius of a visible source (∞ if none).
     pub(super) sigma_min: f32,
     /// Largest drawn radius (see [`drawn_radius`]) of a visible source, at least 1.
     pub(super) sigma_max: f32,
     /// Largest drawn radius of a visible source drawn at full resolution (below `2·r0`);
     /// 0 if none.
     pub(super) full_max: f32,
+    /// Visible sources drawn at full resolution (a physical source in focus has radius 0, so
+    /// `full_max` alone does not tell).
+    pub(super) full: usize,
     /// Largest drawn radius of a visible bright source (a colour above
     /// [`BRIGHT_MIN`], see [`is_bright`]); 0 if none.
     pub(super) bright_max: f32,
@@ -40,6 +42,7 @@ impl Survey {
         sigma_min: f32::INFINITY,
         sigma_max: 1.0,
         full_max: 0.0,
+        full: 0,
         bright_max: 0.0,
         band_pixels: 0,
         band_lo: f32::INFINITY,
@@ -52,6 +55,7 @@ impl Survey {
             sigma_min: a.sigma_min.min(b.sigma_min),
             sigma_max: a.sigma_max.max(b.sigma_max),
             full_max: a.full_max.max(b.full_max),
+            full: a.full + b.full,
             bright_max: a.bright_max.max(b.bright_max),
             band_pixels: a.band_pixels + b.band_pixels,
             band_lo: a.band_lo.min(b.band_lo),
@@ -79,14 +83,15 @@ pub(super) fn survey(img: &Image, s: &RenderSettings, params: FastParams) -> (Ve
             let mut sv = Survey::EMPTY;
             for (sg, px) in srow.iter_mut().zip(prow.chunks_exact(CHANNELS)) {
                 let d = px[D] - s.focus;
-                *sg = scatter_radius(d, s.blur);
+                *sg = source_radius(s.profile, d, s.blur);
                 if px[A] > 0.0 {
                     sv.visible += 1;
                     sv.sigma_min = sv.sigma_min.min(*sg);
-                    let drawn = drawn_radius(*sg, p);
+                    let drawn = drawn(s.profile, *sg, p);
                     sv.sigma_max = sv.sigma_max.max(drawn);
                     if drawn < 2.0 * params.r0 {
                         sv.full_max = sv.full_max.max(drawn);
+                        sv.full += 1;
                     }
                     if is_bright(max_rgb(px), 1.0, BRIGHT_MIN) {
                         sv.bright_max = sv.bright_max.max(drawn);
@@ -121,7 +126,7 @@ pub(super) struct Presence {
 
 /// One parallel pass over the visible sources: their coarse levels per class.
 pub(super) fn presence(ctx: &Ctx) -> Presence {
-    let (r0, p, band) = (ctx.params.r0, ctx.p, ctx.band);
+    let (r0, band) = (ctx.params.r0, ctx.band);
     // Bit 0 tags that the class has a visible source at all; [3] counts the sources hidden
     // behind every node.
     let masks = (0..ctx.w * ctx.h)
@@ -129,7 +134,7 @@ pub(super) fn presence(ctx: &Ctx) -> Presence {
         .with_min_len(4096)
         .filter(|&j| ctx.img.data[j * CHANNELS + A] > 0.0)
         .map(|j| {
-            let bit = level_of(drawn_radius(ctx.sigma[j], p), r0).map_or(0, |l| 1u64 << l);
+            let bit = level_of(ctx.drawn(ctx.sigma[j]), r0).map_or(0, |l| 1u64 << l);
             let tag = bit | 1;
             match band.map(|b| b.class(ctx.d(j))) {
                 Some(Class::Front) => [tag, tag, 0, 0],
