@@ -114,8 +114,8 @@ pub struct RenderConfig {
     pub gamma: Option<f32>,
     /// false: classical scatter without occlusion (one layer), for comparison.
     pub occlusion: bool,
-    /// Lens calibration: "official" (the Dr.Bokeh formula, the default for now) or "physical"
-    /// (calibrated to the thin lens; the fast kernel composites each layer as one depth group).
+    /// Lens calibration: "physical" (the default: calibrated to the thin lens; the fast kernel
+    /// composites each layer as one depth group) or "official" (the Dr.Bokeh formula).
     pub profile: crate::render::Profile,
 }
 
@@ -128,7 +128,7 @@ impl Default for RenderConfig {
             lens: None,
             gamma: None,
             occlusion: true,
-            profile: crate::render::Profile::Official,
+            profile: crate::render::Profile::Physical,
         }
     }
 }

@@ -338,7 +338,22 @@ fn gamma_renders_on_powered_colours() {
     io::save_npy(&s.path("fg.npy"), &fg).unwrap();
     io::save_npy(&s.path("bg.npy"), &bg).unwrap();
     let j = s.json(&[
-        "--layer", "fg.npy", "--layer", "bg.npy", "--focus", "0", "--blur", "5", "--gamma", "2.2", "--kernel", "exact", "-o", "g.npy",
+        "--layer",
+        "fg.npy",
+        "--layer",
+        "bg.npy",
+        "--focus",
+        "0",
+        "--blur",
+        "5",
+        "--gamma",
+        "2.2",
+        "--profile",
+        "official",
+        "--kernel",
+        "exact",
+        "-o",
+        "g.npy",
     ]);
     assert!((f64_of(&j["params"]["gamma"]) - 2.2).abs() < 1e-6, "{j}");
     let got = read_npy(&s.path("g.npy"));
@@ -421,6 +436,8 @@ fn no_occlusion_renders_one_layer() {
         "--blur",
         "3",
         "--no-occlusion",
+        "--profile",
+        "official",
         "--kernel",
         "exact",
         "-o",
@@ -752,7 +769,22 @@ fn npy_output_of_layers_equals_the_library_render() {
     io::save_npy(&s.path("bg.npy"), &bg).unwrap();
     for (focus, blur) in [(0.0f32, 4.0f32), (1.0, 6.0), (0.5, 3.0)] {
         let (fs, bs) = (focus.to_string(), blur.to_string());
-        s.ok(&["--layer", "fg.npy", "--layer", "bg.npy", "--focus", &fs, "--blur", &bs, "--kernel", "exact", "-o", "r.npy"]);
+        s.ok(&[
+            "--layer",
+            "fg.npy",
+            "--layer",
+            "bg.npy",
+            "--focus",
+            &fs,
+            "--blur",
+            &bs,
+            "--profile",
+            "official",
+            "--kernel",
+            "exact",
+            "-o",
+            "r.npy",
+        ]);
         let got = read_npy(&s.path("r.npy"));
         let layers = layers_of(&[&fg, &bg]);
         let st = RenderSettings {
@@ -814,7 +846,21 @@ fn blur_zero_with_layers_is_the_alpha_composite() {
 #[test]
 fn kernel_exact_at_blur_zero_is_not_the_identity() {
     let s = Scene::new();
-    s.ok(&["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "0", "--kernel", "exact", "-o", "e.exr"]);
+    s.ok(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--focus",
+        "1",
+        "--blur",
+        "0",
+        "--profile",
+        "official",
+        "--kernel",
+        "exact",
+        "-o",
+        "e.exr",
+    ]);
     let out = read_exr(&s.path("e.exr"));
     let inp = read_exr(&s.path("image.exr"));
     let e = max_abs_diff(&out.data, &inp.data);
@@ -822,13 +868,30 @@ fn kernel_exact_at_blur_zero_is_not_the_identity() {
     // On a single-layer scene (flat depth) it is only a slight softening: the centre keeps
     // 0.668 of the weight against ~0.06 for all its same-depth neighbours together.
     io::write_exr(&s.path("flat.exr"), &Image::filled(W, H, 1, 2.0), &["Z"]).unwrap();
-    let j = s.json(&["image.exr", "--depth", "flat.exr", "--focus", "0", "--blur", "0", "--kernel", "exact", "-o", "f.exr"]);
+    let j = s.json(&[
+        "image.exr",
+        "--depth",
+        "flat.exr",
+        "--focus",
+        "0",
+        "--blur",
+        "0",
+        "--profile",
+        "official",
+        "--kernel",
+        "exact",
+        "-o",
+        "f.exr",
+    ]);
     assert_eq!(j["params"]["layers"], 1, "{j}");
     let out = read_exr(&s.path("f.exr"));
     let e = max_abs_diff(&out.data, &inp.data);
     // Largest neighbour contrast in the texture is 0.8 (red subject vs background);
     // 0.8 * 0.06 / 0.73 = 0.066.
     assert!(e > 1e-3 && e < 0.07, "flat scene, exact kernel at K = 0 changed the image by {e}");
+    // The physical profile (the default) at K = 0 is the identity, exact kernel included.
+    s.ok(&["image.exr", "--depth", "flat.exr", "--focus", "0", "--blur", "0", "--kernel", "exact", "-o", "p.exr"]);
+    assert_eq!(read_exr(&s.path("p.exr")).data, inp.data);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -587,6 +587,9 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
     for (focus, kernel) in [(0.9, "exact"), (0.2, "exact"), (0.9, "fast"), (0.5, "fast")] {
         let mut cfg = Config::default();
         cfg.render.blur = Some(12.0);
+        // The reach is the official model's visibility box (the physical profile's fast kernel
+        // does not read a transparent target's disparity at all).
+        cfg.render.profile = drbokeh::render::Profile::Official;
         cfg.render.kernel = if kernel == "exact" { drbokeh::config::KernelChoice::Exact } else { drbokeh::config::KernelChoice::Fast };
         let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(focus)).unwrap();
         let p = &out.report.params;

@@ -132,10 +132,11 @@ pub enum Profile {
     /// a one-pixel antialiased edge, normalized to unit flux; visibility is the layer's own
     /// coverage; inside a layer, sources in front of / at / behind the target's depth are
     /// composited front to back. A source whose CoC is below half a pixel stays in place.
+    /// The default.
+    #[default]
     Physical,
     /// The official Dr.Bokeh formula, exactly (golden vectors): `σ = K·|d| + 1`, the soft
     /// step, on-focal occlusion `O`, visibility as the mean alpha of a box of half-size σ/2.
-    #[default]
     Official,
 }
 
