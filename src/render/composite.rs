@@ -24,7 +24,7 @@ pub const ACC_CHANNELS: usize = 4;
 /// noise where `W` is close to 0).
 #[inline]
 pub fn over(raw: &[f32], range: &[[f32; 2]; 3], acc: &mut [f32]) {
-    let (weight, vis) = (raw[3], raw[4]);
+    let (weight, vis) = (raw[super::raw::WEIGHT], raw[super::raw::VISIBILITY]);
     let t = acc[3];
     let cover = t * vis;
     // A NaN weight (a kernel bug) is carried into the result, never dropped as "no light":

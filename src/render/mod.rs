@@ -91,7 +91,7 @@ impl RawLayer {
     /// Wraps a kernel's raw output (`width * height * 5` values) for `layer`, whose colour
     /// range it records. Panics if `data` has another length (a kernel bug).
     pub fn new(width: usize, height: usize, data: Vec<f32>, layer: &Layer) -> Self {
-        RawLayer { image: Image::from_vec(width, height, 5, data).expect("raw layer size"), range: layer.colour_range() }
+        RawLayer { image: Image::from_vec(width, height, raw::CHANNELS, data).expect("raw layer size"), range: layer.colour_range() }
     }
     /// Width, pixels.
     pub fn width(&self) -> usize {
@@ -104,7 +104,7 @@ impl RawLayer {
     /// The raw `[ΣR, ΣG, ΣB, W, o]` of pixel `i` (row-major index).
     #[inline]
     pub fn pixel(&self, i: usize) -> &[f32] {
-        &self.image.data[i * 5..i * 5 + 5]
+        &self.image.data[i * raw::CHANNELS..(i + 1) * raw::CHANNELS]
     }
     /// The raw layer as a 5-channel image.
     pub fn image(&self) -> &Image {
@@ -118,7 +118,12 @@ impl RawLayer {
 
 /// Smallest scatter radius over a layer's visible pixels (alpha > 0); 1.0 if none.
 pub fn min_visible_radius(img: &Image, sigma: &[f32]) -> f32 {
-    let m = sigma.iter().zip(img.data.chunks_exact(5)).filter(|(_, px)| px[layer::A] > 0.0).map(|(&s, _)| s).fold(f32::INFINITY, f32::min);
+    let m = sigma
+        .iter()
+        .zip(img.data.chunks_exact(layer::CHANNELS))
+        .filter(|(_, px)| px[layer::A] > 0.0)
+        .map(|(&s, _)| s)
+        .fold(f32::INFINITY, f32::min);
     if m.is_finite() { m } else { 1.0 }
 }
 
@@ -130,7 +135,7 @@ pub fn max_scatter_radius(layers: &[Layer], blur: f32, focus: f32) -> f32 {
         .map(|l| {
             l.image()
                 .data
-                .par_chunks_exact(5)
+                .par_chunks_exact(layer::CHANNELS)
                 .filter(|px| px[layer::A] > 0.0)
                 .map(|px| lens::scatter_radius(px[layer::D] - focus, blur))
                 .reduce(|| 1.0, f32::max)
@@ -236,13 +241,13 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
     let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
     for (n, l) in layers.iter().enumerate() {
         let range = l.colour_range();
-        let over = |raw: &[f32; 5], px: &mut [f32]| composite::over(raw, &range, px);
+        let over = |raw: &raw::Pixel, px: &mut [f32]| composite::over(raw, &range, px);
         match kernel {
             Kernel::Exact => {
                 let raw = exact::scatter_layer(l, s, &taps, Role::of(n, layers.len()));
                 acc.par_chunks_exact_mut(composite::ACC_CHANNELS)
                     .enumerate()
-                    .for_each(|(i, px)| over(raw.pixel(i).try_into().expect("5 channels"), px));
+                    .for_each(|(i, px)| over(raw.pixel(i).try_into().expect("raw pixel"), px));
                 stats.push(None);
             }
             Kernel::Fast { quality } => {
@@ -296,7 +301,7 @@ pub fn alpha_composite(layers: &[Layer]) -> Image {
     for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
         let mut t = 1f32;
         for l in layers {
-            let src = &l.image().data[i * 5..i * 5 + 5];
+            let src = &l.image().data[i * layer::CHANNELS..(i + 1) * layer::CHANNELS];
             for c in 0..3 {
                 px[c] += t * src[layer::A] * src[c];
             }
