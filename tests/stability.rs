@@ -39,14 +39,19 @@ fn disparity(kind: DispKind, x: usize, y: usize, w: usize, r: f32) -> f32 {
     }
 }
 
-fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u64, uniform: bool) -> Vec<Layer> {
+/// A seeded generator of uniform numbers in [0, 1) (xorshift64).
+fn uniform01(seed: u64) -> impl FnMut() -> f32 {
     let mut s = seed | 1;
-    let mut rnd = move || {
+    move || {
         s ^= s << 13;
         s ^= s >> 7;
         s ^= s << 17;
         (s >> 40) as f32 / (1u64 << 24) as f32
-    };
+    }
+}
+
+fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u64, uniform: bool) -> Vec<Layer> {
+    let mut rnd = uniform01(seed);
     let scale = if hdr { 1e6 } else { 1.0 };
     let mut fg = Vec::new();
     let mut bg = Vec::new();
@@ -216,13 +221,7 @@ fn channel_means(img: &Image) -> [f64; 3] {
 /// A textured opaque background and a soft-edged textured foreground disk, each with its own
 /// depth variation, `w × h`.
 fn disk_scene(w: usize, h: usize, seed: u64, fg_d: f32, bg_d: f32) -> Vec<Layer> {
-    let mut s = seed | 1;
-    let mut rnd = move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut rnd = uniform01(seed);
     let (cx, cy, rad) = (w as f32 * 0.45, h as f32 * 0.55, w.min(h) as f32 * 0.3);
     let (mut fg, mut bg) = (Vec::new(), Vec::new());
     for y in 0..h {

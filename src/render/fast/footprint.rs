@@ -118,17 +118,8 @@ impl Stencil {
         let reach = sigma + STENCIL_TAIL;
         let fs = step_source_factor(sigma);
         for (k, (jm_out, e)) in out.iter_mut().enumerate() {
-            let di = k as i64 - self.p;
             e.clear();
-            // Row di holds dj = -m..=m; keep |dj| < sqrt(reach² - di²).
-            let (start, end) = (self.rows[k], self.rows[k + 1]);
-            let rem = reach * reach - (di * di) as f32;
-            if rem <= 0.0 || end == start {
-                continue;
-            }
-            let m = (end - start) / 2;
-            let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
-            let (a, b) = (start + m - jm, start + m + jm + 1);
+            let Some((a, b, jm)) = self.row_span(k, reach) else { continue };
             if sigma <= FACTORED_STEP_MAX {
                 e.extend(self.factor[a..b].iter().map(|&fr| dens / (1.0 + fs * fr)));
             } else {
@@ -140,6 +131,22 @@ impl Stencil {
         }
     }
 
+    /// The taps of stencil row `k` (row offset `k - p`) closer than `reach`: their index range
+    /// `a..b` in the row-sorted tap lists and the largest column offset `jm`; None when the row
+    /// has none. Row `di` holds `dj = -m..=m`; kept are `|dj| < sqrt(reach² - di²)`.
+    #[inline]
+    fn row_span(&self, k: usize, reach: f32) -> Option<(usize, usize, usize)> {
+        let di = k as i64 - self.p;
+        let (start, end) = (self.rows[k], self.rows[k + 1]);
+        let rem = reach * reach - (di * di) as f32;
+        if rem <= 0.0 || end == start {
+            return None;
+        }
+        let m = (end - start) / 2;
+        let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
+        Some((start + m - jm, start + m + jm + 1, jm))
+    }
+
     /// The physical taps `disk_coverage(r, ρ) / norm` of a source with CoC `r` and flux norm
     /// `norm` ([`super::super::lens::disk_norm`] of its true radius), laid out as
     /// [`Stencil::weights`] lays them out, out to `r + EDGE`. The division (not a product with
@@ -149,16 +156,9 @@ impl Stencil {
         out.resize_with(rows, Default::default);
         let reach = r + EDGE;
         for (k, (jm_out, e)) in out.iter_mut().enumerate() {
-            let di = k as i64 - self.p;
             e.clear();
-            let (start, end) = (self.rows[k], self.rows[k + 1]);
-            let rem = reach * reach - (di * di) as f32;
-            if rem <= 0.0 || end == start {
-                continue;
-            }
-            let m = (end - start) / 2;
-            let jm = (rem.sqrt().ceil() as usize).saturating_sub(1).min(m);
-            e.extend(self.r[start + m - jm..start + m + jm + 1].iter().map(|&rho| disk_coverage(r, rho) / norm));
+            let Some((a, b, jm)) = self.row_span(k, reach) else { continue };
+            e.extend(self.r[a..b].iter().map(|&rho| disk_coverage(r, rho) / norm));
             *jm_out = jm as i64;
         }
     }
