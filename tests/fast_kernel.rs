@@ -473,4 +473,19 @@ fn one_visible_pixel_in_a_corner() {
             }
         }
     }
+    // The second finding (fuzz/regressions/kernel-physical-one-group.bin): the same bright
+    // in-focus pixel in one opaque layer with a blurred black surface behind it. The exact
+    // kernel's depth groups keep the pixel's colour; the fast kernel's single depth group lets
+    // the black surface's coverage in (known gap: depth groups in the fast kernel).
+    let mut one = vec![0f32; w * h * 5];
+    for p in one.chunks_exact_mut(5) {
+        p[3] = 1.0;
+    }
+    one[..5].copy_from_slice(&[2.09, 2.09, 2.09, 1.0, 0.52]);
+    let single = vec![Layer::new(Image::from_vec(w, h, 5, one).unwrap(), "one").unwrap()];
+    let s = RenderSettings { blur, focus, lens: render::auto_lens(&single, blur, focus), occlusion: true, profile: Profile::Physical };
+    let exact = render::render(&single, &s, Kernel::Exact).unwrap();
+    let fast = render::render(&single, &s, Kernel::Fast { quality: 2 }).unwrap();
+    assert!((exact.pixel(0, 0)[0] - 2.09).abs() < 1e-3, "{:?}", exact.pixel(0, 0));
+    assert!(fast.pixel(0, 0)[0] < 0.9 * 2.09 && fast.pixel(0, 0)[0] > 0.3 * 2.09, "{:?}", fast.pixel(0, 0));
 }

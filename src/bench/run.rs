@@ -98,8 +98,8 @@ impl Method {
     pub fn variants(self) -> Vec<Variant> {
         use Variant::*;
         match self {
-            Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact],
-            Method::Sliced | Method::Pipeline | Method::Scatter => vec![Exact, Fast(2), PhysicalExact],
+            Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact, PhysicalFast(2)],
+            Method::Sliced | Method::Pipeline | Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2)],
             Method::Gather => vec![Plain],
         }
     }
@@ -119,6 +119,8 @@ pub enum Variant {
     Fast(u32),
     /// The physical lens profile, exact kernel.
     PhysicalExact,
+    /// The physical lens profile, fast kernel at this quality (the default settings at 2).
+    PhysicalFast(u32),
     /// Methods with no kernel choice.
     Plain,
 }
@@ -130,16 +132,20 @@ impl Variant {
             Variant::Exact => "exact".into(),
             Variant::Fast(q) => format!("fast-q{q}"),
             Variant::PhysicalExact => "physical-exact".into(),
+            Variant::PhysicalFast(q) => format!("physical-fast-q{q}"),
             Variant::Plain => "default".into(),
         }
     }
     /// The lens profile this setting renders with.
     pub fn profile(self) -> crate::render::Profile {
-        if self == Variant::PhysicalExact { crate::render::Profile::Physical } else { crate::render::Profile::Official }
+        match self {
+            Variant::PhysicalExact | Variant::PhysicalFast(_) => crate::render::Profile::Physical,
+            _ => crate::render::Profile::Official,
+        }
     }
     fn kernel(self) -> Kernel {
         match self {
-            Variant::Fast(q) => Kernel::Fast { quality: q },
+            Variant::Fast(q) | Variant::PhysicalFast(q) => Kernel::Fast { quality: q },
             _ => Kernel::Exact,
         }
     }
@@ -461,7 +467,7 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
             let mut cfg = Config::default();
             cfg.render.blur = Some(blur);
             match v {
-                Variant::Fast(q) => {
+                Variant::Fast(q) | Variant::PhysicalFast(q) => {
                     cfg.render.kernel = KernelChoice::Fast;
                     cfg.render.quality = q;
                 }
