@@ -294,13 +294,7 @@ fn physical_fast_matches_exact_on_stress_scenes() {
     for (focus_fg, coc) in [(true, 6.0), (true, 20.0), (false, 12.0)] {
         let (layers, s) = two_layer_scene(96, 80, coc, focus_fg);
         for s in [s, RenderSettings { focus: 0.75, ..s }] {
-            let name = format!("physical stress fg={focus_fg} coc={coc} focus={}", s.focus);
-            one.check(
-                &format!("{name} one group"),
-                &compare(&format!("{name} one group"), &layers, &physical(&s, false), 2),
-                PHYS_ONE_GROUP_BOUNDS,
-            );
-            groups.check(&name, &compare(&name, &layers, &physical(&s, true), 2), PHYS_GROUPS_BOUNDS);
+            check_physical(&mut one, &mut groups, &format!("physical stress fg={focus_fg} coc={coc} focus={}", s.focus), &layers, &s);
         }
     }
     println!(
@@ -309,6 +303,14 @@ fn physical_fast_matches_exact_on_stress_scenes() {
     );
     one.failures.append(&mut groups.failures);
     one.assert_all_pass("physical fast vs exact on the stress scenes");
+}
+
+/// Fast vs exact for the physical profile at quality 2, occlusion off (one depth group, the
+/// fast kernel's model exactly) and on (the exact kernel's depth groups), each against its bars.
+fn check_physical(one: &mut Cases, groups: &mut Cases, name: &str, layers: &[Layer], s: &RenderSettings) {
+    let one_name = format!("{name} one group");
+    one.check(&one_name, &compare(&one_name, layers, &physical(s, false), 2), PHYS_ONE_GROUP_BOUNDS);
+    groups.check(name, &compare(name, layers, &physical(s, true), 2), PHYS_GROUPS_BOUNDS);
 }
 
 #[test]
@@ -320,13 +322,7 @@ fn physical_fast_matches_exact_on_groundtruth_scenes() {
         for st in &scene.settings {
             let lens = render::auto_lens(&layers, st.blur, st.focus);
             let s = RenderSettings { blur: st.blur, focus: st.focus, lens, occlusion: true, profile: drbokeh::render::Profile::Physical };
-            let name = format!("physical {} {}", scene.name, st.name);
-            one.check(
-                &format!("{name} one group"),
-                &compare(&format!("{name} one group"), &layers, &physical(&s, false), 2),
-                PHYS_ONE_GROUP_BOUNDS,
-            );
-            groups.check(&name, &compare(&name, &layers, &physical(&s, true), 2), PHYS_GROUPS_BOUNDS);
+            check_physical(&mut one, &mut groups, &format!("physical {} {}", scene.name, st.name), &layers, &s);
         }
     }
     println!(
