@@ -197,18 +197,7 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
             profile: drbokeh::render::Profile::Official,
         };
         let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
-        let bad = out
-            .data
-            .chunks_exact(3)
-            .position(|px| px.iter().zip(&colour).any(|(v, c)| (v - c).abs().is_nan() || (v - c).abs() >= UNIFORM_TOL));
-        if let Some(i) = bad {
-            let saved = common::save_failure(&format!("fast-uniform-K{k}-f{f}"), &out);
-            failures.push(format!(
-                "K={k} f={f}: pixel {i} is {:?}, not {colour:?} (render saved to {})",
-                &out.data[i * 3..i * 3 + 3],
-                saved.display()
-            ));
-        }
+        check_uniform(&out, colour, &format!("fast-uniform-K{k}-f{f}"), &mut failures);
     }
     common::assert_no_failures("uniform colour", &failures);
     // HDR highlights (1e4) stay finite.
@@ -305,6 +294,21 @@ fn physical_fast_matches_exact_on_stress_scenes() {
     one.assert_all_pass("physical fast vs exact on the stress scenes");
 }
 
+/// Records a failure (and saves the render as `name`) unless every pixel of `out` is `colour`
+/// to within `UNIFORM_TOL`.
+fn check_uniform(out: &Image, colour: [f32; 3], name: &str, failures: &mut Vec<String>) {
+    let bad =
+        out.data.chunks_exact(3).position(|px| px.iter().zip(&colour).any(|(v, c)| (v - c).abs().is_nan() || (v - c).abs() >= UNIFORM_TOL));
+    if let Some(i) = bad {
+        let saved = common::save_failure(name, out);
+        failures.push(format!(
+            "{name}: pixel {i} is {:?}, not {colour:?} (render saved to {})",
+            &out.data[i * 3..i * 3 + 3],
+            saved.display()
+        ));
+    }
+}
+
 /// Fast vs exact for the physical profile at quality 2, occlusion off (one depth group, the
 /// fast kernel's model exactly) and on (the exact kernel's depth groups), each against its bars.
 fn check_physical(one: &mut Cases, groups: &mut Cases, name: &str, layers: &[Layer], s: &RenderSettings) {
@@ -365,18 +369,7 @@ fn physical_fast_uniform_in_focus_and_flux() {
                 profile: drbokeh::render::Profile::Physical,
             };
             let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
-            let bad = out
-                .data
-                .chunks_exact(3)
-                .position(|px| px.iter().zip(&colour).any(|(v, c)| (v - c).abs().is_nan() || (v - c).abs() >= UNIFORM_TOL));
-            if let Some(i) = bad {
-                let saved = common::save_failure(&format!("fast-physical-uniform-K{k}-f{f}-occ{occlusion}"), &out);
-                failures.push(format!(
-                    "K={k} f={f} occlusion={occlusion}: pixel {i} is {:?} (saved to {})",
-                    &out.data[i * 3..i * 3 + 3],
-                    saved.display()
-                ));
-            }
+            check_uniform(&out, colour, &format!("fast-physical-uniform-K{k}-f{f}-occ{occlusion}"), &mut failures);
         }
     }
     common::assert_no_failures("physical uniform colour", &failures);
