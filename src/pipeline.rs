@@ -8,9 +8,10 @@ use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
-use crate::stages::background::inpaint_background;
+use crate::stages::background::{ForegroundColour, inpaint_background};
 use crate::stages::depth::Disparity;
 use crate::stages::fill_depth::foreground_disparity;
+use crate::stages::foreground::separate;
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::timing::ms_since;
 use serde::Serialize;
@@ -348,9 +349,28 @@ impl Pipeline {
                         (inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach)?, None)
                     };
                     let method = if inpaint_model.is_some() { "onnx" } else { "telea" };
-                    report.ran("inpaint", t, Some(serde_json::json!({"method": method, "filled_px": bg.filled, "skipped_unreachable_px": bg.skipped, "reach_px": reach, "model": inpaint_model})));
+                    let mut bg = bg;
+                    let (fg_rgb, unmixed) = match cfg.inpaint.foreground {
+                        ForegroundColour::Unmixed => separate(&scene.rgb, &alpha, &mut bg.rgb, cfg.inpaint.radius)?,
+                        ForegroundColour::Photo => (scene.rgb.clone(), 0),
+                    };
+                    report.ran(
+                        "inpaint",
+                        t,
+                        Some(serde_json::json!({
+                            "method": method,
+                            "filled_px": bg.filled,
+                            "skipped_unreachable_px": bg.skipped,
+                            "reach_px": reach,
+                            "edge_band_px": bg.band.0,
+                            "edge_band_replaced_px": bg.band.1,
+                            "highlights_kept_px": bg.highlights_kept,
+                            "foreground_unmixed_px": unmixed,
+                            "model": inpaint_model
+                        })),
+                    );
                     vec![
-                        Layer::from_parts(&scene.rgb, &alpha, &fd.disparity, "foreground layer")?,
+                        Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, "foreground layer")?,
                         Layer::from_parts(&bg.rgb, &opaque, &bg.disparity, "background layer")?,
                     ]
                 }

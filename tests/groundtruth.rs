@@ -87,3 +87,56 @@ fn physical_profile_against_thin_lens_ground_truth() {
     assert!(m[0] >= m[2] + 3.0, "physical {:.2} dB is not 3 dB above official {:.2} dB", m[0], m[2]);
     assert!(below_scatter.is_empty(), "physical below the no-occlusion scatter in: {below_scatter:?}");
 }
+
+/// Issue 12: the whole pipeline, from what a user has (the all-in-focus photo, the depth map
+/// and the 8-bit matte), against the baselines fed the same inputs: the classical scatter
+/// without occlusion (both profiles) and the gather. It must beat both in every setting
+/// (PSNR on sRGB, the headline figure).
+#[test]
+fn pipeline_beats_the_baselines_from_photo_depth_and_matte() {
+    use drbokeh::bench::gather::gather;
+    use drbokeh::io::{ReadLimits, read_matte};
+    use drbokeh::render::{Layer, Profile};
+    use drbokeh::stages::depth::Disparity;
+    use drbokeh::{Config, Focus, Pipeline, Scene};
+    let mut losses = Vec::new();
+    for dir in common::case_dirs(&common::shared_dir().join("groundtruth")) {
+        let scene = GtScene::load(&dir).unwrap();
+        let matte = read_matte(&dir.join("fg_alpha.png"), &ReadLimits::default()).unwrap();
+        let input = Scene {
+            rgb: scene.aif.clone(),
+            disparity: Disparity { map: scene.disparity.clone(), z_range: None, filled_fraction: 0.0 },
+            matte: Some(matte),
+        };
+        let (w, h) = (scene.aif.width, scene.aif.height);
+        let single = Layer::from_parts(&scene.aif, &Image::filled(w, h, 1, 1.0), &scene.disparity, "photo").unwrap();
+        for s in &scene.settings {
+            let border = s.coc_max.ceil() as usize;
+            let score = |img: &Image| (psnr(&srgb(img), &srgb(&s.gt), 1.0, border), psnr(img, &s.gt, 1.0, border));
+            let mut cfg = Config::default();
+            cfg.render.blur = Some(s.blur);
+            let ours = Pipeline::from_config(cfg).unwrap().run(&input, Focus::Disparity(s.focus)).unwrap().image;
+            assert!(ours.all_finite());
+            let lens = render::auto_lens(std::slice::from_ref(&single), s.blur, s.focus);
+            let scatter = |profile| {
+                let rs = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: false, profile };
+                score(&render::render(std::slice::from_ref(&single), &rs, Kernel::Exact).unwrap())
+            };
+            let (o, sp, so, g) = (
+                score(&ours),
+                scatter(Profile::Physical),
+                scatter(Profile::Official),
+                score(&gather(&scene.aif, &scene.disparity, s.blur, s.focus)),
+            );
+            println!(
+                "{:10} {:9}  pipeline {:6.2} / {:6.2} | scatter physical {:6.2} / {:6.2} | scatter official {:6.2} / {:6.2} | gather {:6.2} / {:6.2} (PSNR sRGB / linear, dB)",
+                scene.name, s.name, o.0, o.1, sp.0, sp.1, so.0, so.1, g.0, g.1
+            );
+            let best = sp.0.max(so.0).max(g.0);
+            if o.0 <= best {
+                losses.push(format!("{} {}: {:.2} <= {best:.2}", scene.name, s.name, o.0));
+            }
+        }
+    }
+    assert!(losses.is_empty(), "the pipeline does not beat every baseline in: {losses:?}");
+}

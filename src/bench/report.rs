@@ -333,7 +333,7 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
     s.push_str("\nMethods: ");
     let names: Vec<String> = Method::ALL.iter().map(|m| format!("`{}` = {}", m.name(), m.label())).collect();
     s.push_str(&names.join("; "));
-    s.push_str(". Settings: `exact` = the exact (oracle) kernel, `fast-qN` = the fast kernel at quality N (both the official profile), `physical-exact` = the physical lens profile with the exact kernel.\n\n");
+    s.push_str(". Settings: `exact` = the exact (oracle) kernel, `fast-qN` = the fast kernel at quality N (both the official profile), `physical-exact` = the physical lens profile with the exact kernel, `physical-fast-q2` = the physical profile with the fast kernel at quality 2 (the tool's defaults), `realistic-depth` = the defaults fed a depth map as an estimator gives it (exact depth averaged over 4x4 blocks, upsampled bilinearly, Gaussian σ = 1.5 px; the exact-layer methods have no such variant).\n\n");
     s.push_str("## Dr.Bokeh (exact 2 layers, exact kernel) against the others\n\n");
     s.push_str(&comparisons(rows));
     s.push_str("\n## Per category (mean PSNR sRGB / SSIM sRGB, official profile, exact kernel)\n\n");

@@ -99,8 +99,9 @@ impl Method {
         use Variant::*;
         match self {
             Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact, PhysicalFast(2)],
-            Method::Sliced | Method::Pipeline | Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2)],
-            Method::Gather => vec![Plain],
+            Method::Sliced => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2)],
+            Method::Pipeline | Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth],
+            Method::Gather => vec![Plain, RealisticDepth],
         }
     }
 
@@ -123,6 +124,10 @@ pub enum Variant {
     PhysicalFast(u32),
     /// Methods with no kernel choice.
     Plain,
+    /// The method's default settings (physical profile, fast kernel at quality 2), fed a
+    /// depth map degraded as an estimator gives it ([`super::scenes::realistic_depth`]) instead
+    /// of the exact one. Only for the methods that read the depth map.
+    RealisticDepth,
 }
 
 impl Variant {
@@ -134,18 +139,20 @@ impl Variant {
             Variant::PhysicalExact => "physical-exact".into(),
             Variant::PhysicalFast(q) => format!("physical-fast-q{q}"),
             Variant::Plain => "default".into(),
+            Variant::RealisticDepth => "realistic-depth".into(),
         }
     }
     /// The lens profile this setting renders with.
     pub fn profile(self) -> crate::render::Profile {
         match self {
-            Variant::PhysicalExact | Variant::PhysicalFast(_) => crate::render::Profile::Physical,
+            Variant::PhysicalExact | Variant::PhysicalFast(_) | Variant::RealisticDepth => crate::render::Profile::Physical,
             _ => crate::render::Profile::Official,
         }
     }
     fn kernel(self) -> Kernel {
         match self {
             Variant::Fast(q) | Variant::PhysicalFast(q) => Kernel::Fast { quality: q },
+            Variant::RealisticDepth => Kernel::Fast { quality: 2 },
             _ => Kernel::Exact,
         }
     }
@@ -351,6 +358,7 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
                 aif: scene.aif.clone(),
                 disparity: scene.disparity.clone(),
                 matte: scene.alpha.clone(),
+                realistic_disparity: super::scenes::realistic_depth(&scene.disparity),
                 two_layers: scene.exact_layers()?,
                 plane_layers: gt_plane_layers(&scene)?,
             };
@@ -454,29 +462,31 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
         let lens = render::auto_lens(layers, blur, focus);
         render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile() }, v.kernel())
     };
+    // The depth map the photo-based methods read.
+    let disparity = if v == Variant::RealisticDepth { &inp.realistic_disparity } else { &inp.disparity };
     match m {
         Method::Layers => renderer(&inp.two_layers, true),
         Method::Sliced => renderer(&inp.plane_layers, true),
         Method::Scatter => {
             let opaque = Image::filled(inp.aif.width, inp.aif.height, 1, 1.0);
-            let single = Layer::from_parts(&inp.aif, &opaque, &inp.disparity, "all-in-focus layer")?;
+            let single = Layer::from_parts(&inp.aif, &opaque, disparity, "all-in-focus layer")?;
             renderer(&[single], false)
         }
-        Method::Gather => Ok(gather(&inp.aif, &inp.disparity, blur, focus)),
+        Method::Gather => Ok(gather(&inp.aif, disparity, blur, focus)),
         Method::Pipeline => {
             let mut cfg = Config::default();
             cfg.render.blur = Some(blur);
-            match v {
-                Variant::Fast(q) | Variant::PhysicalFast(q) => {
+            match v.kernel() {
+                Kernel::Fast { quality } => {
                     cfg.render.kernel = KernelChoice::Fast;
-                    cfg.render.quality = q;
+                    cfg.render.quality = quality;
                 }
-                _ => cfg.render.kernel = KernelChoice::Exact,
+                Kernel::Exact => cfg.render.kernel = KernelChoice::Exact,
             }
             cfg.render.profile = v.profile();
             let scene = Scene {
                 rgb: inp.aif.clone(),
-                disparity: Disparity { map: inp.disparity.clone(), z_range: None, filled_fraction: 0.0 },
+                disparity: Disparity { map: disparity.clone(), z_range: None, filled_fraction: 0.0 },
                 matte: Some(inp.matte.clone()),
             };
             Ok(Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?.image)

@@ -516,6 +516,35 @@ fn unpremultiply(rgb: &mut Image, alpha: &Image) {
     }
 }
 
+/// Downsampling factor of [`realistic_depth`].
+pub const REALISTIC_DEPTH_FACTOR: usize = 4;
+/// Gaussian σ (pixels, full resolution) of [`realistic_depth`].
+pub const REALISTIC_DEPTH_SIGMA: f32 = 1.5;
+
+/// A disparity map as a depth estimator gives it (issue 12's "realistic depth"): averaged
+/// over 4x4 blocks (area; partial blocks at the right and bottom borders average what they
+/// hold), upsampled bilinearly back to the frame, then blurred with a Gaussian of σ = 1.5 px.
+/// Its edges are no longer on the photo's. Allocates a few planes.
+pub fn realistic_depth(d: &Image) -> Image {
+    let f = REALISTIC_DEPTH_FACTOR;
+    let (w, h) = (d.width, d.height);
+    let (sw, sh) = (w.div_ceil(f), h.div_ceil(f));
+    let mut small = Image::new(sw, sh, 1);
+    for by in 0..sh {
+        for bx in 0..sw {
+            let (mut sum, mut n) = (0f64, 0usize);
+            for y in by * f..((by + 1) * f).min(h) {
+                for x in bx * f..((bx + 1) * f).min(w) {
+                    sum += d.data[y * w + x] as f64;
+                    n += 1;
+                }
+            }
+            small.data[by * sw + bx] = (sum / n as f64) as f32;
+        }
+    }
+    crate::stages::mask::gaussian_blur(&small.resized(w, h), REALISTIC_DEPTH_SIGMA)
+}
+
 /// The renderer's inputs for one scene, cropped to the frame.
 #[derive(Clone, Debug)]
 pub struct SceneInputs {
@@ -525,6 +554,8 @@ pub struct SceneInputs {
     pub disparity: Image,
     /// Combined foreground coverage.
     pub matte: Image,
+    /// `disparity` as a depth estimator would give it ([`realistic_depth`]).
+    pub realistic_disparity: Image,
     /// Exact two layers: all foreground planes composited, and the background.
     pub two_layers: Vec<Layer>,
     /// One layer per plane, each at its constant disparity.
@@ -595,7 +626,8 @@ impl SynthScene {
             .zip(&self.planes)
             .map(|((c, a, d, _), p)| Layer::from_parts(c, a, &Image::filled(w, h, 1, *d), &p.name))
             .collect::<Result<Vec<_>>>()?;
-        Ok(SceneInputs { aif, disparity, matte, two_layers, plane_layers })
+        let realistic_disparity = realistic_depth(&disparity);
+        Ok(SceneInputs { aif, disparity, matte, realistic_disparity, two_layers, plane_layers })
     }
 }
 

@@ -1,13 +1,40 @@
 //! Background inpainting: colour and disparity behind the foreground.
 //!
 //! The background layer is opaque, so every pixel the foreground may hide (its soft edge
-//! included, plus a margin for colour contamination at the edge) is re-synthesized from the
-//! visible background with Telea inpainting, for RGB and disparity alike.
+//! included) is re-synthesized from the visible background with Telea inpainting, for RGB and
+//! disparity alike. Around the matte, a band of `dilate` pixels is re-synthesized too where its
+//! colour is contaminated by the foreground ([`super::contamination`]); the rest of the band is
+//! visible background and keeps its light. Point-like highlights next to the hole are kept but
+//! not used as fill sources ([`super::highlights`]), so no bright blob is spread behind the
+//! foreground.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::dilate;
+use super::mask::{dilate, distance_within};
 use crate::error::Result;
 use crate::image::Image;
+use serde::{Deserialize, Serialize};
+
+/// Which pixels of the band of `dilate` pixels around the matte are re-synthesized.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EdgeBand {
+    /// Only those whose colour is a mix with the foreground's ([`super::contamination`]).
+    #[default]
+    Tested,
+    /// All of them (the plain dilation; loses visible highlights next to the subject).
+    Replaced,
+}
+
+/// Whether visible point-like highlights near the hole feed the fill.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HighlightSources {
+    /// They do not: the hole is filled from their surroundings ([`super::highlights`]).
+    #[default]
+    Excluded,
+    /// They do, like any pixel (a highlight is smeared across the hole).
+    Included,
+}
 
 /// `[inpaint]` options of the classical (Telea) background fill.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -15,8 +42,15 @@ use crate::image::Image;
 pub struct InpaintOptions {
     /// Alpha above which a pixel counts as (partly) covered by the foreground.
     pub threshold: f32,
-    /// Grow the covered region by this many pixels: edge pixels carry foreground colour.
+    /// Width (pixels) of the band around the covered region whose pixels may carry foreground
+    /// colour; which of them are re-synthesized is `edge_band`'s rule.
     pub dilate: f32,
+    /// Which band pixels are re-synthesized.
+    pub edge_band: EdgeBand,
+    /// Whether visible point-like highlights feed the fill.
+    pub highlights: HighlightSources,
+    /// The foreground layer's colour at soft matte edges.
+    pub foreground: ForegroundColour,
     /// Telea neighbourhood radius, pixels.
     pub radius: f32,
     /// "telea" (this module) or "onnx" (the `[inpaint.onnx]` model, `stages::inpaint_onnx`).
@@ -27,8 +61,28 @@ pub struct InpaintOptions {
 
 impl Default for InpaintOptions {
     fn default() -> Self {
-        InpaintOptions { threshold: 0.02, dilate: 3.0, radius: 5.0, method: Default::default(), onnx: Default::default() }
+        InpaintOptions {
+            threshold: 0.02,
+            dilate: 3.0,
+            edge_band: EdgeBand::default(),
+            highlights: HighlightSources::default(),
+            foreground: ForegroundColour::default(),
+            radius: 5.0,
+            method: Default::default(),
+            onnx: Default::default(),
+        }
     }
+}
+
+/// The foreground layer's colour where the matte is soft.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ForegroundColour {
+    /// Solved from the photo's mix and the filled background ([`super::foreground`]).
+    #[default]
+    Unmixed,
+    /// The photo's colour as it is (edges carry background colour: a halo when blurred).
+    Photo,
 }
 
 /// The background layer's colour and disparity, and the work done.
@@ -43,13 +97,77 @@ pub struct Background {
     pub filled: usize,
     /// Pixels of the mask left as they were: too deep under the foreground for any blur to show.
     pub skipped: usize,
+    /// Pixels of the edge band around the matte, and how many of them were re-synthesized.
+    pub band: (usize, usize),
+    /// Visible highlights kept out of the fill's sources.
+    pub highlights_kept: usize,
 }
 
-/// The pixels the background fill replaces: covered by the foreground (`alpha > threshold`),
-/// grown by `dilate`.
+impl Background {
+    /// Assembles a background: `filled` of the `mask` pixels were computed (the rest are
+    /// `skipped`), `band` = (edge band pixels, of which re-synthesized, highlights kept).
+    pub fn new(rgb: Image, disparity: Image, mask: Vec<bool>, filled: usize, band: (usize, usize, usize)) -> Self {
+        let total = mask.iter().filter(|&&m| m).count();
+        Background { rgb, disparity, mask, filled, skipped: total.saturating_sub(filled), band: (band.0, band.1), highlights_kept: band.2 }
+    }
+}
+
+/// The pixels the foreground may cover or contaminate: covered (`alpha > threshold`), grown by
+/// `dilate`. The fill replaces a subset of it ([`fill_region`]).
 pub fn inpaint_mask(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
-    let covered: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
-    dilate(&covered, alpha.width, alpha.height, opts.dilate)
+    dilate(&covered(alpha, opts), alpha.width, alpha.height, opts.dilate)
+}
+
+fn covered(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
+    alpha.data.iter().map(|&a| a > opts.threshold).collect()
+}
+
+/// What a background fill replaces and what it must not spread.
+pub struct FillRegion {
+    /// Pixels to re-synthesize: covered by the foreground, or in the edge band and
+    /// contaminated by its colour.
+    pub mask: Vec<bool>,
+    /// Visible point-like highlights near the mask, which must not feed the fill (all false
+    /// with [`HighlightSources::Included`]).
+    pub highlights: Vec<bool>,
+    /// Pixels of the edge band (outside the covered region).
+    pub band: usize,
+    /// Of those, the pixels re-synthesized.
+    pub band_replaced: usize,
+    /// Highlights kept out of the fill's sources.
+    pub highlights_kept: usize,
+}
+
+/// The region the background fill replaces, and the highlights it keeps out of its sources
+/// (within `radius + 1` of the mask: Telea reads a disc of `radius`). Cost: two distance
+/// transforms on the matte's grown bounding box, and window medians on the band and around
+/// the mask (see the two modules); allocates a few masks.
+pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions) -> FillRegion {
+    let (w, h) = (alpha.width, alpha.height);
+    let covered = covered(alpha, opts);
+    let grown = dilate(&covered, w, h, opts.dilate);
+    let band: Vec<usize> = (0..w * h).filter(|&i| grown[i] && !covered[i]).collect();
+    let mut mask = covered;
+    let replaced = match opts.edge_band {
+        EdgeBand::Replaced => vec![true; band.len()],
+        EdgeBand::Tested => {
+            let clean: Vec<bool> = grown.iter().map(|&g| !g).collect();
+            super::contamination::contaminated(rgb, alpha, &clean, &band, opts.dilate)
+        }
+    };
+    for (&i, &r) in band.iter().zip(&replaced) {
+        mask[i] = r;
+    }
+    let mut highlights = vec![false; w * h];
+    if opts.highlights == HighlightSources::Excluded {
+        let near = distance_within(&mask, w, h, opts.radius + 1.0);
+        let candidates: Vec<usize> = (0..w * h).filter(|&i| !mask[i] && near[i] <= opts.radius + 1.0).collect();
+        for (&i, hl) in candidates.iter().zip(super::highlights::point_highlights(rgb, &candidates)) {
+            highlights[i] = hl;
+        }
+    }
+    let highlights_kept = highlights.iter().filter(|&&h| h).count();
+    FillRegion { mask, highlights, band: band.len(), band_replaced: replaced.iter().filter(|&&r| r).count(), highlights_kept }
 }
 
 /// The region a background fill must cover, as a fast-marching reach from the visible
@@ -71,14 +189,21 @@ pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
 /// Inpaints `rgb` and `disp` under the dilated foreground, up to `reach` pixels from the
 /// visible background (deeper pixels cannot be seen through any blur and keep their input).
 pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, reach: f32) -> Result<Background> {
-    let mask = inpaint_mask(alpha, opts);
+    let region = fill_region(rgb, alpha, opts);
+    let mask = region.mask;
+    // The colour fill treats kept highlights as holes too (so they feed nothing), then puts
+    // them back: they are visible background.
+    let rgb_mask: Vec<bool> = mask.iter().zip(&region.highlights).map(|(&m, &h)| m || h).collect();
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
-    let (filled, filled_disp) = rayon::join(|| inpaint_telea(&mut rgb_out, &mask, topts), || inpaint_telea(&mut disp_out, &mask, topts));
-    let filled = filled?;
-    filled_disp?;
+    let (filled, filled_disp) =
+        rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &mask, topts));
+    filled?;
+    let filled = filled_disp?;
+    for (i, _) in region.highlights.iter().enumerate().filter(|(_, h)| **h) {
+        rgb_out.data[i * 3..i * 3 + 3].copy_from_slice(&rgb.data[i * 3..i * 3 + 3]);
+    }
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
-    let total = mask.iter().filter(|&&m| m).count();
-    Ok(Background { rgb: rgb_out, disparity: disp_out, mask, filled, skipped: total.saturating_sub(filled) })
+    Ok(Background::new(rgb_out, disp_out, mask, filled, (region.band, region.band_replaced, region.highlights_kept)))
 }

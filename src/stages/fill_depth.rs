@@ -45,6 +45,23 @@ pub struct FilledDepth {
     pub visible_reach: f32,
 }
 
+/// The pixels whose disparity is trusted: `hard` shrunk by `erode` pixels (its edge pixels mix
+/// depths), except that parts thinner than the erosion (bars, wires) keep their pixels instead
+/// of vanishing: without them a thin part would take the disparity of the nearest thick part,
+/// however far. A thin part is a hard pixel farther than `erode + 1` from the shrunk mask.
+pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
+    let mut core = erode(hard, w, h, erode_px);
+    if erode_px <= 0.0 {
+        return core;
+    }
+    let limit = erode_px + 1.0;
+    let near = super::mask::distance_within(&core, w, h, limit);
+    for ((c, &hd), &d) in core.iter_mut().zip(hard).zip(&near) {
+        *c = *c || (hd && d > limit);
+    }
+    core
+}
+
 /// Foreground disparity: `disp` inside the eroded mask `alpha > threshold` (the core),
 /// Telea-inpainted outside it as far as a blur can show the result, and clamped to the core's
 /// disparity range (the foreground extended, not extrapolated past its own depths).
@@ -59,11 +76,7 @@ pub struct FilledDepth {
 pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions, focus: f32, blur: f32) -> Result<FilledDepth> {
     let (w, h) = (disp.width, disp.height);
     let hard: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
-    let mut core = erode(&hard, w, h, opts.erode);
-    if !core.iter().any(|&m| m) {
-        // A foreground thinner than the erosion: keep its unshrunk pixels instead.
-        core = hard;
-    }
+    let core = core_of(&hard, w, h, opts.erode);
     let mut out = disp.clone();
     if !core.iter().any(|&m| m) {
         return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0 });

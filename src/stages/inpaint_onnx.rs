@@ -80,14 +80,19 @@ pub fn inpaint_background(
     cfg: &OnnxConfig,
 ) -> Result<(Background, OnnxReport)> {
     let (w, h) = (rgb.width, rgb.height);
-    let mask = super::background::inpaint_mask(alpha, opts);
+    let fill = super::background::fill_region(rgb, alpha, opts);
+    let stats = (fill.band, fill.band_replaced, fill.highlights_kept);
+    // The model sees kept highlights as holes too (so it copies none into the hidden region);
+    // they are put back after the paste.
+    let mask: Vec<bool> = fill.mask.iter().zip(&fill.highlights).map(|(&m, &h)| m || h).collect();
     let mut model = onnx::load(&opts.onnx, ModelKind::Inpaint, cfg)?;
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();
     let total = mask.iter().filter(|&&m| m).count();
     let fixed = model.binding.fixed.is_some() || matches!(model.contract.size, SizeSpec::Fixed { .. });
     let Some((x0, y0, cw, ch)) = region(&mask, w, h, fixed, model.contract.context) else {
-        return Ok((Background { rgb: rgb_out, disparity: disp_out, mask, filled: 0, skipped: 0 }, model.report));
+        let bg = Background::new(rgb_out, disp_out, fill.mask, 0, stats);
+        return Ok((bg, model.report));
     };
     let t = Instant::now();
     let mask_img = Image::from_vec(w, h, 1, mask.iter().map(|&m| m as u8 as f32).collect()).expect("mask size");
@@ -105,6 +110,10 @@ pub fn inpaint_background(
     paste(&mut rgb_out, &filled, x0, y0, &dist, feather);
     model.report.post_ms += ms_since(t);
 
+    for (i, _) in fill.highlights.iter().enumerate().filter(|(_, h)| **h) {
+        rgb_out.data[i * 3..i * 3 + 3].copy_from_slice(&rgb.data[i * 3..i * 3 + 3]);
+    }
+    let mask = fill.mask;
     match model.contract.depth {
         DepthFill::Telea => {
             let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
@@ -123,7 +132,7 @@ pub fn inpaint_background(
         }
     }
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
-    Ok((Background { rgb: rgb_out, disparity: disp_out, mask, filled: total, skipped: 0 }, model.report))
+    Ok((Background::new(rgb_out, disp_out, mask, total, stats), model.report))
 }
 
 /// Which implementation fills the background (`[inpaint] method`, `--inpaint`).

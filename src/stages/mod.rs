@@ -4,9 +4,12 @@
 //! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
 
 pub mod background;
+pub mod contamination;
 pub mod depth;
 pub mod depth_onnx;
 pub mod fill_depth;
+pub mod foreground;
+pub mod highlights;
 pub mod inpaint;
 pub mod inpaint_onnx;
 pub mod mask;

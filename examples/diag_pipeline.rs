@@ -1,0 +1,124 @@
+//! Scratch diagnostics: where the pipeline loses (layer swaps against the exact layers).
+use drbokeh::bench::run::score;
+use drbokeh::bench::scenes::generate;
+use drbokeh::bench::trace::{TraceSettings, trace_split};
+use drbokeh::config::{Config, KernelChoice};
+use drbokeh::render::{self, Kernel, Layer, Profile, RenderSettings};
+use drbokeh::stages::depth::Disparity;
+use drbokeh::{Focus, Image, Pipeline, Scene};
+
+fn main() -> drbokeh::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let seed: u64 = args.get(1).map(|s| s.parse().unwrap()).unwrap_or(3);
+    let n: usize = args.get(2).map(|s| s.parse().unwrap()).unwrap_or(20);
+    let size: usize = args.get(3).map(|s| s.parse().unwrap()).unwrap_or(128);
+    let mut sums = [0f64; 6];
+    println!("case            kind   gather  pipe   tFG+eBG eFG+tBG exact  scatter");
+    for i in 0..n {
+        let sc = generate(seed, i, size, size, &[]);
+        let planes = sc.trace_planes();
+        let ts = TraceSettings::new(sc.blur, sc.focus, 256, seed ^ (i as u64) << 20);
+        let (gt, _) = trace_split(&planes, &ts, sc.window(), &|_| {})?;
+        let border = sc.max_coc.ceil() as usize;
+        let inp = sc.inputs()?;
+        let (blur, focus) = (sc.blur, sc.focus);
+        let rend = |layers: &[Layer], occ: bool| -> drbokeh::Result<Image> {
+            let lens = render::auto_lens(layers, blur, focus);
+            render::render(
+                layers,
+                &RenderSettings { blur, focus, lens, occlusion: occ, profile: Profile::Physical },
+                Kernel::Fast { quality: 2 },
+            )
+        };
+        let mut cfg = Config::default();
+        cfg.render.blur = Some(blur);
+        cfg.render.kernel = KernelChoice::Fast;
+        if let Ok(d) = std::env::var("DILATE") {
+            cfg.inpaint.dilate = d.parse().unwrap();
+        }
+        let scene = Scene {
+            rgb: inp.aif.clone(),
+            disparity: Disparity { map: inp.disparity.clone(), z_range: None, filled_fraction: 0.0 },
+            matte: Some(inp.matte.clone()),
+        };
+        let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
+        let est = &out.layers;
+        if std::env::var("REGION").is_ok() {
+            let r = drbokeh::stages::background::fill_region(&inp.aif, &inp.matte, &drbokeh::stages::background::InpaintOptions::default());
+            eprintln!("{} band {} replaced {} highlights {}", sc.name, r.band, r.band_replaced, r.highlights_kept);
+            if let Ok(dir) = std::env::var("DUMP") {
+                let buf: Vec<u8> = (0..size * size)
+                    .flat_map(|i| {
+                        [if r.highlights[i] { 255 } else { 0 }, if r.mask[i] { 255 } else { 0 }, (inp.matte.data[i] * 255.0) as u8]
+                    })
+                    .collect();
+                image::RgbImage::from_raw(size as u32, size as u32, buf).unwrap().save(format!("{dir}/{}_region.png", sc.name)).unwrap();
+            }
+        }
+        let p = |img: &Image| score(img, &gt, border).psnr_srgb;
+        let g = p(&drbokeh::bench::gather::gather(&inp.aif, &inp.disparity, blur, focus));
+        let pipe = p(&out.image);
+        let (tf_eb, ef_tb) = if est.len() == 2 {
+            (p(&rend(&[inp.two_layers[0].clone(), est[1].clone()], true)?), p(&rend(&[est[0].clone(), inp.two_layers[1].clone()], true)?))
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+        let ex = p(&rend(&inp.two_layers, true)?);
+        if std::env::var("FGSWAP").is_ok() && est.len() == 2 {
+            let t = &inp.two_layers[0];
+            let e = &est[0];
+            let n = size * size;
+            let chan = |l: &Layer, c: usize| Image::from_vec(size, size, 1, (0..n).map(|i| l.image().data[i * 5 + c]).collect()).unwrap();
+            let rgb_of = |l: &Layer| l.image().select_channels(&[0, 1, 2]);
+            let true_rgb = Layer::from_parts(&rgb_of(t), &chan(e, 3), &chan(e, 4), "x")?;
+            let true_d = Layer::from_parts(&rgb_of(e), &chan(e, 3), &chan(t, 4), "x")?;
+            let a = p(&rend(&[true_rgb, inp.two_layers[1].clone()], true)?);
+            let b = p(&rend(&[true_d, inp.two_layers[1].clone()], true)?);
+            eprintln!("{} fg swaps: true rgb {a:.2}  true disparity {b:.2}", sc.name);
+        }
+        if let Ok(dir) = std::env::var("DUMP") {
+            let save = |img: &Image, name: &str| {
+                let s = drbokeh::bench::run::srgb(img);
+                let s = &s;
+                let c = img.channels;
+                let buf: Vec<u8> = (0..img.width * img.height)
+                    .flat_map(|i| (0..3).map(move |k| (s.data[i * c + if c == 1 { 0 } else { k }] * 255.0 + 0.5) as u8))
+                    .collect();
+                image::RgbImage::from_raw(img.width as u32, img.height as u32, buf)
+                    .unwrap()
+                    .save(format!("{dir}/{}_{name}.png", sc.name))
+                    .unwrap();
+            };
+            save(&inp.aif, "aif");
+            save(&inp.matte, "matte");
+            save(&gt, "gt");
+            save(&out.image, "pipe");
+            if est.len() == 2 {
+                save(est[1].image(), "est_bg");
+                save(inp.two_layers[1].image(), "true_bg");
+            }
+        }
+        let opaque = Image::filled(size, size, 1, 1.0);
+        let sc1 = p(&rend(&[Layer::from_parts(&inp.aif, &opaque, &inp.disparity, "s")?], false)?);
+        let v = [g, pipe, tf_eb, ef_tb, ex, sc1];
+        for (s, x) in sums.iter_mut().zip(v) {
+            *s += x;
+        }
+        println!(
+            "{:<15} {:<6} {:6.2} {:6.2} {:6.2}  {:6.2}  {:6.2} {:6.2}  {}{}",
+            sc.name,
+            sc.focus_kind.name(),
+            g,
+            pipe,
+            tf_eb,
+            ef_tb,
+            ex,
+            sc1,
+            if sc.thin { "thin " } else { "" },
+            if sc.highlights { "hl" } else { "" }
+        );
+    }
+    let m: Vec<String> = sums.iter().map(|s| format!("{:6.2}", s / n as f64)).collect();
+    println!("mean                   {}", m.join(" "));
+    Ok(())
+}

@@ -1,0 +1,103 @@
+//! Foreground colour at soft matte edges.
+//!
+//! A pixel the matte covers partly shows `C = α·F + (1 - α)·B`. Used as the foreground layer's
+//! colour, `C` carries the background into the foreground: blurred, the subject's edge gets a
+//! halo of background colour (issue 12: on the bench, the foreground layer's colour was the
+//! largest error after the background fill). With the background colour `B` estimated behind
+//! the subject (the inpainted background layer), the mix is solved for `F`; where `α` is small
+//! that solution amplifies every error by `1/α`, so it is blended with the colour of the
+//! nearest solid foreground, carried outwards by a Telea fill.
+
+use super::inpaint::{TeleaOptions, inpaint_telea};
+use crate::error::Result;
+use crate::image::Image;
+
+/// Alpha from which a pixel's colour is the foreground's own.
+pub const SOLID_ALPHA: f32 = 0.98;
+/// Below this alpha the unmixed colour gets no weight (the nearest solid colour is used);
+/// above [`TRUST_ALPHA`] it gets all of it; linear in between.
+pub const UNTRUSTED_ALPHA: f32 = 0.1;
+/// See [`UNTRUSTED_ALPHA`].
+pub const TRUST_ALPHA: f32 = 0.6;
+/// How far (pixels) solid colour is carried outwards: mixed edges are a few pixels wide.
+pub const CARRY_PX: f32 = 8.0;
+/// Up to this alpha the background is the one unmixed from the photo; from
+/// [`FILL_ALPHA`] on, the fill; linear in between.
+pub const UNMIXED_BG_ALPHA: f32 = 0.1;
+/// See [`UNMIXED_BG_ALPHA`].
+pub const FILL_ALPHA: f32 = 0.5;
+
+/// The unmixed foreground colour of one pixel: `(C - (1 - α)·B)/α`, clamped at 0 (light is
+/// never negative). `α` must be positive.
+#[inline]
+pub fn unmix(c: f32, b: f32, alpha: f32) -> f32 {
+    ((c - (1.0 - alpha) * b) / alpha).max(0.0)
+}
+
+/// Separates the photo `rgb` at the soft pixels of `alpha` (0 < α < [`SOLID_ALPHA`]) into the
+/// foreground layer's colour (linear RGB, straight, not premultiplied; returned) and the
+/// background's (`bg`, the filled background layer, corrected in place) as the module doc
+/// says. Solid pixels keep the photo's colour; transparent pixels get the carried solid colour
+/// (their colour only matters through rounding). Returns the foreground colour and the number
+/// of soft pixels. Cost: one Telea fill over the soft pixels up to [`CARRY_PX`] from solid
+/// ones plus a pass; allocates one image.
+pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Result<(Image, usize)> {
+    let soft: Vec<bool> = alpha.data.iter().map(|&a| a < SOLID_ALPHA).collect();
+    if soft.iter().all(|&s| s) || !alpha.data.iter().any(|&a| a > 0.0 && a < SOLID_ALPHA) {
+        // No solid colour to carry, or nothing to separate.
+        return Ok((rgb.clone(), 0));
+    }
+    let mut out = rgb.clone();
+    inpaint_telea(&mut out, &soft, TeleaOptions { max_distance: Some(CARRY_PX), ..TeleaOptions::new(radius) })?;
+    let mut changed = 0;
+    for (i, &a) in alpha.data.iter().enumerate() {
+        if !(a > 0.0 && a < SOLID_ALPHA) {
+            continue;
+        }
+        let w_bg = ((FILL_ALPHA - a) / (FILL_ALPHA - UNMIXED_BG_ALPHA)).clamp(0.0, 1.0);
+        let w_fg = ((a - UNTRUSTED_ALPHA) / (TRUST_ALPHA - UNTRUSTED_ALPHA)).clamp(0.0, 1.0);
+        for k in i * 3..i * 3 + 3 {
+            let carried = out.data[k];
+            // 1 - α ≥ 1 - SOLID_ALPHA here: the division is bounded.
+            let b_mix = ((rgb.data[k] - a * carried) / (1.0 - a)).max(0.0);
+            bg.data[k] = w_bg * b_mix + (1.0 - w_bg) * bg.data[k];
+            out.data[k] = w_fg * unmix(rgb.data[k], bg.data[k], a) + (1.0 - w_fg) * carried;
+        }
+        changed += 1;
+    }
+    Ok((out, changed))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_soft_edge_is_separated() {
+        // Red foreground over green background, alpha ramping 1 → 0 across x = 3..8.
+        let (w, h) = (12, 6);
+        let (f, b) = ([0.8, 0.1, 0.1], [0.1, 0.6, 0.2]);
+        let mut rgb = Image::new(w, h, 3);
+        let mut alpha = Image::new(w, h, 1);
+        let mut bg = Image::from_vec(w, h, 3, (0..w * h).flat_map(|_| b).collect()).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let a = (1.0 - (x as f32 - 3.0) / 5.0).clamp(0.0, 1.0);
+                alpha.data[y * w + x] = a;
+                for k in 0..3 {
+                    rgb.pixel_mut(x, y)[k] = a * f[k] + (1.0 - a) * b[k];
+                }
+            }
+        }
+        let (out, changed) = separate(&rgb, &alpha, &mut bg, 5.0).unwrap();
+        assert_eq!(changed, 4 * h);
+        for y in 0..h {
+            for x in 0..8 {
+                for k in 0..3 {
+                    assert!((out.pixel(x, y)[k] - f[k]).abs() < 1e-4, "F({x},{y})[{k}] = {}", out.pixel(x, y)[k]);
+                    assert!((bg.pixel(x, y)[k] - b[k]).abs() < 1e-4, "B({x},{y})[{k}] = {}", bg.pixel(x, y)[k]);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,102 @@
+//! Point-like highlights: pixels far brighter than most of their neighbourhood.
+//!
+//! A fill that averages its surroundings (Telea) carries a small HDR highlight next to the hole
+//! across the whole hidden region, where a blurred foreground later reveals it as a bright
+//! blob (issue 12: radiance 46 smeared to 8 over a background whose truth peaks at 0.71). The
+//! fill therefore does not use these pixels as sources; they stay visible in the layer.
+
+use crate::image::Image;
+use rayon::prelude::*;
+
+/// Half-size of the square neighbourhood a pixel is compared with (a 9x9 window). A point
+/// source up to ~4 px across covers less than a quarter of it.
+pub const WINDOW_HALF: usize = 6;
+/// The neighbourhood's reference level: this quantile of its luminance. Above the median so
+/// that a bright stripe of a high-contrast texture (half the window) is not a highlight; below
+/// 1 - (highlight area share) so that the reference is the surroundings, not the highlight.
+pub const REFERENCE_QUANTILE: f32 = 0.75;
+/// A highlight is brighter than `RATIO` times its reference plus [`FLOOR`] (linear light).
+/// 3x: a clipped highlight (1.0) on a mid-grey surface (0.2) qualifies, a bright texture
+/// stripe (0.6 against 0.5) does not.
+pub const RATIO: f32 = 3.0;
+/// Absolute margin (linear light) so that noise on near-black surfaces is never a highlight.
+pub const FLOOR: f32 = 0.05;
+
+/// Rec. 709 luminance of a linear RGB pixel.
+#[inline]
+pub fn luminance(px: &[f32]) -> f32 {
+    0.2126 * px[0] + 0.7152 * px[1] + 0.0722 * px[2]
+}
+
+/// Which of the `candidates` (pixel indices) of `rgb` (linear RGB, 3 channels) are point-like
+/// highlights: luminance above `RATIO · q + FLOOR`, with `q` the [`REFERENCE_QUANTILE`] of the
+/// luminance in the (2·[`WINDOW_HALF`]+1)² window around the pixel (clipped at the borders).
+/// Cost: one window selection per candidate (81 values), in parallel; allocates the answer.
+pub fn point_highlights(rgb: &Image, candidates: &[usize]) -> Vec<bool> {
+    let (w, h) = (rgb.width, rgb.height);
+    candidates
+        .par_iter()
+        .map_init(
+            || Vec::with_capacity((2 * WINDOW_HALF + 1).pow(2)),
+            |window, &i| {
+                let (x, y) = (i % w, i / w);
+                let l = luminance(&rgb.data[i * 3..i * 3 + 3]);
+                if l <= FLOOR {
+                    return false;
+                }
+                window.clear();
+                for yy in y.saturating_sub(WINDOW_HALF)..(y + WINDOW_HALF + 1).min(h) {
+                    for xx in x.saturating_sub(WINDOW_HALF)..(x + WINDOW_HALF + 1).min(w) {
+                        let j = (yy * w + xx) * 3;
+                        window.push(luminance(&rgb.data[j..j + 3]));
+                    }
+                }
+                let k = ((window.len() - 1) as f32 * REFERENCE_QUANTILE).round() as usize;
+                let (_, q, _) = window.select_nth_unstable_by(k, f32::total_cmp);
+                l > RATIO * *q + FLOOR
+            },
+        )
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grey(w: usize, h: usize, v: f32) -> Image {
+        Image::filled(w, h, 3, v)
+    }
+
+    #[test]
+    fn a_dot_is_a_highlight_a_stripe_is_not() {
+        let (w, h) = (20, 20);
+        let mut img = grey(w, h, 0.2);
+        // A 2x2 dot at (5, 5).
+        for (x, y) in [(5, 5), (6, 5), (5, 6), (6, 6)] {
+            img.pixel_mut(x, y).fill(8.0);
+        }
+        // Vertical stripes, 2 px bright / 2 px dark, on the right half.
+        for y in 0..h {
+            for x in 10..w {
+                img.pixel_mut(x, y).fill(if (x / 2) % 2 == 0 { 0.9 } else { 0.1 });
+            }
+        }
+        let all: Vec<usize> = (0..w * h).collect();
+        let hl = point_highlights(&img, &all);
+        let marked: Vec<usize> = all.iter().copied().filter(|&i| hl[i]).collect();
+        assert_eq!(marked, vec![5 * w + 5, 5 * w + 6, 6 * w + 5, 6 * w + 6]);
+    }
+
+    #[test]
+    fn a_large_bright_area_is_not_point_like() {
+        let (w, h) = (24, 24);
+        let mut img = grey(w, h, 0.1);
+        for y in 4..20 {
+            for x in 4..20 {
+                img.pixel_mut(x, y).fill(5.0);
+            }
+        }
+        // The centre of a 16x16 bright square is its own surroundings.
+        assert!(!point_highlights(&img, &[12 * w + 12])[0]);
+    }
+}
