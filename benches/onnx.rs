@@ -49,7 +49,7 @@ fn run_once(c: &Case, spec: &ModelSpec, cfg: &OnnxConfig, rgb: &Image, disp: &Im
         Kind::Depth => depth_onnx::estimate_disparity(rgb, spec, cfg).unwrap().1,
         Kind::Inpaint => {
             let opts = InpaintOptions { method: InpaintMethod::Onnx, onnx: spec.clone(), ..InpaintOptions::default() };
-            inpaint_onnx::inpaint_background(rgb, disp, alpha, &opts, 64.0, cfg).unwrap().1
+            inpaint_onnx::inpaint_background(rgb, disp, alpha, &opts, 64.0, 0.0, cfg).unwrap().1
         }
     }
 }

@@ -10,7 +10,8 @@ use crate::image::Image;
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
 use crate::stages::background::{ForegroundColour, inpaint_background};
 use crate::stages::depth::Disparity;
-use crate::stages::fill_depth::foreground_disparity;
+use crate::stages::depth_edges;
+use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
 use crate::stages::foreground::separate;
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::timing::ms_since;
@@ -327,11 +328,21 @@ impl Pipeline {
                         Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})),
                     );
                     let t = Instant::now();
-                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, focus, blur)?;
+                    let edges = match cfg.fill_depth.edges {
+                        DepthEdges::Snapped => depth_edges::measure(disp, &hard_mask(&alpha, &cfg.fill_depth), w, h),
+                        DepthEdges::AsGiven => depth_edges::EdgeWidths::default(),
+                    };
+                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), edges.inside_px)?;
                     report.ran(
                         "fill_depth",
                         t,
-                        Some(serde_json::json!({"filled_px": fd.filled, "skipped_unreachable_px": fd.skipped, "reach_px": fd.reach})),
+                        Some(serde_json::json!({
+                            "filled_px": fd.filled,
+                            "skipped_unreachable_px": fd.skipped,
+                            "reach_px": fd.reach,
+                            "erode_px": fd.erode,
+                            "depth_edge_ramp": edges
+                        })),
                     );
                     // How deep under the foreground a background value can still be seen: the
                     // foreground shows the background up to its visibility reach inside its
@@ -341,12 +352,19 @@ impl Pipeline {
                     let reach =
                         crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0);
                     let (bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
-                        let (bg, r) =
-                            crate::stages::inpaint_onnx::inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, &cfg.onnx)?;
+                        let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
+                            &scene.rgb,
+                            disp,
+                            &alpha,
+                            &cfg.inpaint,
+                            reach,
+                            edges.outside_px,
+                            &cfg.onnx,
+                        )?;
                         report.warnings.extend(r.warnings.iter().cloned());
                         (bg, Some(r))
                     } else {
-                        (inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach)?, None)
+                        (inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None)
                     };
                     let method = if inpaint_model.is_some() { "onnx" } else { "telea" };
                     let mut bg = bg;

@@ -127,6 +127,9 @@ pub struct FillRegion {
     /// Pixels to re-synthesize: covered by the foreground, or in the edge band and
     /// contaminated by its colour.
     pub mask: Vec<bool>,
+    /// Pixels whose disparity is re-synthesized: `mask`, plus the pixels outside the matte
+    /// that a soft depth edge gives foreground depth.
+    pub depth_mask: Vec<bool>,
     /// Visible point-like highlights near the mask, which must not feed the fill (all false
     /// with [`HighlightSources::Included`]).
     pub highlights: Vec<bool>,
@@ -139,12 +142,15 @@ pub struct FillRegion {
 }
 
 /// The region the background fill replaces, and the highlights it keeps out of its sources
-/// (within `radius + 1` of the mask: Telea reads a disc of `radius`). Cost: two distance
-/// transforms on the matte's grown bounding box, and window medians on the band and around
-/// the mask (see the two modules); allocates a few masks.
-pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions) -> FillRegion {
+/// (within `radius + 1` of the mask: Telea reads a disc of `radius`). `ramp_outside` is the
+/// measured width (pixels) of a soft depth edge outside the outline
+/// ([`super::depth_edges`]); above a pixel, disparity is re-synthesized that far out plus one.
+/// Cost: a few distance transforms on the matte's grown bounding box, and window medians on
+/// the band and around the mask (see the two modules); allocates a few masks.
+pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outside: f32) -> FillRegion {
     let (w, h) = (alpha.width, alpha.height);
     let covered = covered(alpha, opts);
+    let depth_grown = (ramp_outside > 1.0).then(|| dilate(&covered, w, h, ramp_outside + 1.0));
     let grown = dilate(&covered, w, h, opts.dilate);
     let band: Vec<usize> = (0..w * h).filter(|&i| grown[i] && !covered[i]).collect();
     let mut mask = covered;
@@ -167,7 +173,11 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions) -> FillReg
         }
     }
     let highlights_kept = highlights.iter().filter(|&&h| h).count();
-    FillRegion { mask, highlights, band: band.len(), band_replaced: replaced.iter().filter(|&&r| r).count(), highlights_kept }
+    let depth_mask = match depth_grown {
+        Some(g) => g.iter().zip(&mask).map(|(&g, &m)| g || m).collect(),
+        None => mask.clone(),
+    };
+    FillRegion { mask, depth_mask, highlights, band: band.len(), band_replaced: replaced.iter().filter(|&&r| r).count(), highlights_kept }
 }
 
 /// The region a background fill must cover, as a fast-marching reach from the visible
@@ -186,10 +196,17 @@ pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
     super::mask::marching_reach(deep + see)
 }
 
-/// Inpaints `rgb` and `disp` under the dilated foreground, up to `reach` pixels from the
+/// Inpaints `rgb` and `disp` over [`fill_region`]'s masks, up to `reach` pixels from the
 /// visible background (deeper pixels cannot be seen through any blur and keep their input).
-pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, reach: f32) -> Result<Background> {
-    let region = fill_region(rgb, alpha, opts);
+pub fn inpaint_background(
+    rgb: &Image,
+    disp: &Image,
+    alpha: &Image,
+    opts: &InpaintOptions,
+    reach: f32,
+    ramp_outside: f32,
+) -> Result<Background> {
+    let region = fill_region(rgb, alpha, opts, ramp_outside);
     let mask = region.mask;
     // The colour fill treats kept highlights as holes too (so they feed nothing), then puts
     // them back: they are visible background.
@@ -198,7 +215,7 @@ pub fn inpaint_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &Inpai
     let mut disp_out = disp.clone();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
     let (filled, filled_disp) =
-        rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &mask, topts));
+        rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
     filled?;
     let filled = filled_disp?;
     for (i, _) in region.highlights.iter().enumerate().filter(|(_, h)| **h) {

@@ -21,12 +21,27 @@ pub struct FillDepthOptions {
     pub erode: f32,
     /// Telea neighbourhood radius, pixels.
     pub radius: f32,
+    /// Whether depth edges softer than the matte's are measured and kept out of both layers.
+    pub edges: DepthEdges,
 }
 
 impl Default for FillDepthOptions {
     fn default() -> Self {
-        FillDepthOptions { threshold: 0.5, erode: 2.0, radius: 5.0 }
+        FillDepthOptions { threshold: 0.5, erode: 2.0, radius: 5.0, edges: DepthEdges::default() }
     }
+}
+
+/// How the stages treat a depth map whose edges are softer than the matte's
+/// ([`super::depth_edges`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthEdges {
+    /// Measure the ramp on each side of the outline; the foreground's disparity is taken from
+    /// beyond it inside, the background's re-synthesized beyond it outside.
+    #[default]
+    Snapped,
+    /// Trust the depth map up to `erode` pixels from the outline.
+    AsGiven,
 }
 
 /// Result of the fill: the foreground layer's disparity and how much work was done.
@@ -43,6 +58,14 @@ pub struct FilledDepth {
     /// How far (pixels) outside its visible pixels the foreground layer can show: its largest
     /// visibility box half-size, plus one.
     pub visible_reach: f32,
+    /// The shrink of the hard mask actually used, pixels (`erode`, or wider for a soft depth
+    /// edge).
+    pub erode: f32,
+}
+
+/// The foreground's hard mask: `alpha > threshold`.
+pub fn hard_mask(alpha: &Image, opts: &FillDepthOptions) -> Vec<bool> {
+    alpha.data.iter().map(|&a| a > opts.threshold).collect()
 }
 
 /// The pixels whose disparity is trusted: `hard` shrunk by `erode` pixels (its edge pixels mix
@@ -73,13 +96,23 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
 /// can show the layer. The fill covers those (measured from the core: the farthest visible
 /// pixel's distance plus `r`, with a margin for the fast-marching metric); every pixel beyond
 /// gets the core disparity nearest the focus, which keeps its box small and its value unseen.
-pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions, focus: f32, blur: f32) -> Result<FilledDepth> {
+///
+/// `ramp_inside` is the measured width of a soft depth edge inside the outline (pixels;
+/// [`super::depth_edges`]): the hard mask shrinks by at least one pixel more than that.
+pub fn foreground_disparity(
+    disp: &Image,
+    alpha: &Image,
+    opts: &FillDepthOptions,
+    (focus, blur): (f32, f32),
+    ramp_inside: f32,
+) -> Result<FilledDepth> {
     let (w, h) = (disp.width, disp.height);
-    let hard: Vec<bool> = alpha.data.iter().map(|&a| a > opts.threshold).collect();
-    let core = core_of(&hard, w, h, opts.erode);
+    let hard = hard_mask(alpha, opts);
+    let erode = if ramp_inside > 1.0 { opts.erode.max(ramp_inside + 1.0) } else { opts.erode };
+    let core = core_of(&hard, w, h, erode);
     let mut out = disp.clone();
     if !core.iter().any(|&m| m) {
-        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0 });
+        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode });
     }
     let (lo, hi) = core
         .iter()
@@ -112,5 +145,5 @@ pub fn foreground_disparity(disp: &Image, alpha: &Image, opts: &FillDepthOptions
             skipped += 1;
         }
     }
-    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach })
+    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach, erode })
 }

@@ -77,10 +77,11 @@ pub fn inpaint_background(
     alpha: &Image,
     opts: &InpaintOptions,
     reach: f32,
+    ramp_outside: f32,
     cfg: &OnnxConfig,
 ) -> Result<(Background, OnnxReport)> {
     let (w, h) = (rgb.width, rgb.height);
-    let fill = super::background::fill_region(rgb, alpha, opts);
+    let fill = super::background::fill_region(rgb, alpha, opts, ramp_outside);
     let stats = (fill.band, fill.band_replaced, fill.highlights_kept);
     // The model sees kept highlights as holes too (so it copies none into the hidden region);
     // they are put back after the paste.
@@ -117,7 +118,7 @@ pub fn inpaint_background(
     match model.contract.depth {
         DepthFill::Telea => {
             let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
-            inpaint_telea(&mut disp_out, &mask, topts)?;
+            inpaint_telea(&mut disp_out, &fill.depth_mask, topts)?;
         }
         DepthFill::Model => {
             let t = Instant::now();

@@ -6,6 +6,7 @@
 pub mod background;
 pub mod contamination;
 pub mod depth;
+pub mod depth_edges;
 pub mod depth_onnx;
 pub mod fill_depth;
 pub mod foreground;

@@ -1,0 +1,148 @@
+//! How far a depth map's edges spread past the matte's.
+//!
+//! A depth map from an estimator is coarser and smoother than the photo: across the subject's
+//! outline its disparity ramps over several pixels instead of stepping where the matte does.
+//! Inside the outline the foreground then takes background depth (and blurs as if it were
+//! far), outside it the background takes foreground depth. Measuring the ramp's width on each
+//! side lets the stages trust depth only where it is clean: the foreground's disparity is
+//! taken that far inside the outline and extended outwards ([`super::fill_depth`]), the
+//! background's is re-synthesized that far outside it ([`super::background`]). With a depth
+//! map whose edges are on the photo's, both widths come out at about a pixel and nothing
+//! changes.
+
+use super::mask::distance_within;
+use crate::image::Image;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Widest ramp measured, pixels per side (estimators' edges are rarely softer; a wider search
+/// would also cross into other objects).
+pub const MAX_WIDTH: usize = 12;
+/// The plateau on each side is read this far from the outline: [`MAX_WIDTH`] + 1 … + 3.
+const PLATEAU: (f32, f32) = (MAX_WIDTH as f32 + 1.0, MAX_WIDTH as f32 + 3.0);
+/// A boundary sample counts only where the plateaus differ by this much disparity (elsewhere
+/// the depth has no edge to measure).
+const MIN_STEP: f32 = 0.03;
+/// At most this many samples are used (evenly spread), which bounds the cost at 12 MP.
+const MAX_SAMPLES: usize = 20_000;
+/// Share of the step still counted as ramp: the ramp ends where the profile is within 10% of
+/// its plateau.
+const SETTLED: f32 = 0.1;
+
+/// The measured ramp widths (pixels) on each side of the outline, and how many samples
+/// measured them (0: no depth edge along the outline; the widths are then 0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct EdgeWidths {
+    /// Inside the matte: foreground pixels within this distance of the outline carry
+    /// background depth.
+    pub inside_px: f32,
+    /// Outside the matte: background pixels within this distance carry foreground depth.
+    pub outside_px: f32,
+    /// Samples measured.
+    pub samples: usize,
+}
+
+/// Measures the ramp of `disp` across the outline of `inside` (the matte's hard mask, e.g.
+/// `alpha ≥ 0.5`): the median normalized profile of the disparity against the signed distance
+/// to the outline, each sample normalized by the median plateaus on both sides within a
+/// window around it. Cost: two distance transforms near the outline and one window median
+/// per sample (at most [`MAX_SAMPLES`]), in parallel.
+pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths {
+    let reach = PLATEAU.1 + 1.0;
+    let outside: Vec<bool> = inside.iter().map(|&m| !m).collect();
+    // Signed distance: > 0 inside (distance to the outside), < 0 outside.
+    let to_out = distance_within(&outside, w, h, reach);
+    let to_in = distance_within(inside, w, h, reach);
+    let signed: Vec<f32> = (0..w * h).map(|i| if inside[i] { to_out[i] } else { -to_in[i] }).collect();
+    let band: Vec<usize> = (0..w * h).filter(|&i| signed[i].abs() <= MAX_WIDTH as f32 + 0.5).collect();
+    if band.is_empty() {
+        return EdgeWidths::default();
+    }
+    let stride = band.len().div_ceil(MAX_SAMPLES);
+    let r = PLATEAU.1.ceil() as usize + 2;
+    // (signed distance bucket, normalized disparity) per usable sample.
+    let samples: Vec<(i32, f32)> = band
+        .par_iter()
+        .step_by(stride)
+        .filter_map(|&i| {
+            let (x, y) = (i % w, i / w);
+            let (mut fin, mut fout) = (Vec::new(), Vec::new());
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                    let j = yy * w + xx;
+                    let s = signed[j];
+                    if s >= PLATEAU.0 && s <= PLATEAU.1 {
+                        fin.push(disp.data[j]);
+                    } else if -s >= PLATEAU.0 && -s <= PLATEAU.1 {
+                        fout.push(disp.data[j]);
+                    }
+                }
+            }
+            let (din, dout) = (median(&mut fin)?, median(&mut fout)?);
+            ((din - dout).abs() >= MIN_STEP).then(|| (signed[i].round() as i32, (disp.data[i] - dout) / (din - dout)))
+        })
+        .collect();
+    if samples.is_empty() {
+        return EdgeWidths::default();
+    }
+    let m = MAX_WIDTH as i32;
+    let profile: Vec<Option<f32>> = (-m..=m)
+        .map(|k| {
+            let mut v: Vec<f32> = samples.iter().filter(|s| s.0 == k).map(|s| s.1).collect();
+            median(&mut v)
+        })
+        .collect();
+    let at = |k: i32| profile[(k + m) as usize];
+    // The ramp reaches as far out as the profile is still off its plateau.
+    let inside_px = (1..=m).rev().find(|&k| at(k).is_some_and(|t| t < 1.0 - SETTLED)).unwrap_or(0) as f32;
+    let outside_px = (1..=m).rev().find(|&k| at(-k).is_some_and(|t| t > SETTLED)).unwrap_or(0) as f32;
+    EdgeWidths { inside_px, outside_px, samples: samples.len() }
+}
+
+fn median(v: &mut [f32]) -> Option<f32> {
+    if v.is_empty() {
+        return None;
+    }
+    let k = v.len() / 2;
+    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A disk of disparity 0.8 on 0.2, its depth edge smoothed by a ramp of `ramp` px per side.
+    fn disk(ramp: f32) -> (Image, Vec<bool>, usize, usize) {
+        let (w, h) = (96, 96);
+        let mut d = Image::new(w, h, 1);
+        let mut inside = vec![false; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let r = ((x as f32 - 48.0).powi(2) + (y as f32 - 48.0).powi(2)).sqrt();
+                let s = 25.0 - r; // signed distance to the outline
+                inside[y * w + x] = s >= 0.0;
+                let t = if ramp == 0.0 { (s >= 0.0) as u8 as f32 } else { ((s + ramp) / (2.0 * ramp)).clamp(0.0, 1.0) };
+                d.data[y * w + x] = 0.2 + 0.6 * t;
+            }
+        }
+        (d, inside, w, h)
+    }
+
+    #[test]
+    fn sharp_edges_measure_about_a_pixel_and_ramps_their_width() {
+        let (d, inside, w, h) = disk(0.0);
+        let e = measure(&d, &inside, w, h);
+        assert!(e.samples > 0 && e.inside_px <= 1.0 && e.outside_px <= 1.0, "{e:?}");
+        let (d, inside, w, h) = disk(6.0);
+        let e = measure(&d, &inside, w, h);
+        assert!((4.0..=7.0).contains(&e.inside_px) && (4.0..=7.0).contains(&e.outside_px), "{e:?}");
+    }
+
+    #[test]
+    fn no_depth_edge_no_width() {
+        let (w, h) = (64, 64);
+        let d = Image::filled(w, h, 1, 0.5);
+        let inside: Vec<bool> = (0..w * h).map(|i| (i % w) < 32).collect();
+        assert_eq!(measure(&d, &inside, w, h), EdgeWidths::default());
+    }
+}
