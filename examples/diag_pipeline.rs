@@ -44,7 +44,12 @@ fn main() -> drbokeh::Result<()> {
         let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
         let est = &out.layers;
         if std::env::var("REGION").is_ok() {
-            let r = drbokeh::stages::background::fill_region(&inp.aif, &inp.matte, &drbokeh::stages::background::InpaintOptions::default(), 0.0);
+            let r = drbokeh::stages::background::fill_region(
+                &inp.aif,
+                &inp.matte,
+                &drbokeh::stages::background::InpaintOptions::default(),
+                0.0,
+            );
             eprintln!("{} band {} replaced {} highlights {}", sc.name, r.band, r.band_replaced, r.highlights_kept);
             if let Ok(dir) = std::env::var("DUMP") {
                 let buf: Vec<u8> = (0..size * size)
@@ -62,12 +67,29 @@ fn main() -> drbokeh::Result<()> {
             let g_img = drbokeh::bench::gather::gather(&inp.aif, &inp.disparity, blur, focus);
             for (name, img) in [("pipe", &out.image), ("gather", &g_img)] {
                 let mut errs: Vec<(f32, usize)> = (0..size * size)
-                    .filter(|&i| { let (x, y) = (i % size, i / size); x >= border && y >= border && x < size - border && y < size - border })
+                    .filter(|&i| {
+                        let (x, y) = (i % size, i / size);
+                        x >= border && y >= border && x < size - border && y < size - border
+                    })
                     .map(|i| ((0..3).map(|k| (img.data[i * 3 + k] - gt.data[i * 3 + k]).powi(2)).sum::<f32>(), i))
                     .collect();
                 errs.sort_by(|a, b| b.0.total_cmp(&a.0));
                 let total: f32 = errs.iter().map(|e| e.0).sum();
-                let top: Vec<String> = errs[..4].iter().map(|&(e, i)| format!("({},{}) e{:.1} v{:.2} gt{:.2} aif{:.2} a{:.2}", i % size, i / size, e, img.data[i * 3], gt.data[i * 3], inp.aif.data[i * 3], inp.matte.data[i])).collect();
+                let top: Vec<String> = errs[..4]
+                    .iter()
+                    .map(|&(e, i)| {
+                        format!(
+                            "({},{}) e{:.1} v{:.2} gt{:.2} aif{:.2} a{:.2}",
+                            i % size,
+                            i / size,
+                            e,
+                            img.data[i * 3],
+                            gt.data[i * 3],
+                            inp.aif.data[i * 3],
+                            inp.matte.data[i]
+                        )
+                    })
+                    .collect();
                 eprintln!("{} {name}: sse {total:.1} top {}", sc.name, top.join(" "));
             }
         }

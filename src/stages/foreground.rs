@@ -9,6 +9,7 @@
 //! nearest solid foreground, carried outwards by a Telea fill.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
+use super::mask::grown_bbox;
 use crate::error::Result;
 use crate::image::Image;
 
@@ -39,6 +40,24 @@ pub fn unmix(c: f32, b: f32, alpha: f32) -> f32 {
     ((c - (1.0 - alpha) * b) / alpha).max(0.0)
 }
 
+/// Carries the solid pixels' colour over the soft ones (Telea, up to [`CARRY_PX`]), on the
+/// bounding box of the visible (`α > 0`) pixels only: nothing outside it is read or changed,
+/// so a small subject in a 12 MP frame costs a small fill.
+fn carry_solid_colour(img: &mut Image, alpha: &Image, soft: &[bool], radius: f32) -> Result<()> {
+    let (w, h) = (img.width, img.height);
+    let visible: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
+    let Some((x0, y0, x1, y1)) = grown_bbox(&visible, w, h, 1.0) else { return Ok(()) };
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let mut crop = img.crop(x0, y0, cw, ch);
+    let crop_soft: Vec<bool> = (y0..y1).flat_map(|y| soft[y * w + x0..y * w + x1].iter().copied()).collect();
+    inpaint_telea(&mut crop, &crop_soft, TeleaOptions { max_distance: Some(CARRY_PX), ..TeleaOptions::new(radius) })?;
+    for (y, row) in crop.data.chunks_exact(cw * 3).enumerate() {
+        let i = ((y0 + y) * w + x0) * 3;
+        img.data[i..i + cw * 3].copy_from_slice(row);
+    }
+    Ok(())
+}
+
 /// Separates the photo `rgb` at the soft pixels of `alpha` (0 < α < [`SOLID_ALPHA`]) into the
 /// foreground layer's colour (linear RGB, straight, not premultiplied; returned) and the
 /// background's (`bg`, the filled background layer, corrected in place) as the module doc
@@ -53,7 +72,7 @@ pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Resu
         return Ok((rgb.clone(), 0));
     }
     let mut out = rgb.clone();
-    inpaint_telea(&mut out, &soft, TeleaOptions { max_distance: Some(CARRY_PX), ..TeleaOptions::new(radius) })?;
+    carry_solid_colour(&mut out, alpha, &soft, radius)?;
     let mut changed = 0;
     for (i, &a) in alpha.data.iter().enumerate() {
         if !(a > 0.0 && a < SOLID_ALPHA) {
