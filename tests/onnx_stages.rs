@@ -415,3 +415,25 @@ fn missing_execution_provider_falls_back_to_cpu_with_a_warning() {
     }
     assert_eq!(report.providers.last().map(String::as_str), Some("CPUExecutionProvider"));
 }
+
+/// Issue 12: an inpainting model whose output does not match its declared range gives a
+/// named warning (an almost black or a blown-out fill), and a matching one gives none.
+#[test]
+fn an_implausible_inpainting_range_is_warned_about() {
+    let (w, h) = (40, 32);
+    let (rgb, disp) = (photo(w, h), Image::filled(w, h, 1, 0.3));
+    let alpha = disk_alpha(w, h, 25.0, 14.0, 5.0);
+    let run = |range: Option<[f32; 2]>| {
+        let onnx = ModelSpec { output_range: range, ..spec("lama_dynamic.onnx", "lama-dynamic") };
+        let opts = InpaintOptions { method: inpaint_onnx::InpaintMethod::Onnx, onnx, ..InpaintOptions::default() };
+        inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, 40.0, 0.0, &cfg()).unwrap().1.warnings
+    };
+    assert!(run(None).is_empty(), "the preset's range matches the stub");
+    // The stub gives [0, 1]: declared [0, 255] (the mistake of the issue), the fill is almost
+    // black.
+    let dark = run(Some([0.0, 255.0])).join("\n");
+    assert!(dark.contains("lama_dynamic.onnx") && dark.contains("never exceeds") && dark.contains("[0, 255]"), "{dark}");
+    // Declared [0, 0.01]: the fill is blown out.
+    let bright = run(Some([0.0, 0.01])).join("\n");
+    assert!(bright.contains("far above its declared output range [0, 0.01]"), "{bright}");
+}

@@ -69,6 +69,28 @@ fn paste(dst: &mut Image, filled: &Image, x0: usize, y0: usize, dist: &[f32], fe
     }
 }
 
+/// A fill (model space: sRGB in [0, 1] once `output_range` is mapped) is implausible when it
+/// is almost black while the photo is not (the raw output never reaches 2% of the declared
+/// range: typically a model giving [0, 1] declared as [0, 255]) or far above the range (the
+/// opposite mistake). Returns the warning's text, naming the declared range and what the
+/// model gave.
+pub fn implausible_fill(fill: &Image, photo: &Image, [lo, hi]: [f32; 2]) -> Option<String> {
+    let max = |img: &Image| img.data.iter().copied().filter(|v| v.is_finite()).fold(f32::NEG_INFINITY, f32::max);
+    let (got, seen) = (max(fill), max(photo));
+    let raw = lo + got * (hi - lo);
+    let fix = "check the model's output_range in [inpaint.onnx]";
+    if got < 0.02 && seen > 0.2 {
+        return Some(format!(
+            "the inpainting model's output never exceeds {raw} while its declared output range is [{lo}, {hi}]: the fill is almost black; {fix}"
+        ));
+    }
+    (got > 4.0).then(|| {
+        format!(
+            "the inpainting model's output reaches {raw}, far above its declared output range [{lo}, {hi}]: the fill is blown out; {fix}"
+        )
+    })
+}
+
 /// Inpaints colour (and disparity) behind the foreground with the `[inpaint.onnx]` model.
 /// Returns the same [`Background`] as the classical stage, plus the model report.
 pub fn inpaint_background(
@@ -106,6 +128,9 @@ pub fn inpaint_background(
     model.report.pre_ms += ms_since(t);
 
     let mut filled = model.predict_with_mask(&crop_rgb, Some(&crop_mask), 3)?;
+    if let Some(w) = implausible_fill(&filled, &crop_rgb, model.contract.output_range) {
+        model.report.warnings.push(format!("{}: {w}", model.path.display()));
+    }
     let t = Instant::now();
     onnx::from_model_rgb(&mut filled.data);
     paste(&mut rgb_out, &filled, x0, y0, &dist, feather);
