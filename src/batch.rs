@@ -359,6 +359,20 @@ struct Plan {
     focus: Focus,
 }
 
+/// The names were checked to stay inside the output folder; this checks where they lead: a
+/// symbolic link under the output folder may point anywhere, and a batch must not write there.
+fn check_contained(dir: &Path, output_dir: &Path) -> Result<()> {
+    let real = std::fs::canonicalize(dir).map_err(|e| Error::io(dir, e))?;
+    let root = std::fs::canonicalize(output_dir).map_err(|e| Error::io(output_dir, e))?;
+    if real.starts_with(&root) {
+        return Ok(());
+    }
+    Err(Error::input(
+        dir,
+        format!("leads to {}, outside the output folder {} (through a symbolic link): not written", real.display(), root.display()),
+    ))
+}
+
 /// Sets each item's output from the manifest; an output that would leave the output folder
 /// (`..`, an absolute path) is an error naming the manifest entry.
 fn apply_manifest_outputs(
@@ -674,6 +688,7 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
         };
         if let Some(dir) = output.parent() {
             std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+            check_contained(dir, &opts.output_dir)?;
         }
         // A stale record must not vouch for the new output if this render is interrupted.
         let record = record_path(&output);

@@ -278,6 +278,19 @@ fn outputs_stay_inside_the_output_folder() {
     let (code, _, err) = batch_json(&inp, &out, &["--manifest", m.to_str().unwrap()]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.join("deep/er/x.png").exists());
+    // A name inside `-o` that leads outside it through a symbolic link is not written either.
+    #[cfg(unix)]
+    {
+        let elsewhere = t.path().join("elsewhere");
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        std::os::unix::fs::symlink(&elsewhere, out.join("link")).unwrap();
+        std::fs::write(&m, "[[image]]\nimage = \"x.png\"\nfocus = 1.0\noutput = \"link/x.png\"\n").unwrap();
+        let (code, s, err) = batch_json(&inp, &out, &["--manifest", m.to_str().unwrap()]);
+        assert_ne!(code, Some(0), "{err}");
+        let st = statuses(&s);
+        assert!(st.iter().any(|(_, status, why)| status == "failed" && why.contains("outside the output folder")), "{st:?}");
+        assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 0, "nothing written through the link");
+    }
 }
 
 /// Issue 10: resume compared modification times only. A rerun with other parameters, a
