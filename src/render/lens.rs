@@ -296,6 +296,190 @@ pub fn over_groups(groups: &[[f64; 4]; 3]) -> [f64; 4] {
     out
 }
 
+// ---------------------------------------------------------------------------------------------
+// Derivatives of the terms above, for the backward pass (`render::backward`), and the smooth
+// variants of the physical profile's hard edges. Each derivative sits under the name of the
+// term it differentiates and is finite for every finite input.
+// ---------------------------------------------------------------------------------------------
+
+/// `∂ soft_step(a, b) / ∂a` (`= -∂/∂b`): `3·s·(1 - s)` with `s` the soft step. The official
+/// CUDA form `g·s·e / ((e + s)² + ε)`, `e = exp(3(b - a))`, overflows to inf/inf = NaN once
+/// `b - a` passes ~30 px; this one is at most 0.75 and never NaN.
+#[inline(always)]
+pub fn soft_step_grad(a: f32, b: f32) -> f32 {
+    let s = soft_step(a, b);
+    STEP_GAIN * s * (1.0 - s)
+}
+
+/// [`energy`] and its derivative in `σ` at fixed `r` and `unit`, from one soft step:
+/// `(s·u², (3·s(1 - s) - 2s/σ)·u²)` with `u = unit/σ`. Finite for every finite input.
+#[inline(always)]
+pub fn energy_with_grad(sigma: f32, r: f32, unit: f32) -> (f32, f32) {
+    let s = soft_step(sigma, r);
+    let rho = density(sigma, unit);
+    (s * rho, (STEP_GAIN * s * (1.0 - s) - 2.0 * s / sigma) * rho)
+}
+
+/// `(∂σ/∂d, ∂σ/∂k)` of [`scatter_radius`] (and of [`coc_radius`], whose derivatives are the
+/// same): `(sign(d)·k, |d|)`; 0 at `d = 0` (the subgradient the backward uses at the kink) and
+/// once the radius is capped at [`MAX_RADIUS`].
+#[inline(always)]
+pub fn coc_radius_grad(d: f32, k: f32) -> (f32, f32) {
+    if coc_radius(d, k) >= MAX_RADIUS || d == 0.0 { (0.0, 0.0) } else { (d.signum() * k, d.abs()) }
+}
+
+/// `(∂q/∂d, ∂q/∂k)` of [`focal_defocus`] `q = 1 - exp(-3 (d·k)²)`: `(6k²d, 6kd²)·exp(-3(dk)²)`,
+/// smooth through `d = 0`. Zero where [`focal_defocus`] returns exactly 1 (`|d|·k ≥ 2.5`; the
+/// true derivative there is below 1e-7·k), so forward and backward describe one function.
+#[inline(always)]
+pub fn focal_defocus_grad(d_target: f32, k: f32) -> (f32, f32) {
+    let c = coc_radius(d_target, k);
+    if c == 0.0 || c >= 2.5 {
+        return (0.0, 0.0);
+    }
+    let e = 6.0 * (-3.0 * c * c).exp();
+    (e * k * k * d_target, e * k * d_target * d_target)
+}
+
+/// [`in_front`] and its derivative in `d_y` (`= -∂/∂d_x`) from one tanh:
+/// `(0.5 + 0.5·t, 5·(1 - t²))` with `t = tanh(10(d_y - d_x - 0.1))`; the slope is in [0, 5].
+#[inline(always)]
+pub fn in_front_with_grad(d_neighbour: f32, d_target: f32) -> (f32, f32) {
+    let t = (10.0 * (d_neighbour - d_target - 0.1)).tanh();
+    (0.5 + 0.5 * t, 5.0 * (1.0 - t) * (1.0 + t))
+}
+
+/// `∂ disk_coverage_smooth(r, ρ, width) / ∂r` (`= -∂/∂ρ`): the smoothstep's slope `6t(1 - t)`
+/// over `width`; 0 outside the edge.
+#[inline]
+pub fn disk_coverage_smooth_grad(r: f32, rho: f32, width: f32) -> f32 {
+    let width = width.max(f32::MIN_POSITIVE);
+    let t = (r - rho) / width + 0.5;
+    if t <= 0.0 || t >= 1.0 { 0.0 } else { 6.0 * t * (1.0 - t) / width }
+}
+
+/// `(Σ, ∂Σ/∂r)`: the lattice sum of [`disk_coverage_smooth`] around a source (its flux before
+/// normalisation, so `disk_coverage_smooth / norm` spreads a unit of light, as
+/// [`disk_norm`] does for the hard ramp) and its derivative in `r`. Exact (pixels fully inside
+/// counted from [`LatticeRings`], the edge ring point by point, O(r·width)) while the edge
+/// stays within the table (`r + width/2 ≤ NORM_TABLE_MAX + 1`); beyond, the area
+/// `π(r² + width²/20)` of the smoothly ramped disk (the hard ramp's `1/12` becomes `1/20` for
+/// the smoothstep) and `2πr`. With `width = 1` an in-focus source (`r < ½`) keeps weight 1 on
+/// its own pixel, as in the hard profile.
+pub fn disk_norm_smooth(r: f32, width: f32) -> (f32, f32) {
+    let width = width.max(f32::MIN_POSITIVE);
+    let half = 0.5 * width;
+    if r + half > NORM_TABLE_MAX + 1.0 {
+        let pi = std::f32::consts::PI;
+        return (pi * (r * r + width * width / 20.0), 2.0 * pi * r);
+    }
+    let rings = LatticeRings::get();
+    let (inside, _) = rings.within((r - half) as f64);
+    let (mut sum, mut grad) = (inside, 0f64);
+    for (rho, n) in rings.ring((r - half) as f64, (r + half) as f64) {
+        sum += n * disk_coverage_smooth(r, rho as f32, width) as f64;
+        grad += n * disk_coverage_smooth_grad(r, rho as f32, width) as f64;
+    }
+    (sum as f32, grad as f32)
+}
+
+impl LatticeRings {
+    /// The lattice's distinct distances in `(lo, hi)` with how many points lie at each.
+    fn ring(&self, lo: f64, hi: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let start = self.dist.partition_point(|&d| d <= lo);
+        let end = self.dist.partition_point(|&d| d < hi);
+        (start..end).map(move |k| (self.dist[k], self.count[k] - if k == 0 { 0.0 } else { self.count[k - 1] }))
+    }
+}
+
+/// [`depth_groups`] and `(∂front, ∂same, ∂behind) / ∂d_source` (the derivatives in
+/// `d_target` are their negatives), from the same two tanh. The `max(·, 0)` guarding the
+/// middle weight against rounding is differentiated as the identity (`1 - front - behind` is
+/// positive for every input).
+#[inline(always)]
+pub fn depth_groups_with_grad(d_source: f32, d_target: f32) -> ([f32; 3], [f32; 3]) {
+    let (front, d_front) = in_front_with_grad(d_source, d_target);
+    let (behind, d_behind) = in_front_with_grad(d_target, d_source);
+    ([front, (1.0 - front - behind).max(0.0), behind], [d_front, d_behind - d_front, -d_behind])
+}
+
+/// The fill rule of [`over_groups`], `min(x, 1)`, with its corner rounded over `width` of
+/// coverage for gradients: `x` below `1 - width`, 1 above `1 + width`, a parabola between
+/// (C¹; at `x = 1` it gives `1 - width/4`, i.e. a fully covered pixel lets `width/4` through).
+/// `width = 0` is the hard `min(x, 1)`. Returns `(m(x), m'(x))`; at the hard corner the slope
+/// is taken from below `x < 1` (1) and 0 from `x = 1` on.
+#[inline]
+pub fn fill_min(x: f64, width: f64) -> (f64, f64) {
+    if x <= 1.0 - width {
+        if x < 1.0 { (x, 1.0) } else { (1.0, 0.0) }
+    } else if x >= 1.0 + width {
+        (1.0, 0.0)
+    } else {
+        let u = x - 1.0 + width;
+        (x - u * u / (4.0 * width), 1.0 - u / (2.0 * width))
+    }
+}
+
+/// [`over_groups`] with the fill rule rounded by [`fill_min`] (`width = 0`: the same result
+/// as [`over_groups`] up to rounding). Written as `P = Σ_g P_g·f_g`, `A = m(S_3)` with `S_g`
+/// the coverage of the groups before `g` and `f_g = (m(S_{g+1}) - m(S_g)) / a_g` (its limit
+/// `m'(S_g)` when `a_g = 0`).
+pub fn over_groups_smooth(groups: &[[f64; 4]; 3], width: f64) -> [f64; 4] {
+    let mut out = [0f64; 4];
+    let mut s = 0f64;
+    let mut m_s = 0f64;
+    for g in groups {
+        let a = g[3];
+        if a <= 0.0 {
+            continue;
+        }
+        let (m_next, _) = fill_min(s + a, width);
+        let f = (m_next - m_s) / a;
+        for c in 0..3 {
+            out[c] += g[c] * f;
+        }
+        s += a;
+        m_s = m_next;
+    }
+    out[3] = m_s;
+    out
+}
+
+/// The vector-Jacobian product of [`over_groups_smooth`]: given the cotangent `g` of its
+/// `[P_r, P_g, P_b, A]`, the cotangents of the three groups' `[P_r, P_g, P_b, a]`. With
+/// `c̄_g = P_g / a_g` (0 for an empty group), `∂P/∂P_g = f_g` and `∂P/∂a_g = c̄_g·(m'(S_{g+1}) -
+/// f_g) + Σ_{h>g} c̄_h·(m'(S_{h+1}) - m'(S_h))`, `∂A/∂a_g = m'(S_3)`. O(1), f64.
+pub fn over_groups_smooth_vjp(groups: &[[f64; 4]; 3], width: f64, g: &[f64; 4]) -> [[f64; 4]; 3] {
+    // Forward quantities: cumulative coverage S_g, m(S_g), m'(S_g) for g = 0..=3.
+    let mut s = [0f64; 4];
+    let mut m = [0f64; 4];
+    let mut dm = [0f64; 4];
+    // m(0) = 0 and m'(0) = 1 for every width the renderer accepts (<= 1/2).
+    dm[0] = fill_min(0.0, width).1;
+    for k in 0..3 {
+        s[k + 1] = s[k] + groups[k][3].max(0.0);
+        (m[k + 1], dm[k + 1]) = fill_min(s[k + 1], width);
+    }
+    let mut out = [[0f64; 4]; 3];
+    // g·c̄_h·(m'(S_{h+1}) - m'(S_h)), summed over h > g from the back.
+    let mut tail = 0f64;
+    for k in (0..3).rev() {
+        let a = groups[k][3];
+        let (f, gc) = if a > 0.0 {
+            let f = (m[k + 1] - m[k]) / a;
+            (f, (0..3).map(|c| g[c] * groups[k][c]).sum::<f64>() / a)
+        } else {
+            (dm[k], 0.0)
+        };
+        for c in 0..3 {
+            out[k][c] = g[c] * f;
+        }
+        out[k][3] = gc * (dm[k + 1] - f) + tail + g[3] * dm[3];
+        tail += gc * (dm[k + 1] - dm[k]);
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
