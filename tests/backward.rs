@@ -269,17 +269,25 @@ fn step(p: Param) -> f64 {
     }
 }
 
-/// Per kind of parameter (R, G, B, A, D, focus, K): how many were compared, how many skipped
-/// as not smooth there, and the largest relative error.
+/// Per kind of parameter (R, G, B, A in (0, 1], D, focus, K, A = 0): how many were compared,
+/// how many skipped as not smooth there, and the largest relative error.
 #[derive(Default, Debug)]
 struct Report {
-    compared: [usize; 7],
-    skipped: [usize; 7],
-    max_rel: [f64; 7],
+    compared: [usize; KINDS],
+    skipped: [usize; KINDS],
+    max_rel: [f64; KINDS],
 }
 
-fn kind(p: Param) -> usize {
+const KINDS: usize = 8;
+/// The kind of alpha exactly 0, where the official model jumps: a layer with no weight at a
+/// target but some box visibility there (a transparent window inside a box with visible
+/// corners) composites black, and the first ε of alpha among its taps makes it that tap's
+/// colour.
+const ALPHA_ZERO: usize = 7;
+
+fn kind(sc: &Scene, p: Param) -> usize {
     match p {
+        Param::Channel(l, i, 3) if sc.layers[l][i * 5 + 3] == 0.0 => ALPHA_ZERO,
         Param::Channel(_, _, c) => c,
         Param::Focus => 5,
         Param::Blur => 6,
@@ -335,14 +343,14 @@ fn check_scene(sc: &Scene, seed: u64) -> Report {
             (p, analytic(&g, p), f4, smooth)
         })
         .collect();
-    let mut scale = [0f64; 7];
+    let mut scale = [0f64; KINDS];
     for &(p, _, f, _) in &results {
-        scale[kind(p)] = scale[kind(p)].max(f.abs());
+        scale[kind(sc, p)] = scale[kind(sc, p)].max(f.abs());
     }
     let mut rep = Report::default();
     let mut failures = Vec::new();
     for &(p, a, f, smooth) in &results {
-        let k = kind(p);
+        let k = kind(sc, p);
         if !smooth {
             if std::env::var_os("FD_VERBOSE").is_some() {
                 let v = if let Param::Channel(l, i, c) = p { sc.layers[l][i * 5 + c] } else { 0.0 };
@@ -370,19 +378,31 @@ fn check_scene(sc: &Scene, seed: u64) -> Report {
 }
 
 fn check_profile(profile: Profile) {
+    let unchanged: fn(&mut Scene) = |_| {};
+    check_variants(profile, &[unchanged; 4]);
+}
+
+/// [`check_scene`] on seeded scenes of `profile`, one per variant (seeds 1, 2, …), each
+/// modified by its variant; asserts that at most 5% of each kind were skipped as not smooth.
+fn check_variants(profile: Profile, variants: &[fn(&mut Scene)]) {
     let mut total = Report::default();
-    for seed in 1..=4u64 {
-        let sc = random_scene(seed, profile, 12, 12);
+    for (n, variant) in variants.iter().enumerate() {
+        let seed = n as u64 + 1;
+        let mut sc = random_scene(seed, profile, 12, 12);
+        variant(&mut sc);
         let rep = check_scene(&sc, seed);
-        for k in 0..7 {
+        for k in 0..KINDS {
             total.compared[k] += rep.compared[k];
             total.skipped[k] += rep.skipped[k];
             total.max_rel[k] = total.max_rel[k].max(rep.max_rel[k]);
         }
     }
-    eprintln!("{profile:?} [R, G, B, A, D, focus, K]: {total:?}");
-    for k in 0..7 {
-        assert!(total.skipped[k] * 20 <= total.compared[k] + total.skipped[k], "kind {k}: too many non-smooth points: {total:?}");
+    eprintln!("{profile:?} [R, G, B, A, D, focus, K, A = 0]: {total:?}");
+    // At most 5% of each kind is skipped as not smooth; alpha at 0 in the official profile
+    // may jump (see ALPHA_ZERO) wherever a large box reaches visible pixels beyond the taps.
+    for k in 0..KINDS {
+        let bar = if k == ALPHA_ZERO && profile == Profile::Official { 2 } else { 20 };
+        assert!(total.skipped[k] * bar <= total.compared[k] + total.skipped[k], "kind {k}: too many non-smooth points: {total:?}");
     }
 }
 
@@ -394,4 +414,169 @@ fn official_matches_finite_differences() {
 #[test]
 fn physical_matches_finite_differences() {
     check_profile(Profile::Physical);
+}
+
+#[test]
+fn variants_match_finite_differences() {
+    // Occlusion off (the classical scatter baseline); the physical profile's hard fill
+    // (fill_width 0: kinks where the groups' coverage reaches 1 are skipped as not smooth) and
+    // a narrower edge; a larger blur.
+    check_variants(Profile::Official, &[|s| s.occlusion = false, |s| s.blur = 25.0]);
+    check_variants(
+        Profile::Physical,
+        &[
+            |s| s.occlusion = false,
+            |s| s.smooth.fill_width = 0.0,
+            |s| s.smooth = Smoothing { edge_width: 0.6, fill_width: 0.3 },
+            |s| s.blur = 25.0,
+        ],
+    );
+}
+
+/// `<cotangent, J·v>` for random directions `v` over every parameter at once (all layers'
+/// channels, focus, K) against `<Jᵀ·cotangent, v>`.
+#[test]
+fn random_directions_match() {
+    for (seed, profile) in [(11u64, Profile::Official), (12, Profile::Physical), (13, Profile::Physical)] {
+        let sc = random_scene(seed, profile, 10, 10);
+        let mut rng = Rng::new(seed);
+        let cot: Vec<f32> = (0..sc.w * sc.h * 3).map(|_| rng.next_f32() * 2.0 - 1.0).collect();
+        let cot_img = Image::from_vec(sc.w, sc.h, 3, cot.clone()).unwrap();
+        let cot: Vec<f64> = cot.iter().map(|&v| v as f64).collect();
+        let layers = sc.library_layers();
+        let g = Tape::record(&layers, &sc.settings(), sc.smooth).unwrap().vjp(&cot_img).unwrap();
+        for _ in 0..3 {
+            // Direction: colours and alpha ±1, disparity ±0.1, focus ±0.1, K ±1 (alpha only
+            // where it is inside (0, 1), so no step leaves its domain).
+            let mut dir: Vec<Vec<f64>> = sc.layers.iter().map(|l| vec![0.0; l.len()]).collect();
+            let mut predicted = 0.0;
+            for (l, d) in dir.iter_mut().enumerate() {
+                for (k, v) in d.iter_mut().enumerate() {
+                    let c = k % 5;
+                    let a = sc.layers[l][k - c + 3];
+                    let scale = match c {
+                        3 if a <= 0.0 || a >= 1.0 => 0.0,
+                        4 => 0.1,
+                        _ => 1.0,
+                    };
+                    *v = (rng.next_f32() as f64 * 2.0 - 1.0) * scale;
+                    predicted += *v * g.layers[l].data[k] as f64;
+                }
+            }
+            let (df, dk) = (0.1 * (rng.next_f32() as f64 * 2.0 - 1.0), rng.next_f32() as f64 * 2.0 - 1.0);
+            predicted += df * g.focus as f64 + dk * g.blur as f64;
+            let at = |t: f64| {
+                let mut p = sc.clone();
+                for (l, d) in dir.iter().enumerate() {
+                    p.layers[l].iter_mut().zip(d).for_each(|(x, dx)| *x += t * dx);
+                }
+                p.focus += t * df;
+                p.blur += t * dk;
+                p.loss(&cot)
+            };
+            let h = 1e-6;
+            let fd = (at(h) - at(-h)) / (2.0 * h);
+            let rel = (predicted - fd).abs() / fd.abs().max(1e-6);
+            eprintln!("{profile:?} seed {seed}: directional derivative {fd:e}, predicted {predicted:e}, rel {rel:e}");
+            assert!(rel < 1e-3, "{profile:?} seed {seed}: fd {fd:e} vs predicted {predicted:e}");
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The forward being differentiated, and finiteness.
+// ---------------------------------------------------------------------------------------------
+
+/// The official tape renders what `render` renders; the physical tape's smooth edges stay close
+/// to the hard kernel's render.
+#[test]
+fn tape_forward_is_the_exact_kernel() {
+    for profile in [Profile::Official, Profile::Physical] {
+        let sc = random_scene(21, profile, 24, 24);
+        let layers = sc.library_layers();
+        let s = sc.settings();
+        let exact = render(&layers, &s, Kernel::Exact).unwrap();
+        let tape = Tape::record(&layers, &s, Smoothing::default()).unwrap();
+        let mean = exact.data.iter().zip(&tape.image().data).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / exact.data.len() as f64;
+        match profile {
+            Profile::Official => assert_eq!(tape.image(), &exact),
+            Profile::Physical => assert!(mean < 0.02, "smooth vs hard physical render: mean abs difference {mean}"),
+        }
+        eprintln!("{profile:?}: mean |smooth - hard| = {mean:e}");
+    }
+}
+
+/// A scene for the extreme grid: hard depth steps (blocks at disparity 0 and 1), HDR colours
+/// (1e4 highlights next to black), alpha exactly 0 and 1 (and one 1e-30), front and backdrop.
+fn extreme_layers(w: usize, h: usize) -> Vec<Layer> {
+    let mut front = Vec::new();
+    let mut back = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let block = ((x / 7) + (y / 5)) % 2 == 0;
+            let hdr = if (x * 7 + y * 3) % 11 == 0 { 1e4 } else { 0.0 };
+            let a = if x < w / 2 {
+                1.0
+            } else if x == w - 3 && y == h / 2 {
+                1e-30
+            } else {
+                0.0
+            };
+            front.extend_from_slice(&[hdr, 0.5, 1.0, a, if block { 1.0 } else { 0.0 }]);
+            back.extend_from_slice(&[0.2, hdr, 0.0, 1.0, if block { 0.0 } else { 1.0 }]);
+        }
+    }
+    [front, back].into_iter().map(|l| Layer::new(Image::from_vec(w, h, 5, l).unwrap(), "extreme").unwrap()).collect()
+}
+
+/// Finite render and gradients for every finite input: K from 0 to 1e4, lens up to 71 (the
+/// official training config; its CUDA soft-step derivative is NaN at window corners ~30 px
+/// from an in-focus pixel), focus on a layer (d = 0 exactly) and outside [0, 1], HDR, alpha
+/// 0/1/1e-30, both profiles, occlusion on and off, hard and smooth fills, cotangents up to
+/// 1e20 (gradients saturate at f32::MAX).
+#[test]
+fn gradients_are_finite_on_the_extreme_grid() {
+    let (w, h) = (40, 40);
+    let layers = extreme_layers(w, h);
+    let mut rng = Rng::new(5);
+    let mut cases = 0;
+    for profile in [Profile::Official, Profile::Physical] {
+        for (lens, blurs) in [(9usize, &[0.0f32, 1.0, 1e4][..]), (71, &[0.0, 30.0, 1e4][..])] {
+            for &blur in blurs {
+                for (focus, occlusion, fill) in [(1.0f32, true, 0.0f32), (0.0, false, 0.5), (0.5, true, 0.1), (-3.0, true, 0.0)] {
+                    let s = RenderSettings { blur, focus, lens, occlusion, profile };
+                    let sm = Smoothing { edge_width: 1.0, fill_width: fill };
+                    let scale = if cases % 3 == 0 { 1e20 } else { 1.0 };
+                    let cot = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| (rng.next_f32() * 2.0 - 1.0) * scale).collect()).unwrap();
+                    let tape = Tape::record(&layers, &s, sm).unwrap();
+                    assert!(tape.image().all_finite(), "{s:?}");
+                    let g = tape.vjp(&cot).unwrap();
+                    for (l, img) in g.layers.iter().enumerate() {
+                        if let Some(k) = img.data.iter().position(|v| !v.is_finite()) {
+                            panic!("{s:?} {sm:?}: layer {l} gradient {} at pixel {} channel {}", img.data[k], k / 5, k % 5);
+                        }
+                    }
+                    assert!(g.focus.is_finite() && g.blur.is_finite(), "{s:?}: focus {} K {}", g.focus, g.blur);
+                    cases += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(cases, 48);
+}
+
+/// The API's errors name what is wrong.
+#[test]
+fn bad_cotangent_and_smoothing_are_usage_errors() {
+    let sc = random_scene(3, Profile::Physical, 8, 8);
+    let layers = sc.library_layers();
+    let tape = Tape::record(&layers, &sc.settings(), Smoothing::default()).unwrap();
+    let e = tape.vjp(&Image::new(8, 7, 3)).unwrap_err().to_string();
+    assert!(e.contains("cotangent") && e.contains("8x7"), "{e}");
+    let e = tape.vjp(&Image::filled(8, 8, 3, f32::NAN)).unwrap_err().to_string();
+    assert!(e.contains("non-finite"), "{e}");
+    for sm in [Smoothing { edge_width: 0.0, fill_width: 0.0 }, Smoothing { edge_width: 1.0, fill_width: 0.7 }] {
+        let e = Tape::record(&layers, &sc.settings(), sm).err().unwrap().to_string();
+        assert!(e.contains("smoothing."), "{e}");
+    }
 }
