@@ -119,3 +119,53 @@ pub fn box_mean_adjoint(width: usize, height: usize, pad: usize, half: &[usize],
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Image;
+    use crate::render::exact::box_alpha;
+    use crate::render::layer::{A, CHANNELS};
+
+    /// The adjoint identity `<g, box(α)> = <boxᵀ(g), α>` against the forward's `box_alpha`,
+    /// with boxes larger than the image (replicate padding) and varying sizes.
+    #[test]
+    fn box_adjoint_is_the_transpose_of_box_alpha() {
+        let (w, h, pad) = (7usize, 5usize, 6usize);
+        let mut img = Image::new(w, h, CHANNELS);
+        for (i, px) in img.data.chunks_exact_mut(CHANNELS).enumerate() {
+            px[A] = ((i * 37) % 11) as f32 / 10.0;
+        }
+        let half: Vec<usize> = (0..w * h).map(|i| (i * 5) % (pad + 1)).collect();
+        let g: Vec<f64> = (0..w * h).map(|i| ((i * 13) % 7) as f64 - 3.0).collect();
+        let forward: f64 = (0..w * h).map(|i| g[i] * box_alpha(&img, i % w, i / w, half[i]) as f64).sum();
+        let mut out = vec![PixelGrad::default(); w * h];
+        box_mean_adjoint(w, h, pad, &half, &g, &mut out);
+        let adjoint: f64 = (0..w * h).map(|i| out[i].alpha * img.data[i * CHANNELS + A] as f64).sum();
+        assert!((forward - adjoint).abs() < 1e-5 * forward.abs().max(1.0), "{forward} vs {adjoint}");
+    }
+
+    /// Bands scatter across their row boundaries and sum to the serial result.
+    #[test]
+    fn bands_sum_like_one_buffer() {
+        let (w, h, reach) = (6usize, 23usize, 3usize);
+        let out = scatter_rows(w, h, reach, |y, band| {
+            for x in 0..w {
+                for dy in -(reach as i64)..=reach as i64 {
+                    let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
+                    band.at(yy * w + x).alpha += 1.0;
+                }
+            }
+        });
+        let mut want = vec![0f64; w * h];
+        for y in 0..h {
+            for dy in -(reach as i64)..=reach as i64 {
+                let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
+                for x in 0..w {
+                    want[yy * w + x] += 1.0;
+                }
+            }
+        }
+        assert!(out.iter().zip(&want).all(|(g, &v)| g.alpha == v));
+    }
+}
