@@ -222,56 +222,54 @@ impl<'a> Tape<'a> {
         let n = self.records.len();
         let (w, h) = (self.image.width, self.image.height);
         let ranges: Vec<[[f32; 2]; 3]> = self.records.iter().map(|r| r.raw().colour_range()).collect();
-        let per_pixel: Vec<Vec<RawCot>> = (0..w * h)
-            .into_par_iter()
-            .map(|i| {
-                let g: [f64; 3] = std::array::from_fn(|c| cotangent.data[i * 3 + c] as f64);
-                // Transmittance in front of each layer.
-                let mut t = vec![1f64; n + 1];
-                for (l, rec) in self.records.iter().enumerate() {
-                    t[l + 1] = t[l] * (1.0 - rec.raw().pixel(i)[super::raw::VISIBILITY] as f64);
-                }
-                let mut out = vec![[0f64; 8]; n];
-                let mut g_t = 0f64; // ∂L/∂T of the layer behind
-                for l in (0..n).rev() {
-                    let px = self.records[l].raw().pixel(i);
-                    let (weight, vis, tl) = (px[super::raw::WEIGHT] as f64, px[super::raw::VISIBILITY] as f64, t[l]);
-                    // The colour as composited (clamped); 0 where the layer has no weight.
-                    let colour: [f64; 3] = std::array::from_fn(|c| {
-                        if weight > 0.0 { (px[c] / px[super::raw::WEIGHT]).clamp(ranges[l][c][0], ranges[l][c][1]) as f64 } else { 0.0 }
-                    });
-                    let g_colour: f64 = (0..3).map(|c| g[c] * colour[c]).sum();
-                    let alpha = self.layers[l].alpha(i) as f64;
-                    let backdrop_alpha =
-                        matches!(self.records[l], Record::Physical(_)) && Role::of(l, n) == Role::Backdrop && alpha > weight;
-                    out[l] = match self.records[l] {
-                        // Visibility = coverage: the layer adds P·T and leaves T·(1 - A).
-                        Record::Physical(_) if !backdrop_alpha => [g[0] * tl, g[1] * tl, g[2] * tl, -g_t * tl, 0.0, 0.0, 0.0, 0.0],
-                        // C·V·T with C = X/W, whether X/W are ΣRGB/W (official) or P/A with the
-                        // backdrop's visibility α (physical).
-                        _ => {
-                            let (mut gx, mut g_w) = ([0f64; 3], 0f64);
-                            if weight > 0.0 {
-                                for c in 0..3 {
-                                    gx[c] = g[c] * vis * tl / weight;
-                                    g_w -= gx[c] * px[c] as f64 / weight;
-                                }
+        // Pixel-major: the n layers' cotangents of pixel i at [i·n, (i + 1)·n).
+        let mut flat = vec![[0f64; 8]; w * h * n];
+        flat.par_chunks_mut(n).enumerate().for_each(|(i, out)| {
+            let g: [f64; 3] = std::array::from_fn(|c| cotangent.data[i * 3 + c] as f64);
+            // The transmittance in front of each layer, parked in out[l][0] until the
+            // backward sweep overwrites it.
+            let mut t = 1f64;
+            for (l, rec) in self.records.iter().enumerate() {
+                out[l][0] = t;
+                t *= 1.0 - rec.raw().pixel(i)[super::raw::VISIBILITY] as f64;
+            }
+            let mut g_t = 0f64; // ∂L/∂T of the layer behind
+            for l in (0..n).rev() {
+                let px = self.records[l].raw().pixel(i);
+                let (weight, vis, tl) = (px[super::raw::WEIGHT] as f64, px[super::raw::VISIBILITY] as f64, out[l][0]);
+                // The colour as composited (clamped); 0 where the layer has no weight.
+                let colour: [f64; 3] = std::array::from_fn(|c| {
+                    if weight > 0.0 { (px[c] / px[super::raw::WEIGHT]).clamp(ranges[l][c][0], ranges[l][c][1]) as f64 } else { 0.0 }
+                });
+                let g_colour: f64 = (0..3).map(|c| g[c] * colour[c]).sum();
+                let alpha = self.layers[l].alpha(i) as f64;
+                let backdrop_alpha = matches!(self.records[l], Record::Physical(_)) && Role::of(l, n) == Role::Backdrop && alpha > weight;
+                out[l] = match self.records[l] {
+                    // Visibility = coverage: the layer adds P·T and leaves T·(1 - A).
+                    Record::Physical(_) if !backdrop_alpha => [g[0] * tl, g[1] * tl, g[2] * tl, -g_t * tl, 0.0, 0.0, 0.0, 0.0],
+                    // C·V·T with C = X/W, whether X/W are ΣRGB/W (official) or P/A with the
+                    // backdrop's visibility α (physical).
+                    _ => {
+                        let (mut gx, mut g_w) = ([0f64; 3], 0f64);
+                        if weight > 0.0 {
+                            for c in 0..3 {
+                                gx[c] = g[c] * vis * tl / weight;
+                                g_w -= gx[c] * px[c] as f64 / weight;
                             }
-                            // An official layer with no weight and no visibility here: the
-                            // first source to gain alpha in both its taps and its box brings
-                            // its own colour (the right derivative at α = 0).
-                            let empty = if weight == 0.0 && vis == 0.0 { g.map(|g| g * tl) } else { [0.0; 3] };
-                            // ∂/∂o (official) or ∂/∂α of the backdrop (physical).
-                            [gx[0], gx[1], gx[2], g_w, g_colour * tl - g_t * tl, empty[0], empty[1], empty[2]]
                         }
-                    };
-                    g_t = g_colour * vis + g_t * (1.0 - vis);
-                }
-                out
-            })
-            .collect();
-        // Per pixel → per layer.
-        (0..n).map(|l| per_pixel.iter().map(|p| p[l]).collect()).collect()
+                        // An official layer with no weight and no visibility here: the
+                        // first source to gain alpha in both its taps and its box brings
+                        // its own colour (the right derivative at α = 0).
+                        let empty = if weight == 0.0 && vis == 0.0 { g.map(|g| g * tl) } else { [0.0; 3] };
+                        // ∂/∂o (official) or ∂/∂α of the backdrop (physical).
+                        [gx[0], gx[1], gx[2], g_w, g_colour * tl - g_t * tl, empty[0], empty[1], empty[2]]
+                    }
+                };
+                g_t = g_colour * vis + g_t * (1.0 - vis);
+            }
+        });
+        // Pixel-major → one plane per layer.
+        (0..n).map(|l| flat.iter().skip(l).step_by(n).copied().collect()).collect()
     }
 }
 

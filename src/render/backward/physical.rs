@@ -129,9 +129,9 @@ pub(super) fn backward(
                     continue;
                 }
                 let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
-                let centre = t.di == 0 && t.dj == 0;
-                let (split, dsplit) =
-                    if centre || !s.occlusion { ([0.0, 1.0, 0.0], [0.0; 3]) } else { depth_groups_with_grad(src.d[j], dx) };
+                // The centre tap and a render without occlusion use one group.
+                let grouped = s.occlusion && !(t.di == 0 && t.dj == 0);
+                let (split, dsplit) = if grouped { depth_groups_with_grad(src.d[j], dx) } else { ([0.0, 1.0, 0.0], [0.0; 3]) };
                 // h_g: the cotangent of a unit of weight in group g carrying this source's colour.
                 let hg: [f64; 3] =
                     std::array::from_fn(|k| gg[k][0] * px[0] as f64 + gg[k][1] * px[1] as f64 + gg[k][2] * px[2] as f64 + gg[k][3]);
@@ -145,12 +145,12 @@ pub(super) fn backward(
                     continue;
                 }
                 let wt = a * u;
-                for ch in 0..3 {
-                    sg.colour[ch] += wt * (0..3).map(|k| split[k] as f64 * gg[k][ch]).sum::<f64>();
+                for (ch, g) in sg.colour.iter_mut().enumerate() {
+                    *g += wt * (0..3).map(|k| split[k] as f64 * gg[k][ch]).sum::<f64>();
                 }
                 // ∂u/∂R = cov'/N - (cov/N)·N'/N, finite also where N overflowed to inf.
                 sg.radius += g_wt * a * (dcov as f64 / norm - u * (dnorm / norm));
-                if !(centre || !s.occlusion) {
+                if grouped {
                     let g_d = wt * (0..3).map(|k| dsplit[k] as f64 * hg[k]).sum::<f64>();
                     sg.disparity += g_d;
                     g_dx -= g_d;
