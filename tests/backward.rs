@@ -580,3 +580,29 @@ fn bad_cotangent_and_smoothing_are_usage_errors() {
         assert!(e.contains("smoothing."), "{e}");
     }
 }
+
+/// The smallest legal inputs: a 1×1 image, lens 1 (no taps: the layers have no weight), one
+/// layer or two.
+#[test]
+fn tiny_images_and_lens_one() {
+    for profile in [Profile::Official, Profile::Physical] {
+        for (w, h, lens, n) in [(1usize, 1usize, 1usize, 1usize), (1, 1, 3, 2), (3, 2, 1, 2), (3, 2, 5, 1)] {
+            let layers: Vec<Layer> = (0..n)
+                .map(|k| {
+                    let px: Vec<f32> = (0..w * h).flat_map(|i| [0.5, 1e4, 0.0, (i % 2) as f32, k as f32 * 0.5]).collect();
+                    Layer::new(Image::from_vec(w, h, 5, px).unwrap(), "tiny").unwrap()
+                })
+                .collect();
+            let s = RenderSettings { blur: 10.0, focus: 0.25, lens, occlusion: true, profile };
+            let tape = Tape::record(&layers, &s, Smoothing::default()).unwrap();
+            if profile == Profile::Official {
+                assert_eq!(tape.image(), &render(&layers, &s, Kernel::Exact).unwrap());
+            }
+            let g = tape.vjp(&Image::filled(w, h, 3, 1.0)).unwrap();
+            assert!(
+                g.layers.iter().all(|l| l.all_finite()) && g.focus.is_finite() && g.blur.is_finite(),
+                "{profile:?} {w}x{h} lens {lens}"
+            );
+        }
+    }
+}
