@@ -96,7 +96,7 @@ fn clamped(x: usize, y: usize, t: &Tap, w: usize, h: usize) -> usize {
 }
 
 /// Gradients of one layer given, per pixel, the cotangents `[g_P_r, g_P_g, g_P_b, g_A, _]` of
-/// its filled `[P, A]` (see [`super::composite_backward`]). Per target: the groups' cotangents
+/// its filled `[P, A]` (see [`super::RawCot`]). Per target: the groups' cotangents
 /// (O(1)), then one pass over the taps. Rows in parallel bands; allocates the bands and three
 /// planes of per-pixel terms.
 pub(super) fn backward(
