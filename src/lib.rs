@@ -7,6 +7,8 @@
 
 #![warn(missing_docs)]
 
+#[cfg(feature = "ndarray")]
+pub mod array;
 pub mod batch;
 pub mod bench;
 pub mod color;
