@@ -2,4 +2,5 @@
 //! objective (Eqn. 7) with their gradients. The renderer's own vector-Jacobian product is
 //! [`crate::render::backward`].
 
+pub mod dfd;
 pub mod loss;
