@@ -7,10 +7,13 @@
 
 #![warn(missing_docs)]
 
+#[cfg(feature = "ndarray")]
+pub mod array;
 pub mod batch;
 pub mod bench;
 pub mod color;
 pub mod config;
+pub mod diff;
 pub mod error;
 pub mod image;
 pub mod io;

@@ -296,6 +296,190 @@ pub fn over_groups(groups: &[[f64; 4]; 3]) -> [f64; 4] {
     out
 }
 
+// ---------------------------------------------------------------------------------------------
+// Derivatives of the terms above, for the backward pass (`render::backward`), and the smooth
+// variants of the physical profile's hard edges. Each derivative sits under the name of the
+// term it differentiates and is finite for every finite input.
+// ---------------------------------------------------------------------------------------------
+
+/// `∂ soft_step(a, b) / ∂a` (`= -∂/∂b`): `3·s·(1 - s)` with `s` the soft step. The official
+/// CUDA form `g·s·e / ((e + s)² + ε)`, `e = exp(3(b - a))`, overflows to inf/inf = NaN once
+/// `b - a` passes ~30 px; this one is at most 0.75 and never NaN.
+#[inline(always)]
+pub fn soft_step_grad(a: f32, b: f32) -> f32 {
+    let s = soft_step(a, b);
+    STEP_GAIN * s * (1.0 - s)
+}
+
+/// [`energy`] and its derivative in `σ` at fixed `r` and `unit`, from one soft step:
+/// `(s·u², (3·s(1 - s) - 2s/σ)·u²)` with `u = unit/σ`. Finite for every finite input.
+#[inline(always)]
+pub fn energy_with_grad(sigma: f32, r: f32, unit: f32) -> (f32, f32) {
+    let s = soft_step(sigma, r);
+    let rho = density(sigma, unit);
+    (s * rho, (STEP_GAIN * s * (1.0 - s) - 2.0 * s / sigma) * rho)
+}
+
+/// `(∂σ/∂d, ∂σ/∂k)` of [`scatter_radius`] (and of [`coc_radius`], whose derivatives are the
+/// same): `(sign(d)·k, |d|)`; 0 at `d = 0` (the subgradient the backward uses at the kink) and
+/// once the radius is capped at [`MAX_RADIUS`].
+#[inline(always)]
+pub fn coc_radius_grad(d: f32, k: f32) -> (f32, f32) {
+    if coc_radius(d, k) >= MAX_RADIUS || d == 0.0 { (0.0, 0.0) } else { (d.signum() * k, d.abs()) }
+}
+
+/// `(∂q/∂d, ∂q/∂k)` of [`focal_defocus`] `q = 1 - exp(-3 (d·k)²)`: `(6k²d, 6kd²)·exp(-3(dk)²)`,
+/// smooth through `d = 0`. Zero where [`focal_defocus`] returns exactly 1 (`|d|·k ≥ 2.5`; the
+/// true derivative there is below 1e-7·k), so forward and backward describe one function.
+#[inline(always)]
+pub fn focal_defocus_grad(d_target: f32, k: f32) -> (f32, f32) {
+    let c = coc_radius(d_target, k);
+    if c == 0.0 || c >= 2.5 {
+        return (0.0, 0.0);
+    }
+    let e = 6.0 * (-3.0 * c * c).exp();
+    (e * k * k * d_target, e * k * d_target * d_target)
+}
+
+/// [`in_front`] and its derivative in `d_y` (`= -∂/∂d_x`) from one tanh:
+/// `(0.5 + 0.5·t, 5·(1 - t²))` with `t = tanh(10(d_y - d_x - 0.1))`; the slope is in [0, 5].
+#[inline(always)]
+pub fn in_front_with_grad(d_neighbour: f32, d_target: f32) -> (f32, f32) {
+    let t = (10.0 * (d_neighbour - d_target - 0.1)).tanh();
+    (0.5 + 0.5 * t, 5.0 * (1.0 - t) * (1.0 + t))
+}
+
+/// `∂ disk_coverage_smooth(r, ρ, width) / ∂r` (`= -∂/∂ρ`): the smoothstep's slope `6t(1 - t)`
+/// over `width`; 0 outside the edge.
+#[inline]
+pub fn disk_coverage_smooth_grad(r: f32, rho: f32, width: f32) -> f32 {
+    let width = width.max(f32::MIN_POSITIVE);
+    let t = (r - rho) / width + 0.5;
+    if t <= 0.0 || t >= 1.0 { 0.0 } else { 6.0 * t * (1.0 - t) / width }
+}
+
+/// `(Σ, ∂Σ/∂r)`: the lattice sum of [`disk_coverage_smooth`] around a source (its flux before
+/// normalisation, so `disk_coverage_smooth / norm` spreads a unit of light, as
+/// [`disk_norm`] does for the hard ramp) and its derivative in `r`. Exact (pixels fully inside
+/// counted from [`LatticeRings`], the edge ring point by point, O(r·width)) while the edge
+/// stays within the table (`r + width/2 ≤ NORM_TABLE_MAX + 1`); beyond, the area
+/// `π(r² + width²/20)` of the smoothly ramped disk (the hard ramp's `1/12` becomes `1/20` for
+/// the smoothstep) and `2πr` (relative error below 1e-3 at the switch for widths ≥ ½). With `width = 1` an in-focus source (`r < ½`) keeps weight 1 on
+/// its own pixel, as in the hard profile.
+pub fn disk_norm_smooth(r: f32, width: f32) -> (f32, f32) {
+    let width = width.max(f32::MIN_POSITIVE);
+    let half = 0.5 * width;
+    if r + half > NORM_TABLE_MAX + 1.0 {
+        let pi = std::f32::consts::PI;
+        return (pi * (r * r + width * width / 20.0), 2.0 * pi * r);
+    }
+    let rings = LatticeRings::get();
+    let (inside, _) = rings.within((r - half) as f64);
+    let (mut sum, mut grad) = (inside, 0f64);
+    for (rho, n) in rings.ring((r - half) as f64, (r + half) as f64) {
+        sum += n * disk_coverage_smooth(r, rho as f32, width) as f64;
+        grad += n * disk_coverage_smooth_grad(r, rho as f32, width) as f64;
+    }
+    (sum as f32, grad as f32)
+}
+
+impl LatticeRings {
+    /// The lattice's distinct distances in `(lo, hi)` with how many points lie at each.
+    fn ring(&self, lo: f64, hi: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let start = self.dist.partition_point(|&d| d <= lo);
+        let end = self.dist.partition_point(|&d| d < hi);
+        (start..end).map(move |k| (self.dist[k], self.count[k] - if k == 0 { 0.0 } else { self.count[k - 1] }))
+    }
+}
+
+/// [`depth_groups`] and `(∂front, ∂same, ∂behind) / ∂d_source` (the derivatives in
+/// `d_target` are their negatives), from the same two tanh. The `max(·, 0)` guarding the
+/// middle weight against rounding is differentiated as the identity (`1 - front - behind` is
+/// positive for every input).
+#[inline(always)]
+pub fn depth_groups_with_grad(d_source: f32, d_target: f32) -> ([f32; 3], [f32; 3]) {
+    let (front, d_front) = in_front_with_grad(d_source, d_target);
+    let (behind, d_behind) = in_front_with_grad(d_target, d_source);
+    ([front, (1.0 - front - behind).max(0.0), behind], [d_front, d_behind - d_front, -d_behind])
+}
+
+/// The fill rule of [`over_groups`], `min(x, 1)`, with its corner rounded over `width` of
+/// coverage for gradients: `x` below `1 - width`, 1 above `1 + width`, a parabola between
+/// (C¹; at `x = 1` it gives `1 - width/4`, i.e. a fully covered pixel lets `width/4` through).
+/// `width = 0` is the hard `min(x, 1)`. Returns `(m(x), m'(x))`; at the hard corner the slope
+/// is taken from below `x < 1` (1) and 0 from `x = 1` on.
+#[inline]
+pub fn fill_min(x: f64, width: f64) -> (f64, f64) {
+    if x <= 1.0 - width {
+        if x < 1.0 { (x, 1.0) } else { (1.0, 0.0) }
+    } else if x >= 1.0 + width {
+        (1.0, 0.0)
+    } else {
+        let u = x - 1.0 + width;
+        (x - u * u / (4.0 * width), 1.0 - u / (2.0 * width))
+    }
+}
+
+/// [`over_groups`] with the fill rule rounded by [`fill_min`] (`width = 0`: the same result
+/// as [`over_groups`] up to rounding). Written as `P = Σ_g P_g·f_g`, `A = m(S_3)` with `S_g`
+/// the coverage of the groups before `g` and `f_g = (m(S_{g+1}) - m(S_g)) / a_g` (its limit
+/// `m'(S_g)` when `a_g = 0`).
+pub fn over_groups_smooth(groups: &[[f64; 4]; 3], width: f64) -> [f64; 4] {
+    let mut out = [0f64; 4];
+    let mut s = 0f64;
+    let mut m_s = 0f64;
+    for g in groups {
+        let a = g[3];
+        if a <= 0.0 {
+            continue;
+        }
+        let (m_next, _) = fill_min(s + a, width);
+        let f = (m_next - m_s) / a;
+        for c in 0..3 {
+            out[c] += g[c] * f;
+        }
+        s += a;
+        m_s = m_next;
+    }
+    out[3] = m_s;
+    out
+}
+
+/// The vector-Jacobian product of [`over_groups_smooth`]: given the cotangent `g` of its
+/// `[P_r, P_g, P_b, A]`, the cotangents of the three groups' `[P_r, P_g, P_b, a]`. With
+/// `c̄_g = P_g / a_g` (0 for an empty group), `∂P/∂P_g = f_g` and `∂P/∂a_g = c̄_g·(m'(S_{g+1}) -
+/// f_g) + Σ_{h>g} c̄_h·(m'(S_{h+1}) - m'(S_h))`, `∂A/∂a_g = m'(S_3)`. O(1), f64.
+pub fn over_groups_smooth_vjp(groups: &[[f64; 4]; 3], width: f64, g: &[f64; 4]) -> [[f64; 4]; 3] {
+    // Forward quantities: cumulative coverage S_g, m(S_g), m'(S_g) for g = 0..=3.
+    let mut s = [0f64; 4];
+    let mut m = [0f64; 4];
+    let mut dm = [0f64; 4];
+    // m(0) = 0 and m'(0) = 1 for every width the renderer accepts (<= 1/2).
+    dm[0] = fill_min(0.0, width).1;
+    for k in 0..3 {
+        s[k + 1] = s[k] + groups[k][3].max(0.0);
+        (m[k + 1], dm[k + 1]) = fill_min(s[k + 1], width);
+    }
+    let mut out = [[0f64; 4]; 3];
+    // g·c̄_h·(m'(S_{h+1}) - m'(S_h)), summed over h > g from the back.
+    let mut tail = 0f64;
+    for k in (0..3).rev() {
+        let a = groups[k][3];
+        let (f, gc) = if a > 0.0 {
+            let f = (m[k + 1] - m[k]) / a;
+            (f, (0..3).map(|c| g[c] * groups[k][c]).sum::<f64>() / a)
+        } else {
+            (dm[k], 0.0)
+        };
+        for c in 0..3 {
+            out[k][c] = g[c] * f;
+        }
+        out[k][3] = gc * (dm[k + 1] - f) + tail + g[3] * dm[3];
+        tail += gc * (dm[k + 1] - dm[k]);
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -405,5 +589,146 @@ mod tests {
         assert!(in_front(1e30, -1e30) == 1.0 && in_front(-1e30, 1e30) == 0.0);
         assert_eq!(visibility_half_size(7.9, 10), 3);
         assert_eq!(visibility_half_size(f32::INFINITY, 10), 10);
+    }
+}
+
+#[cfg(test)]
+mod grad_tests {
+    //! Each derivative against central differences of its term (f32 terms, steps of 1e-3:
+    //! agreement to ~1e-3 relative), values of the combined forms against the plain terms.
+    use super::*;
+
+    fn fd(f: impl Fn(f32) -> f32, x: f32) -> f32 {
+        let h = 1e-3;
+        ((f(x + h) as f64 - f(x - h) as f64) / (2.0 * h as f64)) as f32
+    }
+
+    fn close(a: f32, b: f32, what: &str) {
+        assert!((a - b).abs() <= 2e-3 * a.abs().max(b.abs()) + 2e-4, "{what}: analytic {a} vs fd {b}");
+    }
+
+    #[test]
+    fn step_energy_defocus_and_in_front() {
+        for i in -40..=40 {
+            let x = i as f32 * 0.25;
+            close(soft_step_grad(x, 0.5), fd(|a| soft_step(a, 0.5), x), "soft_step");
+            let (d, k) = (x * 0.05, 7.0);
+            if coc_radius(d, k) < 2.4 && d != 0.0 {
+                let (dd, dk) = focal_defocus_grad(d, k);
+                close(dd, fd(|d| focal_defocus(d, k), d), "focal_defocus d");
+                close(dk, fd(|k| focal_defocus(d, k), k), "focal_defocus k");
+            }
+            let (f, df) = in_front_with_grad(x * 0.02, 0.05);
+            assert_eq!(f, in_front(x * 0.02, 0.05));
+            close(df, fd(|y| in_front(y, 0.05), x * 0.02), "in_front");
+            let ([a, b, c], [da, db, dc]) = depth_groups_with_grad(x * 0.02, 0.05);
+            assert_eq!([a, b, c], depth_groups(x * 0.02, 0.05));
+            for (k, dv) in [da, db, dc].into_iter().enumerate() {
+                close(dv, fd(|y| depth_groups(y, 0.05)[k], x * 0.02), "depth_groups");
+            }
+        }
+        for sigma in [1.0f32, 1.7, 4.0, 12.5, 30.0] {
+            for r in [0.0f32, 1.0, 3.5, 11.0, 20.0] {
+                let (e, de) = energy_with_grad(sigma, r, 1.0);
+                assert_eq!(e, energy(sigma, r, 1.0));
+                close(de, fd(|s| energy(s, r, 1.0), sigma), "energy");
+            }
+        }
+        // Where the official CUDA form is inf/inf, these are finite (and 0).
+        for (a, b) in [(1.0f32, 40.0f32), (1.0, 1e30), (1e30, 0.0), (-1e30, 1e30)] {
+            assert!(soft_step_grad(a, b).is_finite() && energy_with_grad(a.abs().max(1.0), b.abs(), 1.0).1.is_finite());
+        }
+        assert_eq!(focal_defocus_grad(0.0, 30.0), (0.0, 0.0));
+        assert_eq!(coc_radius_grad(0.0, 30.0), (0.0, 0.0));
+        assert_eq!(coc_radius_grad(-0.5, 30.0), (-30.0, 0.5));
+    }
+
+    #[test]
+    fn smooth_disk_and_its_norm() {
+        for width in [0.5f32, 1.0, 2.0] {
+            for i in 0..400 {
+                let r = i as f32 * 0.173;
+                close(disk_coverage_smooth_grad(r, 5.0, width), fd(|r| disk_coverage_smooth(r, 5.0, width), r), "coverage");
+                // The norm is the lattice sum, point by point.
+                let reach = (r + width).ceil() as i64;
+                let mut want = 0f64;
+                for dy in -reach..=reach {
+                    for dx in -reach..=reach {
+                        want += disk_coverage_smooth(r, ((dx * dx + dy * dy) as f32).sqrt(), width) as f64;
+                    }
+                }
+                let (n, dn) = disk_norm_smooth(r, width);
+                let tol = if r + width / 2.0 > NORM_TABLE_MAX + 1.0 { 1e-3 } else { 1e-5 };
+                assert!((n as f64 - want).abs() <= tol * want, "r={r} w={width}: {n} vs {want}");
+                if r + width / 2.0 + 1e-3 < NORM_TABLE_MAX + 1.0 {
+                    close(dn, fd(|r| disk_norm_smooth(r, width).0, r), "norm");
+                } else {
+                    assert_eq!(dn, 2.0 * std::f32::consts::PI * r);
+                }
+            }
+        }
+        // In focus, a source keeps its own pixel at weight exactly 1.
+        for r in [0.0f32, 0.2, 0.49] {
+            assert_eq!(disk_coverage_smooth(r, 0.0, 1.0) / disk_norm_smooth(r, 1.0).0, 1.0);
+        }
+        // Beyond the table: the area, within 1e-4 of the lattice sum at the switch.
+        let (table, area) = (disk_norm_smooth(64.4, 1.0).0, disk_norm_smooth(64.6, 1.0).0);
+        assert!((area / table - 1.0).abs() < 1e-2, "{table} {area}");
+        assert!(disk_norm_smooth(1e30, 1.0).0.is_infinite() || disk_norm_smooth(1e30, 1.0).0 > 0.0);
+    }
+
+    #[test]
+    fn smooth_fill_and_its_vjp() {
+        assert_eq!(fill_min(0.3, 0.0), (0.3, 1.0));
+        assert_eq!(fill_min(1.0, 0.0), (1.0, 0.0));
+        assert_eq!(fill_min(1.7, 0.0), (1.0, 0.0));
+        // C¹ at both ends of the rounded corner.
+        let w = 0.2;
+        for x in [1.0 - w, 1.0 + w] {
+            let (a, da) = fill_min(x - 1e-9, w);
+            let (b, db) = fill_min(x + 1e-9, w);
+            assert!((a - b).abs() < 1e-8 && (da - db).abs() < 1e-6, "x={x}");
+        }
+        let mut seed = 7u64;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for case in 0..200 {
+            let groups: [[f64; 4]; 3] = std::array::from_fn(|_| {
+                let a = if rnd() < 0.2 { 0.0 } else { rnd() * 0.8 };
+                [a * rnd(), a * rnd() * 2.0, a * rnd(), a]
+            });
+            // Width 0 is the renderer's fill.
+            let (hard, smooth) = (over_groups(&groups), over_groups_smooth(&groups, 0.0));
+            assert!(hard.iter().zip(&smooth).all(|(a, b)| (a - b).abs() < 1e-12), "{hard:?} {smooth:?}");
+            let width = [0.0, 0.1, 0.5][case % 3];
+            let g: [f64; 4] = std::array::from_fn(|_| rnd() * 2.0 - 1.0);
+            let vjp = over_groups_smooth_vjp(&groups, width, &g);
+            let loss = |gr: &[[f64; 4]; 3]| over_groups_smooth(gr, width).iter().zip(&g).map(|(a, b)| a * b).sum::<f64>();
+            for k in 0..3 {
+                for c in 0..4 {
+                    let h = 1e-7;
+                    let mut up = groups;
+                    up[k][c] += h;
+                    let mut down = groups;
+                    down[k][c] -= h;
+                    // An empty group's colour cannot move alone (its P and a are one weight
+                    // times [c, 1]); at a = 0 the group starts to count: one-sided.
+                    if c < 3 && groups[k][3] == 0.0 {
+                        continue;
+                    }
+                    let want =
+                        if c == 3 && groups[k][3] == 0.0 { (loss(&up) - loss(&groups)) / h } else { (loss(&up) - loss(&down)) / (2.0 * h) };
+                    let got = vjp[k][c];
+                    // The hard corner (width 0) is a kink: skip where a step crosses it.
+                    let s: f64 = groups.iter().map(|g| g[3]).sum();
+                    if width == 0.0 && (s - 1.0).abs() < 1e-6 {
+                        continue;
+                    }
+                    assert!((got - want).abs() <= 1e-5 * want.abs().max(1.0), "case {case} group {k} ch {c}: {got} vs {want} ({groups:?})");
+                }
+            }
+        }
     }
 }

@@ -4,6 +4,7 @@
 //! literal kernel, `composite` eq. 2. [`render`] is the entry point.
 
 pub mod aperture;
+pub mod backward;
 pub mod composite;
 pub mod exact;
 pub mod fast;
@@ -14,6 +15,7 @@ pub mod splat;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+pub use backward::{Gradients, Smoothing, Tape, render_differentiable, vjp};
 pub use layer::Layer;
 pub use lens::Profile;
 use rayon::prelude::*;

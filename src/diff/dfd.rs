@@ -1,0 +1,189 @@
+//! Depth from defocus by direct optimisation (paper Sec. 4, Fig. 9 row 1): the disparity map
+//! that, rendered with an all-in-focus photo as one opaque layer, reproduces a photo of the
+//! same view focused at `focus` with blur `K`. Adam on the disparity, coarse to fine, loss
+//! `λ₁·L1 + λ₂·G + λ₃·HSSIM` (Eqn. 7; see [`super::loss`]), gradients through
+//! [`crate::render::Tape`] (the exact kernel).
+//!
+//! The library half of `drbokeh dfd` (the command is not built yet). Cost per iteration: one
+//! exact render and its VJP at the level's size, O(pixels·lens²).
+
+use super::loss::{self, HSSIM_WINDOWS};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::render::{Layer, RenderSettings, Smoothing, Tape, max_lens};
+
+/// The loss weights of Eqn. 7.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossWeights {
+    /// λ₁, L1 between render and target.
+    pub l1: f32,
+    /// λ₂, gradient smoothness of the disparity.
+    pub smoothness: f32,
+    /// λ₃, hierarchical SSIM (windows 3…31 that fit the level).
+    pub hssim: f32,
+}
+
+/// Options of [`estimate`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DfdOptions {
+    /// Adam steps per resolution level.
+    pub iters: usize,
+    /// Resolution levels, coarsest first (each half the size of the next); 1 = full size only.
+    pub levels: usize,
+    /// Adam's step size, in units of normalized disparity.
+    pub learning_rate: f32,
+    /// The loss weights.
+    pub weights: LossWeights,
+    /// The physical profile's smooth edges (see [`Smoothing`]).
+    pub smoothing: Smoothing,
+    /// The disparity every pixel starts from.
+    pub init: f32,
+}
+
+impl Default for DfdOptions {
+    fn default() -> Self {
+        DfdOptions {
+            iters: 100,
+            levels: 3,
+            learning_rate: 0.02,
+            weights: LossWeights { l1: 1.0, smoothness: 0.01, hssim: 1.0 },
+            smoothing: Smoothing { edge_width: 1.0, fill_width: 0.1 },
+            init: 0.5,
+        }
+    }
+}
+
+/// One logged step: level (0 = full size), iteration, and the loss terms.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    /// Resolution level, counting down to 0 (full size).
+    pub level: usize,
+    /// Iteration within the level.
+    pub iter: usize,
+    /// Total loss.
+    pub loss: f64,
+    /// L1 term (unweighted).
+    pub l1: f64,
+    /// HSSIM term (unweighted).
+    pub hssim: f64,
+}
+
+/// Estimates the disparity (one channel, the photos' size, in [0, 1], the units of `focus`
+/// and `K`) from an all-in-focus photo `aif` and a photo `bokeh` of the same view rendered or
+/// taken at `s.focus` with blur `s.blur` (both linear RGB). `s.lens` is ignored: each level
+/// uses the window that the whole disparity range [0, 1] needs. `step` is called after every
+/// iteration. Errors: photos of different sizes or channel counts (usage), bad options.
+pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptions, mut step: impl FnMut(Step)) -> Result<Image> {
+    if (aif.width, aif.height) != (bokeh.width, bokeh.height) || aif.channels != 3 || bokeh.channels != 3 {
+        return Err(Error::usage(format!(
+            "the all-in-focus photo is {}x{} with {} channels and the defocused one {}x{} with {}: they must be the same size, RGB",
+            aif.width, aif.height, aif.channels, bokeh.width, bokeh.height, bokeh.channels
+        )));
+    }
+    if opts.levels == 0 || !opts.learning_rate.is_finite() || opts.learning_rate <= 0.0 {
+        return Err(Error::usage("dfd: levels must be >= 1 and the learning rate a finite number > 0"));
+    }
+    let (w, h) = (aif.width, aif.height);
+    let mut disparity: Option<Image> = None;
+    for level in (0..opts.levels).rev() {
+        let f = 1usize << level;
+        let (lw, lh) = ((w / f).max(1), (h / f).max(1));
+        let (a, b) = (resize_rgb(aif, lw, lh), resize_rgb(bokeh, lw, lh));
+        let d = match disparity.take() {
+            Some(d) => d.resized(lw, lh),
+            None => Image::filled(lw, lh, 1, opts.init),
+        };
+        let mut ls = *s;
+        ls.blur = s.blur * lw as f32 / w as f32;
+        let reach = (ls.blur * s.focus.max(1.0 - s.focus).max(0.0)).ceil() as usize + 3;
+        ls.lens = (2 * reach + 1).min(max_lens(lw, lh) | 1);
+        disparity = Some(optimise_level(&a, &b, d, &ls, opts, level, &mut step)?);
+    }
+    Ok(disparity.expect("at least one level"))
+}
+
+/// Adam on one level's disparity.
+fn optimise_level(
+    aif: &Image,
+    target: &Image,
+    mut d: Image,
+    s: &RenderSettings,
+    opts: &DfdOptions,
+    level: usize,
+    step: &mut impl FnMut(Step),
+) -> Result<Image> {
+    let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8f64);
+    let n = d.data.len();
+    let (mut m, mut v) = (vec![0f64; n], vec![0f64; n]);
+    let alpha = Image::filled(aif.width, aif.height, 1, 1.0);
+    let wts = opts.weights;
+    for it in 0..opts.iters {
+        let layers = [Layer::from_parts(aif, &alpha, &d, "dfd")?];
+        let tape = Tape::record(&layers, s, opts.smoothing)?;
+        let l1 = loss::l1(tape.image(), target);
+        let hs = loss::hssim(tape.image(), target, &HSSIM_WINDOWS);
+        let sm = loss::gradient_smoothness(&d);
+        let mut seed = l1.grad.clone();
+        seed.data.iter_mut().zip(&hs.grad.data).for_each(|(g, hg)| *g = *g * wts.l1 + hg * wts.hssim);
+        let g = tape.vjp(&seed)?;
+        let total = wts.l1 as f64 * l1.value + wts.hssim as f64 * hs.value + wts.smoothness as f64 * sm.value;
+        step(Step { level, iter: it, loss: total, l1: l1.value, hssim: hs.value });
+        let t = (it + 1) as i32;
+        for (i, dv) in d.data.iter_mut().enumerate() {
+            let gi = g.layers[0].data[i * crate::render::layer::CHANNELS + crate::render::layer::D] as f64
+                + wts.smoothness as f64 * sm.grad.data[i] as f64;
+            m[i] = b1 * m[i] + (1.0 - b1) * gi;
+            v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
+            let (mh, vh) = (m[i] / (1.0 - b1.powi(t)), v[i] / (1.0 - b2.powi(t)));
+            *dv = (*dv as f64 - opts.learning_rate as f64 * mh / (vh.sqrt() + eps)).clamp(0.0, 1.0) as f32;
+        }
+    }
+    Ok(d)
+}
+
+/// Triangle-filter resize of an RGB image, channel by channel.
+fn resize_rgb(img: &Image, w: usize, h: usize) -> Image {
+    if (img.width, img.height) == (w, h) {
+        return img.clone();
+    }
+    let parts: Vec<Image> = (0..img.channels).map(|c| img.channel(c).resized(w, h)).collect();
+    Image::stack(&parts.iter().collect::<Vec<_>>())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::{Kernel, Profile, render};
+
+    /// A textured 32×32 view, near half at disparity 1 (the focal plane), far half at 0.4,
+    /// K = 4, start 0.5 everywhere: 2 levels × 40 steps bring the full-size L1 from 0.0123
+    /// to 0.0013 and the mean disparity error from 0.30 to 0.022 (asserted: ×0.25, ×0.15).
+    #[test]
+    fn recovers_a_two_plane_scene() {
+        let (w, h) = (32usize, 32usize);
+        let mut seed = 9u64;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let aif = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| rnd()).collect()).unwrap();
+        let truth = Image::from_vec(w, h, 1, (0..w * h).map(|i| if i % w < w / 2 { 1.0 } else { 0.4 }).collect()).unwrap();
+        let s = RenderSettings { blur: 4.0, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
+        let opts = DfdOptions { iters: 40, levels: 2, ..DfdOptions::default() };
+        let mut rs = s;
+        rs.lens = 2 * ((s.blur * 1.0).ceil() as usize + 3) + 1;
+        let layer = Layer::from_parts(&aif, &Image::filled(w, h, 1, 1.0), &truth, "truth").unwrap();
+        let bokeh = render(&[layer], &rs, Kernel::Exact).unwrap();
+        let mut log = Vec::new();
+        let d = estimate(&aif, &bokeh, &s, &opts, |st| log.push(st)).unwrap();
+        let full: Vec<&Step> = log.iter().filter(|st| st.level == 0).collect();
+        assert!(full.last().unwrap().l1 < 0.25 * full[0].l1, "L1 {} → {}", full[0].l1, full.last().unwrap().l1);
+        let err = |d: &Image| d.data.iter().zip(&truth.data).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / (w * h) as f64;
+        let start = Image::filled(w, h, 1, opts.init);
+        eprintln!("L1 {:.4} → {:.4}; disparity error {:.4} (start {:.4})", full[0].l1, full.last().unwrap().l1, err(&d), err(&start));
+        assert!(err(&d) < 0.15 * err(&start), "disparity error {} (start {})", err(&d), err(&start));
+        // Mismatched photos are a usage error naming both sizes.
+        let e = estimate(&aif, &Image::new(8, 8, 3), &s, &opts, |_| {}).unwrap_err().to_string();
+        assert!(e.contains("32x32") && e.contains("8x8"), "{e}");
+    }
+}

@@ -1,0 +1,162 @@
+//! The physical profile, differentiable: the forward of [`exact`]'s physical kernel with its
+//! two hard edges rounded (see [`super::Smoothing`]), and its per-layer backward.
+//!
+//! Forward, per target `x`: each source `y` adds `wt = α_y·cov(R_y, r)/N(R_y)` (smooth disk
+//! edge [`lens::disk_coverage_smooth`], flux norm [`lens::disk_norm_smooth`], `R = K·|d|`),
+//! split over the depth groups `γ(d_y, d_x)` ([`lens::depth_groups`]), to the groups'
+//! `[P, a]`; the groups are filled front to back ([`lens::over_groups_smooth`]). Backward:
+//! the groups' cotangents come from [`lens::over_groups_smooth_vjp`], then one pass over the
+//! taps scatters them to the sources' colour, alpha and radius and to both disparities.
+//!
+//! [`exact`]: crate::render::exact
+
+use super::Smoothing;
+use super::accum::{self, PixelGrad};
+use crate::render::aperture::Tap;
+use crate::render::layer::{A, CHANNELS, D, Layer};
+use crate::render::lens::{self, coc_radius, depth_groups_with_grad, disk_coverage_smooth, disk_coverage_smooth_grad, disk_norm_smooth};
+use crate::render::{RawLayer, RenderSettings, Role, raw};
+use rayon::prelude::*;
+
+/// Per-pixel terms of a layer's sources: relative disparity, CoC radius, flux norm and its
+/// derivative in the radius.
+struct Sources {
+    d: Vec<f32>,
+    radius: Vec<f32>,
+    norm: Vec<(f32, f32)>,
+}
+
+impl Sources {
+    fn new(layer: &Layer, s: &RenderSettings, sm: &Smoothing) -> Self {
+        let d: Vec<f32> = layer.image().data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
+        // The thin lens's CoC, capped far beyond any image so ratios stay finite.
+        let radius: Vec<f32> = d.iter().map(|&d| coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
+        let norm = radius.par_iter().map(|&r| disk_norm_smooth(r, sm.edge_width)).collect();
+        Sources { d, radius, norm }
+    }
+}
+
+/// What the tape keeps of a physical layer: the raw render (for compositing) and each
+/// target's three depth groups `[P_r, P_g, P_b, a]` before the fill (96 bytes per pixel).
+pub(super) struct Record {
+    pub raw: RawLayer,
+    pub groups: Vec<[[f64; 4]; 3]>,
+}
+
+/// The smooth physical forward of one layer, tap by tap (as [`crate::render::exact`]'s
+/// physical kernel, with the smooth coverage, norm and fill). Rows in parallel; allocates the
+/// raw output, the groups and three planes of per-pixel terms.
+pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[Tap], role: Role) -> Record {
+    let img = layer.image();
+    let (w, h) = (img.width, img.height);
+    let src = Sources::new(layer, s, sm);
+    let mut out = vec![0f32; w * h * raw::CHANNELS];
+    let mut groups = vec![[[0f64; 4]; 3]; w * h];
+    out.par_chunks_mut(w * raw::CHANNELS).zip(groups.par_chunks_mut(w)).enumerate().for_each(|(y, (row, grow))| {
+        for x in 0..w {
+            let dx = src.d[y * w + x];
+            let g = &mut grow[x];
+            for t in taps {
+                let j = clamped(x, y, t, w, h);
+                let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
+                let cov = disk_coverage_smooth(src.radius[j], t.r, sm.edge_width);
+                if px[A] == 0.0 || cov == 0.0 {
+                    continue;
+                }
+                let wt = (px[A] * (cov / src.norm[j].0)) as f64;
+                let split = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(src.d[j], dx) };
+                for (acc, &gk) in g.iter_mut().zip(&split) {
+                    if gk > 0.0 {
+                        let k = wt * gk as f64;
+                        acc[0] += k * px[0] as f64;
+                        acc[1] += k * px[1] as f64;
+                        acc[2] += k * px[2] as f64;
+                        acc[3] += k;
+                    }
+                }
+            }
+            let p = lens::over_groups_smooth(g, sm.fill_width as f64);
+            let a = p[3] as f32;
+            let vis = match role {
+                Role::Front => a,
+                Role::Backdrop => a.max(img.data[(y * w + x) * CHANNELS + A]),
+            };
+            row[x * raw::CHANNELS..(x + 1) * raw::CHANNELS].copy_from_slice(&[p[0] as f32, p[1] as f32, p[2] as f32, a, vis]);
+        }
+    });
+    Record { raw: RawLayer::new(w, h, out, layer), groups }
+}
+
+/// Row-major index of the source a tap reads from target `(x, y)`, replicate-padded.
+#[inline(always)]
+fn clamped(x: usize, y: usize, t: &Tap, w: usize, h: usize) -> usize {
+    let yy = (y as i64 + t.di as i64).clamp(0, h as i64 - 1) as usize;
+    let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
+    yy * w + xx
+}
+
+/// Gradients of one layer given, per pixel, the cotangents `[g_P_r, g_P_g, g_P_b, g_A, _]` of
+/// its filled `[P, A]` (see [`super::RawCot`]). Per target: the groups' cotangents
+/// (O(1)), then one pass over the taps. Rows in parallel bands; allocates the bands and three
+/// planes of per-pixel terms.
+pub(super) fn backward(
+    layer: &Layer,
+    s: &RenderSettings,
+    sm: &Smoothing,
+    taps: &[Tap],
+    rec: &Record,
+    cot: &[super::RawCot],
+) -> Vec<PixelGrad> {
+    let img = layer.image();
+    let (w, h) = (img.width, img.height);
+    let src = Sources::new(layer, s, sm);
+    accum::scatter_rows(w, h, s.lens / 2, |y, band| {
+        for x in 0..w {
+            let i = y * w + x;
+            let c = &cot[i];
+            if c[..4].iter().all(|&v| v == 0.0) {
+                continue;
+            }
+            let gg = lens::over_groups_smooth_vjp(&rec.groups[i], sm.fill_width as f64, &[c[0], c[1], c[2], c[3]]);
+            let dx = src.d[i];
+            let mut g_dx = 0f64;
+            for t in taps {
+                let j = clamped(x, y, t, w, h);
+                let r = src.radius[j];
+                let cov = disk_coverage_smooth(r, t.r, sm.edge_width);
+                let dcov = disk_coverage_smooth_grad(r, t.r, sm.edge_width);
+                if cov == 0.0 && dcov == 0.0 {
+                    continue;
+                }
+                let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
+                // The centre tap and a render without occlusion use one group.
+                let grouped = s.occlusion && !(t.di == 0 && t.dj == 0);
+                let (split, dsplit) = if grouped { depth_groups_with_grad(src.d[j], dx) } else { ([0.0, 1.0, 0.0], [0.0; 3]) };
+                // h_g: the cotangent of a unit of weight in group g carrying this source's colour.
+                let hg: [f64; 3] =
+                    std::array::from_fn(|k| gg[k][0] * px[0] as f64 + gg[k][1] * px[1] as f64 + gg[k][2] * px[2] as f64 + gg[k][3]);
+                let g_wt: f64 = (0..3).map(|k| split[k] as f64 * hg[k]).sum();
+                let (norm, dnorm) = (src.norm[j].0 as f64, src.norm[j].1 as f64);
+                let u = cov as f64 / norm;
+                let sg = band.at(j);
+                sg.alpha += g_wt * u;
+                let a = px[A] as f64;
+                if a == 0.0 {
+                    continue;
+                }
+                let wt = a * u;
+                for (ch, g) in sg.colour.iter_mut().enumerate() {
+                    *g += wt * (0..3).map(|k| split[k] as f64 * gg[k][ch]).sum::<f64>();
+                }
+                // ∂u/∂R = cov'/N - (cov/N)·N'/N, finite also where N overflowed to inf.
+                sg.radius += g_wt * a * (dcov as f64 / norm - u * (dnorm / norm));
+                if grouped {
+                    let g_d = wt * (0..3).map(|k| dsplit[k] as f64 * hg[k]).sum::<f64>();
+                    sg.disparity += g_d;
+                    g_dx -= g_d;
+                }
+            }
+            band.at(i).disparity += g_dx;
+        }
+    })
+}
