@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
 """Copies the tables of docs/bench/report.md (made by `drbokeh bench ... --out docs/bench`)
-into README.md between their anchors, so the README's bench tables are never typed by hand."""
-import pathlib, sys
+into README.md between their anchors, and computes the pipeline tables (issue 12: the tool's
+defaults from photo + depth + matte against the baselines fed the same inputs, exact and
+realistic depth, per category, seeds 1 and 2) from docs/bench*/report.csv, so the README's
+bench tables are never typed by hand."""
+import collections, csv, pathlib, sys
 
 root = pathlib.Path(__file__).resolve().parent.parent
 report = (root / "docs/bench/report.md").read_text()
@@ -29,5 +32,42 @@ blocks = [
 ]
 for start, end, head in blocks:
     readme = replace_between(readme, start, end, section(report, head) + ("\n" if end.startswith("\nCase") else ""))
+
+CATEGORIES = [("all", "all cases"), ("fg_in_focus", "foreground in focus"), ("bg_in_focus", "background in focus"),
+              ("between", "focus between the layers"), ("thin", "thin structures"), ("highlights", "HDR highlights behind edges")]
+
+
+def pipeline_table(depth):
+    """Mean PSNR sRGB / PSNR linear / SSIM sRGB per seed and category: the pipeline, the
+    scatter and the gather at the tool's defaults (exact or realistic depth), and Dr.Bokeh on
+    the exact layers (physical profile, exact kernel) for reference."""
+    variant = "physical-fast-q2" if depth == "exact" else "realistic-depth"
+    cols = [("drbokeh-pipeline", variant), ("scatter-no-occlusion", variant),
+            ("gather", "default" if depth == "exact" else "realistic-depth"), ("drbokeh-layers", "physical-exact")]
+    out = ["| seed | category | cases | pipeline | scatter, no occlusion | gather | pipeline - best baseline (sRGB dB) | exact layers (oracle) |",
+           "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for seed, folder in [(1, "docs/bench"), (2, "docs/bench-seed2")]:
+        acc = collections.defaultdict(list)
+        for r in csv.DictReader(open(root / folder / "report.csv")):
+            key = (r["method"], r["variant"])
+            if key in cols:
+                for c in r["categories"].split(";") + ["all"]:
+                    acc[(c, key)].append((float(r["psnr_srgb"]), float(r["psnr_linear"]), float(r["ssim_srgb"])))
+        for cat, label in CATEGORIES:
+            means = []
+            for k in cols:
+                v = acc[(cat, k)]
+                means.append(tuple(sum(x[i] for x in v) / len(v) for i in range(3)) if v else None)
+            cells = [f"{m[0]:.2f} / {m[1]:.2f} / {m[2]:.4f}" if m else "-" for m in means]
+            margin = means[0][0] - max(means[1][0], means[2][0])
+            n = len(acc[(cat, cols[0])])
+            out.append(f"| {seed} | {label} | {n} | {cells[0]} | {cells[1]} | {cells[2]} | {margin:+.2f} | {cells[3]} |")
+    return "\n".join(out)
+
+
+for depth in ["exact", "realistic"]:
+    start, end = f"<!-- pipeline-table {depth} -->\n", f"<!-- /pipeline-table {depth} -->"
+    if start in readme:
+        readme = replace_between(readme, start, end, pipeline_table(depth) + "\n")
 readme_path.write_text(readme)
 print("README bench tables updated from docs/bench/report.md", file=sys.stderr)
