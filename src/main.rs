@@ -16,6 +16,7 @@ use std::time::Instant;
 
 mod cli_batch;
 mod cli_bench;
+mod cli_dfd;
 
 #[derive(Parser)]
 #[command(name = "drbokeh", version, about = "Occlusion-aware lens blur (Dr.Bokeh) from one photo and its depth")]
@@ -34,14 +35,26 @@ enum Command {
     Bench(cli_bench::BenchArgs),
     /// Render every photo of a folder (resumable, parallel, shardable).
     Batch(cli_batch::BatchArgs),
+    /// Depth from defocus: the disparity map that turns an all-in-focus photo into a photo of
+    /// the same view focused at --focus (Adam through the differentiable renderer).
+    Dfd(cli_dfd::DfdArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
-enum ProfileArg {
+pub(crate) enum ProfileArg {
     /// Calibrated to the thin lens (CoC exactly K|d|, uniform disks, coverage visibility).
     Physical,
     /// The official Dr.Bokeh formula (golden vectors).
     Official,
+}
+
+impl From<ProfileArg> for drbokeh::render::Profile {
+    fn from(p: ProfileArg) -> drbokeh::render::Profile {
+        match p {
+            ProfileArg::Physical => drbokeh::render::Profile::Physical,
+            ProfileArg::Official => drbokeh::render::Profile::Official,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -211,6 +224,7 @@ fn main() -> ExitCode {
         Command::Trace(args) => cli_bench::trace(args).map(|()| ExitCode::SUCCESS),
         Command::Bench(args) => cli_bench::bench(args).map(|()| ExitCode::SUCCESS),
         Command::Batch(args) => cli_batch::batch(args),
+        Command::Dfd(args) => cli_dfd::dfd(args).map(|()| ExitCode::SUCCESS),
     });
     match result {
         Ok(Ok(code)) => code,
@@ -255,10 +269,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
         r.quality = q;
     }
     if let Some(p) = args.profile {
-        r.profile = match p {
-            ProfileArg::Physical => drbokeh::render::Profile::Physical,
-            ProfileArg::Official => drbokeh::render::Profile::Official,
-        };
+        r.profile = p.into();
     }
     if args.no_occlusion {
         r.occlusion = false;
@@ -298,7 +309,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 21] = [
+const FLAGS: [(&str, &str); 27] = [
     ("render.occlusion = false", "--no-occlusion"),
     ("render.profile", "--profile"),
     ("render.kernel", "--kernel"),
@@ -320,6 +331,12 @@ const FLAGS: [(&str, &str); 21] = [
     ("trace.spp", "--spp"),
     ("bench.size", "--size"),
     ("bench.methods", "--methods"),
+    ("dfd.iters", "--iters"),
+    ("dfd.levels", "--levels"),
+    ("dfd.learning_rate", "--learning-rate"),
+    ("dfd.init", "--init"),
+    ("dfd.log", "--log"),
+    ("dfd.plot", "--plot"),
 ];
 
 /// `msg` with every library parameter name replaced by its flag (see [`FLAGS`]).

@@ -1,4 +1,5 @@
-//! The error-versus-run-time figure (plotters, bitmap backend) and a tiny text renderer.
+//! Line plots against a logarithmic x axis (plotters, bitmap backend) and a tiny text
+//! renderer: the bench's error-versus-run-time figure and `drbokeh dfd`'s loss curves.
 //!
 //! plotters draws text only through a font backend (system fonts or a bundled TTF), which
 //! this crate does not depend on: the plot area, grid, series and markers are drawn with
@@ -40,12 +41,13 @@ pub fn text_width(text: &str, scale: i32) -> i32 {
     text.chars().count() as i32 * 8 * scale
 }
 
-/// One point of a series: median run time (ms), error value, label.
+/// One point of a series: x (see [`XAxis`]), value, label.
 #[derive(Clone, Debug)]
 pub struct Point {
-    /// Median run time, milliseconds (the x axis, logarithmic).
-    pub time_ms: f64,
-    /// The error measure plotted (the y axis), e.g. PSNR in dB.
+    /// The x coordinate (the axis is logarithmic; values below 1e-3 are drawn at 1e-3), in the
+    /// unit of the plot's [`XAxis`]: median run time in ms, or an iteration count.
+    pub x: f64,
+    /// The measure plotted (the y axis, linear), e.g. PSNR in dB or a loss.
     pub value: f64,
     /// Text drawn beside the point (the setting, e.g. "q2").
     pub label: String,
@@ -73,16 +75,47 @@ const PALETTE: [RGBColor; 10] = [
     RGBColor(127, 127, 127),
 ];
 
+/// What the x axis of a [`line_plot`] shows (always on a log scale).
+#[derive(Clone, Copy, Debug)]
+pub struct XAxis<'a> {
+    /// The axis title, drawn under it.
+    pub title: &'a str,
+    /// How the decade ticks are written.
+    pub ticks: Ticks,
+}
+
+/// How the x axis's tick values are written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ticks {
+    /// Milliseconds, switching to seconds from 1000 ("1s").
+    Milliseconds,
+    /// Plain numbers (counts such as iterations).
+    Plain,
+}
+
+/// Series with more points than this are drawn as lines without markers (a loss curve);
+/// at most this many get a marker per point.
+const MAX_MARKED_POINTS: usize = 40;
+
 /// Writes a PNG plot of `value` (y, linear) against run time (x, log scale), one line and
 /// marker colour per series, settings labelled next to their points.
 pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series]) -> Result<()> {
+    let x = XAxis { title: "median run time per render (ms, log scale)", ticks: Ticks::Milliseconds };
+    line_plot(path, title, &x, y_label, series)
+}
+
+/// Writes a 1100×640 PNG plot of `value` (y, linear) against `x` (log scale, whole decades),
+/// one line and colour per series with a legend; series of at most 40 points
+/// get markers and their points' labels. Non-finite points are left out. Cost: one
+/// 2 MB RGB buffer, O(points).
+pub fn line_plot(path: &Path, title: &str, x_axis: &XAxis, y_label: &str, series: &[Series]) -> Result<()> {
     let (w, h) = (1100usize, 640usize);
     let mut buf = vec![255u8; w * h * 3];
-    let pts = series.iter().flat_map(|s| s.points.iter()).filter(|p| p.time_ms.is_finite() && p.value.is_finite());
+    let pts = series.iter().flat_map(|s| s.points.iter()).filter(|p| p.x.is_finite() && p.value.is_finite());
     let (mut tmin, mut tmax, mut vmin, mut vmax) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
     for p in pts {
-        tmin = tmin.min(p.time_ms.max(1e-3));
-        tmax = tmax.max(p.time_ms.max(1e-3));
+        tmin = tmin.min(p.x.max(1e-3));
+        tmax = tmax.max(p.x.max(1e-3));
         vmin = vmin.min(p.value);
         vmax = vmax.max(p.value);
     }
@@ -91,7 +124,8 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
     }
     // Whole decades on x; 8% headroom on y.
     let (tmin, tmax) = (10f64.powf(tmin.log10().floor()), 10f64.powf(tmax.log10().ceil().max(tmin.log10().floor() + 1.0)));
-    let pad = ((vmax - vmin) * 0.08).max(0.05);
+    // A flat series (one value) gets a band of ±5% of its value (±0.05 around 0).
+    let pad = if vmax > vmin { (vmax - vmin) * 0.08 } else { (vmax.abs() * 0.05).max(0.05) };
     let (vmin, vmax) = (vmin - pad, vmax + pad);
     let (left, right, top, bottom) = (80i32, 260i32, 50i32, 60i32);
 
@@ -122,7 +156,10 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
                     )))
                     .map_err(|e| err(&e))?;
                 let (x, y) = chart.backend_coord(&(t, vmin));
-                let s = fmt_ms(t);
+                let s = match x_axis.ticks {
+                    Ticks::Milliseconds => fmt_ms(t),
+                    Ticks::Plain => format!("{t}"),
+                };
                 labels.push((x - text_width(&s, 1) / 2, y + 8, s, [60, 60, 60], 1));
             }
             decade *= 10.0;
@@ -132,13 +169,11 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
         while v <= vmax {
             chart.draw_series(std::iter::once(PathElement::new(vec![(tmin, v), (tmax, v)], grey))).map_err(|e| err(&e))?;
             let (x, y) = chart.backend_coord(&(tmin, v));
-            let s = if step >= 1.0 {
-                format!("{v:.0}")
-            } else if step >= 0.1 {
-                format!("{v:.1}")
-            } else {
-                format!("{v:.2}")
-            };
+            // As many decimals as the step needs (0.05 → 2, 0.002 → 3).
+            let decimals = (-step.log10().floor()).max(0.0) as usize;
+            // A tick at zero that accumulated rounding (-1e-18) is written "0", not "-0.00".
+            let shown = if v.abs() < step * 1e-6 { 0.0 } else { v };
+            let s = format!("{shown:.decimals$}");
             labels.push((x - 8 - text_width(&s, 1), y - 4, s, [60, 60, 60], 1));
             v += step;
         }
@@ -148,13 +183,16 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
 
         for (k, s) in series.iter().enumerate() {
             let color = PALETTE[k % PALETTE.len()];
-            let mut p: Vec<&Point> = s.points.iter().filter(|p| p.time_ms.is_finite() && p.value.is_finite()).collect();
-            p.sort_by(|a, b| a.time_ms.total_cmp(&b.time_ms));
-            let coords: Vec<(f64, f64)> = p.iter().map(|p| (p.time_ms.max(1e-3), p.value)).collect();
+            let mut p: Vec<&Point> = s.points.iter().filter(|p| p.x.is_finite() && p.value.is_finite()).collect();
+            p.sort_by(|a, b| a.x.total_cmp(&b.x));
+            let coords: Vec<(f64, f64)> = p.iter().map(|p| (p.x.max(1e-3), p.value)).collect();
             chart.draw_series(LineSeries::new(coords.clone(), color.stroke_width(2))).map_err(|e| err(&e))?;
-            chart.draw_series(coords.iter().map(|&c| Circle::new(c, 5, color.filled()))).map_err(|e| err(&e))?;
+            let marked = p.len() <= MAX_MARKED_POINTS;
+            if marked {
+                chart.draw_series(coords.iter().map(|&c| Circle::new(c, 5, color.filled()))).map_err(|e| err(&e))?;
+            }
             for (pt, c) in p.iter().zip(&coords) {
-                if p.len() > 1 {
+                if marked && p.len() > 1 {
                     let (x, y) = chart.backend_coord(c);
                     labels.push((x + 7, y - 12, pt.label.clone(), [color.0 / 2 + 40, color.1 / 2 + 40, color.2 / 2 + 40], 1));
                 }
@@ -165,7 +203,7 @@ pub fn error_vs_time(path: &Path, title: &str, y_label: &str, series: &[Series])
             labels.push((lx + 20, ly + 1, s.name.clone(), [20, 20, 20], 1));
         }
         root.present().map_err(|e| err(&e))?;
-        let x_title = "median run time per render (ms, log scale)";
+        let x_title = x_axis.title;
         labels.push(((x0 + x1) / 2 - text_width(x_title, 1) / 2, y1 + 30, x_title.into(), [20, 20, 20], 1));
         labels.push((x0, 16, title.into(), [0, 0, 0], 2));
         labels.push((8, y0 - 16, y_label.into(), [20, 20, 20], 1));
@@ -213,12 +251,9 @@ mod tests {
         let s = vec![
             Series {
                 name: "a".into(),
-                points: vec![
-                    Point { time_ms: 3.0, value: 30.0, label: "q1".into() },
-                    Point { time_ms: 40.0, value: 33.0, label: "exact".into() },
-                ],
+                points: vec![Point { x: 3.0, value: 30.0, label: "q1".into() }, Point { x: 40.0, value: 33.0, label: "exact".into() }],
             },
-            Series { name: "b".into(), points: vec![Point { time_ms: 0.5, value: 25.0, label: "x".into() }] },
+            Series { name: "b".into(), points: vec![Point { x: 0.5, value: 25.0, label: "x".into() }] },
         ];
         error_vs_time(&p, "title", "PSNR", &s).unwrap();
         assert!(std::fs::metadata(&p).unwrap().len() > 1000);

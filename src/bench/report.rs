@@ -107,7 +107,7 @@ pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
             let pts: Vec<plot::Point> = means
                 .iter()
                 .filter(|((mm, v), _)| *mm == m && v.profile() == profile)
-                .map(|((_, v), s)| plot::Point { time_ms: s.time_ms, value: s.psnr_srgb, label: v.name() })
+                .map(|((_, v), s)| plot::Point { x: s.time_ms, value: s.psnr_srgb, label: v.name() })
                 .collect();
             let name = match profile {
                 Profile::Official => m.name().to_owned(),

@@ -4,27 +4,69 @@
 //! `λ₁·L1 + λ₂·G + λ₃·HSSIM` (Eqn. 7; see [`super::loss`]), gradients through
 //! [`crate::render::Tape`] (the exact kernel).
 //!
-//! The library half of `drbokeh dfd` (the command is not built yet). Cost per iteration: one
-//! exact render and its VJP at the level's size, O(pixels·lens²).
+//! The optimisation behind `drbokeh dfd` (files in and out: [`super::dfd_job`]). Cost per
+//! iteration: one exact render and its VJP at the level's size, O(pixels·lens²).
 
 use super::loss::{self, HSSIM_WINDOWS};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render::{Layer, RenderSettings, Smoothing, Tape, max_lens};
+use crate::render::{Layer, RenderSettings, Smoothing, Tape, check_blur, check_focus, max_lens};
+
+/// The window of the plain (single-scale) SSIM term, pixels: the usual 11×11 of Wang et al.
+pub const SSIM_WINDOW: [usize; 1] = [11];
 
 /// The loss weights of Eqn. 7.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct LossWeights {
     /// λ₁, L1 between render and target.
     pub l1: f32,
     /// λ₂, gradient smoothness of the disparity.
     pub smoothness: f32,
-    /// λ₃, hierarchical SSIM (windows 3…31 that fit the level).
-    pub hssim: f32,
+    /// λ₃, the SSIM term: `1 - mean SSIM` over those of `windows` that fit the level.
+    pub ssim: f32,
+    /// The SSIM windows (odd sides, pixels): [`HSSIM_WINDOWS`] for the paper's hierarchical
+    /// SSIM, [`SSIM_WINDOW`] for plain SSIM.
+    pub windows: &'static [usize],
+}
+
+/// The objectives of the paper's loss ablation (Table 2), by their command-line names.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+// The shared prefix is the point: every variant adds a term to L1 + gradient smoothness.
+#[allow(clippy::enum_variant_names)]
+pub enum LossVariant {
+    /// L1 + gradient smoothness.
+    L1Grad,
+    /// L1 + gradient smoothness + SSIM (one 11×11 window).
+    L1GradSsim,
+    /// L1 + gradient smoothness + hierarchical SSIM (windows 3, 5, 11, 21, 31): Eqn. 7.
+    #[default]
+    L1GradHssim,
+}
+
+impl LossVariant {
+    /// The weights: λ₁ = 1, λ₂ = 0.01 and λ₃ = 1 (0 for [`LossVariant::L1Grad`]).
+    pub fn weights(self) -> LossWeights {
+        let base = LossWeights { l1: 1.0, smoothness: 0.01, ssim: 1.0, windows: &HSSIM_WINDOWS };
+        match self {
+            LossVariant::L1Grad => LossWeights { ssim: 0.0, windows: &[], ..base },
+            LossVariant::L1GradSsim => LossWeights { windows: &SSIM_WINDOW, ..base },
+            LossVariant::L1GradHssim => base,
+        }
+    }
+
+    /// The command-line name (also the serialized one).
+    pub fn name(self) -> &'static str {
+        match self {
+            LossVariant::L1Grad => "l1-grad",
+            LossVariant::L1GradSsim => "l1-grad-ssim",
+            LossVariant::L1GradHssim => "l1-grad-hssim",
+        }
+    }
 }
 
 /// Options of [`estimate`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct DfdOptions {
     /// Adam steps per resolution level.
     pub iters: usize,
@@ -35,6 +77,7 @@ pub struct DfdOptions {
     /// The loss weights.
     pub weights: LossWeights,
     /// The physical profile's smooth edges (see [`Smoothing`]).
+    #[serde(skip)]
     pub smoothing: Smoothing,
     /// The disparity every pixel starts from.
     pub init: f32,
@@ -46,7 +89,7 @@ impl Default for DfdOptions {
             iters: 100,
             levels: 3,
             learning_rate: 0.02,
-            weights: LossWeights { l1: 1.0, smoothness: 0.01, hssim: 1.0 },
+            weights: LossVariant::default().weights(),
             smoothing: Smoothing { edge_width: 1.0, fill_width: 0.1 },
             init: 0.5,
         }
@@ -54,7 +97,7 @@ impl Default for DfdOptions {
 }
 
 /// One logged step: level (0 = full size), iteration, and the loss terms.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Step {
     /// Resolution level, counting down to 0 (full size).
     pub level: usize,
@@ -64,15 +107,20 @@ pub struct Step {
     pub loss: f64,
     /// L1 term (unweighted).
     pub l1: f64,
-    /// HSSIM term (unweighted).
-    pub hssim: f64,
+    /// Gradient-smoothness term (unweighted).
+    pub smoothness: f64,
+    /// SSIM term over the windows of [`LossWeights::windows`] (unweighted; 0 without windows).
+    pub ssim: f64,
 }
 
 /// Estimates the disparity (one channel, the photos' size, in [0, 1], the units of `focus`
 /// and `K`) from an all-in-focus photo `aif` and a photo `bokeh` of the same view rendered or
 /// taken at `s.focus` with blur `s.blur` (both linear RGB). `s.lens` is ignored: each level
 /// uses the window that the whole disparity range [0, 1] needs. `step` is called after every
-/// iteration. Errors: photos of different sizes or channel counts (usage), bad options.
+/// iteration. Errors (usage, naming the parameter): photos of different sizes or channel
+/// counts, a non-finite focus (`render.focus`), a blur that is not a finite number >= 0
+/// (`render.blur`), no iterations (`dfd.iters`) or levels (`dfd.levels`), a learning rate
+/// that is not a finite number > 0 (`dfd.learning_rate`), a start outside [0, 1] (`dfd.init`).
 pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptions, mut step: impl FnMut(Step)) -> Result<Image> {
     if (aif.width, aif.height) != (bokeh.width, bokeh.height) || aif.channels != 3 || bokeh.channels != 3 {
         return Err(Error::usage(format!(
@@ -80,14 +128,24 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
             aif.width, aif.height, aif.channels, bokeh.width, bokeh.height, bokeh.channels
         )));
     }
-    if opts.levels == 0 || !opts.learning_rate.is_finite() || opts.learning_rate <= 0.0 {
-        return Err(Error::usage("dfd: levels must be >= 1 and the learning rate a finite number > 0"));
+    check_focus("render.focus", s.focus)?;
+    check_blur("render.blur", s.blur)?;
+    if opts.iters == 0 {
+        return Err(Error::usage("dfd.iters must be >= 1"));
+    }
+    if opts.levels == 0 {
+        return Err(Error::usage("dfd.levels must be >= 1"));
+    }
+    if !opts.learning_rate.is_finite() || opts.learning_rate <= 0.0 {
+        return Err(Error::usage(format!("dfd.learning_rate must be a finite number > 0, got {}", opts.learning_rate)));
+    }
+    if !(0.0..=1.0).contains(&opts.init) {
+        return Err(Error::usage(format!("dfd.init must be a normalized disparity in [0, 1], got {}", opts.init)));
     }
     let (w, h) = (aif.width, aif.height);
     let mut disparity: Option<Image> = None;
     for level in (0..opts.levels).rev() {
-        let f = 1usize << level;
-        let (lw, lh) = ((w / f).max(1), (h / f).max(1));
+        let (lw, lh) = level_size(w, h, level);
         let (a, b) = (resize_rgb(aif, lw, lh), resize_rgb(bokeh, lw, lh));
         let d = match disparity.take() {
             Some(d) => d.resized(lw, lh),
@@ -100,6 +158,13 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
         disparity = Some(optimise_level(&a, &b, d, &ls, opts, level, &mut step)?);
     }
     Ok(disparity.expect("at least one level"))
+}
+
+/// The size of resolution level `level` of a `w × h` photo: each side divided by `2^level`
+/// (rounded down, at least 1 pixel). Level 0 is full size.
+pub fn level_size(w: usize, h: usize, level: usize) -> (usize, usize) {
+    let f = 1usize.checked_shl(level as u32).unwrap_or(usize::MAX);
+    ((w / f).max(1), (h / f).max(1))
 }
 
 /// Adam on one level's disparity.
@@ -121,13 +186,13 @@ fn optimise_level(
         let layers = [Layer::from_parts(aif, &alpha, &d, "dfd")?];
         let tape = Tape::record(&layers, s, opts.smoothing)?;
         let l1 = loss::l1(tape.image(), target);
-        let hs = loss::hssim(tape.image(), target, &HSSIM_WINDOWS);
+        let hs = loss::hssim(tape.image(), target, wts.windows);
         let sm = loss::gradient_smoothness(&d);
         let mut seed = l1.grad.clone();
-        seed.data.iter_mut().zip(&hs.grad.data).for_each(|(g, hg)| *g = *g * wts.l1 + hg * wts.hssim);
+        seed.data.iter_mut().zip(&hs.grad.data).for_each(|(g, hg)| *g = *g * wts.l1 + hg * wts.ssim);
         let g = tape.vjp(&seed)?;
-        let total = wts.l1 as f64 * l1.value + wts.hssim as f64 * hs.value + wts.smoothness as f64 * sm.value;
-        step(Step { level, iter: it, loss: total, l1: l1.value, hssim: hs.value });
+        let total = wts.l1 as f64 * l1.value + wts.ssim as f64 * hs.value + wts.smoothness as f64 * sm.value;
+        step(Step { level, iter: it, loss: total, l1: l1.value, smoothness: sm.value, ssim: hs.value });
         let t = (it + 1) as i32;
         for (i, dv) in d.data.iter_mut().enumerate() {
             let gi = g.layers[0].data[i * crate::render::layer::CHANNELS + crate::render::layer::D] as f64

@@ -1,0 +1,163 @@
+//! The `dfd` subcommand (depth from defocus): flag parsing, the progress bar and the summary;
+//! the work is in `drbokeh::diff::dfd_job`.
+
+use crate::{ProfileArg, as_flags, print_json, set_threads};
+use clap::{Args, ValueEnum};
+use drbokeh::diff::dfd::{DfdOptions, LossVariant};
+use drbokeh::diff::dfd_job::{self, DfdJob};
+use drbokeh::io::ReadLimits;
+use drbokeh::render::RenderSettings;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+
+/// `--loss`: the objectives of the paper's loss ablation.
+// The names are the flag values (l1-grad, l1-grad-ssim, l1-grad-hssim), one prefix on purpose.
+#[allow(clippy::enum_variant_names)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum LossArg {
+    /// L1 + gradient smoothness.
+    L1Grad,
+    /// L1 + gradient smoothness + SSIM (11x11 window).
+    L1GradSsim,
+    /// L1 + gradient smoothness + hierarchical SSIM (windows 3, 5, 11, 21, 31): Eqn. 7.
+    L1GradHssim,
+}
+
+impl From<LossArg> for LossVariant {
+    fn from(l: LossArg) -> LossVariant {
+        match l {
+            LossArg::L1Grad => LossVariant::L1Grad,
+            LossArg::L1GradSsim => LossVariant::L1GradSsim,
+            LossArg::L1GradHssim => LossVariant::L1GradHssim,
+        }
+    }
+}
+
+#[derive(Args)]
+pub struct DfdArgs {
+    /// The all-in-focus photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR/NPY (linear).
+    aif: PathBuf,
+    /// The same view focused at --focus with blur --blur (same formats, same size).
+    bokeh: PathBuf,
+    /// Focal plane of BOKEH as normalized disparity (0 far … 1 near).
+    #[arg(long, allow_hyphen_values = true)]
+    focus: f32,
+    /// Blur strength K of BOKEH: CoC radius in pixels per unit of normalized disparity.
+    #[arg(long, value_name = "K", allow_hyphen_values = true)]
+    blur: f32,
+    /// Output disparity map, in the units of --focus (not re-normalized): .npy (H x W
+    /// float32) or .exr (channel Y).
+    #[arg(short, long, value_name = "OUT")]
+    output: PathBuf,
+    /// Adam steps per resolution level.
+    #[arg(long, value_name = "N", default_value_t = DfdOptions::default().iters)]
+    iters: usize,
+    /// Resolution levels, coarse to fine (each half the size of the next); 1 = full size only.
+    #[arg(long, value_name = "N", default_value_t = DfdOptions::default().levels)]
+    levels: usize,
+    /// Adam's step size, in normalized disparity.
+    #[arg(long, value_name = "LR", default_value_t = DfdOptions::default().learning_rate)]
+    learning_rate: f32,
+    /// The disparity every pixel starts from.
+    #[arg(long, value_name = "D", default_value_t = DfdOptions::default().init, allow_hyphen_values = true)]
+    init: f32,
+    /// Lens calibration of the renderer inverted.
+    #[arg(long, value_enum, default_value = "physical")]
+    profile: ProfileArg,
+    /// The objective (the paper's Table 2 variants).
+    #[arg(long, value_enum, default_value = "l1-grad-hssim")]
+    loss: LossArg,
+    /// Invert the classical scatter without occlusion terms (the ablation).
+    #[arg(long)]
+    no_occlusion: bool,
+    /// Write the loss terms of every step to this CSV (level, size, iteration, terms).
+    #[arg(long, value_name = "CSV")]
+    log: Option<PathBuf>,
+    /// Write a plot of the loss per step (one curve per level) to this PNG.
+    #[arg(long, value_name = "PNG")]
+    plot: Option<PathBuf>,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Print a machine-readable summary (JSON) to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
+    set_threads(args.threads)?;
+    // SIGINT/SIGTERM: remove the temporary output files, exit 130.
+    let _ = ctrlc::set_handler(|| {
+        eprintln!("\ninterrupted");
+        drbokeh::io::atomic::remove_in_flight_temps_and_exit(130);
+    });
+    let options = DfdOptions {
+        iters: args.iters,
+        levels: args.levels,
+        learning_rate: args.learning_rate,
+        init: args.init,
+        weights: LossVariant::from(args.loss).weights(),
+        ..DfdOptions::default()
+    };
+    let job = DfdJob {
+        aif: args.aif,
+        bokeh: args.bokeh,
+        output: args.output,
+        log: args.log,
+        plot: args.plot,
+        settings: RenderSettings {
+            blur: args.blur,
+            focus: args.focus,
+            lens: 1,
+            occlusion: !args.no_occlusion,
+            profile: args.profile.into(),
+        },
+        options,
+        limits: ReadLimits::default(),
+    };
+    let bar = ProgressBar::new((options.iters * options.levels) as u64);
+    bar.set_style(ProgressStyle::with_template("dfd {bar:40} {pos}/{len} steps, {msg} ({elapsed}, eta {eta})").expect("template"));
+    let report = dfd_job::run(&job, |s| {
+        bar.inc(1);
+        bar.set_message(format!("level {} loss {:.5}", s.level, s.loss));
+    })
+    .map_err(as_flags)?;
+    bar.finish_and_clear();
+    if args.json {
+        print_json(&report)?;
+    } else {
+        let (a, b, d) = (&report.first, &report.last, &report.disparity);
+        eprintln!(
+            "{}x{}: loss {:.5} -> {:.5} (L1 {:.5} -> {:.5}) at full size; disparity {:.3} .. {:.3}, mean {:.3}; {:.1} s ({} threads)",
+            report.width,
+            report.height,
+            a.loss,
+            b.loss,
+            a.l1,
+            b.l1,
+            d.min,
+            d.max,
+            d.mean,
+            report.total_ms / 1000.0,
+            report.threads
+        );
+        for p in std::iter::once(&report.output).chain(&report.log).chain(&report.plot) {
+            eprintln!("wrote {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every `--loss` name is the library's name of the variant it maps to.
+    #[test]
+    fn loss_flags_agree_with_the_library() {
+        for arg in LossArg::value_variants() {
+            let pv = arg.to_possible_value().expect("no hidden variants");
+            assert_eq!(pv.get_name(), LossVariant::from(*arg).name());
+        }
+    }
+}

@@ -1,0 +1,236 @@
+//! `drbokeh dfd` as a library call: reads the two photos, runs [`dfd::estimate`], writes the
+//! disparity map (NPY or EXR, float32, atomically), the per-step loss log (CSV) and the loss
+//! plot (PNG), and returns a report. No file is written over an input
+//! ([`io::InputFiles`]), and nothing is written before the inputs are read and checked.
+//!
+//! Cost: the optimisation's (see [`dfd`]); the log and plot are O(steps).
+
+use super::dfd::{self, DfdOptions, Step, level_size};
+use crate::bench::plot::{self, Point, Series, Ticks, XAxis};
+use crate::color::Transfer;
+use crate::error::{Error, Result};
+use crate::io::{self, OutputFormat, ReadLimits};
+use crate::render::{Profile, RenderSettings};
+use crate::timing::ms_since;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The header of the loss log: one row per Adam step, terms unweighted (`loss` is the
+/// weighted total that is minimised).
+pub const LOG_HEADER: &str = "level,width,height,iter,loss,l1,smoothness,ssim";
+
+/// One depth-from-defocus run, files in and out.
+#[derive(Clone, Debug)]
+pub struct DfdJob {
+    /// The all-in-focus photo (any format `render` reads; integer formats are sRGB).
+    pub aif: PathBuf,
+    /// The photo of the same view focused at `settings.focus` with blur `settings.blur`.
+    pub bokeh: PathBuf,
+    /// The disparity map to write: `.npy` (H x W float32) or `.exr` (channel Y).
+    pub output: PathBuf,
+    /// The loss log to write (CSV, [`LOG_HEADER`]), if any.
+    pub log: Option<PathBuf>,
+    /// The loss plot to write (PNG), if any.
+    pub plot: Option<PathBuf>,
+    /// Focus, blur K, profile and occlusion of the render being inverted (`lens` is ignored:
+    /// see [`dfd::estimate`]).
+    pub settings: RenderSettings,
+    /// The optimisation's options.
+    pub options: DfdOptions,
+    /// Size limits of the photos.
+    pub limits: ReadLimits,
+}
+
+/// Summary statistics of the estimated disparity.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Range {
+    /// Smallest value.
+    pub min: f32,
+    /// Mean value.
+    pub mean: f32,
+    /// Largest value.
+    pub max: f32,
+}
+
+/// What a [`run`] did (serialized as `drbokeh dfd --json`).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DfdReport {
+    /// The all-in-focus photo read.
+    pub aif: PathBuf,
+    /// The defocused photo read.
+    pub bokeh: PathBuf,
+    /// The disparity map written.
+    pub output: PathBuf,
+    /// The loss log written, if any.
+    pub log: Option<PathBuf>,
+    /// The loss plot written, if any.
+    pub plot: Option<PathBuf>,
+    /// Photo width, pixels.
+    pub width: usize,
+    /// Photo height, pixels.
+    pub height: usize,
+    /// Focal plane of the defocused photo (normalized disparity).
+    pub focus: f32,
+    /// Blur K of the defocused photo (pixels per unit of disparity).
+    pub blur: f32,
+    /// The lens profile of the renderer inverted.
+    pub profile: Profile,
+    /// False for the no-occlusion ablation.
+    pub occlusion: bool,
+    /// The optimisation's options.
+    pub options: DfdOptions,
+    /// Adam steps run, all levels together.
+    pub steps: usize,
+    /// The first full-size step's losses.
+    pub first: Step,
+    /// The last step's losses (full size).
+    pub last: Step,
+    /// The estimated disparity's range.
+    pub disparity: Range,
+    /// Worker threads.
+    pub threads: usize,
+    /// Wall time of the whole run, ms.
+    pub total_ms: f64,
+}
+
+/// Runs `job`: checks the destinations against the inputs (usage error), reads the photos
+/// (I/O and input errors name the file), checks they have the same size (usage error naming
+/// both files and sizes), estimates the disparity (calling `step` after every Adam step) and
+/// writes the output, the log and the plot.
+pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
+    let t0 = Instant::now();
+    check_destinations(job)?;
+    let aif = io::read_photo(&job.aif, Transfer::Srgb, &job.limits)?;
+    let bokeh = io::read_photo(&job.bokeh, Transfer::Srgb, &job.limits)?;
+    if (aif.width, aif.height) != (bokeh.width, bokeh.height) {
+        return Err(Error::usage(format!(
+            "the all-in-focus photo {} is {}x{} but the defocused photo {} is {}x{}: they must be the same size",
+            job.aif.display(),
+            aif.width,
+            aif.height,
+            job.bokeh.display(),
+            bokeh.width,
+            bokeh.height
+        )));
+    }
+    let mut steps = Vec::new();
+    let disparity = dfd::estimate(&aif, &bokeh, &job.settings, &job.options, |s| {
+        steps.push(s);
+        step(s);
+    })?;
+    io::write_output(&job.output, &disparity, 8, Transfer::Linear)?;
+    let (w, h) = (aif.width, aif.height);
+    if let Some(path) = &job.log {
+        io::atomic::write_atomic(path, |f| f.write_all(log_csv(&steps, w, h).as_bytes()).map_err(|e| Error::io(path, e)))?;
+    }
+    if let Some(path) = &job.plot {
+        plot::line_plot(
+            path,
+            "drbokeh dfd: loss per Adam step",
+            &XAxis { title: "iteration (log scale)", ticks: Ticks::Plain },
+            "loss",
+            &loss_series(&steps, w, h),
+        )?;
+    }
+    let full: Vec<&Step> = steps.iter().filter(|s| s.level == 0).collect();
+    let (first, last) = match (full.first(), full.last()) {
+        (Some(&&a), Some(&&b)) => (a, b),
+        _ => return Err(Error::Internal("dfd: no full-size step was run".into())),
+    };
+    let n = disparity.data.len().max(1) as f64;
+    Ok(DfdReport {
+        aif: job.aif.clone(),
+        bokeh: job.bokeh.clone(),
+        output: job.output.clone(),
+        log: job.log.clone(),
+        plot: job.plot.clone(),
+        width: w,
+        height: h,
+        focus: job.settings.focus,
+        blur: job.settings.blur,
+        profile: job.settings.profile,
+        occlusion: job.settings.occlusion,
+        options: job.options,
+        steps: steps.len(),
+        first,
+        last,
+        disparity: Range {
+            min: disparity.data.iter().copied().fold(f32::INFINITY, f32::min),
+            mean: (disparity.data.iter().map(|&v| v as f64).sum::<f64>() / n) as f32,
+            max: disparity.data.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+        },
+        threads: rayon::current_num_threads(),
+        total_ms: ms_since(t0),
+    })
+}
+
+/// Refuses, before anything is read or written: a PNG (or unknown) output, two destinations
+/// that are the same path, and a destination that is one of the photos.
+fn check_destinations(job: &DfdJob) -> Result<()> {
+    if OutputFormat::from_path(&job.output)? == OutputFormat::Png {
+        return Err(Error::input(
+            &job.output,
+            "a disparity map is written as float32 .npy or .exr (PNG would quantize it): use .npy or .exr",
+        ));
+    }
+    let dests: Vec<(&Path, &str)> = [(Some(&job.output), "output"), (job.log.as_ref(), "dfd.log"), (job.plot.as_ref(), "dfd.plot")]
+        .into_iter()
+        .filter_map(|(p, what)| p.map(|p| (p.as_path(), what)))
+        .collect();
+    for (i, (a, wa)) in dests.iter().enumerate() {
+        if let Some((_, wb)) = dests[i + 1..].iter().find(|(b, _)| b == a) {
+            return Err(Error::usage(format!("{wa} and {wb} are the same file {}: choose different destinations", a.display())));
+        }
+    }
+    let inputs = io::InputFiles::new([&job.aif, &job.bokeh]);
+    dests.iter().try_for_each(|(p, what)| inputs.check_write(p, what))
+}
+
+/// The loss log as CSV text: [`LOG_HEADER`], then one row per step.
+pub fn log_csv(steps: &[Step], width: usize, height: usize) -> String {
+    let mut s = String::from(LOG_HEADER);
+    s.push('\n');
+    for st in steps {
+        let (lw, lh) = level_size(width, height, st.level);
+        let _ = writeln!(s, "{},{lw},{lh},{},{},{},{},{}", st.level, st.iter, st.loss, st.l1, st.smoothness, st.ssim);
+    }
+    s
+}
+
+/// One plot series per level (coarsest first): total loss against iteration + 1.
+fn loss_series(steps: &[Step], width: usize, height: usize) -> Vec<Series> {
+    let mut levels: Vec<usize> = steps.iter().map(|s| s.level).collect();
+    levels.sort_unstable_by(|a, b| b.cmp(a));
+    levels.dedup();
+    levels
+        .into_iter()
+        .map(|level| {
+            let (lw, lh) = level_size(width, height, level);
+            Series {
+                name: format!("level {level} ({lw}x{lh})"),
+                points: steps
+                    .iter()
+                    .filter(|s| s.level == level)
+                    .map(|s| Point { x: (s.iter + 1) as f64, value: s.loss, label: String::new() })
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_rows_name_the_level_size() {
+        let st = |level, iter| Step { level, iter, loss: 0.5, l1: 0.25, smoothness: 0.125, ssim: 0.0 };
+        let csv = log_csv(&[st(1, 0), st(0, 0)], 33, 20);
+        assert_eq!(csv, format!("{LOG_HEADER}\n1,16,10,0,0.5,0.25,0.125,0\n0,33,20,0,0.5,0.25,0.125,0\n"));
+        let series = loss_series(&[st(1, 0), st(1, 1), st(0, 0)], 33, 20);
+        assert_eq!(series.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["level 1 (16x10)", "level 0 (33x20)"]);
+        assert_eq!(series[0].points.len(), 2);
+    }
+}
