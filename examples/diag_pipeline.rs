@@ -36,13 +36,22 @@ fn main() -> drbokeh::Result<()> {
         if let Ok(d) = std::env::var("DILATE") {
             cfg.inpaint.dilate = d.parse().unwrap();
         }
+        let depth_in = if std::env::var("REAL").is_ok() { inp.realistic_disparity.clone() } else { inp.disparity.clone() };
         let scene = Scene {
             rgb: inp.aif.clone(),
-            disparity: Disparity { map: inp.disparity.clone(), z_range: None, filled_fraction: 0.0 },
+            disparity: Disparity { map: depth_in, z_range: None, filled_fraction: 0.0 },
             matte: Some(inp.matte.clone()),
         };
         let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
         let est = &out.layers;
+        if std::env::var("DBG").is_ok() {
+            let hard: Vec<bool> = inp.matte.data.iter().map(|&a| a > 0.5).collect();
+            let e = drbokeh::stages::depth_edges::measure(&scene.disparity.map, &hard, size, size);
+            let r = drbokeh::stages::depth_edges::foreground_estimate(&scene.disparity.map, &inp.matte, &e, 5.0)?;
+            let nv = r.as_ref().map(|(_, v)| v.iter().filter(|&&x| x).count()).unwrap_or(0);
+            let nh = hard.iter().filter(|&&x| x).count();
+            eprintln!("{} ramp {:?} valid {nv} of {nh}", sc.name, e);
+        }
         if std::env::var("REGION").is_ok() {
             let r = drbokeh::stages::background::fill_region(
                 &inp.aif,
@@ -109,7 +118,23 @@ fn main() -> drbokeh::Result<()> {
             let true_d = Layer::from_parts(&rgb_of(e), &chan(e, 3), &chan(t, 4), "x")?;
             let a = p(&rend(&[true_rgb, inp.two_layers[1].clone()], true)?);
             let b = p(&rend(&[true_d, inp.two_layers[1].clone()], true)?);
-            eprintln!("{} fg swaps: true rgb {a:.2}  true disparity {b:.2}", sc.name);
+            let (mut err, mut cnt, mut err_in, mut err_raw) = (0f64, 0usize, 0f64, 0f64);
+            for i in 0..n {
+                if inp.matte.data[i] >= 0.5 {
+                    err += (e.image().data[i * 5 + 4] - t.image().data[i * 5 + 4]).abs() as f64;
+                    err_in += (inp.disparity.data[i] - t.image().data[i * 5 + 4]).abs() as f64;
+                    err_raw += (scene.disparity.map.data[i] - t.image().data[i * 5 + 4]).abs() as f64;
+                    cnt += 1;
+                }
+            }
+            let c = cnt.max(1) as f64;
+            eprintln!(
+                "{} fg swaps: true rgb {a:.2}  true disparity {b:.2}  fg disp MAE {:.4} (input map {:.4}, exact map {:.4})",
+                sc.name,
+                err / c,
+                err_raw / c,
+                err_in / c
+            );
         }
         if let Ok(dir) = std::env::var("DUMP") {
             let save = |img: &Image, name: &str| {

@@ -332,7 +332,7 @@ impl Pipeline {
                         DepthEdges::Snapped => depth_edges::measure(disp, &hard_mask(&alpha, &cfg.fill_depth), w, h),
                         DepthEdges::AsGiven => depth_edges::EdgeWidths::default(),
                     };
-                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), edges.inside_px)?;
+                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges)?;
                     report.ran(
                         "fill_depth",
                         t,

@@ -95,9 +95,10 @@ fn tiny_bench_run_writes_the_report() {
     let rep = dir.join("rep");
     let csv = std::fs::read_to_string(rep.join("report.csv")).unwrap();
     let lines: Vec<&str> = csv.lines().collect();
-    // 2 scenes x (7 + 4 + 4 + 4 + 1) method settings (physical-exact and physical-fast-q2 for
-    // every profile-aware method).
-    assert_eq!(lines.len(), 1 + 2 * 20, "{csv}");
+    // 2 scenes x (7 + 4 + 5 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
+    // every profile-aware method, realistic-depth for the three that read the depth map).
+    assert_eq!(lines.len(), 1 + 2 * 23, "{csv}");
+    assert_eq!(lines.iter().filter(|l| l.contains(",realistic-depth,")).count(), 2 * 3);
     assert_eq!(lines.iter().filter(|l| l.contains(",physical-exact,")).count(), 2 * 4);
     assert!(lines[0].starts_with("scene,setting,categories,method,variant,width,height,threads"));
     for l in &lines[1..] {

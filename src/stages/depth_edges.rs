@@ -104,6 +104,52 @@ pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths 
     EdgeWidths { inside_px, outside_px, samples: samples.len() }
 }
 
+/// A Gaussian edge rises from 10% to 90% over ±1.28 σ: the measured ramp (pixels per side, to
+/// 10% of the step) is about 1.28 σ of the smoothing that made it.
+const RAMP_PER_SIGMA: f32 = 1.28;
+/// The foreground estimate is trusted where the smoothed matte keeps at least this weight
+/// (the division below amplifies depth noise by at most its inverse).
+const MIN_WEIGHT: f32 = 0.2;
+
+/// The foreground's own disparity under a smoothed depth map, for subjects thinner than the
+/// ramp (bars, wires, small objects: no pixel of theirs is beyond it).
+///
+/// The map is modelled as a Gaussian smoothing `G` (σ from the measured ramp) of the layered
+/// scene: `D = G*(α·F) + G*((1 - α)·B)`, with `B` the background's disparity (the map
+/// Telea-filled under the subject from beyond the ramp). Where `F` is locally constant,
+/// `F = (D - G*((1 - α)·B)) / G*α`. Returns the estimate and the pixels where it holds (alpha
+/// at least 0.5 and `G*α` at least [`MIN_WEIGHT`]); None when the ramp is under a pixel (the
+/// map is as sharp as the matte). Cost: a Telea fill near the outline and two Gaussian blurs
+/// of the subject's box; allocates a few planes.
+pub fn foreground_estimate(disp: &Image, alpha: &Image, e: &EdgeWidths, radius: f32) -> crate::error::Result<Option<(Image, Vec<bool>)>> {
+    let sigma = (e.inside_px + e.outside_px) / 2.0 / RAMP_PER_SIGMA;
+    if e.samples == 0 || sigma < 0.75 {
+        return Ok(None);
+    }
+    let (w, h) = (disp.width, disp.height);
+    let some: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
+    // The background's disparity is read beyond the ramp outside the subject.
+    let hidden = super::mask::dilate(&some, w, h, e.outside_px + 1.0);
+    let mut bg = disp.clone();
+    let reach = super::mask::marching_reach(e.outside_px + 1.0 + 3.0 * sigma);
+    super::inpaint::inpaint_telea(
+        &mut bg,
+        &hidden,
+        super::inpaint::TeleaOptions { max_distance: Some(reach), ..super::inpaint::TeleaOptions::new(radius) },
+    )?;
+    let weighted = Image::from_vec(w, h, 1, alpha.data.iter().zip(&bg.data).map(|(&a, &b)| (1.0 - a) * b).collect()).expect("size");
+    let (ga, gb) = rayon::join(|| super::mask::gaussian_blur(alpha, sigma), || super::mask::gaussian_blur(&weighted, sigma));
+    let mut est = disp.clone();
+    let mut valid = vec![false; w * h];
+    for i in 0..w * h {
+        if alpha.data[i] >= 0.5 && ga.data[i] >= MIN_WEIGHT {
+            est.data[i] = ((disp.data[i] - gb.data[i]) / ga.data[i]).clamp(0.0, 1.0);
+            valid[i] = true;
+        }
+    }
+    Ok(Some((est, valid)))
+}
+
 fn median(v: &mut [f32]) -> Option<f32> {
     if v.is_empty() {
         return None;

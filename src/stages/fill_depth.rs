@@ -97,19 +97,24 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
 /// pixel's distance plus `r`, with a margin for the fast-marching metric); every pixel beyond
 /// gets the core disparity nearest the focus, which keeps its box small and its value unseen.
 ///
-/// `ramp_inside` is the measured width of a soft depth edge inside the outline (pixels;
-/// [`super::depth_edges`]): the hard mask shrinks by at least one pixel more than that.
+/// `ramp` is the measured soft depth edge ([`super::depth_edges`]): with a ramp, the core is
+/// where the foreground's own disparity can be solved from the smoothed map
+/// ([`super::depth_edges::foreground_estimate`]), with those values.
 pub fn foreground_disparity(
     disp: &Image,
     alpha: &Image,
     opts: &FillDepthOptions,
     (focus, blur): (f32, f32),
-    ramp_inside: f32,
+    ramp: &super::depth_edges::EdgeWidths,
 ) -> Result<FilledDepth> {
     let (w, h) = (disp.width, disp.height);
     let hard = hard_mask(alpha, opts);
-    let erode = if ramp_inside > 1.0 { opts.erode.max(ramp_inside + 1.0) } else { opts.erode };
-    let core = core_of(&hard, w, h, erode);
+    let erode = opts.erode;
+    let (disp, core) = match super::depth_edges::foreground_estimate(disp, alpha, ramp, opts.radius)? {
+        Some((est, valid)) if valid.iter().any(|&v| v) => (est, valid),
+        _ => (disp.clone(), core_of(&hard, w, h, erode)),
+    };
+    let disp = &disp;
     let mut out = disp.clone();
     if !core.iter().any(|&m| m) {
         return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode });
