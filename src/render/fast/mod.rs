@@ -109,6 +109,9 @@ pub struct FastStats {
     pub band_stripes: usize,
     /// All stripes of rows.
     pub stripes: usize,
+    /// Physical profile: targets re-split into in-layer depth groups (their coverage exceeds 1
+    /// and their neighbourhood spans several depths; see `fast::physical`).
+    pub group_pixels: usize,
     /// Fully transparent pixels (never scattered).
     pub transparent_pixels: usize,
     /// Weighted taps the exact kernel evaluates for this layer (`W·H·taps(lens)`).
@@ -153,6 +156,9 @@ struct Ctx<'a> {
     has_partial: bool,
     /// The exact taps out to the stencil reach.
     stencil: Stencil,
+    /// The physical profile's depth tiles, where the layer can need depth groups (see
+    /// [`physical`]).
+    groups: Option<physical::DepthTiles>,
 }
 
 impl<'a> Ctx<'a> {
@@ -182,6 +188,7 @@ impl<'a> Ctx<'a> {
             band: survey.band(params.node_step),
             has_front: false,
             has_partial: false,
+            groups: None,
         }
     }
 
@@ -252,6 +259,7 @@ struct Counts {
     stencil: AtomicU64,
     span: AtomicU64,
     band_stripes: AtomicU64,
+    groups: AtomicU64,
     ops: AtomicU64,
     coarse: AtomicU64,
 }
@@ -264,6 +272,7 @@ impl Counts {
         stats.bright_sources = self.bright.into_inner() as usize;
         stats.coarse_sources = self.coarse.into_inner() as usize;
         stats.band_stripes = self.band_stripes.into_inner() as usize;
+        stats.group_pixels = self.groups.into_inner() as usize;
         stats.fast_ops = self.ops.into_inner() as f64;
         stats.work_saved = if stats.exact_taps > 0.0 { (1.0 - stats.fast_ops / stats.exact_taps).max(0.0) } else { 0.0 };
     }
@@ -305,6 +314,9 @@ pub fn scatter_layer_into(
     // Masks: which passes have sources, and on which coarse levels.
     let presence = survey::presence(&ctx);
     (ctx.has_front, ctx.has_partial) = (presence.has_front, presence.has_partial);
+    if s.profile == Profile::Physical {
+        ctx.groups = physical::DepthTiles::new(&ctx, &survey);
+    }
     let ctx = ctx;
     let mut stats = plan_stats(&ctx, &survey, &presence);
     // Passes: the coarse grids of every pass, then the stripes.
