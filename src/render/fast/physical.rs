@@ -242,12 +242,18 @@ impl DepthTiles {
         let mut far = [0f64; 4];
         let mut taps = 0u64;
         let mut memo = (f32::NAN, 0f32);
+        // Whether a tile of sources at the target's depth was left to the rest.
+        let mut any_near = false;
         for ty in (yi - q).div_euclid(tile)..=(yi + q).div_euclid(tile) {
             let cty = ty.clamp(0, self.ny as i64 - 1) as usize;
             for tx in (xi - q).div_euclid(tile)..=(xi + q).div_euclid(tile) {
                 let ct = cty * self.nx + tx.clamp(0, self.nx as i64 - 1) as usize;
                 let (lo, hi) = (self.lo[ct], self.hi[ct]);
-                if lo > hi || (lo >= dx - NEAR && hi <= dx + NEAR) {
+                if lo > hi {
+                    continue;
+                }
+                if lo >= dx - NEAR && hi <= dx + NEAR {
+                    any_near = true;
                     continue;
                 }
                 for sy in (ty * tile).max(yi - q)..((ty + 1) * tile).min(yi + q + 1) {
@@ -295,10 +301,14 @@ impl DepthTiles {
             }
             None => [0.0; 4],
         };
-        // The rest: the sources of the target's own depth (fast sums, so clamped at 0).
+        // The rest: the sources of the target's own depth (fast sums, so clamped at 0). Where
+        // every source was gathered there is none, and what the rest would hold is the fast
+        // sum's own error (the coarse grids'), which must not join the front group.
         let mut near = [0f64; 4];
         for c in 0..4 {
-            near[c] = (sum[c] - far[c] - own[c]).max(0.0);
+            if any_near {
+                near[c] = (sum[c] - far[c] - own[c]).max(0.0);
+            }
             groups[1][c] += own[c];
         }
         for (acc, &gk) in groups.iter_mut().zip(&lens::depth_groups(dx, dx)) {
