@@ -29,7 +29,7 @@ use super::footprint::{EDGE, coverage_disk};
 use super::stripe::Scratch;
 use super::{Counts, Ctx};
 use super::survey::Survey;
-use crate::render::layer::{A, CHANNELS, max_rgb};
+use crate::render::layer::{A, CHANNELS, D, max_rgb};
 use crate::render::lens::{self, disk_norm};
 use crate::render::{Role, raw};
 use rayon::prelude::*;
@@ -241,7 +241,10 @@ impl DepthTiles {
         // The gathered sources' one-group sum, to take out of `sum`.
         let mut far = [0f64; 4];
         let mut taps = 0u64;
-        let mut memo = (f32::NAN, 0f32);
+        // The last source's radius and norm, and the sum of a run of sources at one depth
+        // (runs of equal values are common: the depth groups are evaluated once per run).
+        let mut norm_memo = (f32::NAN, 0f32);
+        let mut run = Run(f32::NAN, [0.0; 4]);
         // Whether a tile of sources at the target's depth was left to the rest.
         let mut any_near = false;
         for ty in (yi - q).div_euclid(tile)..=(yi + q).div_euclid(tile) {
@@ -260,38 +263,50 @@ impl DepthTiles {
                     let di = sy - yi;
                     for sx in (tx * tile).max(xi - q)..((tx + 1) * tile).min(xi + q + 1) {
                         let dj = sx - xi;
-                        let r = ((di * di + dj * dj) as f32).sqrt();
-                        if r >= p || (di == 0 && dj == 0) {
+                        if di == 0 && dj == 0 {
                             continue;
                         }
                         let j = ctx.clamp_index(sx, sy);
                         let px = &ctx.img.data[j * CHANNELS..(j + 1) * CHANNELS];
-                        let radius = ctx.sigma[j];
-                        let cov = lens::disk_coverage(radius, r);
-                        if px[A] == 0.0 || cov == 0.0 {
+                        if px[A] == 0.0 {
                             continue;
                         }
-                        if memo.0 != radius {
-                            memo = (radius, disk_norm(radius));
+                        let radius = ctx.sigma[j];
+                        let r2 = (di * di + dj * dj) as f32;
+                        // Beyond the ramp's outer edge (cheap test first, then the exact one).
+                        if r2 >= (radius + EDGE) * (radius + EDGE) + 1.0 {
+                            continue;
+                        }
+                        let r = r2.sqrt();
+                        let cov = lens::disk_coverage(radius, r);
+                        if r >= p || cov == 0.0 {
+                            continue;
+                        }
+                        // A source at the target's depth in a mixed tile: the rest, as its tile
+                        // would be.
+                        let dj_rel = px[D] - ctx.s.focus;
+                        if (dj_rel - dx).abs() <= NEAR {
+                            any_near = true;
+                            continue;
+                        }
+                        if norm_memo.0 != radius {
+                            norm_memo = (radius, disk_norm(radius));
+                        }
+                        if run.0 != dj_rel {
+                            run.flush(dx, &mut groups, &mut far);
+                            run.0 = dj_rel;
                         }
                         taps += 1;
                         // As the exact kernel: cov / norm, then alpha.
-                        let wt = (px[A] * (cov / memo.1)) as f64;
-                        let v = [wt * px[0] as f64, wt * px[1] as f64, wt * px[2] as f64, wt];
-                        for (acc, &gk) in groups.iter_mut().zip(&lens::depth_groups(ctx.d(j), dx)) {
-                            if gk > 0.0 {
-                                for c in 0..4 {
-                                    acc[c] += gk as f64 * v[c];
-                                }
-                            }
-                        }
-                        for c in 0..4 {
-                            far[c] += v[c];
+                        let wt = (px[A] * (cov / norm_memo.1)) as f64;
+                        for (acc, v) in run.1.iter_mut().zip([wt * px[0] as f64, wt * px[1] as f64, wt * px[2] as f64, wt]) {
+                            *acc += v;
                         }
                     }
                 }
             }
         }
+        run.flush(dx, &mut groups, &mut far);
         // The target's own tap: the same surface, whatever the split.
         let own = match ctx.base(i) {
             Some(v) => {
@@ -320,3 +335,27 @@ impl DepthTiles {
     }
 }
 
+
+/// The gathered sources of one depth (`.0`, relative disparity) not yet split into groups:
+/// their one-group sum `[ΣP, ΣA]` (`.1`).
+struct Run(f32, [f64; 4]);
+
+impl Run {
+    /// Adds the run to the depth groups of a target at `dx` and to the gathered total `far`,
+    /// and empties it.
+    #[inline]
+    fn flush(&mut self, dx: f32, groups: &mut [[f64; 4]; 3], far: &mut [f64; 4]) {
+        if self.1[3] == 0.0 && self.1[..3].iter().all(|&v| v == 0.0) {
+            return;
+        }
+        for (acc, g) in groups.iter_mut().zip(lens::depth_groups(self.0, dx)) {
+            for c in 0..4 {
+                acc[c] += g as f64 * self.1[c];
+            }
+        }
+        for c in 0..4 {
+            far[c] += self.1[c];
+        }
+        self.1 = [0.0; 4];
+    }
+}
