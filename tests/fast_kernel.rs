@@ -482,7 +482,11 @@ fn one_visible_pixel_in_a_corner() {
         let fast = render::render(&single, &s, Kernel::Fast { quality }).unwrap();
         let m = common::max_abs_diff(&fast.data, &exact.data);
         let (me, mf) = (mean(&exact), mean(&fast));
-        println!("one-group finding q{quality}: pixel {:?} vs {:?}, max abs {m:.2e}, mean {mf} vs {me}", fast.pixel(0, 0), exact.pixel(0, 0));
+        println!(
+            "one-group finding q{quality}: pixel {:?} vs {:?}, max abs {m:.2e}, mean {mf} vs {me}",
+            fast.pixel(0, 0),
+            exact.pixel(0, 0)
+        );
         assert!((fast.pixel(0, 0)[0] - exact.pixel(0, 0)[0]).abs() < 1e-4, "q{quality}: {:?} vs {:?}", fast.pixel(0, 0), exact.pixel(0, 0));
         assert!(m < 1e-4 && (mf - me).abs() <= 1e-4 * me, "q{quality}: max abs {m}, mean {mf} vs {me}");
     }

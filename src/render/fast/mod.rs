@@ -37,7 +37,9 @@
 //!
 //! The physical profile ([`super::lens::Profile::Physical`]) runs the same stripes and coarse
 //! grids with its own footprint ([`physical`]: uniform disks of unit flux, drawn exactly up to
-//! `2·r0`) and no on-focal band; each finished pixel's sums are turned into `[P, A, V]` there.
+//! `2·r0`) and no on-focal band; each finished pixel's sums are turned into `[P, A, V]` there,
+//! re-split into the in-layer depth groups where the coverage reaching it exceeds 1 and its
+//! neighbourhood spans several depths.
 
 mod band;
 mod bright;
@@ -156,9 +158,10 @@ struct Ctx<'a> {
     has_partial: bool,
     /// The exact taps out to the stencil reach.
     stencil: Stencil,
-    /// The physical profile's depth tiles, where the layer can need depth groups (see
-    /// [`physical`]).
-    groups: Option<physical::DepthTiles>,
+    /// Whether the layer can need the physical profile's in-layer depth groups, and their
+    /// depth tiles once a target needed them (see [`physical`]).
+    groups_wanted: bool,
+    groups: std::sync::OnceLock<physical::DepthTiles>,
 }
 
 impl<'a> Ctx<'a> {
@@ -188,7 +191,8 @@ impl<'a> Ctx<'a> {
             band: survey.band(params.node_step),
             has_front: false,
             has_partial: false,
-            groups: None,
+            groups_wanted: false,
+            groups: std::sync::OnceLock::new(),
         }
     }
 
@@ -315,7 +319,7 @@ pub fn scatter_layer_into(
     let presence = survey::presence(&ctx);
     (ctx.has_front, ctx.has_partial) = (presence.has_front, presence.has_partial);
     if s.profile == Profile::Physical {
-        ctx.groups = physical::DepthTiles::new(&ctx, &survey);
+        ctx.groups_wanted = physical::DepthTiles::wanted(&ctx, &survey);
     }
     let ctx = ctx;
     let mut stats = plan_stats(&ctx, &survey, &presence);

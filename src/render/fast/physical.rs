@@ -27,12 +27,11 @@
 use super::bright::is_bright;
 use super::footprint::{EDGE, coverage_disk};
 use super::stripe::Scratch;
-use super::{Counts, Ctx};
 use super::survey::Survey;
+use super::{Counts, Ctx};
 use crate::render::layer::{A, CHANNELS, D, max_rgb};
 use crate::render::lens::{self, disk_norm};
 use crate::render::{Role, raw};
-use rayon::prelude::*;
 use std::sync::atomic::Ordering;
 
 /// Scatters the physical sources that reach rows `[y0, y1)` at full resolution (stencils and
@@ -112,21 +111,20 @@ pub(super) fn finish_rows(ctx: &Ctx, y0: usize, raw: &mut [f32], counts: &Counts
     let (mut n_groups, mut ops) = (0u64, 0u64);
     for (k, o) in raw.chunks_exact_mut(raw::CHANNELS).enumerate() {
         let sum = [o[0] as f64, o[1] as f64, o[2] as f64, o[raw::WEIGHT] as f64];
-        let groups = match &ctx.groups {
-            Some(tiles) if sum[3] > 1.0 + COVER_EPS => {
-                let (x, y) = (k % ctx.w, y0 + k / ctx.w);
-                match tiles.split(ctx, x, y, sum) {
-                    Some((g, taps)) => {
-                        n_groups += 1;
-                        ops += taps;
-                        g
-                    }
-                    None => [[0.0; 4], sum, [0.0; 4]],
-                }
-            }
-            _ => [[0.0; 4], sum, [0.0; 4]],
+        let split = if ctx.groups_wanted && sum[3] > 1.0 + COVER_EPS {
+            ctx.groups.get_or_init(|| DepthTiles::new(ctx)).split(ctx, k % ctx.w, y0 + k / ctx.w, sum)
+        } else {
+            None
         };
-        let p = lens::over_groups(&groups);
+        // Two calls, so that the common one-group case keeps its constant zero groups.
+        let p = match split {
+            Some((groups, taps)) => {
+                n_groups += 1;
+                ops += taps;
+                lens::over_groups(&groups)
+            }
+            None => lens::over_groups(&[[0.0; 4], sum, [0.0; 4]]),
+        };
         let a = p[3] as f32;
         let vis = match ctx.role {
             Role::Front => a,
@@ -143,9 +141,9 @@ pub(super) fn finish_rows(ctx: &Ctx, y0: usize, raw: &mut [f32], counts: &Counts
 /// Coverage above `1 + COVER_EPS` re-splits a target into depth groups; below, the one-group
 /// result differs from the groups' by at most `COVER_EPS` times the colours' range (the groups
 /// can only drop that much coverage, of some colour, where one group rescales it). Above the
-/// coarse grids' coverage error on a uniform opaque surface (measured up to between 0.01 and
-/// 0.03 on the timing scene at 1 MP, CoC 64: at 0.01 it re-split 7 168 targets of a slanted
-/// surface whose groups do not matter, at 0.003 most of it).
+/// coarse grids' coverage error on a uniform opaque surface (between 0.01 and 0.03 on the
+/// timing scene at 1 MP, CoC 64: at 0.01 it re-split 7 168 targets of the slanted background,
+/// whose groups do not matter, at 0.001 half the image and the render took minutes).
 const COVER_EPS: f64 = 0.03;
 /// A target whose neighbourhood's visible disparities all lie within `SPREAD` of its own keeps
 /// one group: there the depth groups' weights move by at most ~4% of a source's weight across
@@ -175,29 +173,36 @@ pub(super) struct DepthTiles {
 }
 
 impl DepthTiles {
-    /// The tiles of a layer, if it can need depth groups at all: occlusion on and visible
-    /// disparities spanning more than `NEAR`. O(pixels).
-    pub(super) fn new(ctx: &Ctx, survey: &Survey) -> Option<Self> {
-        if !ctx.s.occlusion || survey.visible == 0 || ctx.p == 0 || survey.d_hi - survey.d_lo <= NEAR {
-            return None;
-        }
+    /// Whether a layer can need depth groups at all: occlusion on and visible disparities
+    /// spanning more than `NEAR`.
+    pub(super) fn wanted(ctx: &Ctx, survey: &Survey) -> bool {
+        ctx.s.occlusion && survey.visible > 0 && ctx.p > 0 && survey.d_hi - survey.d_lo > NEAR
+    }
+
+    /// The tiles of a layer (see [`DepthTiles::wanted`]), built by [`finish_rows`] on the first
+    /// target whose coverage exceeds `1 + COVER_EPS` (a layer with none never builds them).
+    /// O(pixels).
+    fn new(ctx: &Ctx) -> Self {
         let (w, h) = (ctx.w, ctx.h);
         let (nx, ny) = (w.div_ceil(TILE), h.div_ceil(TILE));
         // Taps are strictly inside the window (r < p), and a source reaches r < radius + ½.
         let q = (ctx.p as i64 - 1).min((ctx.sigma_max + EDGE).ceil() as i64).max(0);
         let (mut lo, mut hi) = (vec![f32::INFINITY; nx * ny], vec![f32::NEG_INFINITY; nx * ny]);
-        lo.par_chunks_mut(nx).zip(hi.par_chunks_mut(nx)).enumerate().for_each(|(ty, (lo, hi))| {
+        // Sequential: built from inside a stripe's worker (see `finish_rows`).
+        for (ty, (lo, hi)) in lo.chunks_mut(nx).zip(hi.chunks_mut(nx)).enumerate() {
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
-                for x in 0..w {
-                    let j = y * w + x;
-                    if ctx.img.data[j * CHANNELS + A] > 0.0 {
-                        let d = ctx.d(j);
-                        lo[x / TILE] = lo[x / TILE].min(d);
-                        hi[x / TILE] = hi[x / TILE].max(d);
+                let row = &ctx.img.data[y * w * CHANNELS..(y + 1) * w * CHANNELS];
+                for ((lo, hi), px) in lo.iter_mut().zip(hi.iter_mut()).zip(row.chunks(TILE * CHANNELS)) {
+                    for p in px.chunks_exact(CHANNELS) {
+                        if p[A] > 0.0 {
+                            let d = p[D] - ctx.s.focus;
+                            *lo = lo.min(d);
+                            *hi = hi.max(d);
+                        }
                     }
                 }
             }
-        });
+        }
         // Separable min / max over the tiles within q pixels of any pixel of a tile.
         let rt = (q as usize).div_ceil(TILE);
         let dilate = |v: &[f32], max: bool| {
@@ -219,7 +224,7 @@ impl DepthTiles {
             out
         };
         let (reach_lo, reach_hi) = (dilate(&lo, false), dilate(&hi, true));
-        Some(DepthTiles { nx, ny, lo, hi, reach_lo, reach_hi, q })
+        DepthTiles { nx, ny, lo, hi, reach_lo, reach_hi, q }
     }
 
     /// The depth groups of target (x, y), whose scattered one-group sum is `sum` (`[ΣP, ΣA]`),
@@ -228,6 +233,8 @@ impl DepthTiles {
     /// target's disparity as the exact kernel does (window taps, replicate padding,
     /// [`lens::depth_groups`]); the rest of `sum` (the target's own surface) is split as
     /// sources at the target's depth, the target's own tap as the same surface.
+    // Out of line: rare, and finish_rows' loop stays small.
+    #[inline(never)]
     fn split(&self, ctx: &Ctx, x: usize, y: usize, sum: [f64; 4]) -> Option<([[f64; 4]; 3], u64)> {
         let i = y * ctx.w + x;
         let dx = ctx.d(i);
@@ -335,7 +342,6 @@ impl DepthTiles {
     }
 }
 
-
 /// The gathered sources of one depth (`.0`, relative disparity) not yet split into groups:
 /// their one-group sum `[ΣP, ΣA]` (`.1`).
 struct Run(f32, [f64; 4]);
@@ -349,13 +355,53 @@ impl Run {
             return;
         }
         for (acc, g) in groups.iter_mut().zip(lens::depth_groups(self.0, dx)) {
-            for c in 0..4 {
-                acc[c] += g as f64 * self.1[c];
+            for (a, v) in acc.iter_mut().zip(self.1) {
+                *a += g as f64 * v;
             }
         }
-        for c in 0..4 {
-            far[c] += self.1[c];
+        for (f, v) in far.iter_mut().zip(self.1) {
+            *f += v;
         }
         self.1 = [0.0; 4];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What [`finish_rows`] relies on to skip the depth groups: wherever the coverage reaching a
+    /// target is at most 1, [`lens::over_groups`] takes every group whole, so any split of the
+    /// sum gives the one-group result; above 1 a split can differ by at most the excess times
+    /// the colours' range.
+    #[test]
+    fn groups_change_nothing_below_full_coverage() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut u = move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            (x.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let total = 1.2 * u();
+            let fr = [u(), u(), u()];
+            let s: f64 = fr.iter().sum();
+            let mut groups = [[0f64; 4]; 3];
+            let mut sum = [0f64; 4];
+            for (g, f) in groups.iter_mut().zip(fr) {
+                let a = total * f / s;
+                *g = [a * u(), a * u(), a * u(), a];
+                for c in 0..4 {
+                    sum[c] += g[c];
+                }
+            }
+            let split = lens::over_groups(&groups);
+            let one = lens::over_groups(&[[0.0; 4], sum, [0.0; 4]]);
+            let excess = (total - 1.0).max(0.0);
+            for c in 0..4 {
+                assert!((split[c] - one[c]).abs() <= excess + 1e-12, "total {total}: {split:?} vs {one:?}");
+            }
+        }
     }
 }
