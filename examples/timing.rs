@@ -10,10 +10,9 @@
 //! instead: a textured ground in focus with thin bars in front of it, blurred to `MAX_COC`, in
 //! the same layer (where the physical profile's in-layer depth groups matter).
 
-use drbokeh::Image;
 use drbokeh::bench::metrics::psnr;
-use drbokeh::bench::stress::two_layer_scene;
-use drbokeh::render::{Kernel, Layer, Profile, RenderSettings, auto_lens, render};
+use drbokeh::bench::stress::{bars_in_one_layer, two_layer_scene};
+use drbokeh::render::{Kernel, Layer, Profile, RenderSettings, render};
 use std::time::Instant;
 
 fn main() {
@@ -52,30 +51,14 @@ fn main() {
     }
 }
 
-/// One opaque layer: a textured ground in focus (disparity 1) with 2-pixel bars at disparity
-/// 0.5 over its lower 40% (CoC `max_coc`), as the stress scene's bars but in the same layer.
-fn bars_in_one_layer(w: usize, h: usize, max_coc: f32) -> (Vec<Layer>, RenderSettings) {
-    let mut px = Vec::with_capacity(w * h * 5);
-    for y in 0..h {
-        for x in 0..w {
-            let bar = (x % (w / 7).max(8)) < 2 && y as f32 / h as f32 > 0.6;
-            let tex = (((x / 9) + (y / 6)) % 4) as f32 * 0.2;
-            px.extend_from_slice(&if bar { [0.9, 0.2, 0.1, 1.0, 0.5] } else { [tex, 0.5, 1.0 - tex, 1.0, 1.0] });
-        }
-    }
-    let layers = vec![Layer::new(Image::from_vec(w, h, 5, px).unwrap(), "bars").unwrap()];
-    let blur = max_coc / 0.5;
-    let lens = auto_lens(&layers, blur, 1.0);
-    (layers, RenderSettings { blur, focus: 1.0, lens, occlusion: true, profile: Profile::Official })
-}
-
 /// Times the kernels `args` names on `layers` with settings `s`, `runs` times each.
 fn time_kernels(args: &[String], layers: &[Layer], s: &RenderSettings, runs: usize) {
     let (w, h) = (layers[0].width(), layers[0].height());
     println!("profile {}{}:", s.profile.name(), if s.occlusion { "" } else { ", occlusion off" });
     println!(
-        "{w}x{h} ({:.2} MP), 2 layers, K = {}, lens = {}, {} threads",
+        "{w}x{h} ({:.2} MP), {} layers, K = {}, lens = {}, {} threads",
         (w * h) as f64 / 1e6,
+        layers.len(),
         s.blur,
         s.lens,
         rayon::current_num_threads()
