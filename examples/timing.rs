@@ -1,15 +1,18 @@
 //! Wall-clock timing of the kernels on the synthetic two-layer scene, one process, one run
 //! after another (so ratios are measured side by side):
 //!
-//! `cargo run --release --example timing -- WIDTH HEIGHT MAX_COC [exact] [fast1 fast2 ...] [--runs N] [--threads N] [--profile official,physical]`
+//! `cargo run --release --example timing -- WIDTH HEIGHT MAX_COC [exact] [fast1 fast2 ...] [--runs N] [--threads N] [--profile official,physical] [--occlusion on,off] [--scene stress|bars]`
 //!
 //! Prints the median of N runs per kernel (exact runs once: it is slow), the speed-up and the
 //! fast kernel's PSNR / max abs error against the exact one when both ran. `--profile` lists
-//! the lens profiles to time, one after another in the same process (default: official).
+//! the lens profiles to time, one after another in the same process (default: official);
+//! `--occlusion` the occlusion settings (default: on). `--scene bars` times one opaque layer
+//! instead: a textured ground in focus with thin bars in front of it, blurred to `MAX_COC`, in
+//! the same layer (where the physical profile's in-layer depth groups matter).
 
 use drbokeh::bench::metrics::psnr;
-use drbokeh::bench::stress::two_layer_scene;
-use drbokeh::render::{Kernel, Profile, RenderSettings, render};
+use drbokeh::bench::stress::{bars_in_one_layer, two_layer_scene};
+use drbokeh::render::{Kernel, Layer, Profile, RenderSettings, render};
 use std::time::Instant;
 
 fn main() {
@@ -34,19 +37,28 @@ fn main() {
             })
             .collect(),
     };
-    let (layers, s) = two_layer_scene(w, h, coc, true);
+    let list = |name: &str| args.iter().position(|a| a == name).and_then(|i| args.get(i + 1));
+    let occlusion: Vec<bool> = list("--occlusion").map_or(vec![true], |l| l.split(',').map(|o| o == "on").collect());
+    let (layers, s) = match list("--scene").map(String::as_str) {
+        None | Some("stress") => two_layer_scene(w, h, coc, true),
+        Some("bars") => bars_in_one_layer(w, h, coc),
+        Some(other) => panic!("unknown scene {other:?} (stress, bars)"),
+    };
     for profile in profiles {
-        time_kernels(&args, &layers, &RenderSettings { profile, ..s }, runs);
+        for &occlusion in &occlusion {
+            time_kernels(&args, &layers, &RenderSettings { profile, occlusion, ..s }, runs);
+        }
     }
 }
 
 /// Times the kernels `args` names on `layers` with settings `s`, `runs` times each.
-fn time_kernels(args: &[String], layers: &[drbokeh::render::Layer], s: &RenderSettings, runs: usize) {
+fn time_kernels(args: &[String], layers: &[Layer], s: &RenderSettings, runs: usize) {
     let (w, h) = (layers[0].width(), layers[0].height());
-    println!("profile {}:", s.profile.name());
+    println!("profile {}{}:", s.profile.name(), if s.occlusion { "" } else { ", occlusion off" });
     println!(
-        "{w}x{h} ({:.2} MP), 2 layers, K = {}, lens = {}, {} threads",
+        "{w}x{h} ({:.2} MP), {} layers, K = {}, lens = {}, {} threads",
         (w * h) as f64 / 1e6,
+        layers.len(),
         s.blur,
         s.lens,
         rayon::current_num_threads()

@@ -114,8 +114,8 @@ pub struct RenderConfig {
     pub gamma: Option<f32>,
     /// false: classical scatter without occlusion (one layer), for comparison.
     pub occlusion: bool,
-    /// Lens calibration: "physical" (the default: calibrated to the thin lens; the fast kernel
-    /// composites each layer as one depth group) or "official" (the Dr.Bokeh formula).
+    /// Lens calibration: "physical" (the default: calibrated to the thin lens) or "official"
+    /// (the Dr.Bokeh formula).
     pub profile: crate::render::Profile,
 }
 

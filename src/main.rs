@@ -182,8 +182,8 @@ pub(crate) struct PipelineArgs {
     /// Classical scatter without occlusion terms, one layer (a baseline for comparisons).
     #[arg(long)]
     no_occlusion: bool,
-    /// Lens calibration: physical (calibrated to the thin lens; the fast kernel approximates
-    /// its in-layer depth groups) or official (the Dr.Bokeh formula) [default: physical].
+    /// Lens calibration: physical (calibrated to the thin lens) or official (the Dr.Bokeh
+    /// formula) [default: physical].
     #[arg(long, value_enum)]
     profile: Option<ProfileArg>,
     /// PNG bit depth (8 or 16).

@@ -37,3 +37,23 @@ pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool
     let lens = auto_lens(&layers, blur, focus);
     (layers, RenderSettings { blur, focus, lens, occlusion: true, profile: crate::render::Profile::Official })
 }
+
+/// One opaque `width × height` layer: a textured ground in focus (disparity 1) with 2-pixel
+/// bars at disparity 0.5 over its lower 40%, blurred to a CoC of `max_coc` px: the stress
+/// scene's bars in the ground's own layer, where the physical profile's in-layer depth groups
+/// decide what the ground next to a bar receives. Settings: focus 1, official profile.
+pub fn bars_in_one_layer(width: usize, height: usize, max_coc: f32) -> (Vec<Layer>, RenderSettings) {
+    let (w, h) = (width, height);
+    let mut px = Vec::with_capacity(w * h * 5);
+    for y in 0..h {
+        for x in 0..w {
+            let bar = (x % (w / 7).max(8)) < 2 && y as f32 / h as f32 > 0.6;
+            let tex = (((x / 9) + (y / 6)) % 4) as f32 * 0.2;
+            px.extend_from_slice(&if bar { [0.9, 0.2, 0.1, 1.0, 0.5] } else { [tex, 0.5, 1.0 - tex, 1.0, 1.0] });
+        }
+    }
+    let layers = vec![Layer::new(Image::from_vec(w, h, 5, px).expect("size"), "bars in one layer").expect("finite")];
+    let blur = (max_coc / 0.5).max(0.0);
+    let lens = auto_lens(&layers, blur, 1.0);
+    (layers, RenderSettings { blur, focus: 1.0, lens, occlusion: true, profile: crate::render::Profile::Official })
+}

@@ -37,7 +37,9 @@
 //!
 //! The physical profile ([`super::lens::Profile::Physical`]) runs the same stripes and coarse
 //! grids with its own footprint ([`physical`]: uniform disks of unit flux, drawn exactly up to
-//! `2·r0`) and no on-focal band; each finished pixel's sums are turned into `[P, A, V]` there.
+//! `2·r0`) and no on-focal band; each finished pixel's sums are turned into `[P, A, V]` there,
+//! re-split into the in-layer depth groups where the coverage reaching it exceeds 1 and its
+//! neighbourhood spans several depths.
 
 mod band;
 mod bright;
@@ -109,6 +111,9 @@ pub struct FastStats {
     pub band_stripes: usize,
     /// All stripes of rows.
     pub stripes: usize,
+    /// Physical profile: targets re-split into in-layer depth groups (their coverage exceeds 1
+    /// and their neighbourhood spans several depths; see `fast::physical`).
+    pub group_pixels: usize,
     /// Fully transparent pixels (never scattered).
     pub transparent_pixels: usize,
     /// Weighted taps the exact kernel evaluates for this layer (`W·H·taps(lens)`).
@@ -153,6 +158,10 @@ struct Ctx<'a> {
     has_partial: bool,
     /// The exact taps out to the stencil reach.
     stencil: Stencil,
+    /// Whether the layer can need the physical profile's in-layer depth groups, and their
+    /// depth tiles once a target needed them (see [`physical`]).
+    groups_wanted: bool,
+    groups: std::sync::OnceLock<physical::DepthTiles>,
 }
 
 impl<'a> Ctx<'a> {
@@ -182,6 +191,8 @@ impl<'a> Ctx<'a> {
             band: survey.band(params.node_step),
             has_front: false,
             has_partial: false,
+            groups_wanted: false,
+            groups: std::sync::OnceLock::new(),
         }
     }
 
@@ -252,6 +263,7 @@ struct Counts {
     stencil: AtomicU64,
     span: AtomicU64,
     band_stripes: AtomicU64,
+    groups: AtomicU64,
     ops: AtomicU64,
     coarse: AtomicU64,
 }
@@ -264,6 +276,7 @@ impl Counts {
         stats.bright_sources = self.bright.into_inner() as usize;
         stats.coarse_sources = self.coarse.into_inner() as usize;
         stats.band_stripes = self.band_stripes.into_inner() as usize;
+        stats.group_pixels = self.groups.into_inner() as usize;
         stats.fast_ops = self.ops.into_inner() as f64;
         stats.work_saved = if stats.exact_taps > 0.0 { (1.0 - stats.fast_ops / stats.exact_taps).max(0.0) } else { 0.0 };
     }
@@ -305,6 +318,9 @@ pub fn scatter_layer_into(
     // Masks: which passes have sources, and on which coarse levels.
     let presence = survey::presence(&ctx);
     (ctx.has_front, ctx.has_partial) = (presence.has_front, presence.has_partial);
+    if s.profile == Profile::Physical {
+        ctx.groups_wanted = physical::DepthTiles::wanted(&ctx, &survey);
+    }
     let ctx = ctx;
     let mut stats = plan_stats(&ctx, &survey, &presence);
     // Passes: the coarse grids of every pass, then the stripes.

@@ -92,7 +92,7 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
             o[raw::VISIBILITY] = v;
         }
         if physical {
-            physical::finish_rows(ctx, &mut raw);
+            physical::finish_rows(ctx, y0, &mut raw, counts);
         }
         sc.raw = raw;
         return;
@@ -140,7 +140,7 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
     }
     combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw);
     if physical {
-        physical::finish_rows(ctx, &mut raw);
+        physical::finish_rows(ctx, y0, &mut raw, counts);
     }
     counts.ops.fetch_add((rows * w * n_acc) as u64, Ordering::Relaxed);
     sc.raw = raw;

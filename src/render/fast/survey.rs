@@ -34,6 +34,10 @@ pub(super) struct Survey {
     pub(super) band_pixels: usize,
     pub(super) band_lo: f32,
     pub(super) band_hi: f32,
+    /// Range `[d_lo, d_hi]` of the visible sources' relative disparities (empty: lo > hi):
+    /// a layer whose range is narrow has one depth group (see [`super::physical`]).
+    pub(super) d_lo: f32,
+    pub(super) d_hi: f32,
 }
 
 impl Survey {
@@ -47,6 +51,8 @@ impl Survey {
         band_pixels: 0,
         band_lo: f32::INFINITY,
         band_hi: f32::NEG_INFINITY,
+        d_lo: f32::INFINITY,
+        d_hi: f32::NEG_INFINITY,
     };
 
     fn merge(a: Survey, b: Survey) -> Survey {
@@ -60,6 +66,8 @@ impl Survey {
             band_pixels: a.band_pixels + b.band_pixels,
             band_lo: a.band_lo.min(b.band_lo),
             band_hi: a.band_hi.max(b.band_hi),
+            d_lo: a.d_lo.min(b.d_lo),
+            d_hi: a.d_hi.max(b.d_hi),
         }
     }
 
@@ -87,6 +95,8 @@ pub(super) fn survey(img: &Image, s: &RenderSettings, params: FastParams) -> (Ve
                 if px[A] > 0.0 {
                     sv.visible += 1;
                     sv.sigma_min = sv.sigma_min.min(*sg);
+                    sv.d_lo = sv.d_lo.min(d);
+                    sv.d_hi = sv.d_hi.max(d);
                     let drawn = drawn(s.profile, *sg, p);
                     sv.sigma_max = sv.sigma_max.max(drawn);
                     if drawn < 2.0 * params.r0 {
