@@ -141,10 +141,10 @@ pub fn foreground_estimate(disp: &Image, alpha: &Image, e: &EdgeWidths, radius: 
     let (ga, gb) = rayon::join(|| super::mask::gaussian_blur(alpha, sigma), || super::mask::gaussian_blur(&weighted, sigma));
     let mut est = disp.clone();
     let mut valid = vec![false; w * h];
-    for i in 0..w * h {
+    for (i, ok) in valid.iter_mut().enumerate() {
         if alpha.data[i] >= 0.5 && ga.data[i] >= MIN_WEIGHT {
             est.data[i] = ((disp.data[i] - gb.data[i]) / ga.data[i]).clamp(0.0, 1.0);
-            valid[i] = true;
+            *ok = true;
         }
     }
     Ok(Some((est, valid)))
