@@ -1,6 +1,8 @@
 //! The classical stages that turn image + depth (+ matte) into layers, in data-flow order:
-//! `depth` (normalize, focus) → `segment` → `fill_depth` → `background` (inpaint) → layers.
-//! `inpaint` is the Telea algorithm both fills use; `mask` holds shared mask helpers.
+//! `depth` (normalize, focus) → `segment` → `depth_edges` (how far the depth map's edges ramp
+//! past the matte's) → `fill_depth` → `background` (inpaint, with the `contamination` and
+//! `highlights` rules) → `foreground` (colour at soft edges) → layers.
+//! `inpaint` is the Telea algorithm the fills use; `mask` holds shared mask helpers.
 //! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
 
 pub mod background;
