@@ -102,15 +102,7 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                 // cov / norm, not cov · (1/norm): an in-focus source's weight is exactly 1.
                 let wt = (px[A] * (cov / norm[j])) as f64;
                 let g = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(d[j], dx) };
-                for (acc, &gk) in groups.iter_mut().zip(&g) {
-                    if gk > 0.0 {
-                        let k = wt * gk as f64;
-                        acc[0] += k * px[0] as f64;
-                        acc[1] += k * px[1] as f64;
-                        acc[2] += k * px[2] as f64;
-                        acc[3] += k;
-                    }
-                }
+                lens::add_to_groups(&mut groups, wt, g, px);
             }
             let p = lens::over_groups(&groups);
             let a = p[3] as f32;

@@ -268,6 +268,22 @@ pub fn depth_groups(d_source: f32, d_target: f32) -> [f32; 3] {
     [front, (1.0 - front - behind).max(0.0), behind]
 }
 
+/// Adds one source to a target's depth groups: weight `wt` (alpha times normalized coverage)
+/// split by `split` (from [`depth_groups`]), colour `rgb` (straight). The groups hold
+/// premultiplied colour and coverage, front first, as [`over_groups`] takes them.
+#[inline(always)]
+pub fn add_to_groups(groups: &mut [[f64; 4]; 3], wt: f64, split: [f32; 3], rgb: &[f32]) {
+    for (acc, &gk) in groups.iter_mut().zip(&split) {
+        if gk > 0.0 {
+            let k = wt * gk as f64;
+            acc[0] += k * rgb[0] as f64;
+            acc[1] += k * rgb[1] as f64;
+            acc[2] += k * rgb[2] as f64;
+            acc[3] += k;
+        }
+    }
+}
+
 /// Composites the three depth groups of one target (each a premultiplied colour and a
 /// coverage, front first, see [`depth_groups`]) by filling coverage front to back: each group
 /// takes what is left of the pixel, up to its own coverage, with its mean colour. Groups that

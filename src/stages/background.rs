@@ -141,6 +141,22 @@ pub struct FillRegion {
     pub highlights_kept: usize,
 }
 
+impl FillRegion {
+    /// The holes a colour fill is given: the mask, and the kept highlights too, so that they
+    /// feed nothing (put them back with [`FillRegion::restore_highlights`]).
+    pub fn colour_holes(&self) -> Vec<bool> {
+        self.mask.iter().zip(&self.highlights).map(|(&m, &h)| m || h).collect()
+    }
+
+    /// Puts the kept highlights of `photo` back into `filled` (both linear RGB): they are
+    /// visible background.
+    pub fn restore_highlights(&self, filled: &mut Image, photo: &Image) {
+        for (i, _) in self.highlights.iter().enumerate().filter(|(_, h)| **h) {
+            filled.data[i * 3..i * 3 + 3].copy_from_slice(&photo.data[i * 3..i * 3 + 3]);
+        }
+    }
+}
+
 /// The region the background fill replaces, and the highlights it keeps out of its sources
 /// (within `radius + 1` of the mask: Telea reads a disc of `radius`). `ramp_outside` is the
 /// measured width (pixels) of a soft depth edge outside the outline
@@ -207,20 +223,17 @@ pub fn inpaint_background(
     ramp_outside: f32,
 ) -> Result<Background> {
     let region = fill_region(rgb, alpha, opts, ramp_outside);
-    let mask = region.mask;
-    // The colour fill treats kept highlights as holes too (so they feed nothing), then puts
-    // them back: they are visible background.
-    let rgb_mask: Vec<bool> = mask.iter().zip(&region.highlights).map(|(&m, &h)| m || h).collect();
+    let rgb_mask = region.colour_holes();
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
     let (filled, filled_disp) =
         rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
-    filled?;
-    let filled = filled_disp?;
-    for (i, _) in region.highlights.iter().enumerate().filter(|(_, h)| **h) {
-        rgb_out.data[i * 3..i * 3 + 3].copy_from_slice(&rgb.data[i * 3..i * 3 + 3]);
-    }
+    filled_disp?;
+    // Kept highlights sit next to known pixels: the fill always reached them.
+    let filled = filled?.saturating_sub(region.highlights_kept);
+    region.restore_highlights(&mut rgb_out, rgb);
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
-    Ok(Background::new(rgb_out, disp_out, mask, filled, (region.band, region.band_replaced, region.highlights_kept)))
+    let stats = (region.band, region.band_replaced, region.highlights_kept);
+    Ok(Background::new(rgb_out, disp_out, region.mask, filled, stats))
 }

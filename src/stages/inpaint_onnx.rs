@@ -107,7 +107,7 @@ pub fn inpaint_background(
     let stats = (fill.band, fill.band_replaced, fill.highlights_kept);
     // The model sees kept highlights as holes too (so it copies none into the hidden region);
     // they are put back after the paste.
-    let mask: Vec<bool> = fill.mask.iter().zip(&fill.highlights).map(|(&m, &h)| m || h).collect();
+    let mask = fill.colour_holes();
     let mut model = onnx::load(&opts.onnx, ModelKind::Inpaint, cfg)?;
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();
@@ -136,9 +136,7 @@ pub fn inpaint_background(
     paste(&mut rgb_out, &filled, x0, y0, &dist, feather);
     model.report.post_ms += ms_since(t);
 
-    for (i, _) in fill.highlights.iter().enumerate().filter(|(_, h)| **h) {
-        rgb_out.data[i * 3..i * 3 + 3].copy_from_slice(&rgb.data[i * 3..i * 3 + 3]);
-    }
+    fill.restore_highlights(&mut rgb_out, rgb);
     let mask = fill.mask;
     match model.contract.depth {
         DepthFill::Telea => {

@@ -65,15 +65,7 @@ pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[
                 }
                 let wt = (px[A] * (cov / src.norm[j].0)) as f64;
                 let split = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(src.d[j], dx) };
-                for (acc, &gk) in g.iter_mut().zip(&split) {
-                    if gk > 0.0 {
-                        let k = wt * gk as f64;
-                        acc[0] += k * px[0] as f64;
-                        acc[1] += k * px[1] as f64;
-                        acc[2] += k * px[2] as f64;
-                        acc[3] += k;
-                    }
-                }
+                lens::add_to_groups(g, wt, split, px);
             }
             let p = lens::over_groups_smooth(g, sm.fill_width as f64);
             let a = p[3] as f32;
