@@ -341,6 +341,7 @@ impl Pipeline {
                             "skipped_unreachable_px": fd.skipped,
                             "reach_px": fd.reach,
                             "erode_px": fd.erode,
+                            "ramp_model": fd.ramp_model,
                             "depth_edge_ramp": edges
                         })),
                     );

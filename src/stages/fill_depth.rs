@@ -58,9 +58,11 @@ pub struct FilledDepth {
     /// How far (pixels) outside its visible pixels the foreground layer can show: its largest
     /// visibility box half-size, plus one.
     pub visible_reach: f32,
-    /// The shrink of the hard mask actually used, pixels (`erode`, or wider for a soft depth
-    /// edge).
+    /// The shrink of the hard mask, pixels (`erode`), when the core is the shrunk mask.
     pub erode: f32,
+    /// True when the core is where the ramp model solved the foreground's disparity
+    /// ([`super::depth_edges::foreground_estimate`]) instead of the shrunk mask.
+    pub ramp_model: bool,
 }
 
 /// The foreground's hard mask: `alpha > threshold`.
@@ -110,14 +112,14 @@ pub fn foreground_disparity(
     let (w, h) = (disp.width, disp.height);
     let hard = hard_mask(alpha, opts);
     let erode = opts.erode;
-    let (disp, core) = match super::depth_edges::foreground_estimate(disp, alpha, ramp, opts.radius)? {
-        Some((est, valid)) if valid.iter().any(|&v| v) => (est, valid),
-        _ => (disp.clone(), core_of(&hard, w, h, erode)),
+    let (disp, core, ramp_model) = match super::depth_edges::foreground_estimate(disp, alpha, ramp, opts.radius)? {
+        Some((est, valid)) if valid.iter().any(|&v| v) => (est, valid, true),
+        _ => (disp.clone(), core_of(&hard, w, h, erode), false),
     };
     let disp = &disp;
     let mut out = disp.clone();
     if !core.iter().any(|&m| m) {
-        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode });
+        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode, ramp_model });
     }
     let (lo, hi) = core
         .iter()
@@ -150,5 +152,5 @@ pub fn foreground_disparity(
             skipped += 1;
         }
     }
-    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach, erode })
+    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach, erode, ramp_model })
 }
