@@ -147,17 +147,15 @@ pub(super) fn finish_rows(ctx: &Ctx, y0: usize, raw: &mut [f32], counts: &Counts
 const COVER_EPS: f64 = 0.03;
 /// Only targets this sharp (CoC radius, pixels) are re-split: the groups exist so that a sharp
 /// or nearly sharp surface receives no light from a blurred part of its layer behind it
-/// (colour bleeding, issue 11). A blurred target keeps one group. Without this bound the
-/// 12.2 MP end-to-end scene (focus on the subject, CoC 64) re-split 168 631 blurred
-/// background targets, each gathering its whole window, and the render took 20.6 s instead
-/// of 1.5 s.
+/// (colour bleeding, issue 11). A blurred target keeps one group, which also bounds the cost
+/// of layers with depth edges under a blur (each re-split target gathers its whole window).
 const SHARP_TARGET_PX: f32 = 2.0;
 /// A re-split target gathers its whole window (up to (2·CoC + 1)² taps), so a layer whose
 /// largest CoC exceeds this (pixels) keeps one group everywhere: a stopgap bound on the cost
 /// until the re-split is scattered instead of gathered. Measured on the 12.2 MP end-to-end
-/// scene (CoC 64, a slanted floor in focus under a blurred nearer part of itself): 168 631
-/// re-split targets took the render from 1.5 s to 20.6 s. The tests' in-layer cases (CoC 16
-/// and 32) keep their groups.
+/// scene (`scripts/e2e_timing.sh`, CoC 64): its background layer re-split 168 631 sharp
+/// targets (the `SHARP_TARGET_PX` bound alone kept them all) and the render took 20.6 s; with
+/// this bound, 0.82 s. The tests' in-layer cases (CoC 16 and 32) keep their groups.
 const GROUPS_MAX_COC: f32 = 48.0;
 /// A target whose neighbourhood's visible disparities all lie within `SPREAD` of its own keeps
 /// one group: there the depth groups' weights move by at most ~4% of a source's weight across
