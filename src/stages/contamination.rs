@@ -37,13 +37,8 @@ fn window_median(
             s.push(rgb.data[j * 3 + c]);
         }
     }
-    if scratch[0].is_empty() {
-        return None;
-    }
-    Some(std::array::from_fn(|c| {
-        let k = scratch[c].len() / 2;
-        *scratch[c].select_nth_unstable_by(k, f32::total_cmp).1
-    }))
+    let [r, g, b] = scratch;
+    Some([super::mask::median(r)?, super::mask::median(g)?, super::mask::median(b)?])
 }
 
 /// Pixel indices of the square window of half-size `r` around `(x, y)`, clipped to the image.

@@ -10,7 +10,7 @@
 //! map whose edges are on the photo's, both widths come out at about a pixel and nothing
 //! changes.
 
-use super::mask::{distance_in, grown_bbox};
+use super::mask::{distance_in, grown_bbox, median};
 use crate::image::Image;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -148,14 +148,6 @@ pub fn foreground_estimate(disp: &Image, alpha: &Image, e: &EdgeWidths, radius: 
         }
     }
     Ok(Some((est, valid)))
-}
-
-fn median(v: &mut [f32]) -> Option<f32> {
-    if v.is_empty() {
-        return None;
-    }
-    let k = v.len() / 2;
-    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
 }
 
 #[cfg(test)]

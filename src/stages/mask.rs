@@ -84,6 +84,16 @@ pub fn erode(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<boo
     distance_in(&outside, width, height, bb).into_iter().zip(mask).map(|(d, &m)| m && d > radius).collect()
 }
 
+/// The median of `v` (the upper one for an even count), reordering `v`; None when empty.
+/// O(n) (selection, not a sort).
+pub fn median(v: &mut [f32]) -> Option<f32> {
+    if v.is_empty() {
+        return None;
+    }
+    let k = v.len() / 2;
+    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
+}
+
 /// Gaussian blur of a one-channel image (`sigma` in pixels; ≤ 0 returns a copy).
 pub fn gaussian_blur(plane: &Image, sigma: f32) -> Image {
     debug_assert_eq!(plane.channels, 1);

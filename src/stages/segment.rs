@@ -142,11 +142,7 @@ fn median_edge_jump(d: &[f32], mask: &[bool], w: usize, h: usize) -> f32 {
             }
         }
     }
-    if jumps.is_empty() {
-        return 0.0;
-    }
-    let mid = jumps.len() / 2;
-    *jumps.select_nth_unstable_by(mid, f32::total_cmp).1
+    super::mask::median(&mut jumps).unwrap_or(0.0)
 }
 
 #[cfg(test)]
