@@ -5,9 +5,14 @@
 //! matters. Inside the band, `B = F + Σ_k hat_k(d_x)·U_k` with nodes `δ_k` evenly spaced over
 //! the band's target disparities; each source is classified once against all nodes
 //! ([`Class`]) so the passes skip what adds nothing.
+//!
+//! The official profile's `B` weighs sources by `g(d_y - d_x)` ([`Side::Front`]). The physical
+//! profile uses the same band (targets whose CoC is below `band_coc`, about 2 px) for its
+//! in-layer depth groups: the sources in front of a target ([`Side::Front`]) and behind it
+//! ([`Side::Behind`], weight `g(d_x - d_y)`), each interpolated over the same nodes.
 
 use super::super::RenderSettings;
-use super::super::lens::{Profile, STEP_GAIN};
+use super::super::lens::{STEP_GAIN, in_front};
 
 /// `1 - q` below which a target counts as defocused (occlusion ≡ 1).
 const BAND_EPS: f32 = 1e-6;
@@ -21,22 +26,63 @@ pub(super) fn band_coc() -> f32 {
     ((1.0 / BAND_EPS as f64).ln() / STEP_GAIN as f64).sqrt() as f32
 }
 
-/// Whether a target at relative disparity `d` is in the on-focal band (never in the physical
-/// profile, which has no on-focal occlusion term).
+/// Whether a target at relative disparity `d` is in the on-focal band (occlusion on; in the
+/// physical profile the band holds the targets that can need in-layer depth groups).
 #[inline]
 pub(super) fn in_band(d: f32, s: &RenderSettings, band_coc: f32) -> bool {
-    s.occlusion && s.profile == Profile::Official && d.abs() * s.blur < band_coc
+    s.occlusion && d.abs() * s.blur < band_coc
 }
 
-/// How a source relates to the on-focal band's nodes.
+/// Whether a side with `full` full and `out` out sources is cheaper to scatter as its
+/// complement (see [`Band::complement_if_cheaper`]).
+pub(super) fn complement_pays(full: usize, out: usize) -> bool {
+    out < full
+}
+
+/// Which sources a band pass collects, by their weight at node `δ`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Side {
+    /// Sources in front of the target: `g(d_y - δ)` (the official `B`, the physical front
+    /// group).
+    Front,
+    /// Sources behind the target: `g(δ - d_y)` (the physical behind group).
+    Behind,
+}
+
+impl Side {
+    /// Both sides, in slot order.
+    pub(super) const BOTH: [Side; 2] = [Side::Front, Side::Behind];
+
+    /// Index of the side (slot blocks, presence tables).
+    pub(super) fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// The accumulator slot of a band pass with `m` nodes: slot 0 is the plain scatter `A`, then
+/// per side (in [`Side::BOTH`] order) its full pass and one partial pass per node `0..m`. The
+/// stripes number their own nodes `ka..=kb` from 0, the coarse grids the band's.
+#[inline]
+pub(super) fn slot(side: Side, node: Option<usize>, m: usize) -> usize {
+    1 + side.index() * (1 + m) + node.map_or(0, |k| 1 + k)
+}
+
+/// The pass of `slot` (≥ 1) among `m` nodes: its side, and its node (None: the full pass).
+#[inline]
+pub(super) fn pass_of(slot: usize, m: usize) -> (Side, Option<usize>) {
+    let (side, k) = ((slot - 1) / (1 + m), (slot - 1) % (1 + m));
+    (Side::BOTH[side], k.checked_sub(1))
+}
+
+/// How a source relates to the on-focal band's nodes, on one [`Side`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Class {
-    /// Behind every node: `g ≤ G_EPS`, adds nothing to `B`.
-    Hidden,
-    /// Partly occluding: weighted by `g(d - δ_k)` per node.
+    /// Weight `≤ G_EPS` at every node: adds nothing to this side's passes.
+    Out,
+    /// Weighted per node.
     Partial,
-    /// In front of every node: `g ≥ 1 - G_EPS`, adds its full value to every node.
-    Front,
+    /// Weight `≥ 1 - G_EPS` at every node: adds its full value once, to the side's full pass.
+    Full,
 }
 
 /// The interpolation nodes over the band's target disparities `[lo, hi]`.
@@ -48,9 +94,15 @@ pub(super) struct Band {
     step: f32,
     /// Number of nodes, ≥ 1.
     pub(super) n: usize,
-    /// Sources with `d ≤ hidden` are [`Class::Hidden`], with `d ≥ front` [`Class::Front`].
+    /// Front side: sources with `d ≤ hidden` are [`Class::Out`], with `d ≥ front`
+    /// [`Class::Full`]. Behind side: `d ≥ hidden_behind` is out, `d ≤ full_behind` full.
     hidden: f32,
     front: f32,
+    hidden_behind: f32,
+    full_behind: f32,
+    /// Per [`Side`]: whether its passes scatter the complement (weight `1 - g`, see
+    /// [`Band::pass_class`]); set from the sources' classes ([`Band::complement_if_cheaper`]).
+    complement: [bool; 2],
 }
 
 impl Band {
@@ -60,7 +112,17 @@ impl Band {
         let step = if n > 1 { (hi - lo) / (n - 1) as f32 } else { 0.0 };
         // g(δ) = ½ + ½·tanh(10(δ - 0.1)) ≤ ε  ⇔  δ ≤ 0.1 - atanh(1 - 2ε)/10; symmetric above.
         let z = (0.5 * ((1.0 - G_EPS) / G_EPS).ln() / 10.0) as f32;
-        Band { lo, step, n, hidden: lo + 0.1 - z, front: hi + 0.1 + z }
+        // g(δ - d) ≤ ε  ⇔  d ≥ δ - 0.1 + z; ≥ 1 - ε  ⇔  d ≤ δ - 0.1 - z.
+        Band {
+            lo,
+            step,
+            n,
+            hidden: lo + 0.1 - z,
+            front: hi + 0.1 + z,
+            hidden_behind: hi - 0.1 + z,
+            full_behind: lo - 0.1 - z,
+            complement: [false; 2],
+        }
     }
 
     /// Disparity `δ_k` of node k.
@@ -70,15 +132,76 @@ impl Band {
         self.lo + self.step * k as f32
     }
 
-    /// How a source at relative disparity `d` relates to every node.
+    /// How a source at relative disparity `d` relates to every node, on `side`.
     #[inline]
-    pub(super) fn class(&self, d: f32) -> Class {
-        if d <= self.hidden {
-            Class::Hidden
-        } else if d >= self.front {
-            Class::Front
+    pub(super) fn class(&self, side: Side, d: f32) -> Class {
+        let (out, full) = match side {
+            Side::Front => (d <= self.hidden, d >= self.front),
+            Side::Behind => (d >= self.hidden_behind, d <= self.full_behind),
+        };
+        if out {
+            Class::Out
+        } else if full {
+            Class::Full
         } else {
             Class::Partial
+        }
+    }
+
+    /// Scatters the complement of `side` (weight `1 - g`: then its value at a target is `A`
+    /// minus the passes) when fewer sources would be full in it than in the side itself
+    /// (`full` and `out`: the side's full and out sources): the full pass costs a scatter of
+    /// its sources, the out ones are skipped. A layer mostly behind its sharp targets scatters
+    /// the few sources not behind them, not the many that are.
+    pub(super) fn complement_if_cheaper(&mut self, side: Side, full: usize, out: usize) {
+        self.complement[side.index()] = complement_pays(full, out);
+    }
+
+    /// Whether the passes of `side` hold its complement.
+    #[inline]
+    pub(super) fn complemented(&self, side: Side) -> bool {
+        self.complement[side.index()]
+    }
+
+    /// How a source enters the passes of `side`: [`Band::class`], with full and out swapped
+    /// where the side is complemented.
+    #[inline]
+    pub(super) fn pass_class(&self, side: Side, d: f32) -> Class {
+        match (self.class(side, d), self.complemented(side)) {
+            (Class::Full, true) => Class::Out,
+            (Class::Out, true) => Class::Full,
+            (c, _) => c,
+        }
+    }
+
+    /// A partial source's weight in the passes of `side` at node k: [`Band::weight`], or one
+    /// minus it where the side is complemented.
+    #[inline]
+    pub(super) fn pass_weight(&self, side: Side, k: usize, d: f32) -> f32 {
+        let g = self.weight(side, k, d);
+        if self.complemented(side) { 1.0 - g } else { g }
+    }
+
+    /// A partial source's weight at node k, on `side`: `g(d - δ_k)` in front, `g(δ_k - d)`
+    /// behind.
+    #[inline]
+    pub(super) fn weight(&self, side: Side, k: usize, d: f32) -> f32 {
+        match side {
+            Side::Front => in_front(d, self.node(k)),
+            Side::Behind => in_front(self.node(k), d),
+        }
+    }
+
+    /// What the passes of `side` hold, interpolated at a target at `d_target`, of a source at
+    /// `d_source` with unit value: 1 (full), 0 (out) or `Σ_k hat_k(d_target)·weight_k`.
+    pub(super) fn interpolated(&self, side: Side, d_source: f32, d_target: f32) -> f32 {
+        match self.class(side, d_source) {
+            Class::Out => 0.0,
+            Class::Full => 1.0,
+            Class::Partial => {
+                let (ka, kb) = self.nodes_for(d_target, d_target);
+                (ka..=kb).map(|k| self.hat(k, d_target) * self.weight(side, k, d_source)).sum()
+            }
         }
     }
 
@@ -101,7 +224,7 @@ impl Band {
 
 #[cfg(test)]
 mod tests {
-    use super::super::super::lens::{focal_defocus, in_front};
+    use super::super::super::lens::focal_defocus;
     use super::*;
 
     /// Seeded uniform numbers in [0, 1) (xorshift64*).
@@ -144,15 +267,36 @@ mod tests {
     }
 
     #[test]
+    fn slots_and_passes_are_inverse() {
+        for m in 1..5 {
+            let mut seen = vec![false; 1 + 2 * (1 + m)];
+            seen[0] = true;
+            for side in Side::BOTH {
+                for node in std::iter::once(None).chain((0..m).map(Some)) {
+                    let s = slot(side, node, m);
+                    assert!(!seen[s], "slot {s} twice");
+                    seen[s] = true;
+                    assert_eq!(pass_of(s, m), (side, node));
+                }
+            }
+            assert!(seen.iter().all(|&v| v));
+        }
+        // The official layout: F at 1, U_k at 2 + k.
+        assert_eq!((slot(Side::Front, None, 3), slot(Side::Front, Some(2), 3)), (1, 4));
+    }
+
+    #[test]
     fn classes_bound_the_occlusion_weight_at_every_node() {
         let band = Band::new(-0.02, 0.03, 0.01);
         for i in -400..=400 {
             let d = i as f32 * 0.001;
-            let g: Vec<f32> = (0..band.n).map(|k| in_front(d, band.node(k))).collect();
-            match band.class(d) {
-                Class::Hidden => assert!(g.iter().all(|&g| g as f64 <= 1.1 * G_EPS), "{d}: {g:?}"),
-                Class::Front => assert!(g.iter().all(|&g| g as f64 >= 1.0 - 1.1 * G_EPS), "{d}: {g:?}"),
-                Class::Partial => {}
+            for side in Side::BOTH {
+                let g: Vec<f32> = (0..band.n).map(|k| band.weight(side, k, d)).collect();
+                match band.class(side, d) {
+                    Class::Out => assert!(g.iter().all(|&g| g as f64 <= 1.1 * G_EPS), "{side:?} {d}: {g:?}"),
+                    Class::Full => assert!(g.iter().all(|&g| g as f64 >= 1.0 - 1.1 * G_EPS), "{side:?} {d}: {g:?}"),
+                    Class::Partial => {}
+                }
             }
         }
     }

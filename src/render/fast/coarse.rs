@@ -5,6 +5,7 @@
 //! Level ℓ ≥ 1 takes drawn radii in `[r0·2^ℓ, r0·2^(ℓ+1))`; a layer keeps one grid per level
 //! present and per pass, `16/4^ℓ` bytes per pixel each.
 
+use super::band;
 use super::bright::is_bright;
 use super::footprint::equivalent;
 use super::{Counts, Ctx, Presence};
@@ -41,9 +42,17 @@ struct Agg {
 /// pass without sources of its class gets none. Adds the sources and writes to `counts`.
 pub(super) fn passes(ctx: &Ctx, presence: &Presence, counts: &Counts) -> Vec<Vec<Coarse>> {
     let mut coarse = vec![levels(ctx, 0, presence.levels_all, counts)];
-    coarse.push(if ctx.has_front { levels(ctx, 1, presence.levels_front, counts) } else { Vec::new() });
-    for k in 0..ctx.band.map_or(0, |b| b.n) {
-        coarse.push(if ctx.has_partial { levels(ctx, 2 + k, presence.levels_partial, counts) } else { Vec::new() });
+    let n = ctx.band.map_or(0, |b| b.n);
+    if n == 0 {
+        return coarse;
+    }
+    // In slot order (see `band::slot`): per side used, its full pass, then its partial ones.
+    for &side in ctx.sides_used() {
+        let sp = &presence.sides[side.index()];
+        coarse.push(if sp.has_full { levels(ctx, band::slot(side, None, n), sp.levels_full, counts) } else { Vec::new() });
+        for k in 0..n {
+            coarse.push(if sp.has_partial { levels(ctx, band::slot(side, Some(k), n), sp.levels_partial, counts) } else { Vec::new() });
+        }
     }
     coarse
 }

@@ -37,9 +37,10 @@
 //!
 //! The physical profile ([`super::lens::Profile::Physical`]) runs the same stripes and coarse
 //! grids with its own footprint ([`physical`]: uniform disks of unit flux, drawn exactly up to
-//! `2·r0`) and no on-focal band; each finished pixel's sums are turned into `[P, A, V]` there,
-//! re-split into the in-layer depth groups where the coverage reaching it exceeds 1 and its
-//! neighbourhood spans several depths.
+//! `2·r0`); its band holds the sharp targets that sources of other depths reach, where the
+//! band passes collect the sources in front of and behind the target and [`physical`] re-splits
+//! the sums into the in-layer depth groups wherever the coverage reaching a target exceeds 1.
+//! Each finished pixel's sums are turned into `[P, A, V]` there.
 
 mod band;
 mod bright;
@@ -52,13 +53,13 @@ mod visibility;
 
 use super::aperture::{disk_tap_count, disk_taps_within};
 use super::layer::{A, CHANNELS, D, Layer};
-use super::lens::{Profile, density, disk_norm, in_front, weight_unit};
+use super::lens::{Profile, density, disk_norm, weight_unit};
 use super::splat::STRIPE_ROWS;
 use super::{RawLayer, RenderSettings, Role, raw};
-use band::{Band, Class};
+use band::{Band, Class, Side};
 use footprint::{STENCIL_TAIL, Stencil};
 use std::sync::atomic::AtomicU64;
-use survey::{Presence, Survey};
+use survey::{Presence, SidePresence, Survey};
 
 /// The fast kernel's accuracy/speed trade-off, derived from the quality level.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -98,21 +99,24 @@ pub struct FastStats {
     pub bright_sources: usize,
     /// Visible sources aggregated on coarse grids (per pass).
     pub coarse_sources: usize,
-    /// Target pixels in the on-focal band (where the occlusion term is computed).
+    /// Target pixels in the on-focal band (where the occlusion term is computed; physical
+    /// profile: the sharp targets of a layer that can need depth groups, before the test of
+    /// which of them sources of other depths reach).
     pub band_pixels: usize,
     /// Interpolation nodes of the on-focal band (0 when no target is in it).
     pub nodes: usize,
     /// Plain scatter passes (1 when no pixel is near the focal plane: the occlusion part is
-    /// skipped; in the band, `F` and one `U_k` per node).
+    /// skipped; in the band, `F` and one `U_k` per node, and in the physical profile the same
+    /// for the sources behind the targets).
     pub passes: usize,
-    /// Sources skipped in the band passes because they are hidden behind every node.
+    /// Sources skipped in the front band passes because they are hidden behind every node.
     pub band_sources_skipped: usize,
     /// Stripes of rows where the occlusion part was computed.
     pub band_stripes: usize,
     /// All stripes of rows.
     pub stripes: usize,
-    /// Physical profile: targets re-split into in-layer depth groups (their coverage exceeds 1
-    /// and their neighbourhood spans several depths; see `fast::physical`).
+    /// Physical profile: targets re-split into in-layer depth groups (sharp, reached by sources
+    /// of other depths, and with coverage above 1; see `fast::physical`).
     pub group_pixels: usize,
     /// Fully transparent pixels (never scattered).
     pub transparent_pixels: usize,
@@ -151,17 +155,15 @@ struct Ctx<'a> {
     /// Weight unit of the layer (see `lens::weight_unit`).
     unit: f32,
     params: FastParams,
-    /// The on-focal band (None when no target is near the focal plane).
+    /// The on-focal band (None when no target is near the focal plane, and in the physical
+    /// profile when the layer needs no depth groups).
     band: Option<Band>,
-    /// Whether the band passes have front / partial sources at all.
-    has_front: bool,
-    has_partial: bool,
+    /// Which band passes have sources, per [`Side`] (the official profile uses the front only).
+    sides: [SidePresence; 2],
+    /// Physical profile with a band: which targets can need depth groups at all.
+    reach: Option<physical::DepthReach>,
     /// The exact taps out to the stencil reach.
     stencil: Stencil,
-    /// Whether the layer can need the physical profile's in-layer depth groups, and their
-    /// depth tiles once a target needed them (see [`physical`]).
-    groups_wanted: bool,
-    groups: std::sync::OnceLock<physical::DepthTiles>,
 }
 
 impl<'a> Ctx<'a> {
@@ -172,6 +174,13 @@ impl<'a> Ctx<'a> {
         let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
         let (bright_level, bright_max) =
             bright::bright_sources(img, survey.visible, survey.bright_max, |i| footprint::drawn(s.profile, sigma[i], p));
+        let band = match s.profile {
+            Profile::Official => survey.band(params.node_step),
+            Profile::Physical => physical::groups_wanted(s, p, survey).then(|| survey.band(params.node_step)).flatten(),
+        };
+        // Taps lie strictly inside the window (r < p); a physical source reaches r < radius + ½.
+        let reach = (s.profile == Profile::Physical && band.is_some())
+            .then(|| physical::DepthReach::new(img, s.focus, (survey.sigma_max + footprint::EDGE).min(p as f32 - 1.0)));
         Ctx {
             img,
             s,
@@ -188,11 +197,9 @@ impl<'a> Ctx<'a> {
             bright_max,
             bright_level,
             params,
-            band: survey.band(params.node_step),
-            has_front: false,
-            has_partial: false,
-            groups_wanted: false,
-            groups: std::sync::OnceLock::new(),
+            band,
+            sides: [SidePresence::default(); 2],
+            reach,
         }
     }
 
@@ -237,21 +244,54 @@ impl<'a> Ctx<'a> {
         (a > 0.0).then(|| [px[0] * a, px[1] * a, px[2] * a, a])
     }
 
-    /// Which sources pass `slot` scatters and with what value: slot 0 is `A`, 1 is `F`,
-    /// `2 + k` is `U_k`.
+    /// The sides the band passes collect: the front (official `B`), and in the physical
+    /// profile the back as well (its depth groups).
+    fn sides_used(&self) -> &'static [Side] {
+        match self.s.profile {
+            Profile::Official => &Side::BOTH[..1],
+            Profile::Physical => &Side::BOTH,
+        }
+    }
+
+    /// Which sources pass `slot` scatters and with what value (see [`band::slot`]; the band
+    /// has `n` nodes here).
     // Inline: called per source and coarse level from `coarse::aggregate`, another module
     // (codegen unit) since the split.
     #[inline]
     fn value(&self, slot: usize, j: usize) -> Option<[f32; 4]> {
         let v = self.base(j)?;
-        match (slot, self.band) {
-            (0, _) => Some(v),
-            (1, Some(b)) => (b.class(self.d(j)) == Class::Front).then_some(v),
-            (k, Some(b)) => {
-                let dj = self.d(j);
-                (b.class(dj) == Class::Partial).then(|| v.map(|c| c * in_front(dj, b.node(k - 2))))
+        if slot == 0 {
+            return Some(v);
+        }
+        let b = self.band?;
+        let (side, node) = band::pass_of(slot, b.n);
+        let dj = self.d(j);
+        match (b.pass_class(side, dj), node) {
+            (Class::Full, None) => Some(v),
+            (Class::Partial, Some(k)) => {
+                let g = b.pass_weight(side, k, dj);
+                Some(v.map(|c| c * g))
             }
             _ => None,
+        }
+    }
+
+    /// The stripe accumulators source `j` adds to, with their factors, into `dests`: `A`
+    /// (slot 0, factor 1), and with band nodes `ka..=kb` in the stripe each side's full pass
+    /// or its partial passes (see [`band::slot`], with the stripe's `kb - ka + 1` nodes).
+    #[inline]
+    fn dests(&self, nodes: Option<(usize, usize)>, j: usize, dests: &mut Vec<(usize, f32)>) {
+        dests.clear();
+        dests.push((0, 1.0));
+        let (Some((ka, kb)), Some(b)) = (nodes, self.band) else { return };
+        let dj = self.d(j);
+        let m = kb - ka + 1;
+        for &side in self.sides_used() {
+            match b.pass_class(side, dj) {
+                Class::Full => dests.push((band::slot(side, None, m), 1.0)),
+                Class::Partial => dests.extend((ka..=kb).map(|k| (band::slot(side, Some(k - ka), m), b.pass_weight(side, k, dj)))),
+                Class::Out => {}
+            }
         }
     }
 }
@@ -317,9 +357,12 @@ pub fn scatter_layer_into(
     let mut ctx = Ctx::new(img, s, role, params, sigma, &survey);
     // Masks: which passes have sources, and on which coarse levels.
     let presence = survey::presence(&ctx);
-    (ctx.has_front, ctx.has_partial) = (presence.has_front, presence.has_partial);
-    if s.profile == Profile::Physical {
-        ctx.groups_wanted = physical::DepthTiles::wanted(&ctx, &survey);
+    ctx.sides = presence.sides;
+    if let Some(b) = &mut ctx.band {
+        for side in Side::BOTH {
+            let [full, out] = presence.counts[side.index()];
+            b.complement_if_cheaper(side, full, out);
+        }
     }
     let ctx = ctx;
     let mut stats = plan_stats(&ctx, &survey, &presence);
@@ -338,11 +381,11 @@ fn plan_stats(ctx: &Ctx, survey: &Survey, presence: &Presence) -> FastStats {
     let n_nodes = ctx.band.map_or(0, |b| b.n);
     FastStats {
         transparent_pixels: ctx.w * ctx.h - survey.visible,
-        band_pixels: survey.band_pixels,
+        band_pixels: if ctx.band.is_some() { survey.band_pixels } else { 0 },
         stripes: ctx.h.div_ceil(STRIPE_ROWS),
         exact_taps: (ctx.w * ctx.h) as f64 * disk_tap_count(ctx.s.lens) as f64,
         nodes: n_nodes,
-        passes: 1 + usize::from(ctx.has_front) + if ctx.has_partial { n_nodes } else { 0 },
+        passes: 1 + ctx.sides.iter().map(|sp| usize::from(sp.has_full) + if sp.has_partial { n_nodes } else { 0 }).sum::<usize>(),
         band_sources_skipped: presence.hidden,
         ..FastStats::default()
     }

@@ -3,7 +3,7 @@
 //! at once (the tap weight is computed once and shared by `A`, `F` and the `U_k`), adds the
 //! coarse levels, combines `q·A + (1-q)·B` and hands each finished raw pixel to the caller.
 
-use super::band::{Class, band_coc, in_band};
+use super::band::{self, Side, band_coc, in_band};
 use super::bright::is_bright;
 use super::coarse::Coarse;
 use super::footprint::{HARD_EDGE, SOFT_EDGE, STENCIL_TAIL, drawn_radius, equivalent_radius, rim_disk};
@@ -19,15 +19,18 @@ use std::sync::atomic::Ordering;
 /// A worker's reusable buffers (sized on first use, then recycled from stripe to stripe).
 #[derive(Default)]
 pub(super) struct Scratch {
-    /// Accumulators: `[A, F, U_ka, …, U_kb]` for the stripe's nodes.
+    /// Accumulators: `A`, then per side its full pass and `U_ka, …, U_kb` for the stripe's
+    /// nodes (see `band::slot`).
     pub(super) accs: Vec<Stripe>,
     /// `q` of the stripe's targets.
     q: Vec<f32>,
     /// The stripe's finished raw pixels ([`raw::CHANNELS`] each).
     raw: Vec<f32>,
-    /// One row of `A`, of `B` and of one `U_k` (4 channels per pixel), and one coarse row.
+    /// One row of `A`, of the front and behind sides (`B`) and of one `U_k` (4 channels per
+    /// pixel), and one coarse row.
     row_a: Vec<f32>,
     row_b: Vec<f32>,
+    row_h: Vec<f32>,
     row_u: Vec<f32>,
     tmp: Vec<f32>,
     /// Tap weights per stencil row `-stencil.p..=stencil.p` (first column offset, weights)
@@ -37,8 +40,10 @@ pub(super) struct Scratch {
     pub(super) stencil_sigma: f32,
     /// One rim row of a bright source.
     pub(super) rim: Vec<f32>,
+    /// Columns of one row's band targets.
+    band_x: Vec<usize>,
     /// (accumulator, factor) pairs a source scatters into.
-    dests: Vec<(usize, f32)>,
+    pub(super) dests: Vec<(usize, f32)>,
     /// The visibility's summed-area table and the stripe's visibilities.
     sat: Vec<f64>,
     vis: Vec<f32>,
@@ -92,37 +97,41 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
             o[raw::VISIBILITY] = v;
         }
         if physical {
-            physical::finish_rows(ctx, y0, &mut raw, counts);
+            physical::finish_rows(ctx, &mut raw);
         }
         sc.raw = raw;
         return;
     }
 
-    // Targets of this stripe: q, and the band's nodes they need.
+    // Targets of this stripe: q, and the band's nodes they need. q < 1 marks a band target;
+    // the others count as q = 1 (occlusion ≡ 1). The physical profile has no q: its band
+    // targets are marked 0.
     sc.q.clear();
     let bc = band_coc();
     let (mut blo, mut bhi) = (f32::INFINITY, f32::NEG_INFINITY);
-    for i in y0 * w..y1 * w {
-        // q < 1 marks a band target; the others count as q = 1 (occlusion ≡ 1).
-        let d = ctx.d(i);
-        let q = if in_band(d, ctx.s, bc) {
-            blo = blo.min(d);
-            bhi = bhi.max(d);
-            focal_defocus(d, ctx.s.blur)
-        } else {
-            1.0
-        };
-        sc.q.push(q);
+    if ctx.band.is_none() {
+        sc.q.resize(rows * w, 1.0);
+    } else {
+        for i in y0 * w..y1 * w {
+            let d = ctx.d(i);
+            // A physical target re-splits only where sources of other depths reach it.
+            let q = if in_band(d, ctx.s, bc) && ctx.reach.as_ref().is_none_or(|r| r.mixed(i % w, i / w, d)) {
+                blo = blo.min(d);
+                bhi = bhi.max(d);
+                if physical { 0.0 } else { focal_defocus(d, ctx.s.blur) }
+            } else {
+                1.0
+            };
+            sc.q.push(q);
+        }
     }
+    let any_pass = ctx.sides.iter().any(|sp| sp.has_full || sp.has_partial);
     let nodes = match ctx.band {
-        Some(b) if blo <= bhi && (ctx.has_front || ctx.has_partial) => Some(b.nodes_for(blo, bhi)),
+        Some(b) if blo <= bhi && any_pass => Some(b.nodes_for(blo, bhi)),
         _ => None,
     };
-    let n_acc = match nodes {
-        Some((ka, kb)) if ctx.has_partial => 2 + kb - ka + 1,
-        Some(_) => 2,
-        None => 1,
-    };
+    // Slot 0, then per side used its full pass and one partial pass per node (band::slot).
+    let n_acc = nodes.map_or(1, |(ka, kb)| 1 + ctx.sides_used().len() * (2 + kb - ka));
     if nodes.is_some() {
         counts.band_stripes.fetch_add(1, Ordering::Relaxed);
     }
@@ -134,13 +143,13 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
     }
 
     if physical {
-        physical::scan_sources(ctx, y0, y1, sc, counts);
+        physical::scan_sources(ctx, nodes, y0, y1, sc, counts);
     } else {
         scan_sources(ctx, nodes, y0, y1, sc, counts);
     }
-    combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw);
+    combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw, counts);
     if physical {
-        physical::finish_rows(ctx, y0, &mut raw, counts);
+        physical::finish_rows(ctx, &mut raw);
     }
     counts.ops.fetch_add((rows * w * n_acc) as u64, Ordering::Relaxed);
     sc.raw = raw;
@@ -185,16 +194,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
             if sig >= 2.0 * pr.r0 && !bright {
                 continue;
             }
-            sc.dests.clear();
-            sc.dests.push((0, 1.0));
-            if let (Some((ka, kb)), Some(b)) = (nodes, ctx.band) {
-                let dj = ctx.d(j);
-                match b.class(dj) {
-                    Class::Front => sc.dests.push((1, 1.0)),
-                    Class::Partial => sc.dests.extend((ka..=kb).map(|k| (2 + k - ka, in_front(dj, b.node(k))))),
-                    Class::Hidden => {}
-                }
-            }
+            ctx.dests(nodes, j, &mut sc.dests);
             let dens = density(true_sig, ctx.unit);
             if sig >= pr.stencil_max && bright {
                 // Bright (HDR) sources, whatever their radius: a disk's edge approximation errs
@@ -246,13 +246,25 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
 }
 
 /// Resolves the stripe accumulators row by row, adds the coarse levels and combines:
-/// `A` everywhere; `q·A + (1-q)·B` plus the centre correction in the band. Writes `raw`.
+/// `A` everywhere; in the band `q·A + (1-q)·B` plus the centre correction (official) or the
+/// depth groups (physical, [`physical::split_row`]). Writes `raw`.
 // Out of line, like scan_sources: profiles show the combine apart.
 #[inline(never)]
-fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>, y0: usize, y1: usize, sc: &mut Scratch, raw: &mut [f32]) {
+#[allow(clippy::too_many_arguments)]
+fn combine_rows(
+    ctx: &Ctx,
+    coarse: &[Vec<Coarse>],
+    nodes: Option<(usize, usize)>,
+    y0: usize,
+    y1: usize,
+    sc: &mut Scratch,
+    raw: &mut [f32],
+    counts: &Counts,
+) {
     const RAW: usize = raw::CHANNELS;
     let w = ctx.w;
-    let (row_a, row_b, row_u, tmp) = (&mut sc.row_a, &mut sc.row_b, &mut sc.row_u, &mut sc.tmp);
+    let (row_a, row_b, row_h, row_u, tmp) = (&mut sc.row_a, &mut sc.row_b, &mut sc.row_h, &mut sc.row_u, &mut sc.tmp);
+    let mut split = 0u64;
     for r in 0..y1 - y0 {
         let y = y0 + r;
         row_a.clear();
@@ -267,35 +279,18 @@ fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>
             o[..4].copy_from_slice(&row_a[x * 4..x * 4 + 4]);
             o[raw::VISIBILITY] = sc.vis[r * w + x];
         }
-        let (Some((ka, kb)), Some(band)) = (nodes, ctx.band) else { continue };
-        // B = F + Σ_k hat_k(d_x)·U_k (the hats sum to 1 over the band), held in row_b.
-        row_b.clear();
-        row_b.resize(w * 4, 0.0);
-        if ctx.has_front {
-            sc.accs[1].add_row_to(r, row_b);
-            for c in &coarse[1] {
-                c.grid.add_upsampled_row(y, c.factor, row_b, tmp);
-            }
-        }
-        if ctx.has_partial {
-            for k in ka..=kb {
-                row_u.clear();
-                row_u.resize(w * 4, 0.0);
-                sc.accs[2 + k - ka].add_row_to(r, row_u);
-                for c in &coarse[2 + k] {
-                    c.grid.add_upsampled_row(y, c.factor, row_u, tmp);
-                }
-                for x in 0..w {
-                    if q[x] < 1.0 {
-                        let wk = band.hat(k, ctx.d(y * w + x));
-                        if wk > 0.0 {
-                            for c in 0..4 {
-                                row_b[x * 4 + c] += wk * row_u[x * 4 + c];
-                            }
-                        }
-                    }
-                }
-            }
+        let Some(nodes) = nodes else { continue };
+        // The row's band targets: the band sums are needed there only.
+        sc.band_x.clear();
+        sc.band_x.extend((0..w).filter(|&x| q[x] < 1.0));
+        let Some(&last) = sc.band_x.last() else { continue };
+        let rows = BandRow { ctx, coarse, accs: &sc.accs, nodes, r, y, targets: &sc.band_x, end: last + 1, a: row_a };
+        // The front passes interpolated at each band target, in row_b.
+        rows.side(Side::Front, row_b, row_u, tmp);
+        if ctx.s.profile == Profile::Physical {
+            rows.side(Side::Behind, row_h, row_u, tmp);
+            split += physical::split_row(ctx, y, q, row_b, row_h, out);
+            continue;
         }
         for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
             let qi = q[x];
@@ -311,6 +306,81 @@ fn combine_rows(ctx: &Ctx, coarse: &[Vec<Coarse>], nodes: Option<(usize, usize)>
             });
             for c in 0..4 {
                 o[c] = qi * row_a[x * 4 + c] + (1.0 - qi) * row_b[x * 4 + c] + corr.map_or(0.0, |v| v[c]);
+            }
+        }
+    }
+    if split > 0 {
+        counts.groups.fetch_add(split, Ordering::Relaxed);
+    }
+}
+
+/// One row of a stripe with band targets: what [`BandRow::side`] reads.
+struct BandRow<'a> {
+    ctx: &'a Ctx<'a>,
+    coarse: &'a [Vec<Coarse>],
+    accs: &'a [Stripe],
+    /// The stripe's band nodes `ka..=kb`.
+    nodes: (usize, usize),
+    /// Row within the stripe, and in the image.
+    r: usize,
+    y: usize,
+    /// Columns of the row's band targets (ascending), and one past the last.
+    targets: &'a [usize],
+    end: usize,
+    /// The row of `A` (what a complemented side is taken from).
+    a: &'a [f32],
+}
+
+impl BandRow<'_> {
+    /// One side's band sum at each band target of the row, interpolated at its disparity:
+    /// the side's full pass plus `Σ_k hat_k(d_x)·U_k`, or `A` minus that where the side's
+    /// passes hold its complement (4 values per pixel for the columns up to the last band
+    /// target, into `out`; valid at the band targets only).
+    fn side(&self, side: Side, out: &mut Vec<f32>, row_u: &mut Vec<f32>, tmp: &mut Vec<f32>) {
+        let (ctx, (ka, kb)) = (self.ctx, self.nodes);
+        let Some(band) = ctx.band else { return };
+        let (m, n) = (kb - ka + 1, band.n);
+        let sp = ctx.sides[side.index()];
+        // Rows are resolved from column 0 (the spans' prefix sums) up to the last target.
+        out.clear();
+        out.resize(self.end * 4, 0.0);
+        if sp.has_full {
+            self.accs[band::slot(side, None, m)].add_row_to(self.r, out);
+            for c in &self.coarse[band::slot(side, None, n)] {
+                c.grid.add_upsampled_row(self.y, c.factor, out, tmp);
+            }
+        }
+        if sp.has_partial {
+            for k in ka..=kb {
+                self.add_partial(side, k, out, row_u, tmp);
+            }
+        }
+        if band.complemented(side) {
+            for &x in self.targets {
+                for c in 0..4 {
+                    out[x * 4 + c] = self.a[x * 4 + c] - out[x * 4 + c];
+                }
+            }
+        }
+    }
+
+    /// Adds `hat_k(d_x)·U_k` of `side` to `out` at each band target of the row.
+    fn add_partial(&self, side: Side, k: usize, out: &mut [f32], row_u: &mut Vec<f32>, tmp: &mut Vec<f32>) {
+        let (ctx, w, (ka, kb)) = (self.ctx, self.ctx.w, self.nodes);
+        let Some(band) = ctx.band else { return };
+        let (m, n) = (kb - ka + 1, band.n);
+        row_u.clear();
+        row_u.resize(self.end * 4, 0.0);
+        self.accs[band::slot(side, Some(k - ka), m)].add_row_to(self.r, row_u);
+        for c in &self.coarse[band::slot(side, Some(k), n)] {
+            c.grid.add_upsampled_row(self.y, c.factor, row_u, tmp);
+        }
+        for &x in self.targets {
+            let wk = band.hat(k, ctx.d(self.y * w + x));
+            if wk > 0.0 {
+                for c in 0..4 {
+                    out[x * 4 + c] += wk * row_u[x * 4 + c];
+                }
             }
         }
     }

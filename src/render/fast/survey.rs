@@ -1,7 +1,7 @@
 //! The layer-wide passes before any scattering: the survey (scatter radii, what is visible,
 //! the on-focal band) and the presence of source classes per coarse level.
 
-use super::band::{Band, Class, band_coc, in_band};
+use super::band::{Band, Class, Side, band_coc, complement_pays, in_band};
 use super::bright::{BRIGHT_MIN, is_bright};
 use super::coarse::level_of;
 use super::footprint::{drawn, source_radius};
@@ -119,47 +119,92 @@ pub(super) fn survey(img: &Image, s: &RenderSettings, params: FastParams) -> (Ve
     (sigma, survey)
 }
 
+/// Which sources one side's band passes have, per coarse level.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct SidePresence {
+    /// Coarse levels present (bit ℓ = level ℓ) among the side's full sources and its partial
+    /// ones.
+    pub(super) levels_full: u64,
+    pub(super) levels_partial: u64,
+    /// Whether the side has any full / partial source.
+    pub(super) has_full: bool,
+    pub(super) has_partial: bool,
+}
+
 /// Which source classes a layer has, per coarse level: what decides the passes and their
 /// coarse grids.
 pub(super) struct Presence {
-    /// Coarse levels present (bit ℓ = level ℓ) among all visible sources (pass `A`), those in
-    /// front of every band node (`F`) and the partly occluding ones (the `U_k`).
+    /// Coarse levels present (bit ℓ = level ℓ) among all visible sources (pass `A`).
     pub(super) levels_all: u64,
-    pub(super) levels_front: u64,
-    pub(super) levels_partial: u64,
-    /// Whether any visible source is in front of every node / partly occluding.
-    pub(super) has_front: bool,
-    pub(super) has_partial: bool,
-    /// Visible sources hidden behind every node (skipped by the band passes).
+    /// Per [`Side`]: what its passes scatter (its full sources, or where the side is to be
+    /// complemented its out ones, see [`Band::complement_if_cheaper`]); empty for a side the
+    /// profile does not use.
+    pub(super) sides: [SidePresence; 2],
+    /// Per [`Side`]: how many sources are full in it and how many out of it.
+    pub(super) counts: [[usize; 2]; 2],
+    /// Visible sources out of every front pass (behind every band node; skipped).
     pub(super) hidden: usize,
 }
 
 /// One parallel pass over the visible sources: their coarse levels per class.
 pub(super) fn presence(ctx: &Ctx) -> Presence {
     let (r0, band) = (ctx.params.r0, ctx.band);
-    // Bit 0 tags that the class has a visible source at all; [3] counts the sources hidden
-    // behind every node.
-    let masks = (0..ctx.w * ctx.h)
-        .into_par_iter()
-        .with_min_len(4096)
-        .filter(|&j| ctx.img.data[j * CHANNELS + A] > 0.0)
-        .map(|j| {
-            let bit = level_of(ctx.drawn(ctx.sigma[j]), r0).map_or(0, |l| 1u64 << l);
-            let tag = bit | 1;
-            match band.map(|b| b.class(ctx.d(j))) {
-                Some(Class::Front) => [tag, tag, 0, 0],
-                Some(Class::Partial) => [tag, 0, tag, 0],
-                Some(Class::Hidden) => [tag, 0, 0, 1],
-                None => [tag, 0, 0, 0],
-            }
-        })
-        .reduce(|| [0u64; 4], |a, b| [a[0] | b[0], a[1] | b[1], a[2] | b[2], a[3] + b[3]]);
-    Presence {
-        levels_all: masks[0] & !1,
-        levels_front: masks[1] & !1,
-        levels_partial: masks[2] & !1,
-        has_front: masks[1] & 1 != 0,
-        has_partial: masks[2] & 1 != 0,
-        hidden: masks[3] as usize,
+    let sides = ctx.sides_used();
+    // Levels of pass A (bit 0 tags a visible source at all), and per side the levels and
+    // counts of its [full, partial, out] sources. Folded per worker: one pass, no per-pixel
+    // allocation.
+    #[derive(Clone, Copy, Default)]
+    struct Tally {
+        all: u64,
+        levels: [[u64; 3]; 2],
+        count: [[u64; 3]; 2],
     }
+    let tally = (0..ctx.h)
+        .into_par_iter()
+        .fold(Tally::default, |mut t, y| {
+            for j in y * ctx.w..(y + 1) * ctx.w {
+                if ctx.img.data[j * CHANNELS + A] <= 0.0 {
+                    continue;
+                }
+                let tag = level_of(ctx.drawn(ctx.sigma[j]), r0).map_or(0, |l| 1u64 << l) | 1;
+                t.all |= tag;
+                let Some(b) = band else { continue };
+                let d = ctx.d(j);
+                for &side in sides {
+                    let c = match b.class(side, d) {
+                        Class::Full => 0,
+                        Class::Partial => 1,
+                        Class::Out => 2,
+                    };
+                    t.levels[side.index()][c] |= tag;
+                    t.count[side.index()][c] += 1;
+                }
+            }
+            t
+        })
+        .reduce(Tally::default, |mut a, b| {
+            a.all |= b.all;
+            for k in 0..2 {
+                for c in 0..3 {
+                    a.levels[k][c] |= b.levels[k][c];
+                    a.count[k][c] += b.count[k][c];
+                }
+            }
+            a
+        });
+    let counts = [0, 1].map(|k| [tally.count[k][0] as usize, tally.count[k][2] as usize]);
+    let side = |k: usize| {
+        // What the passes scatter: the full sources, or the out ones of a complemented side
+        // (decided from the same counts in `Band::complement_if_cheaper`).
+        let [full, out] = counts[k];
+        let levels = tally.levels[k];
+        let scattered = if complement_pays(full, out) { levels[2] } else { levels[0] };
+        SidePresence {
+            levels_full: scattered & !1,
+            levels_partial: levels[1] & !1,
+            has_full: scattered & 1 != 0,
+            has_partial: levels[1] & 1 != 0,
+        }
+    };
+    Presence { levels_all: tally.all & !1, sides: [side(0), side(1)], counts, hidden: tally.count[Side::Front.index()][2] as usize }
 }
