@@ -113,8 +113,8 @@ impl GaussTape {
                     let s = &sources[j];
                     let wt = ((-dist2 * s.inv_two_var).exp() * s.inv_norm) as f64;
                     b += wt;
-                    for c in 0..3 {
-                        acc[c] += wt * aif.data[j * 3 + c] as f64;
+                    for (a, &v) in acc.iter_mut().zip(&aif.data[j * 3..j * 3 + 3]) {
+                        *a += wt * v as f64;
                     }
                 });
                 for c in 0..3 {
@@ -147,7 +147,7 @@ impl GaussTape {
         let r = self.radius as isize;
         let mut grad = Image::new(w, h, 1);
         grad.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for x in 0..w {
+            for (x, out) in row.iter_mut().enumerate() {
                 let j = y * w + x;
                 let s = &self.sources[j];
                 let c = &self.colours.data[j * 3..j * 3 + 3];
@@ -159,7 +159,7 @@ impl GaussTape {
                     let dl_dw = g[0] * c[0] + g[1] * c[1] + g[2] * c[2] - sp;
                     acc += (dl_dw * wt * (dist2 - s.mean_sq)) as f64;
                 });
-                row[x] = (acc / (s.sigma as f64).powi(3)) as f32 * s.dsigma;
+                *out = (acc / (s.sigma as f64).powi(3)) as f32 * s.dsigma;
             }
         });
         grad
