@@ -4,6 +4,7 @@
 use crate::{as_flags, set_threads};
 use clap::{Args, ValueEnum};
 use drbokeh::Error;
+use drbokeh::bench::dfd_eval::{self, DfdBenchOptions};
 use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
 use drbokeh::bench::trace::{self, Footprint, Plane, TraceSettings, Window};
 use drbokeh::color::Transfer;
@@ -136,16 +137,23 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
 
 #[derive(Args)]
 pub struct BenchArgs {
-    /// Number of generated scenes.
-    #[arg(long, value_name = "N", default_value_t = 50)]
-    scenes: usize,
-    /// Frame size of the generated scenes.
-    #[arg(long, value_name = "WxH", default_value = "256x256", value_parser = parse_size)]
-    size: (usize, usize),
+    /// Evaluate depth from defocus instead of rendering methods (the paper's Table 2): each
+    /// method estimates the disparity from the all-in-focus photo and a traced render focused
+    /// on the nearest plane; scored on disparity error and on a re-render at the farthest
+    /// plane's focus. --groundtruth scenes are added to the generated ones.
+    #[arg(long)]
+    dfd: bool,
+    /// Number of generated scenes [default: 50; 8 with --dfd].
+    #[arg(long, value_name = "N")]
+    scenes: Option<usize>,
+    /// Frame size of the generated scenes [default: 256x256; 64x64 with --dfd].
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    size: Option<(usize, usize)>,
     /// Seed of the scene generator (and of the tracer).
     #[arg(long, value_name = "S", default_value_t = 1)]
     seed: u64,
-    /// Evaluate on scene folders in the shared ground-truth format (Mitsuba renders) instead.
+    /// Evaluate on scene folders in the shared ground-truth format (Mitsuba renders) instead
+    /// (with --dfd: as well).
     #[arg(long, value_name = "DIR")]
     groundtruth: Option<PathBuf>,
     /// Texture the generated planes with crops of these photos (else procedural textures).
@@ -154,18 +162,27 @@ pub struct BenchArgs {
     /// Methods to run (comma-separated) [default: all].
     #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
     methods: Vec<MethodArg>,
-    /// Report folder (report.csv, report.md, error_vs_time.png, crops/).
+    /// Report folder (report.csv, report.md, error_vs_time.png, crops/; with --dfd figures/).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Rays per pixel of the traced ground truth.
-    #[arg(long, value_name = "N", default_value_t = 1024)]
-    spp: u32,
+    /// Rays per pixel of the traced ground truth [default: 1024; 256 with --dfd].
+    #[arg(long, value_name = "N")]
+    spp: Option<u32>,
     /// Runs per render for the median time (repeated while the total stays under 1 s).
     #[arg(long, value_name = "N", default_value_t = 3)]
     repeats: usize,
     /// Side-by-side crops to write (the cases where Dr.Bokeh gains most over the scatter).
     #[arg(long, value_name = "N", default_value_t = 4)]
     crops: usize,
+    /// With --dfd: Adam steps per resolution level of every estimate.
+    #[arg(long, value_name = "N", default_value_t = 100)]
+    iters: usize,
+    /// With --dfd: resolution levels of every estimate (coarse to fine).
+    #[arg(long, value_name = "N", default_value_t = 3)]
+    levels: usize,
+    /// With --dfd: blur strength K of the generated scenes [default: a tenth of the smaller side].
+    #[arg(long, value_name = "K")]
+    blur: Option<f32>,
     /// Worker threads [default: all cores].
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
@@ -189,30 +206,39 @@ const BENCH_SIDES: std::ops::RangeInclusive<usize> = 8..=4096;
 /// method's render and the crops), with margin.
 const BENCH_BYTES_PER_PIXEL: u64 = 600;
 
+/// The command line as typed, for the reports.
+fn command_line() -> String {
+    std::iter::once("drbokeh".to_string())
+        .chain(std::env::args().skip(1).map(|a| if a.contains(' ') { format!("'{a}'") } else { a }))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
-    let (w, h) = args.size;
+    if args.dfd {
+        return bench_dfd(args);
+    }
+    let (w, h) = args.size.unwrap_or((256, 256));
+    let scenes = args.scenes.unwrap_or(50);
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
     let methods = if args.methods.is_empty() { Method::ALL.to_vec() } else { args.methods.iter().map(|&m| m.into()).collect() };
-    if args.scenes == 0 && args.groundtruth.is_none() {
+    if scenes == 0 && args.groundtruth.is_none() {
         return Err(Error::usage("--scenes must be at least 1").into());
     }
     let opts = BenchOptions {
-        scenes: args.scenes,
-        width: args.size.0,
-        height: args.size.1,
+        scenes,
+        width: w,
+        height: h,
         seed: args.seed,
         groundtruth: args.groundtruth.clone(),
         textures: args.textures.clone(),
         methods,
         out: args.out.clone(),
-        spp: args.spp.clamp(2, 1 << 20),
+        spp: args.spp.unwrap_or(1024).clamp(2, 1 << 20),
         repeats: args.repeats.max(1),
         crops: args.crops,
-        command: std::iter::once("drbokeh".to_string())
-            .chain(std::env::args().skip(1).map(|a| if a.contains(' ') { format!("'{a}'") } else { a }))
-            .collect::<Vec<_>>()
-            .join(" "),
+        command: command_line(),
     };
     let t0 = Instant::now();
     let bar = if opts.groundtruth.is_some() { ProgressBar::new_spinner() } else { ProgressBar::new(opts.scenes as u64) };
@@ -233,6 +259,39 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
     eprint!("{}", drbokeh::bench::report::comparisons(&res.rows));
+    eprintln!("wrote {}", opts.out.join("report.md").display());
+    Ok(())
+}
+
+/// `bench --dfd`: the depth-from-defocus evaluation (the work is `bench::dfd_eval::run`).
+fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
+    let d = DfdBenchOptions::default();
+    let (w, h) = args.size.unwrap_or((d.width, d.height));
+    drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
+    if !args.methods.is_empty() || args.textures.is_some() {
+        return Err(Error::usage("--methods and --textures are not used with --dfd (every depth-from-defocus method runs)").into());
+    }
+    if args.iters == 0 || args.levels == 0 {
+        return Err(Error::usage("--iters and --levels must be at least 1").into());
+    }
+    let opts = DfdBenchOptions {
+        scenes: args.scenes.unwrap_or(d.scenes),
+        width: w,
+        height: h,
+        blur: args.blur,
+        seed: args.seed,
+        groundtruth: args.groundtruth.clone(),
+        spp: args.spp.unwrap_or(d.spp).clamp(2, 1 << 20),
+        iters: args.iters,
+        levels: args.levels,
+        methods: d.methods.clone(),
+        out: args.out.clone(),
+        command: command_line(),
+    };
+    let t0 = Instant::now();
+    let res = dfd_eval::run(&opts, &mut |msg: &str| eprintln!("[{:7.1} s] {msg}", t0.elapsed().as_secs_f64())).map_err(as_flags)?;
+    eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
+    eprint!("{}", drbokeh::bench::dfd_report::acceptance(&res.rows));
     eprintln!("wrote {}", opts.out.join("report.md").display());
     Ok(())
 }

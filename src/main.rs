@@ -309,7 +309,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 27] = [
+const FLAGS: [(&str, &str); 29] = [
     ("render.occlusion = false", "--no-occlusion"),
     ("render.profile", "--profile"),
     ("render.kernel", "--kernel"),
@@ -331,6 +331,8 @@ const FLAGS: [(&str, &str); 27] = [
     ("trace.spp", "--spp"),
     ("bench.size", "--size"),
     ("bench.methods", "--methods"),
+    ("bench.scenes", "--scenes"),
+    ("bench.blur", "--blur"),
     ("dfd.iters", "--iters"),
     ("dfd.levels", "--levels"),
     ("dfd.learning_rate", "--learning-rate"),

@@ -1,5 +1,8 @@
-//! Evaluation: metrics (and, with the benchmark, synthetic scenes and ground truth).
+//! Evaluation: metrics (and, with the benchmark, synthetic scenes and ground truth); the
+//! depth-from-defocus evaluation (`bench --dfd`) in [`dfd_eval`] and [`dfd_report`].
 
+pub mod dfd_eval;
+pub mod dfd_report;
 pub mod gather;
 pub mod groundtruth;
 pub mod metrics;

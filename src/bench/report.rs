@@ -126,7 +126,7 @@ pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
         let dir = out.join("crops");
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
         for c in &res.crops {
-            write_crop(&dir.join(format!("{}.png", c.name)), &c.panels)?;
+            write_panels(&dir.join(format!("{}.png", c.name)), &c.panels)?;
         }
     }
     Ok(())
@@ -403,8 +403,9 @@ pub fn crop_panels(case: &Case, images: &[(String, &Image)], ours: Option<&Image
         .collect()
 }
 
-/// Writes labelled panels side by side (sRGB, 2× nearest-neighbour zoom for small crops).
-fn write_crop(path: &Path, panels: &[(String, Image)]) -> Result<()> {
+/// Writes labelled panels (linear RGB, equal sizes) side by side as an 8-bit PNG: sRGB-encoded,
+/// clipped, 2× nearest-neighbour zoom for panels up to 128 px, labels cut to the panel width.
+pub fn write_panels(path: &Path, panels: &[(String, Image)]) -> Result<()> {
     let size = panels[0].1.width;
     let zoom = if size <= 128 { 2 } else { 1 };
     let (pw, gap, head) = (size * zoom, 6usize, 18usize);

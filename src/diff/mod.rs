@@ -1,8 +1,10 @@
 //! Differentiable tooling around the renderer: the losses of the paper's depth-from-defocus
 //! objective (Eqn. 7) with their gradients, depth from defocus ([`dfd`]) and its file-level
-//! job ([`dfd_job`], the work of `drbokeh dfd`). The renderer's own vector-Jacobian product is
+//! job ([`dfd_job`], the work of `drbokeh dfd`), and the Gaussian-PSF renderer of its ablation
+//! ([`gauss_psf`]). The renderer's own vector-Jacobian product is
 //! [`crate::render::backward`].
 
 pub mod dfd;
 pub mod dfd_job;
+pub mod gauss_psf;
 pub mod loss;

@@ -1,0 +1,64 @@
+//! `drbokeh bench --dfd` end to end on a tiny configuration: one generated scene and the
+//! shared Mitsuba scenes at 32 px, few Adam steps. Checks the report's files and that its
+//! numbers are sane (the true disparity re-renders well, every estimate beats the start).
+
+mod common;
+
+use common::{assert_usage_error, drbokeh, run, shared_dir, stderr};
+use std::collections::BTreeMap;
+
+/// report.csv as (scene, method) → column → value.
+fn read_csv(text: &str) -> BTreeMap<(String, String), BTreeMap<String, String>> {
+    let mut lines = text.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    lines
+        .map(|l| {
+            let row: BTreeMap<String, String> = head.iter().zip(l.split(',')).map(|(k, v)| (k.to_string(), v.to_string())).collect();
+            ((row["scene"].clone(), row["method"].clone()), row)
+        })
+        .collect()
+}
+
+#[test]
+fn dfd_bench_writes_a_sane_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let gt = shared_dir().join("groundtruth");
+    let out = run({
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd", "--scenes", "1", "--size", "32x32", "--iters", "25", "--levels", "2", "--spp", "64", "--out", "rep"])
+            .arg("--groundtruth")
+            .arg(&gt);
+        c
+    });
+    assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
+    let rep = dir.join("rep");
+    for f in ["report.csv", "report.md", "figures/s000.png", "figures/portrait.png", "figures/thin_bars.png"] {
+        assert!(rep.join(f).is_file(), "{f} missing");
+    }
+    let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    assert!(md.contains("## Acceptance") && md.contains("gauss-psf") && md.contains("true-disparity"), "{md}");
+    let rows = read_csv(&std::fs::read_to_string(rep.join("report.csv")).unwrap());
+    let num = |scene: &str, m: &str, col: &str| -> f64 {
+        let r = rows.get(&(scene.to_string(), m.to_string())).unwrap_or_else(|| panic!("no row {scene} {m}"));
+        r[col].parse().unwrap_or_else(|_| panic!("{scene} {m} {col}: {}", r[col]))
+    };
+    let methods = ["drbokeh-physical", "drbokeh-official", "drbokeh-no-occlusion", "gauss-psf", "drbokeh-l1-grad", "drbokeh-l1-grad-ssim"];
+    for scene in ["s000", "portrait", "thin_bars"] {
+        assert_eq!(num(scene, "true-disparity", "disparity_mae"), 0.0);
+        let psnr = num(scene, "true-disparity", "rerender_psnr_srgb");
+        assert!(psnr > 20.0 && psnr.is_finite(), "{scene}: true-disparity re-render PSNR {psnr}");
+        let init = num(scene, "init", "disparity_mae");
+        for m in methods {
+            let mae = num(scene, m, "disparity_mae");
+            assert!(mae.is_finite() && mae < init, "{scene} {m}: disparity MAE {mae}, start {init}");
+            assert!(num(scene, m, "rerender_ssim_srgb") > 0.0 && num(scene, m, "time_ms") > 0.0);
+        }
+    }
+    // --scenes 0 without ground truth: a usage error naming the flag.
+    assert_usage_error(dir, "bench --dfd --scenes 0", &["--scenes"], || {
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd", "--scenes", "0", "--out", "none"]);
+        run(c)
+    });
+}
