@@ -200,6 +200,10 @@ pub struct LatticeRings {
     dist: Vec<f64>,
     count: Vec<f64>,
     sum: Vec<f64>,
+    /// For each squared distance `n` (integer), how many distinct distances are at most
+    /// `√n`: `within` in O(1) (the coarse grids ask it for every source; a binary search was
+    /// 5% of a 3 MP render's instructions).
+    by_sq: Vec<u32>,
 }
 
 impl LatticeRings {
@@ -216,6 +220,7 @@ impl LatticeRings {
             sq.sort_unstable();
             let (mut dist, mut count, mut sum) = (Vec::new(), Vec::new(), Vec::new());
             let (mut c, mut s) = (0f64, 0f64);
+            let mut distinct_sq = Vec::new();
             for (k, &q) in sq.iter().enumerate() {
                 let d = (q as f64).sqrt();
                 c += 1.0;
@@ -224,17 +229,33 @@ impl LatticeRings {
                     dist.push(d);
                     count.push(c);
                     sum.push(s);
+                    distinct_sq.push(q);
                 }
             }
-            LatticeRings { dist, count, sum }
+            // The table stops where the square of points is still complete (|p| ≤ reach).
+            let mut by_sq = vec![0u32; (reach * reach) as usize + 1];
+            let mut k = 0;
+            for (n, slot) in by_sq.iter_mut().enumerate() {
+                while k < distinct_sq.len() && distinct_sq[k] <= n as i64 {
+                    k += 1;
+                }
+                *slot = k as u32;
+            }
+            LatticeRings { dist, count, sum, by_sq }
         })
     }
 
-    /// `(C(t), S(t))`: points with `|p| ≤ t` and the sum of their distances.
+    /// `(C(t), S(t))`: points with `|p| ≤ t` and the sum of their distances (every point for
+    /// `t` beyond the table). A point exactly at distance `t` may count or not by rounding:
+    /// the coverage sums built from these are continuous in `t`, so either gives the same sum.
     fn within(&self, t: f64) -> (f64, f64) {
-        match self.dist.partition_point(|&d| d <= t) {
+        if t < 0.0 {
+            return (0.0, 0.0);
+        }
+        let n = ((t * t) as usize).min(self.by_sq.len() - 1);
+        match self.by_sq[n] {
             0 => (0.0, 0.0),
-            k => (self.count[k - 1], self.sum[k - 1]),
+            k => (self.count[k as usize - 1], self.sum[k as usize - 1]),
         }
     }
 
