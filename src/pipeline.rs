@@ -407,8 +407,21 @@ impl Pipeline {
     }
 
     /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
-    /// caller has already raised them to the gamma.
+    /// caller has already raised them to the gamma. To render the same layers at several foci,
+    /// see [`Refocuser`].
     pub fn render_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
+        let (image, report) = self.render_given(&layers, focus)?;
+        let layers = if self.renders_back_only(&layers) { vec![layers.into_iter().next_back().expect("non-empty")] } else { layers };
+        Ok(Outcome { image, layers, report })
+    }
+
+    /// Whether only the back layer of given `layers` is rendered (occlusion off).
+    fn renders_back_only(&self, layers: &[Layer]) -> bool {
+        !self.config.render.occlusion && layers.len() > 1
+    }
+
+    /// [`Pipeline::render_layers`] on borrowed layers: the image and the report.
+    fn render_given(&self, layers: &[Layer], focus: Focus) -> Result<(Image, Report)> {
         let t0 = Instant::now();
         let Some(first) = layers.first() else {
             return Err(Error::usage("no layers given"));
@@ -429,34 +442,41 @@ impl Pipeline {
             report.skipped(name, "layers were given");
         }
         let blur = self.blur_for(w, h);
-        let mut layers = layers;
-        if !self.config.render.occlusion && layers.len() > 1 {
+        let shown = if self.renders_back_only(layers) {
             report.warnings.push("render.occlusion = false renders only the back layer of the given layers".into());
-            layers = vec![layers.pop().expect("non-empty")];
-        }
-        let mut out = self.render_prepared(layers, focus, blur, report, LayerOrigin::Given)?;
-        out.report.total_ms = ms_since(t0);
-        Ok(out)
+            &layers[layers.len() - 1..]
+        } else {
+            layers
+        };
+        let (image, mut report) = self.render_borrowed(shown, focus, blur, report, LayerOrigin::Given)?;
+        report.total_ms = ms_since(t0);
+        Ok((image, report))
     }
 
-    fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, mut report: Report, origin: LayerOrigin) -> Result<Outcome> {
+    fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, report: Report, origin: LayerOrigin) -> Result<Outcome> {
+        let (image, report) = self.render_borrowed(&layers, focus, blur, report, origin)?;
+        Ok(Outcome { image, layers, report })
+    }
+
+    /// Renders `layers` (front first) at `focus` and `blur`, adding to `report`.
+    fn render_borrowed(&self, layers: &[Layer], focus: f32, blur: f32, mut report: Report, origin: LayerOrigin) -> Result<(Image, Report)> {
         let rc = &self.config.render;
         let (w, h) = (layers[0].width(), layers[0].height());
-        let max_coc = render::max_scatter_radius(&layers, blur, focus) - 1.0;
+        let max_coc = render::max_scatter_radius(layers, blur, focus) - 1.0;
         if let (LayerOrigin::Given, Some(why)) = (origin, nothing_out_of_focus(rc.kernel, max_coc)) {
             report.skipped("render", format!("{why}: front-to-back alpha composite"));
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
-            return Ok(Outcome { image: render::alpha_composite(&layers), layers, report });
+            return Ok((render::alpha_composite(layers), report));
         }
-        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(&layers, blur, focus));
+        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur, focus));
         let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile };
         let (kernel, kernel_name) = match rc.kernel {
             KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),
             KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),
         };
-        render::validate(&layers, &s)?;
+        render::validate(layers, &s)?;
         if kernel == Kernel::Exact {
-            self.check_exact_cost(w, h, lens, &layers, &mut report)?;
+            self.check_exact_cost(w, h, lens, layers, &mut report)?;
         }
         let t = Instant::now();
         // A fully transparent layer adds nothing and hides nothing: skip it.
@@ -477,7 +497,7 @@ impl Pipeline {
             report.skipped("render", "every layer is fully transparent: the result is black");
         }
         report.params = self.params((w, h), (blur, focus, lens), &kernel_name, layers.len(), max_coc);
-        Ok(Outcome { image, layers, report })
+        Ok((image, report))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -523,5 +543,63 @@ impl Pipeline {
             max_coc_radius_px: max_coc,
             threads: rayon::current_num_threads(),
         }
+    }
+}
+
+/// Ready-made layers kept in memory and rendered at one focus after another: a focus sweep,
+/// or an app's focus control, reads or estimates the layers once. Each [`Refocuser::render`]
+/// gives exactly what [`Pipeline::render_layers`] gives for the same layers and focus; the
+/// layers are borrowed, never copied, and stay usable after an error.
+///
+/// ```
+/// use drbokeh::{Config, Focus, Image, Pipeline, pipeline::Refocuser, render::Layer};
+/// // One 32x32 layer: a grey ramp, opaque, its disparity rising from 0 to 1 across.
+/// let mut px = Vec::new();
+/// for _y in 0..32 {
+///     for x in 0..32 {
+///         let v = x as f32 / 31.0;
+///         px.extend_from_slice(&[v, v, v, 1.0, v]);
+///     }
+/// }
+/// let layer = Layer::new(Image::from_vec(32, 32, 5, px).expect("32x32x5 values"), "ramp")?;
+/// let refocuser = Refocuser::new(Pipeline::from_config(Config::default())?, vec![layer])?;
+/// for focus in [0.0, 0.5, 1.0] {
+///     let (image, _report) = refocuser.render(Focus::Disparity(focus))?;
+///     assert_eq!((image.width, image.height, image.channels), (32, 32, 3));
+/// }
+/// # Ok::<(), drbokeh::Error>(())
+/// ```
+pub struct Refocuser {
+    pipeline: Pipeline,
+    layers: Vec<Layer>,
+}
+
+impl Refocuser {
+    /// Keeps `layers` (front first, linear colours, all one size) for rendering with
+    /// `pipeline`'s render settings (blur, kernel, quality, profile, occlusion, lens).
+    pub fn new(pipeline: Pipeline, layers: Vec<Layer>) -> Result<Self> {
+        let Some(first) = layers.first() else {
+            return Err(Error::usage("no layers given"));
+        };
+        let size = (first.width(), first.height());
+        if let Some(other) = layers.iter().find(|l| (l.width(), l.height()) != size) {
+            return Err(Error::usage(format!("the layers differ in size: {}x{} and {}x{}", size.0, size.1, other.width(), other.height())));
+        }
+        Ok(Refocuser { pipeline, layers })
+    }
+
+    /// Renders the layers focused at `focus`: the linear RGB image and what ran.
+    pub fn render(&self, focus: Focus) -> Result<(Image, Report)> {
+        self.pipeline.render_given(&self.layers, focus)
+    }
+
+    /// The layers, front first.
+    pub fn layers(&self) -> &[Layer] {
+        &self.layers
+    }
+
+    /// Gives the layers back.
+    pub fn into_layers(self) -> Vec<Layer> {
+        self.layers
     }
 }

@@ -759,3 +759,35 @@ fn physical_planes_in_one_layer_match_planes_as_layers() {
         }
     }
 }
+
+/// A `Refocuser` renders its kept layers exactly as `Pipeline::render_layers` does, focus after
+/// focus (fast and exact kernels, occlusion on and off), and keeps them usable after an error.
+#[test]
+fn refocuser_equals_render_layers_at_every_focus() {
+    use drbokeh::pipeline::Refocuser;
+    let (w, h) = (40, 30);
+    let disk = plane(w, h, |x, y| if (x as f32 - 20.0).hypot(y as f32 - 15.0) < 9.0 { 1.0 } else { 0.0 });
+    let near = plane(w, h, |_, _| 0.9);
+    let far = random_plane(w, h, 7);
+    let opaque = plane(w, h, |_, _| 1.0);
+    let layers = vec![
+        layer(w, h, |x, _| [0.9, x as f32 / 40.0, 0.1], &disk, &near),
+        layer(w, h, |x, y| [((x / 3 + y / 2) % 2) as f32, 0.4, 0.7], &opaque, &far),
+    ];
+    for (kernel, occlusion) in [("fast", true), ("exact", true), ("fast", false)] {
+        let config: Config = toml::from_str(&format!("[render]\nkernel = \"{kernel}\"\nblur = 8.0\nocclusion = {occlusion}\n")).unwrap();
+        let pipeline = || Pipeline::from_config(config.clone()).unwrap();
+        let refocuser = Refocuser::new(pipeline(), layers.clone()).unwrap();
+        for focus in [0.0, 0.45, 0.9, 1.0] {
+            let (image, _) = refocuser.render(Focus::Disparity(focus)).unwrap();
+            let alone = pipeline().render_layers(layers.clone(), Focus::Disparity(focus)).unwrap();
+            assert_eq!(image.data, alone.image.data, "{kernel}, occlusion {occlusion}, focus {focus}");
+        }
+        // A focus point outside the layers is an error; the layers stay.
+        assert!(refocuser.render(Focus::At(400, 3)).is_err());
+        assert_eq!(refocuser.layers().len(), 2);
+    }
+    // Layers of different sizes are refused.
+    let small = layer(4, 4, |_, _| [0.5; 3], &plane(4, 4, |_, _| 1.0), &plane(4, 4, |_, _| 0.5));
+    assert!(Refocuser::new(Pipeline::from_config(Config::default()).unwrap(), vec![layers[0].clone(), small]).is_err());
+}
