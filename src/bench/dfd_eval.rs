@@ -431,20 +431,6 @@ fn groundtruth_case(dir: &Path, width: usize) -> Result<DfdCase> {
     })
 }
 
-/// The scene folders (holding a params.json) of a ground-truth folder, sorted.
-fn groundtruth_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| Error::io(dir, e))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.join("params.json").is_file())
-        .collect();
-    dirs.sort();
-    if dirs.is_empty() {
-        return Err(Error::input(dir, "no scene folder (with params.json) found in this ground-truth folder"));
-    }
-    Ok(dirs)
-}
-
 /// Scores one disparity map on a case (re-render included).
 fn score_map(case: &DfdCase, kind: RowKind, d: &Image, time_ms: f64) -> Result<DfdRow> {
     let img = rerender(&case.aif, d, case.blur, case.other_focus)?;
@@ -530,7 +516,7 @@ pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBench
         crate::render::check_blur("bench.blur", k)?;
     }
     let dirs = match &opts.groundtruth {
-        Some(d) => groundtruth_dirs(d)?,
+        Some(d) => super::groundtruth::scene_dirs(d)?,
         None => Vec::new(),
     };
     std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;

@@ -4,7 +4,7 @@
 //! estimated disparities, truth).
 
 use super::dfd_eval::{CaseSource, DfdBenchOptions, DfdBenchResult, DfdMethod, DfdRow, RowKind, TEXTURE_THRESHOLD, TEXTURE_WINDOW};
-use super::report::write_panels;
+use super::report::{mean, median, write_panels};
 use crate::error::{Error, Result};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -17,24 +17,6 @@ const PSNR_CAP: f64 = 100.0;
 /// The re-render margin of the acceptance check: the estimate's re-render PSNR must be within
 /// this many dB of the true disparity's.
 pub const ACCEPT_DB: f64 = 2.0;
-
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for x in v.filter(|x| !x.is_nan()) {
-        s += x;
-        n += 1;
-    }
-    if n == 0 { f64::NAN } else { s / n as f64 }
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
-}
 
 /// Writes every output of a run into `opts.out`.
 pub fn write_all(opts: &DfdBenchOptions, res: &DfdBenchResult) -> Result<()> {

@@ -123,3 +123,18 @@ impl GtScene {
         Layer::from_parts(&self.aif, &opaque, &self.disparity, "all-in-focus layer")
     }
 }
+
+/// The scene folders (each holding a `params.json`) of a ground-truth folder, sorted; an
+/// error naming the folder when it has none.
+pub fn scene_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("params.json").is_file())
+        .collect();
+    dirs.sort();
+    if dirs.is_empty() {
+        return Err(Error::input(dir, "no scene folder (with params.json) found in this ground-truth folder"));
+    }
+    Ok(dirs)
+}

@@ -24,16 +24,18 @@ pub const CATEGORIES: [(&str, &str); 5] = [
 /// PSNR values are capped here before averaging (identical images give +inf).
 const PSNR_CAP: f64 = 100.0;
 
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
+/// Mean of the values that are not NaN (a metric that could not be computed); NaN if none.
+pub(super) fn mean(v: impl Iterator<Item = f64>) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
-    for x in v {
+    for x in v.filter(|x| !x.is_nan()) {
         s += x;
         n += 1;
     }
     if n == 0 { f64::NAN } else { s / n as f64 }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// Median (mean of the middle two for an even count); NaN for no values.
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -341,15 +341,7 @@ pub fn load_textures(dir: &Path) -> Result<Vec<Image>> {
 /// Traces (or loads) the cases of a run, one at a time, handing each to `f`.
 fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnMut(Case) -> Result<()>) -> Result<usize> {
     if let Some(dir) = &opts.groundtruth {
-        let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
-            .map_err(|e| Error::io(dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.join("params.json").is_file())
-            .collect();
-        dirs.sort();
-        if dirs.is_empty() {
-            return Err(Error::input(dir, "no scene folder (with params.json) found in this ground-truth folder"));
-        }
+        let dirs = super::groundtruth::scene_dirs(dir)?;
         let mut n = 0;
         for d in dirs {
             let scene = GtScene::load(&d)?;
