@@ -121,6 +121,45 @@ fn png_srgb_round_trip_through_write_and_read_photo() {
     assert_close(&back.data, &img.data, 2e-4);
 }
 
+/// The table-driven, parallel quantizer and the direct integer-to-linear read are exact: a
+/// noisy image spanning several parallel blocks (300 x 500 RGBA, values in [-0.1, 1.1] with
+/// NaN) is written as 8 and 16-bit sRGB PNG; the `image` crate (an independent reader) finds
+/// exactly the levels of the plain formula, and `read_photo` returns exactly
+/// `srgb_to_linear(level / max)` for them.
+#[test]
+fn png_srgb_levels_exact_against_the_formula_and_an_independent_reader() {
+    let dir = tmp();
+    let (w, h) = (300, 500);
+    let mut img = Image::new(w, h, 4);
+    let mut x = 0x2545_F491_4F6C_DD1Du64;
+    for v in img.data.iter_mut() {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        *v = (x >> 40) as f32 / (1u64 << 24) as f32 * 1.2 - 0.1;
+    }
+    img.data[5] = f32::NAN;
+    for bits in [8u8, 16] {
+        let max = if bits == 8 { 255.0f32 } else { 65535.0 };
+        let level = |k: usize, v: f32| {
+            let e = if k == 3 { v } else { Transfer::Srgb.encode(v) };
+            (if e.is_nan() { 0.0 } else { e.clamp(0.0, 1.0) } * max).round()
+        };
+        let want: Vec<f32> = img.data.iter().enumerate().map(|(i, &v)| level(i % 4, v)).collect();
+        let p = dir.path().join(format!("noisy{bits}.png"));
+        write_png(&p, &img, bits, Transfer::Srgb).unwrap();
+        let got: Vec<f32> = match image::open(&p).unwrap() {
+            image::DynamicImage::ImageRgba8(b) => b.into_raw().into_iter().map(f32::from).collect(),
+            image::DynamicImage::ImageRgba16(b) => b.into_raw().into_iter().map(f32::from).collect(),
+            other => panic!("unexpected layout {:?}", other.color()),
+        };
+        assert!(got == want, "{bits}-bit levels differ from the formula");
+        let photo = read_photo(&p, Transfer::Srgb, &lim()).unwrap();
+        let expect: Vec<f32> = want.chunks(4).flat_map(|px| px[..3].iter().map(|&q| Transfer::Srgb.decode(q / max))).collect();
+        assert!(photo.data == expect, "{bits}-bit read_photo differs from decode(level / max)");
+    }
+}
+
 #[test]
 fn srgb_decode_of_8_bit_128() {
     let dir = tmp();

@@ -56,16 +56,24 @@ impl ExrChannels {
         v.join(", ")
     }
 
-    /// Interleaves the channels at `indices` into one image.
+    /// Interleaves the channels at `indices` into one image. Parallel over rows (rayon);
+    /// allocates the image.
     pub fn to_image(&self, indices: &[usize]) -> Image {
+        use rayon::prelude::*;
         let n = indices.len();
-        let mut out = Image::new(self.width, self.height, n);
-        for (k, &i) in indices.iter().enumerate() {
-            let src = &self.channels[i].data;
-            for (dst, &v) in out.data.iter_mut().skip(k).step_by(n).zip(src) {
-                *dst = v;
-            }
+        let w = self.width;
+        let mut out = Image::new(w, self.height, n);
+        if w == 0 {
+            return out;
         }
+        out.data.par_chunks_mut(w * n).enumerate().for_each(|(y, row)| {
+            for (k, &i) in indices.iter().enumerate() {
+                let src = &self.channels[i].data[y * w..(y + 1) * w];
+                for (dst, &v) in row.iter_mut().skip(k).step_by(n).zip(src) {
+                    *dst = v;
+                }
+            }
+        });
         out
     }
 
@@ -131,7 +139,17 @@ pub fn read_exr_channels(path: &Path, limits: &ReadLimits) -> Result<ExrChannels
     })
 }
 
-/// Writes `img` as a float32 EXR (ZIP compressed, lossless) with the given channel names, one
+/// How [`write_exr`] stores pixels: RLE-compressed scan lines, in increasing order (lossless,
+/// part of every OpenEXR reader). Measured on a noisy 12.2 MP RGB float image (2 cores, the
+/// `exr` crate's parallel writer, `examples/io_timing`): ZIP16 (the `exr` crate's
+/// `SMALL_LOSSLESS`, used before) wrote in 6.9 s at 137 MB, ZIP1 4.5 s / 143 MB, PIZ 3.9 s /
+/// 110 MB, RLE 0.38 s / 146 MB, none 0.53 s / 146 MB; reading back took 1.37 / 1.04 / 3.66 /
+/// 0.64 / 1.25 s. Float mantissas of a photo do not deflate, and the `exr` crate compresses
+/// ZIP at a fixed, slow level; RLE still shrinks flat areas (alpha, empty layer regions).
+const WRITE_ENCODING: x::Encoding =
+    x::Encoding { compression: x::Compression::RLE, blocks: x::Blocks::ScanLines, line_order: x::LineOrder::Increasing };
+
+/// Writes `img` as a float32 EXR (RLE compressed, lossless: see `WRITE_ENCODING`) with the given channel names, one
 /// name per channel (e.g. `["R","G","B"]`, `["R","G","B","A","D"]`, `["Y"]`). The file is
 /// written atomically. Channels are stored in the alphabetical order the format requires;
 /// readers find them by name.
@@ -156,8 +174,7 @@ pub fn write_exr(path: &Path, img: &Image, channel_names: &[&str]) -> Result<()>
         let data: Vec<f32> = img.data.iter().skip(i).step_by(img.channels).copied().collect();
         list.push(x::AnyChannel::new(text, x::FlatSamples::F32(data)));
     }
-    let layer =
-        x::Layer::new((img.width, img.height), x::LayerAttributes::default(), x::Encoding::SMALL_LOSSLESS, x::AnyChannels::sort(list));
+    let layer = x::Layer::new((img.width, img.height), x::LayerAttributes::default(), WRITE_ENCODING, x::AnyChannels::sort(list));
     let image = x::Image::from_layer(layer);
     super::atomic::write_atomic(path, |w| {
         image.write().to_buffered(w).map_err(|e| match e {

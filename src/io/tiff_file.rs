@@ -7,10 +7,9 @@
 //! palette, CMYK, YCbCr, Lab, bilevel and other sub-byte depths, signed integers.
 
 use super::format::{FileFormat, guarded, open};
-use super::image_file::{Decoded, Encoding};
+use super::image_file::{Encoding, Samples, Stored};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
-use crate::image::Image;
 use std::path::Path;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
@@ -29,7 +28,7 @@ fn tiff_error(path: &Path, e: TiffError) -> Error {
 }
 
 /// Decodes the first image of a TIFF file (see the module doc for what is accepted).
-pub(crate) fn decode_tiff(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
+pub(crate) fn decode_tiff(path: &Path, limits: &ReadLimits) -> Result<Stored> {
     let reader = open(path)?;
     guarded(path, FileFormat::Tiff, || {
         let te = |e| tiff_error(path, e);
@@ -62,13 +61,19 @@ pub(crate) fn decode_tiff(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
         let mut buf = DecodingResult::U8(Vec::new());
         dec.read_image_to_buffer(&mut buf).map_err(te)?;
 
-        let (mut data, encoding): (Vec<f32>, Encoding) = match buf {
-            DecodingResult::U8(v) => (v.into_iter().map(|q| q as f32 / 255.0).collect(), Encoding::Display),
-            DecodingResult::U16(v) => (v.into_iter().map(|q| q as f32 / 65535.0).collect(), Encoding::Display),
-            DecodingResult::U32(v) => (v.into_iter().map(|q| (q as f64 / u32::MAX as f64) as f32).collect(), Encoding::Display),
-            DecodingResult::F16(v) => (v.into_iter().map(|x| x.to_f32()).collect(), Encoding::Linear),
-            DecodingResult::F32(v) => (v, Encoding::Linear),
-            DecodingResult::F64(v) => (v.into_iter().map(|x| x as f32).collect(), Encoding::Linear),
+        // 8 and 16-bit samples stay integers (the decoder's buffer, converted to f32 once by the
+        // caller); white-is-zero grey is inverted in [0, 1] as before (`1 - q / max`).
+        let (samples, encoding) = match buf {
+            DecodingResult::U8(v) if !white_is_zero => (Samples::U8(v), Encoding::Display),
+            DecodingResult::U16(v) if !white_is_zero => (Samples::U16(v), Encoding::Display),
+            DecodingResult::U8(v) => (Samples::F32(v.into_iter().map(|q| q as f32 / 255.0).collect()), Encoding::Display),
+            DecodingResult::U16(v) => (Samples::F32(v.into_iter().map(|q| q as f32 / 65535.0).collect()), Encoding::Display),
+            DecodingResult::U32(v) => {
+                (Samples::F32(v.into_iter().map(|q| (q as f64 / u32::MAX as f64) as f32).collect()), Encoding::Display)
+            }
+            DecodingResult::F16(v) => (Samples::F32(v.into_iter().map(|x| x.to_f32()).collect()), Encoding::Linear),
+            DecodingResult::F32(v) => (Samples::F32(v), Encoding::Linear),
+            DecodingResult::F64(v) => (Samples::F32(v.into_iter().map(|x| x as f32).collect()), Encoding::Linear),
             _ => {
                 return Err(Error::input(
                     path,
@@ -76,24 +81,46 @@ pub(crate) fn decode_tiff(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
                 ));
             }
         };
-        if data.len() < count {
-            return Err(Error::input(path, format!("corrupt or truncated TIFF: decoded {} samples, expected {count}", data.len())));
-        }
-        data.truncate(count);
-        if planar && channels > 1 {
-            let plane = w * h;
-            let mut inter = vec![0.0f32; count];
-            for c in 0..channels {
-                for (i, &v) in data[c * plane..(c + 1) * plane].iter().enumerate() {
-                    inter[i * channels + c] = v;
+        let samples = match samples {
+            Samples::U8(v) => Samples::U8(arrange(path, v, count, planar, channels)?),
+            Samples::U16(v) => Samples::U16(arrange(path, v, count, planar, channels)?),
+            Samples::F32(v) => {
+                let mut data = arrange(path, v, count, planar, channels)?;
+                if white_is_zero && encoding == Encoding::Display && channels <= 2 {
+                    data.iter_mut().step_by(channels).for_each(|v| *v = 1.0 - *v);
                 }
+                Samples::F32(data)
             }
-            data = inter;
-        }
-        if white_is_zero && encoding == Encoding::Display && channels <= 2 {
-            data.iter_mut().step_by(channels).for_each(|v| *v = 1.0 - *v);
-        }
-        let image = Image::from_vec(w, h, channels, data).ok_or_else(|| Error::input(path, "corrupt TIFF: data size mismatch"))?;
-        Ok(Decoded { image, encoding, bit_depth: bits, has_alpha: matches!(channels, 2 | 4), format: FileFormat::Tiff })
+        };
+        Ok(Stored {
+            width: w,
+            height: h,
+            channels,
+            samples,
+            encoding,
+            bit_depth: bits,
+            has_alpha: matches!(channels, 2 | 4),
+            format: FileFormat::Tiff,
+        })
     })
+}
+
+/// The first `count` samples of `data`, interleaved when the file stores one plane per channel.
+/// Refuses fewer than `count` samples (a truncated file). Allocates only for planar files.
+fn arrange<T: Copy + Default>(path: &Path, mut data: Vec<T>, count: usize, planar: bool, channels: usize) -> Result<Vec<T>> {
+    if data.len() < count {
+        return Err(Error::input(path, format!("corrupt or truncated TIFF: decoded {} samples, expected {count}", data.len())));
+    }
+    data.truncate(count);
+    if planar && channels > 1 {
+        let plane = count / channels;
+        let mut inter = vec![T::default(); count];
+        for c in 0..channels {
+            for (i, &v) in data[c * plane..(c + 1) * plane].iter().enumerate() {
+                inter[i * channels + c] = v;
+            }
+        }
+        data = inter;
+    }
+    Ok(data)
 }

@@ -6,8 +6,6 @@ use super::exr_file::write_exr;
 use crate::color::Transfer;
 use crate::error::{Error, Result};
 use crate::image::Image;
-use image::codecs::png::PngEncoder;
-use image::{ExtendedColorType, ImageEncoder};
 use std::io::Write;
 use std::path::Path;
 
@@ -99,45 +97,184 @@ pub fn default_channel_names(channels: usize) -> Option<&'static [&'static str]>
     }
 }
 
+/// Quantizes one value to an integer in `0..=max` (as `f32`): `round(clamp(e, 0, 1) * max)`
+/// where `e = transfer.encode(v)` for colour and `v` for alpha; NaN becomes 0. The reference
+/// that [`EncodeTable`] reproduces.
+#[inline]
+fn quantize_value(v: f32, transfer: Transfer, max: f32) -> f32 {
+    let e = transfer.encode(v);
+    let e = if e.is_nan() { 0.0 } else { e.clamp(0.0, 1.0) };
+    (e * max).round()
+}
+
+/// [`quantize_value`] for a colour transfer without a `powf` per value: the thresholds where
+/// the quantized level steps up, and a table over the float's top bits that gives the level at
+/// the start of each bit range, from which a few comparisons reach the exact level.
+///
+/// Equal to [`quantize_value`] for every input as long as that is non-decreasing in `v`
+/// (true of the sRGB curve and of gammas > 0; `tests::encode_table_equals_the_formula` checks
+/// every threshold's neighbourhood and a million random values). Built for 8-bit output with
+/// [`Transfer::Srgb`] or [`Transfer::Gamma`] of a finite positive exponent only; `None`
+/// otherwise (the caller uses the formula). Measured on a noisy 12.2 MP RGB image, 2 cores,
+/// both parallel, same run: 8-bit 0.24 s with the table vs 0.39 s with the formula; 16-bit
+/// 0.93 s vs 0.39 s (its 0.5 MB start table and 4 search steps cost more than `powf`), so
+/// 16-bit output keeps the formula.
+struct EncodeTable {
+    /// The largest level, 255.
+    max: u16,
+    /// `thresholds[k]`: the smallest positive float whose level is at least `k + 1`; padded
+    /// with infinities so that the steps of [`EncodeTable::level`] never index past the end.
+    thresholds: Vec<f32>,
+    /// `start[b]`: the level of the float with bits `b << shift` (the smallest of its range).
+    start: Vec<u16>,
+    /// Bits of the float dropped to index `start`: 16 (16 K entries, 32 KB); a range then
+    /// holds at most one threshold (near 1.0 ~0.5 levels, where the sRGB curve is flattest in
+    /// float bits).
+    shift: u32,
+    /// Powers of two, largest first, summing to at least the most levels one range of `start`
+    /// spans: the branchless search steps of [`EncodeTable::level`] (`[1]` for sRGB). A loop of
+    /// comparisons was 2x slower on noisy data (mispredicted branches).
+    steps: Vec<usize>,
+}
+
+impl EncodeTable {
+    /// O(levels · 30) `encode` calls for the thresholds (bisection over float bits, parallel)
+    /// plus O(table) look-ups: under 1 ms.
+    fn new(transfer: Transfer, bits: u8) -> Option<EncodeTable> {
+        use rayon::prelude::*;
+        if bits != 8 {
+            return None;
+        }
+        match transfer {
+            Transfer::Srgb => {}
+            Transfer::Gamma(g) if g.is_finite() && g > 0.0 => {}
+            _ => return None,
+        }
+        let max = 255u16;
+        let m = max as f32;
+        let level = |v: f32| quantize_value(v, transfer, m) as u32;
+        // What the look-up assumes outside (0, 1): NaN, zero and negatives are level 0, 1.0
+        // and above (monotonic) the top level.
+        if [f32::NAN, 0.0, -1.0, f32::NEG_INFINITY].iter().any(|&v| level(v) != 0) || level(1.0) != max as u32 {
+            return None;
+        }
+        let one = 1.0f32.to_bits();
+        let mut thresholds: Vec<f32> = (1..=max as u32)
+            .into_par_iter()
+            .map(|k| {
+                // Smallest bit pattern in (0, one] whose level reaches k.
+                let (mut lo, mut hi) = (0u32, one);
+                while hi - lo > 1 {
+                    let mid = lo + (hi - lo) / 2;
+                    if level(f32::from_bits(mid)) >= k { hi = mid } else { lo = mid }
+                }
+                f32::from_bits(hi)
+            })
+            .collect();
+        let shift = 16;
+        let start: Vec<u16> = (0..=one >> shift)
+            .map(|b| {
+                let v = f32::from_bits(b << shift);
+                thresholds.partition_point(|&t| t <= v) as u16
+            })
+            .collect();
+        // Levels between the starts of consecutive ranges (and from the last to `max`).
+        let span = start.windows(2).map(|w| w[1] - w[0]).chain([max - start[start.len() - 1]]).max().unwrap_or(0) as usize;
+        // P, P/2, .., 1 with P the largest power of two <= span: they sum to 2P - 1 >= span.
+        let steps: Vec<usize> = if span == 0 { Vec::new() } else { (0..=span.ilog2()).rev().map(|e| 1usize << e).collect() };
+        thresholds.resize(max as usize + 2 * steps.iter().sum::<usize>() + 1, f32::INFINITY);
+        Some(EncodeTable { max, thresholds, start, shift, steps })
+    }
+
+    /// The level of `v`, equal to `quantize_value(v, transfer, max)`.
+    #[inline]
+    fn level(&self, v: f32) -> u16 {
+        if v.is_nan() || v <= 0.0 {
+            return 0;
+        }
+        if v >= 1.0 {
+            return self.max;
+        }
+        // Branchless binary search among the range's few thresholds (sorted): add each step
+        // whose last threshold `v` reaches.
+        let mut q = self.start[(v.to_bits() >> self.shift) as usize] as usize;
+        for &s in &self.steps {
+            q += s * (v >= self.thresholds[q + s - 1]) as usize;
+        }
+        q as u16
+    }
+}
+
 /// Quantizes `img` to 8 or 16-bit samples: colour channels go through `transfer.encode`
 /// (alpha, the last channel of 2/4-channel images, is written linearly), then are clipped to
-/// [0, 1] (NaN becomes 0) and rounded to nearest. 16-bit samples are native-endian bytes as
-/// `ImageEncoder::write_image` expects.
+/// [0, 1] (NaN becomes 0) and rounded to nearest ([`quantize_value`]). 16-bit samples are
+/// big-endian, as PNG stores them. Colour goes through an [`EncodeTable`] where one applies;
+/// parallel over blocks of 64 K pixels (rayon). Allocates the output bytes only.
 fn quantize(img: &Image, bit_depth: u8, transfer: Transfer) -> Vec<u8> {
-    let c = img.channels;
-    let alpha = if c == 2 || c == 4 { Some(c - 1) } else { None };
     let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
-    let q = |i: usize, v: f32| -> f32 {
-        let e = if Some(i % c) == alpha { v } else { transfer.encode(v) };
-        let e = if e.is_nan() { 0.0 } else { e.clamp(0.0, 1.0) };
-        (e * max).round()
-    };
-    if bit_depth == 16 {
-        img.data.iter().enumerate().flat_map(|(i, &v)| (q(i, v) as u16).to_ne_bytes()).collect()
-    } else {
-        img.data.iter().enumerate().map(|(i, &v)| q(i, v) as u8).collect()
+    match EncodeTable::new(transfer, bit_depth) {
+        Some(t) => quantize_with(img, bit_depth, |v| t.level(v)),
+        None => quantize_with(img, bit_depth, |v| quantize_value(v, transfer, max) as u16),
     }
+}
+
+/// [`quantize`] with the colour quantizer `colour` (alpha: [`quantize_value`], linear).
+/// Monomorphized per quantizer so that the per-value call inlines.
+fn quantize_with(img: &Image, bit_depth: u8, colour: impl Fn(f32) -> u16 + Sync) -> Vec<u8> {
+    use rayon::prelude::*;
+    const PIXELS_PER_TASK: usize = 1 << 16;
+    let c = img.channels.max(1);
+    let colours = if c == 2 || c == 4 { c - 1 } else { c };
+    let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
+    let level = |k: usize, v: f32| if k < colours { colour(v) } else { quantize_value(v, Transfer::Linear, max) as u16 };
+    let bytes = if bit_depth == 16 { 2 } else { 1 };
+    let mut out = vec![0u8; img.data.len() * bytes];
+    out.par_chunks_mut(PIXELS_PER_TASK * c * bytes).zip(img.data.par_chunks(PIXELS_PER_TASK * c)).for_each(|(dst, src)| {
+        for (d, px) in dst.chunks_exact_mut(c * bytes).zip(src.chunks_exact(c)) {
+            for (k, &v) in px.iter().enumerate() {
+                let q = level(k, v);
+                if bytes == 2 {
+                    d[2 * k..2 * k + 2].copy_from_slice(&q.to_be_bytes());
+                } else {
+                    d[k] = q as u8;
+                }
+            }
+        }
+    });
+    out
 }
 
 /// Encodes `img` (1, 2, 3 or 4 channels) as PNG into `w`; see [`write_png`].
 pub fn encode_png<W: Write>(w: W, img: &Image, bit_depth: u8, transfer: Transfer) -> std::result::Result<(), String> {
-    let ct = match (img.channels, bit_depth) {
-        (1, 8) => ExtendedColorType::L8,
-        (2, 8) => ExtendedColorType::La8,
-        (3, 8) => ExtendedColorType::Rgb8,
-        (4, 8) => ExtendedColorType::Rgba8,
-        (1, 16) => ExtendedColorType::L16,
-        (2, 16) => ExtendedColorType::La16,
-        (3, 16) => ExtendedColorType::Rgb16,
-        (4, 16) => ExtendedColorType::Rgba16,
-        (_, 8 | 16) => return Err(format!("cannot write a {}-channel image as PNG (1 to 4 channels)", img.channels)),
+    let colour = match img.channels {
+        1 => png::ColorType::Grayscale,
+        2 => png::ColorType::GrayscaleAlpha,
+        3 => png::ColorType::Rgb,
+        4 => png::ColorType::Rgba,
+        _ if matches!(bit_depth, 8 | 16) => return Err(format!("cannot write a {}-channel image as PNG (1 to 4 channels)", img.channels)),
+        _ => return Err(format!("PNG bit depth must be 8 or 16, not {bit_depth}")),
+    };
+    let depth = match bit_depth {
+        8 => png::BitDepth::Eight,
+        16 => png::BitDepth::Sixteen,
         _ => return Err(format!("PNG bit depth must be 8 or 16, not {bit_depth}")),
     };
     if img.is_empty() || img.width > u32::MAX as usize || img.height > u32::MAX as usize {
         return Err(format!("cannot write a {}x{} image as PNG", img.width, img.height));
     }
     let bytes = quantize(img, bit_depth, transfer);
-    PngEncoder::new(w).write_image(&bytes, img.width as u32, img.height as u32, ct).map_err(|e| format!("PNG encoder failed: {e}"))
+    let failed = |e: png::EncodingError| format!("PNG encoder failed: {e}");
+    // The `png` crate directly (what the `image` crate's encoder wraps, with the same default
+    // settings): the quantizer writes big-endian 16-bit samples, so no byte-swapped copy.
+    // `Fast` is fdeflate, a DEFLATE tuned for PNG; `Adaptive` picks a filter per row.
+    let mut enc = png::Encoder::new(w, img.width as u32, img.height as u32);
+    enc.set_color(colour);
+    enc.set_depth(depth);
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::Filter::Adaptive);
+    let mut writer = enc.write_header().map_err(failed)?;
+    writer.write_image_data(&bytes).map_err(failed)?;
+    writer.finish().map_err(failed)
 }
 
 /// Writes `img` (1 = grey, 2 = grey+alpha, 3 = RGB, 4 = RGBA channels) as an 8 or 16-bit PNG,
@@ -186,8 +323,34 @@ mod tests {
         let srgb = quantize(&img, 8, Transfer::Srgb);
         assert_eq!(srgb[1], 128, "alpha is not encoded");
         assert_eq!(srgb[0], 188, "linear 0.5 is sRGB 187.5 -> 188");
-        let q16 = quantize(&Image::from_vec(1, 1, 1, vec![1.0]).unwrap(), 16, Transfer::Linear);
-        assert_eq!(u16::from_ne_bytes([q16[0], q16[1]]), 65535);
+        let q16 = quantize(&Image::from_vec(1, 1, 1, vec![0.5]).unwrap(), 16, Transfer::Linear);
+        assert_eq!(u16::from_be_bytes([q16[0], q16[1]]), 32768, "16-bit samples are big-endian");
+    }
+
+    /// The table quantizer equals the formula: on both sides of every threshold (64 floats
+    /// each way), on a million seeded random values in [0, 1.1], and on the special values.
+    #[test]
+    fn encode_table_equals_the_formula() {
+        for transfer in [Transfer::Srgb, Transfer::Gamma(2.2), Transfer::Gamma(0.7)] {
+            let t = EncodeTable::new(transfer, 8).unwrap();
+            let check = |v: f32| assert_eq!(t.level(v) as f32, quantize_value(v, transfer, 255.0), "{transfer:?} at {v:e}");
+            for &th in &t.thresholds[..255] {
+                let b = th.to_bits();
+                (b.saturating_sub(64)..b + 64).for_each(|b| check(f32::from_bits(b)));
+            }
+            let mut x = 0x9E37_79B9_7F4A_7C15u64;
+            for _ in 0..1_000_000 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                check((x >> 40) as f32 / (1u64 << 24) as f32 * 1.1);
+            }
+            [f32::NAN, -0.0, 0.0, -1.0, 1.0, 1.0001, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, 1e-40]
+                .into_iter()
+                .for_each(check);
+        }
+        assert!(EncodeTable::new(Transfer::Linear, 8).is_none() && EncodeTable::new(Transfer::Gamma(-1.0), 8).is_none());
+        assert!(EncodeTable::new(Transfer::Srgb, 16).is_none(), "16-bit keeps the formula");
     }
 
     #[test]
