@@ -520,23 +520,36 @@ pub fn run(
     let total = plans.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let budget = Budget { limit: cfg.batch.memory_budget_mb.saturating_mul(1 << 20), used: Mutex::new(0), freed: Condvar::new() };
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(opts.jobs.max(1)).build().map_err(|e| Error::Internal(e.to_string()))?;
-    let results: Vec<ItemResult> = pool.install(|| {
-        use rayon::prelude::*;
-        plans
-            .par_iter()
-            .with_max_len(1)
-            .map(|plan| {
-                let r = if cancel.load(Ordering::SeqCst) {
-                    result(&plan.item, Status::Cancelled, Some("interrupted before it started".into()), 0.0, None)
-                } else {
-                    process(opts, plan, &budget)
-                };
-                let k = done.fetch_add(1, Ordering::SeqCst) + 1;
-                progress(k, total, &r);
-                r
+    // `jobs` workers take the next image in plan order; each image's stages and render run on
+    // rayon's global pool (every core). A rayon pool of `jobs` threads here would also confine
+    // each render to the worker's pool: with --jobs 1 a batch used one core of two (measured:
+    // CPU 99% of 200%, 100 photos of 2.1 MP in 130 s).
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results: Vec<ItemResult> = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..opts.jobs.clamp(1, total.max(1)))
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut mine = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, Ordering::SeqCst);
+                        let Some(plan) = plans.get(i) else { break };
+                        let r = if cancel.load(Ordering::SeqCst) {
+                            result(&plan.item, Status::Cancelled, Some("interrupted before it started".into()), 0.0, None)
+                        } else {
+                            process(opts, plan, &budget)
+                        };
+                        let k = done.fetch_add(1, Ordering::SeqCst) + 1;
+                        progress(k, total, &r);
+                        mine.push((i, r));
+                    }
+                    mine
+                })
             })
-            .collect()
+            .collect();
+        let mut all: Vec<(usize, ItemResult)> =
+            workers.into_iter().flat_map(|w| w.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect();
+        all.sort_by_key(|(i, _)| *i);
+        all.into_iter().map(|(_, r)| r).collect()
     });
     let mut summary = Summary { shard: opts.shard.map(|(i, n)| format!("{i}/{n}")), ..Default::default() };
     for r in &results {

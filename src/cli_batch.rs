@@ -32,10 +32,11 @@ pub struct BatchArgs {
     /// Also process subfolders (mirrored in the output folder).
     #[arg(long)]
     recursive: bool,
-    /// Images rendered at once (each render uses all threads); memory stays under
-    /// [batch] memory_budget_mb.
-    #[arg(long, value_name = "N", default_value_t = 1)]
-    jobs: usize,
+    /// Images processed at once, or `auto` (one per core): each image's stages and render use
+    /// every core, and several images in flight overlap one's serial parts with another's
+    /// parallel ones. Memory stays under [batch] memory_budget_mb.
+    #[arg(long, value_name = "N|auto", default_value = "auto")]
+    jobs: String,
     /// Redo images whose output is up to date (same inputs and parameters).
     #[arg(long)]
     force: bool,
@@ -59,7 +60,7 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         recursive: args.recursive,
         force: args.force,
         shard: args.shard,
-        jobs: drbokeh::resources::check_threads(args.jobs, "--jobs")?,
+        jobs: parse_jobs(&args.jobs)?,
         focus: args.focus.map(Focus::Disparity).or(args.focus_at.map(|(x, y)| Focus::At(x, y))),
         manifest: args.manifest.clone(),
     };
@@ -125,4 +126,13 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::SUCCESS
     })
+}
+
+/// `--jobs`: a count (bounded as `--threads`) or `auto`, one image per core.
+fn parse_jobs(v: &str) -> anyhow::Result<usize> {
+    if v == "auto" {
+        return Ok(std::thread::available_parallelism().map_or(1, |c| c.get()));
+    }
+    let n = v.parse::<usize>().map_err(|_| drbokeh::Error::usage(format!("--jobs must be a whole number or 'auto', got '{v}'")))?;
+    Ok(drbokeh::resources::check_threads(n, "--jobs")?)
 }

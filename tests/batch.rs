@@ -380,6 +380,7 @@ fn usage_errors_stop_before_any_image() {
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--config", cfg.to_str().unwrap()], &["batch.depth_patterns", "c.toml"]);
     // Unbounded counts are refused too.
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--jobs", "100000"], &["--jobs", "100000"]);
+    assert_usage_error(root, &inp, &out, &["--focus", "1", "--jobs", "many"], &["--jobs", "many", "auto"]);
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads", "100000"], &["--threads"]);
 }
 
@@ -446,4 +447,30 @@ fn output_names_near_the_length_limit() {
     assert!(names.iter().all(|n| n.len() <= 255 && !n.ends_with(".drbokeh-tmp")), "{names:?}");
     let (code, s, err) = batch_json(&inp, &out, &["--focus", "1", "--blur", "4"]);
     assert_eq!((code, s["skipped"].as_u64()), (Some(0), Some(1)), "{err}");
+}
+
+/// Issue 14: images in flight at once (`--jobs`) change nothing but the time: the outputs are
+/// byte-identical to one at a time, and the summary lists the images in plan order.
+#[test]
+fn jobs_change_only_the_time() {
+    let t = tempfile::tempdir().unwrap();
+    let inp = t.path().join("in");
+    std::fs::create_dir_all(&inp).unwrap();
+    for stem in ["a", "b", "c", "d", "e"] {
+        scene(&inp, stem, Some(&format!("{stem}.depth.exr")), Some(&format!("{stem}.matte.png")));
+    }
+    let mut runs = Vec::new();
+    for jobs in ["1", "3", "auto"] {
+        let out = t.path().join(format!("out-{jobs}"));
+        let (code, s, err) = batch_json(&inp, &out, &["--focus", "1", "--blur", "6", "--jobs", jobs]);
+        assert_eq!(code, Some(0), "--jobs {jobs}: {err}");
+        let order: Vec<String> = statuses(&s).into_iter().map(|(image, status, _)| format!("{image} {status}")).collect();
+        let outputs: Vec<Vec<u8>> =
+            ["a", "b", "c", "d", "e"].iter().map(|n| std::fs::read(out.join(format!("{n}_bokeh.png"))).unwrap()).collect();
+        runs.push((jobs, order, outputs));
+    }
+    for (jobs, order, outputs) in &runs[1..] {
+        assert_eq!(order, &runs[0].1, "--jobs {jobs}: summary order");
+        assert!(outputs == &runs[0].2, "--jobs {jobs}: outputs differ from --jobs 1");
+    }
 }
