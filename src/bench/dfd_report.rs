@@ -4,7 +4,7 @@
 //! estimated disparities, truth).
 
 use super::dfd_eval::{CaseSource, DfdBenchOptions, DfdBenchResult, DfdMethod, DfdRow, RowKind, TEXTURE_THRESHOLD, TEXTURE_WINDOW};
-use super::report::{mean, median, write_panels};
+use super::report::{mean, median, table_head, write_panels};
 use crate::error::{Error, Result};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -162,13 +162,7 @@ pub fn acceptance(rows: &[DfdRow]) -> String {
 /// Disparity MAE (overall / textured) per case and method.
 fn per_case_table(rows: &[DfdRow]) -> String {
     let kinds: Vec<RowKind> = by_kind(rows.iter()).into_keys().collect();
-    let mut s = String::from("| scene | source | K | textured |");
-    for k in &kinds {
-        let _ = write!(s, " {} |", k.name());
-    }
-    s.push_str("\n| --- | --- | ---: | ---: |");
-    s.push_str(&" ---: |".repeat(kinds.len()));
-    s.push('\n');
+    let mut s = table_head("| scene | source | K | textured |", "| --- | --- | ---: | ---: |", kinds.iter().map(|k| k.name()));
     let mut scenes: Vec<(&str, &DfdRow)> = Vec::new();
     for r in rows {
         if !scenes.iter().any(|(n, _)| *n == r.scene) {

@@ -260,16 +260,26 @@ pub fn comparisons(rows: &[Row]) -> String {
     s
 }
 
+/// A markdown table's header: the fixed columns (`head`, and their alignment row `align`),
+/// then one right-aligned column per name. Ends with a newline.
+pub(super) fn table_head<'a>(head: &str, align: &str, names: impl Iterator<Item = &'a str>) -> String {
+    let mut s = String::from(head);
+    let mut n = 0;
+    for name in names {
+        let _ = write!(s, " {name} |");
+        n += 1;
+    }
+    s.push('\n');
+    s.push_str(align);
+    s.push_str(&" ---: |".repeat(n));
+    s.push('\n');
+    s
+}
+
 /// Mean sRGB PSNR / SSIM per category and method, every method with `profile` (exact kernel).
 pub fn category_table(rows: &[Row], profile: Profile) -> String {
     let methods: Vec<Method> = Method::ALL.into_iter().filter(|m| rows.iter().any(|r| r.method == *m)).collect();
-    let mut s = String::from("| category | cases |");
-    for m in &methods {
-        let _ = write!(s, " {} |", m.name());
-    }
-    s.push_str("\n| --- | ---: |");
-    s.push_str(&" ---: |".repeat(methods.len()));
-    s.push('\n');
+    let mut s = table_head("| category | cases |", "| --- | ---: |", methods.iter().map(|m| m.name()));
     for (cat, desc) in CATEGORIES {
         let n = profile_rows(rows, methods[0], profile).values().filter(|r| r.categories.contains(&cat)).count();
         if n == 0 {
