@@ -66,6 +66,14 @@ impl Grid4 {
     }
 }
 
+/// The largest `|dx|` with `dx² + dy² < p²` (the official strict lattice window of half-size
+/// `p`) in row `dy`; None where the row is outside it. Integer arithmetic, exact.
+#[inline]
+pub fn lattice_row_reach(p: i64, dy: i64) -> Option<i64> {
+    let rem = p * p - dy * dy;
+    (rem > 0).then(|| (rem - 1).isqrt())
+}
+
 /// The lens window's edge for a disk span: how far a row may extend.
 #[derive(Clone, Copy, Debug)]
 pub enum Window {
@@ -80,16 +88,8 @@ impl Window {
     #[inline]
     fn half_width(self, dy: f32) -> Option<f32> {
         match self {
-            Window::Lattice(p) => {
-                let dyi = dy.round() as i64;
-                let rem = p * p - dyi * dyi;
-                if rem <= 0 {
-                    return None;
-                }
-                // Largest m with m² < rem; its pixel extends to m + 0.5.
-                let m = ((rem as f64).sqrt().ceil() as i64 - 1).max(0);
-                Some(m as f32 + 0.5)
-            }
+            // The last pixel of the row extends to m + 0.5.
+            Window::Lattice(p) => lattice_row_reach(p, dy.round() as i64).map(|m| m as f32 + 0.5),
             Window::Disk(r) => (dy.abs() < r).then(|| (r * r - dy * dy).sqrt()),
         }
     }
@@ -265,6 +265,22 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The integer row reach equals the float formula it replaced and the definition.
+    #[test]
+    fn lattice_row_reach_is_the_strict_window() {
+        for p in 0..80i64 {
+            for dy in -p - 2..=p + 2 {
+                let rem = p * p - dy * dy;
+                let float = (rem > 0).then(|| ((rem as f64).sqrt().ceil() as i64 - 1).max(0));
+                let got = lattice_row_reach(p, dy);
+                assert_eq!(got, float, "p {p} dy {dy}");
+                if let Some(m) = got {
+                    assert!(m * m + dy * dy < p * p && (m + 1) * (m + 1) + dy * dy >= p * p);
+                }
+            }
+        }
+    }
 
     #[test]
     fn disk_area_and_values() {

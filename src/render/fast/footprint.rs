@@ -11,7 +11,7 @@ use super::super::lens::{
     FACTORED_STEP_MAX, MAX_RADIUS, Profile, STEP_GAIN, STEP_LN_OFFSET, coc_radius, disk_coverage, scatter_radius, soft_step,
     step_source_factor, step_tap_factor,
 };
-use super::super::splat::Stripe;
+use super::super::splat::{Stripe, lattice_row_reach};
 use std::f32::consts::{FRAC_PI_3, PI};
 
 /// The soft step's edge as a mixture of hard disks: radius offsets and weights of a 3-point
@@ -201,12 +201,8 @@ fn rim_footprint(st: &mut Stripe, (sx, sy): (i64, i64), rim: &Rim, p: i64, tap: 
     let mut ops = 0;
     for row in (sy - rr).max(y0)..=(sy + rr).min(y1 - 1) {
         let dy = row - sy;
-        let rem = p * p - dy * dy;
-        if rem <= 0 {
-            continue;
-        }
         // Largest |dx| inside the window (strict disk, as the official mask).
-        let m = ((rem as f64).sqrt().ceil() as i64 - 1).max(0);
+        let Some(m) = lattice_row_reach(p, dy) else { continue };
         let dyf = (dy * dy) as f32;
         let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { continue };
         let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
