@@ -201,6 +201,13 @@ impl Config {
         self.segment.onnx.validate("segment.onnx", crate::onnx::ModelKind::Matte)?;
         self.inpaint.onnx.validate("inpaint.onnx", crate::onnx::ModelKind::Inpaint)?;
         self.depth.onnx.validate("depth.onnx", crate::onnx::ModelKind::Depth)?;
+        self.segment.layers.check("segment.layers")?;
+        if !(self.segment.layer_gap.is_finite() && (0.0..=1.0).contains(&self.segment.layer_gap)) {
+            return Err(Error::usage(format!("segment.layer_gap must be in [0, 1], got {}", self.segment.layer_gap)));
+        }
+        if !(self.segment.layer_min_fraction.is_finite() && (0.0..=0.5).contains(&self.segment.layer_min_fraction)) {
+            return Err(Error::usage(format!("segment.layer_min_fraction must be in [0, 0.5], got {}", self.segment.layer_min_fraction)));
+        }
         for (key, v) in [
             ("fill_depth.erode", self.fill_depth.erode),
             ("fill_depth.radius", self.fill_depth.radius),

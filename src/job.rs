@@ -52,9 +52,9 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     let inputs = io::InputFiles::new(job.inputs());
     inputs.check_write(output, "output")?;
     if let Some(dir) = &job.save_layers {
-        // Every name the layers may get (the pipeline makes one or two), before the run
-        // spends any time; `save_layers` checks again what it actually writes.
-        for n in [1, 2, job.layers.len()] {
+        // Every name the layers may get (the pipeline makes one up to `[segment] layers`),
+        // before the run spends any time; `save_layers` checks again what it actually writes.
+        for n in (1..=cfg.segment.layers.most().max(2)).chain([job.layers.len()]) {
             inputs.check_writes(layer_file_names(dir, n).iter().flat_map(LayerFiles::all), "job.save_layers file")?;
         }
     }

@@ -9,6 +9,7 @@ use drbokeh::io::BitDepth;
 use drbokeh::job::{self, Job};
 use drbokeh::pipeline::{Focus, Pipeline};
 use drbokeh::stages::depth::DepthKind;
+use drbokeh::stages::slices::LayerCount;
 use drbokeh::timing::ms_since;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -195,6 +196,10 @@ pub(crate) struct PipelineArgs {
     /// Where the foreground layer comes from [default: auto].
     #[arg(long, value_enum)]
     segment: Option<SegmentArg>,
+    /// How many layers: 2 (foreground over background), a count 1..=8, or auto (the background
+    /// also cut at gaps of its depth) [default: 2].
+    #[arg(long, value_name = "auto|N", value_parser = LayerCount::parse)]
+    layers: Option<LayerCount>,
     /// How the background behind the foreground is filled [default: telea].
     #[arg(long, value_enum)]
     inpaint: Option<InpaintArg>,
@@ -286,6 +291,9 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
             SegmentArg::Onnx => SegmentMethod::Onnx,
         };
     }
+    if let Some(n) = args.layers {
+        cfg.segment.layers = n;
+    }
     if let Some(m) = args.inpaint {
         use drbokeh::stages::inpaint_onnx::InpaintMethod;
         cfg.inpaint.method = match m {
@@ -309,7 +317,8 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 29] = [
+const FLAGS: [(&str, &str); 30] = [
+    ("segment.layers", "--layers"),
     ("render.occlusion = false", "--no-occlusion"),
     ("render.profile", "--profile"),
     ("render.kernel", "--kernel"),

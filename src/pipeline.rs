@@ -14,6 +14,7 @@ use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
 use crate::stages::foreground::separate;
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
+use crate::stages::slices::{self, LayerCount};
 use crate::timing::ms_since;
 use serde::Serialize;
 use std::time::Instant;
@@ -52,7 +53,7 @@ pub enum StageStatus {
 /// What happened in one stage.
 #[derive(Clone, Debug, Serialize)]
 pub struct StageReport {
-    /// The stage: "read", "depth_model", "segment", "fill_depth", "inpaint", "render",
+    /// The stage: "read", "depth_model", "segment", "fill_depth", "inpaint", "slice", "render",
     /// "save_layers" or "write".
     pub name: &'static str,
     /// Whether it ran.
@@ -98,7 +99,7 @@ pub struct UsedParams {
     pub occlusion: bool,
     /// The naive gamma G when used; None: exact sRGB transfer.
     pub gamma: Option<f32>,
-    /// Number of layers (1 or 2 from the pipeline; as given otherwise).
+    /// Number of layers (1, 2 or `[segment] layers` from the pipeline; as given otherwise).
     pub layers: usize,
     /// Largest circle-of-confusion radius in the scene, pixels.
     pub max_coc_radius_px: f32,
@@ -147,6 +148,18 @@ pub type Notice = Box<dyn Fn(&str) + Send + Sync>;
 
 /// Why the scene is one layer when occlusion is off (the `segment` stage's skip reason).
 const NO_OCCLUSION_ONE_LAYER: &str = "render.occlusion = false renders the scene as one layer";
+
+/// One peel of [`Pipeline::peel`]: a layer, the opaque scene behind it, and what was done.
+struct Peeled {
+    layer: Layer,
+    /// The scene behind the layer: its colour (linear RGB) and disparity, inpainted.
+    behind_rgb: Image,
+    behind_disparity: Image,
+    fill_ms: f64,
+    fill_detail: serde_json::Value,
+    inpaint_ms: f64,
+    inpaint_detail: serde_json::Value,
+}
 
 /// The configured pipeline.
 pub struct Pipeline {
@@ -275,7 +288,7 @@ impl Pipeline {
         // Nothing is out of focus: the photo is its own answer (unless a kernel is asked for).
         let sharp = nothing_out_of_focus(cfg.render.kernel, max_coc);
         if let (Some(why), BuildLayers::WhenRendered) = (&sharp, build) {
-            for name in ["segment", "fill_depth", "inpaint", "render"] {
+            for name in ["segment", "fill_depth", "inpaint", "slice", "render"] {
                 report.skipped(name, why.clone());
             }
             report.params = self.params((w, h), (blur, focus, 0), "none", 0, max_coc);
@@ -285,7 +298,7 @@ impl Pipeline {
 
         let opaque = Image::filled(w, h, 1, 1.0);
         let single = |report: &mut Report, why: &str| -> Result<Vec<Layer>> {
-            for name in ["fill_depth", "inpaint"] {
+            for name in ["fill_depth", "inpaint", "slice"] {
                 report.skipped(name, why.to_string());
             }
             Ok(vec![Layer::from_parts(&scene.rgb, &opaque, disp, "scene")?])
@@ -320,6 +333,11 @@ impl Pipeline {
                     report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 1, "why": why, "model": seg_model})));
                     single(&mut report, &format!("one layer: {why}"))?
                 }
+                Segmentation::Foreground(_) if cfg.segment.layers == LayerCount::Fixed(1) => {
+                    let why = "segment.layers = 1";
+                    report.ran("segment", t, Some(serde_json::json!({"source": source, "layers": 1, "why": why, "model": seg_model})));
+                    single(&mut report, why)?
+                }
                 Segmentation::Foreground(alpha) => {
                     let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
                     report.ran(
@@ -327,71 +345,7 @@ impl Pipeline {
                         t,
                         Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})),
                     );
-                    let t = Instant::now();
-                    let edges = match cfg.fill_depth.edges {
-                        DepthEdges::Snapped => depth_edges::measure(disp, &hard_mask(&alpha, &cfg.fill_depth), w, h),
-                        DepthEdges::AsGiven => depth_edges::EdgeWidths::default(),
-                    };
-                    let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges)?;
-                    report.ran(
-                        "fill_depth",
-                        t,
-                        Some(serde_json::json!({
-                            "filled_px": fd.filled,
-                            "skipped_unreachable_px": fd.skipped,
-                            "reach_px": fd.reach,
-                            "erode_px": fd.erode,
-                            "ramp_model": fd.ramp_model,
-                            "depth_edge_ramp": edges
-                        })),
-                    );
-                    // How deep under the foreground a background value can still be seen: the
-                    // foreground shows the background up to its visibility reach inside its
-                    // outline, and a background pixel scatters up to σ ≤ max CoC + 1 plus the
-                    // soft step's tail (disparities stay in [0, 1], so max_coc bounds σ).
-                    let t = Instant::now();
-                    let reach =
-                        crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0);
-                    let (bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
-                        let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
-                            &scene.rgb,
-                            disp,
-                            &alpha,
-                            &cfg.inpaint,
-                            reach,
-                            edges.outside_px,
-                            &cfg.onnx,
-                        )?;
-                        report.warnings.extend(r.warnings.iter().cloned());
-                        (bg, Some(r))
-                    } else {
-                        (inpaint_background(&scene.rgb, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None)
-                    };
-                    let method = if inpaint_model.is_some() { "onnx" } else { "telea" };
-                    let mut bg = bg;
-                    let (fg_rgb, unmixed) = match cfg.inpaint.foreground {
-                        ForegroundColour::Unmixed => separate(&scene.rgb, &alpha, &mut bg.rgb, cfg.inpaint.radius)?,
-                        ForegroundColour::Photo => (scene.rgb.clone(), 0),
-                    };
-                    report.ran(
-                        "inpaint",
-                        t,
-                        Some(serde_json::json!({
-                            "method": method,
-                            "filled_px": bg.filled,
-                            "skipped_unreachable_px": bg.skipped,
-                            "reach_px": reach,
-                            "edge_band_px": bg.band.0,
-                            "edge_band_replaced_px": bg.band.1,
-                            "highlights_kept_px": bg.highlights_kept,
-                            "foreground_unmixed_px": unmixed,
-                            "model": inpaint_model
-                        })),
-                    );
-                    vec![
-                        Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, "foreground layer")?,
-                        Layer::from_parts(&bg.rgb, &opaque, &bg.disparity, "background layer")?,
-                    ]
+                    self.peel_layers(scene, alpha, (focus, blur, max_coc), &mut report)?
                 }
             }
         };
@@ -404,6 +358,120 @@ impl Pipeline {
         let mut out = self.render_prepared(layers, focus, blur, report, LayerOrigin::Built)?;
         out.report.total_ms = ms_since(t0);
         Ok(out)
+    }
+
+    /// The layers behind a segmented foreground, front to back: the foreground over the
+    /// background behind it, and with `[segment] layers` above 2 (or "auto") the background
+    /// peeled further at the cuts of [`slices::background_cuts`], each slice over what it hides.
+    /// Reports `fill_depth` and `inpaint` for the foreground's peel and a `slice` stage for the
+    /// rest.
+    fn peel_layers(&self, scene: &Scene, alpha: Image, (focus, blur, max_coc): (f32, f32, f32), report: &mut Report) -> Result<Vec<Layer>> {
+        let cfg = &self.config;
+        let t = Instant::now();
+        let background: Vec<bool> = alpha.data.iter().map(|&a| a <= cfg.fill_depth.threshold).collect();
+        let cuts = slices::background_cuts(&scene.disparity.map, &background, cfg.segment.layers, &cfg.segment);
+        let cut_ms = ms_since(t);
+        // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
+        // a layer keeps that layer's depth and would be taken for a nearer slice.
+        let whole = !cuts.thresholds.is_empty();
+        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, (focus, blur, max_coc), whole, "foreground layer", report)?;
+        report.stages.push(StageReport::ran("fill_depth", first.fill_ms, Some(first.fill_detail)));
+        report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
+        let mut layers = vec![first.layer];
+        let (mut rgb, mut disp) = (first.behind_rgb, first.behind_disparity);
+        if cuts.thresholds.is_empty() {
+            let why = cuts.limit.clone().unwrap_or_else(|| format!("segment.layers = {}", cfg.segment.layers));
+            report.skipped("slice", why);
+        } else {
+            let t = Instant::now();
+            let mut peeled = Vec::new();
+            for (k, &cut) in cuts.thresholds.iter().enumerate() {
+                let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
+                let whole = k + 1 < cuts.thresholds.len();
+                let p = self.peel(&rgb, &disp, alpha, (focus, blur, max_coc), whole, "background slice", report)?;
+                peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
+                layers.push(p.layer);
+                (rgb, disp) = (p.behind_rgb, p.behind_disparity);
+            }
+            report.stages.push(StageReport::ran(
+                "slice",
+                ms_since(t) + cut_ms,
+                Some(serde_json::json!({"layers": cfg.segment.layers, "cuts": cuts, "slices": peeled})),
+            ));
+        }
+        let opaque = Image::filled(rgb.width, rgb.height, 1, 1.0);
+        layers.push(Layer::from_parts(&rgb, &opaque, &disp, "background layer")?);
+        Ok(layers)
+    }
+
+    /// One peel: the layer of `alpha` in the opaque scene (`photo`, `disp`) and the scene behind
+    /// it. Fills the layer's disparity beyond its outline (fill_depth), inpaints what it hides
+    /// (as deep as a blur can show it, or `whole`), and separates colours at its soft edge.
+    #[allow(clippy::too_many_arguments)]
+    fn peel(
+        &self,
+        photo: &Image,
+        disp: &Image,
+        alpha: Image,
+        (focus, blur, max_coc): (f32, f32, f32),
+        whole: bool,
+        what: &str,
+        report: &mut Report,
+    ) -> Result<Peeled> {
+        let cfg = &self.config;
+        let (w, h) = (photo.width, photo.height);
+        let t = Instant::now();
+        let edges = match cfg.fill_depth.edges {
+            DepthEdges::Snapped => depth_edges::measure(disp, &hard_mask(&alpha, &cfg.fill_depth), w, h),
+            DepthEdges::AsGiven => depth_edges::EdgeWidths::default(),
+        };
+        let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges)?;
+        let fill_ms = ms_since(t);
+        let fill_detail = serde_json::json!({
+            "filled_px": fd.filled,
+            "skipped_unreachable_px": fd.skipped,
+            "reach_px": fd.reach,
+            "erode_px": fd.erode,
+            "ramp_model": fd.ramp_model,
+            "depth_edge_ramp": edges
+        });
+        // How deep under the layer a value behind it can still be seen: the layer shows what is
+        // behind up to its visibility reach inside its outline, and a pixel behind scatters up to
+        // σ ≤ max CoC + 1 plus the soft step's tail (disparities stay in [0, 1], so max_coc
+        // bounds σ).
+        let t = Instant::now();
+        let reach = if whole {
+            f32::INFINITY
+        } else {
+            crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0)
+        };
+        let (mut bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
+            let (bg, r) =
+                crate::stages::inpaint_onnx::inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px, &cfg.onnx)?;
+            report.warnings.extend(r.warnings.iter().cloned());
+            (bg, Some(r))
+        } else {
+            (inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None)
+        };
+        let method = if inpaint_model.is_some() { "onnx" } else { "telea" };
+        let (fg_rgb, unmixed) = match cfg.inpaint.foreground {
+            ForegroundColour::Unmixed => separate(photo, &alpha, &mut bg.rgb, cfg.inpaint.radius)?,
+            ForegroundColour::Photo => (photo.clone(), 0),
+        };
+        let inpaint_ms = ms_since(t);
+        let inpaint_detail = serde_json::json!({
+            "method": method,
+            "filled_px": bg.filled,
+            "skipped_unreachable_px": bg.skipped,
+            "reach_px": if reach.is_finite() { serde_json::json!(reach) } else { serde_json::json!("whole") },
+            "edge_band_px": bg.band.0,
+            "edge_band_replaced_px": bg.band.1,
+            "highlights_kept_px": bg.highlights_kept,
+            "foreground_unmixed_px": unmixed,
+            "model": inpaint_model
+        });
+        let layer = Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, what)?;
+        Ok(Peeled { layer, behind_rgb: bg.rgb, behind_disparity: bg.disparity, fill_ms, fill_detail, inpaint_ms, inpaint_detail })
     }
 
     /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
@@ -438,7 +506,7 @@ impl Pipeline {
             Ok(l.disparity(i))
         };
         let focus = Self::resolve_focus(focus, at, None, &mut report)?;
-        for name in ["segment", "fill_depth", "inpaint"] {
+        for name in ["segment", "fill_depth", "inpaint", "slice"] {
             report.skipped(name, "layers were given");
         }
         let blur = self.blur_for(w, h);

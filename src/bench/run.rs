@@ -100,7 +100,8 @@ impl Method {
         match self {
             Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact, PhysicalFast(2)],
             Method::Sliced => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2)],
-            Method::Pipeline | Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth],
+            Method::Pipeline => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth, LayersAuto, RealisticLayersAuto],
+            Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth],
             Method::Gather => vec![Plain, RealisticDepth],
         }
     }
@@ -128,6 +129,11 @@ pub enum Variant {
     /// depth map degraded as an estimator gives it ([`super::scenes::realistic_depth`]) instead
     /// of the exact one. Only for the methods that read the depth map.
     RealisticDepth,
+    /// The pipeline's default settings with `--layers auto` (the background also cut at gaps
+    /// of its depth), exact depth map.
+    LayersAuto,
+    /// [`Variant::LayersAuto`] fed the realistic depth map of [`Variant::RealisticDepth`].
+    RealisticLayersAuto,
 }
 
 impl Variant {
@@ -140,19 +146,30 @@ impl Variant {
             Variant::PhysicalFast(q) => format!("physical-fast-q{q}"),
             Variant::Plain => "default".into(),
             Variant::RealisticDepth => "realistic-depth".into(),
+            Variant::LayersAuto => "layers-auto".into(),
+            Variant::RealisticLayersAuto => "realistic-depth-layers-auto".into(),
         }
     }
+    /// Whether this setting reads the realistic depth map instead of the exact one.
+    pub fn realistic(self) -> bool {
+        matches!(self, Variant::RealisticDepth | Variant::RealisticLayersAuto)
+    }
+
     /// The lens profile this setting renders with.
     pub fn profile(self) -> crate::render::Profile {
         match self {
-            Variant::PhysicalExact | Variant::PhysicalFast(_) | Variant::RealisticDepth => crate::render::Profile::Physical,
+            Variant::PhysicalExact
+            | Variant::PhysicalFast(_)
+            | Variant::RealisticDepth
+            | Variant::LayersAuto
+            | Variant::RealisticLayersAuto => crate::render::Profile::Physical,
             _ => crate::render::Profile::Official,
         }
     }
     fn kernel(self) -> Kernel {
         match self {
             Variant::Fast(q) | Variant::PhysicalFast(q) => Kernel::Fast { quality: q },
-            Variant::RealisticDepth => Kernel::Fast { quality: 2 },
+            Variant::RealisticDepth | Variant::LayersAuto | Variant::RealisticLayersAuto => Kernel::Fast { quality: 2 },
             _ => Kernel::Exact,
         }
     }
@@ -455,7 +472,7 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
         render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile() }, v.kernel())
     };
     // The depth map the photo-based methods read.
-    let disparity = if v == Variant::RealisticDepth { &inp.realistic_disparity } else { &inp.disparity };
+    let disparity = if v.realistic() { &inp.realistic_disparity } else { &inp.disparity };
     match m {
         Method::Layers => renderer(&inp.two_layers, true),
         Method::Sliced => renderer(&inp.plane_layers, true),
@@ -476,6 +493,9 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
                 Kernel::Exact => cfg.render.kernel = KernelChoice::Exact,
             }
             cfg.render.profile = v.profile();
+            if matches!(v, Variant::LayersAuto | Variant::RealisticLayersAuto) {
+                cfg.segment.layers = crate::stages::slices::LayerCount::Auto;
+            }
             let scene = Scene {
                 rgb: inp.aif.clone(),
                 disparity: Disparity { map: disparity.clone(), z_range: None, filled_fraction: 0.0 },

@@ -1,7 +1,8 @@
 //! The classical stages that turn image + depth (+ matte) into layers, in data-flow order:
 //! `depth` (normalize, focus) → `segment` → `depth_edges` (how far the depth map's edges ramp
 //! past the matte's) → `fill_depth` → `background` (inpaint, with the `contamination` and
-//! `highlights` rules) → `foreground` (colour at soft edges) → layers.
+//! `highlights` rules) → `foreground` (colour at soft edges) → layers; with `--layers`, `slices`
+//! cuts the background at gaps of its depth and the same stages peel each slice in turn.
 //! `inpaint` is the Telea algorithm the fills use; `mask` holds shared mask helpers.
 //! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
 
@@ -18,3 +19,4 @@ pub mod inpaint_onnx;
 pub mod mask;
 pub mod segment;
 pub mod segment_onnx;
+pub mod slices;

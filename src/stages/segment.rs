@@ -36,6 +36,14 @@ pub struct SegmentOptions {
     pub min_jump: f32,
     /// Gaussian sigma (pixels) that softens the hard depth split into an alpha matte.
     pub edge_softness: f32,
+    /// How many layers to build: 2 (the foreground over the inpainted background), a count
+    /// 1 ..= 8, or "auto" (the background cut at gaps of its depth; see `stages::slices`).
+    pub layers: super::slices::LayerCount,
+    /// `layers = "auto"`: the narrowest gap of the visible background's disparity histogram
+    /// (normalized disparity) that separates two background layers.
+    pub layer_gap: f32,
+    /// More than two layers: the smallest background slice, as a fraction of the image.
+    pub layer_min_fraction: f64,
     /// `[segment.onnx]`: the model used by `method = "onnx"`.
     pub onnx: crate::onnx::ModelSpec,
 }
@@ -48,6 +56,9 @@ impl Default for SegmentOptions {
             max_fraction: 0.85,
             min_jump: 0.05,
             edge_softness: 0.8,
+            layers: Default::default(),
+            layer_gap: 0.05,
+            layer_min_fraction: 0.01,
             onnx: Default::default(),
         }
     }
@@ -88,7 +99,7 @@ pub fn from_disparity(disp: &Image, opts: &SegmentOptions) -> Segmentation {
             opts.max_fraction * 100.0
         ));
     }
-    let jump = median_edge_jump(&disp.data, &hard, w, h);
+    let jump = median_edge_jump(&disp.data, &hard, None, w, h);
     if jump < opts.min_jump {
         return Segmentation::SingleLayer(format!(
             "no foreground in the depth: the disparity changes smoothly (edge jump {jump:.3} < {})",
@@ -128,16 +139,18 @@ pub fn otsu_threshold(values: &[f32]) -> f32 {
     (best_t as f32 + 0.5) / (BINS - 1) as f32
 }
 
-/// Median of |D(inside) - D(outside)| over 4-neighbour pairs that cross the mask's outline.
-fn median_edge_jump(d: &[f32], mask: &[bool], w: usize, h: usize) -> f32 {
+/// Median of |D(inside) - D(outside)| over 4-neighbour pairs that cross the mask's outline,
+/// counting only pairs of `valid` pixels when given (0 when there is no such pair).
+pub(crate) fn median_edge_jump(d: &[f32], mask: &[bool], valid: Option<&[bool]>, w: usize, h: usize) -> f32 {
+    let ok = |i: usize, j: usize| valid.is_none_or(|v| v[i] && v[j]);
     let mut jumps = Vec::new();
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
-            if x + 1 < w && mask[i] != mask[i + 1] {
+            if x + 1 < w && mask[i] != mask[i + 1] && ok(i, i + 1) {
                 jumps.push((d[i] - d[i + 1]).abs());
             }
-            if y + 1 < h && mask[i] != mask[i + w] {
+            if y + 1 < h && mask[i] != mask[i + w] && ok(i, i + w) {
                 jumps.push((d[i] - d[i + w]).abs());
             }
         }

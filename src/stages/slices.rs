@@ -1,0 +1,359 @@
+//! More than two layers (`--layers auto|N`): the background cut at gaps of its depth.
+//!
+//! The pipeline's front layer is the salient foreground (matte, model or depth split); what is
+//! behind it is one opaque layer by default. A background that lies on separate depth planes
+//! (a wall behind a table, a street behind a car) can be peeled further, front to back: the
+//! background's pixels nearer than a cut become a layer of their own, what they hide is
+//! inpainted for the layers behind, and so on. The renderer then shows that inpainted content
+//! where a blurred nearer slice turns translucent, as a lens does (the per-plane layering of the
+//! bench's `drbokeh-sliced`).
+//!
+//! This module only chooses the cuts (normalized disparities, nearest first) from the visible
+//! background's disparity; the pipeline peels the layers.
+
+use super::segment::{SegmentOptions, otsu_threshold};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use serde::{Deserialize, Serialize};
+
+/// The most layers `--layers auto` builds: the foreground and three background slices.
+pub const MAX_AUTO_LAYERS: usize = 4;
+
+/// The most layers a count may ask for (each layer costs a fill and 20 bytes per pixel).
+pub const MAX_LAYERS: usize = 8;
+
+/// Histogram bins over the disparity range [0, 1].
+const BINS: usize = 256;
+
+/// A bin holding less than this fraction of the mean bin count is part of a gap: a depth map
+/// smoothed by an estimator puts a thin ramp of values between two planes (measured on the
+/// bench's `realistic-depth` scenes: 3–12% of the mean count per bin), a real surface does not
+/// leave its bins that empty.
+const GAP_DENSITY: f64 = 0.15;
+
+/// How many layers the pipeline builds when the scene has a foreground.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LayerCount {
+    /// The foreground, then one background slice per gap of the background's disparity
+    /// histogram wider than `[segment] layer_gap` (at most [`MAX_AUTO_LAYERS`] layers).
+    Auto,
+    /// Exactly this many (1 ..= [`MAX_LAYERS`]) where the depth allows it: 1 renders the scene
+    /// as one layer, 2 is the foreground over the inpainted background, more cut the background
+    /// at multi-level Otsu thresholds of its disparity.
+    Fixed(usize),
+}
+
+impl Default for LayerCount {
+    fn default() -> Self {
+        LayerCount::Fixed(2)
+    }
+}
+
+impl LayerCount {
+    /// Parses `auto` or a count (the command line's and the configuration's spelling).
+    pub fn parse(s: &str) -> std::result::Result<Self, String> {
+        let s = s.trim();
+        if s.eq_ignore_ascii_case("auto") {
+            return Ok(LayerCount::Auto);
+        }
+        match s.parse::<usize>() {
+            Ok(n) if (1..=MAX_LAYERS).contains(&n) => Ok(LayerCount::Fixed(n)),
+            _ => Err(format!("expected \"auto\" or a layer count 1..={MAX_LAYERS}, got '{s}'")),
+        }
+    }
+
+    /// Checks a count read from a configuration (`key` names it in the message).
+    pub fn check(self, key: &str) -> Result<()> {
+        match self {
+            LayerCount::Fixed(n) if !(1..=MAX_LAYERS).contains(&n) => {
+                Err(Error::usage(format!("{key} must be \"auto\" or a count 1..={MAX_LAYERS}, got {n}")))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The most layers this setting can produce.
+    pub fn most(self) -> usize {
+        match self {
+            LayerCount::Auto => MAX_AUTO_LAYERS,
+            LayerCount::Fixed(n) => n,
+        }
+    }
+}
+
+impl std::fmt::Display for LayerCount {
+    /// `auto` or the count, as the configuration spells it.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LayerCount::Auto => f.write_str("auto"),
+            LayerCount::Fixed(n) => write!(f, "{n}"),
+        }
+    }
+}
+
+impl Serialize for LayerCount {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        match self {
+            LayerCount::Auto => s.serialize_str("auto"),
+            LayerCount::Fixed(n) => s.serialize_u64(*n as u64),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for LayerCount {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Count(u64),
+            Name(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Count(n) => Ok(LayerCount::Fixed(n as usize)),
+            Raw::Name(s) => LayerCount::parse(&s).map_err(serde::de::Error::custom),
+        }
+    }
+}
+
+/// The background's cuts and why there are no (more) of them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Cuts {
+    /// Normalized disparities, nearest first: background pixels above `thresholds[0]` are the
+    /// first background slice, those between `[0]` and `[1]` the next, and so on.
+    pub thresholds: Vec<f32>,
+    /// Why there are not more cuts (absent when the count asked for was reached).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub limit: Option<String>,
+}
+
+/// Chooses the cuts of the visible background (`background[i]`: pixel i shows the background)
+/// of `disp` (one channel, normalized) for `count` layers in all, the foreground included.
+/// Every slice keeps at least `opts.layer_min_fraction` of the image, and a cut must be a real
+/// depth edge (median disparity jump across it at least `opts.min_jump`), so a slanted ground
+/// is never cut by `auto`. Cost: one histogram pass, and one pass over the image per candidate.
+pub fn background_cuts(disp: &Image, background: &[bool], count: LayerCount, opts: &SegmentOptions) -> Cuts {
+    let wanted = count.most().saturating_sub(2);
+    if wanted == 0 {
+        return Cuts::default();
+    }
+    let values: Vec<f32> = disp.data.iter().zip(background).filter(|(_, b)| **b).map(|(&d, _)| d).collect();
+    let min_px = (opts.layer_min_fraction * disp.data.len() as f64).ceil().max(1.0) as usize;
+    if values.len() < 2 * min_px {
+        return Cuts { thresholds: Vec::new(), limit: Some("the visible background is too small to cut".into()) };
+    }
+    let candidates = match count {
+        LayerCount::Auto => gaps(&values, opts.layer_gap),
+        LayerCount::Fixed(_) => otsu_levels(&values, wanted, min_px),
+    };
+    let mut chosen: Vec<f32> = Vec::new();
+    for t in candidates {
+        if chosen.len() == wanted {
+            break;
+        }
+        let mut trial = chosen.clone();
+        trial.push(t);
+        trial.sort_by(|a, b| b.total_cmp(a));
+        if smallest_slice(&values, &trial) < min_px {
+            continue;
+        }
+        if edge_jump(disp, background, t) < opts.min_jump {
+            continue;
+        }
+        chosen = trial;
+    }
+    let limit = (chosen.len() < wanted).then(|| match count {
+        LayerCount::Auto if chosen.is_empty() => {
+            format!("no gap of at least {} in the visible background's disparity with a depth edge", opts.layer_gap)
+        }
+        LayerCount::Auto => format!("{} gap(s) in the visible background's disparity", chosen.len()),
+        LayerCount::Fixed(n) => format!(
+            "{n} layers asked for, the visible background's depth allows {} (slices of at least {:.1}% of the image across real depth edges)",
+            chosen.len() + 2,
+            opts.layer_min_fraction * 100.0
+        ),
+    });
+    Cuts { thresholds: chosen, limit }
+}
+
+/// Midpoints of the interior runs of near-empty histogram bins at least `min_gap` wide, widest
+/// first.
+fn gaps(values: &[f32], min_gap: f32) -> Vec<f32> {
+    let hist = histogram(values);
+    let sparse_below = GAP_DENSITY * values.len() as f64 / BINS as f64;
+    let sparse: Vec<bool> = hist.iter().map(|&c| (c as f64) < sparse_below).collect();
+    let mut runs = Vec::new();
+    let mut b = 0;
+    while b < BINS {
+        if !sparse[b] {
+            b += 1;
+            continue;
+        }
+        let start = b;
+        while b < BINS && sparse[b] {
+            b += 1;
+        }
+        // Interior only: populated bins on both sides.
+        if start > 0 && b < BINS {
+            let width = (b - start) as f32 / (BINS - 1) as f32;
+            if width >= min_gap {
+                let mid = (start as f32 + b as f32 - 1.0) / 2.0 / (BINS - 1) as f32;
+                runs.push((width, mid));
+            }
+        }
+    }
+    runs.sort_by(|a, b| b.0.total_cmp(&a.0));
+    runs.into_iter().map(|(_, t)| t).collect()
+}
+
+/// Up to `cuts` multi-level Otsu thresholds, found greedily: the class with the largest
+/// within-class scatter (count × variance) is split at its own Otsu threshold, if both parts
+/// keep `min_px` values. In the order found.
+fn otsu_levels(values: &[f32], cuts: usize, min_px: usize) -> Vec<f32> {
+    let mut classes: Vec<Vec<f32>> = vec![values.to_vec()];
+    let mut found = Vec::new();
+    while found.len() < cuts {
+        let scatter = |c: &Vec<f32>| {
+            let n = c.len() as f64;
+            let mean = c.iter().map(|&v| v as f64).sum::<f64>() / n.max(1.0);
+            c.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>()
+        };
+        let mut order: Vec<usize> = (0..classes.len()).collect();
+        order.sort_by(|&a, &b| scatter(&classes[b]).total_cmp(&scatter(&classes[a])));
+        let split = order.into_iter().find_map(|i| {
+            let c = &classes[i];
+            let (lo, hi) = c.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+            if hi - lo <= 1.0 / (BINS - 1) as f32 {
+                return None;
+            }
+            // Otsu on the class's values stretched to [0, 1], mapped back.
+            let span = hi - lo;
+            let stretched: Vec<f32> = c.iter().map(|&v| (v - lo) / span).collect();
+            let t = lo + otsu_threshold(&stretched) * span;
+            let near = c.iter().filter(|&&v| v > t).count();
+            (near >= min_px && c.len() - near >= min_px).then_some((i, t))
+        });
+        let Some((i, t)) = split else { break };
+        let c = classes.swap_remove(i);
+        let (near, far): (Vec<f32>, Vec<f32>) = c.into_iter().partition(|&v| v > t);
+        classes.push(near);
+        classes.push(far);
+        found.push(t);
+    }
+    found
+}
+
+fn histogram(values: &[f32]) -> Vec<u64> {
+    let mut hist = vec![0u64; BINS];
+    for &v in values {
+        hist[(v.clamp(0.0, 1.0) * (BINS - 1) as f32).round() as usize] += 1;
+    }
+    hist
+}
+
+/// The fewest values in any slice between consecutive `cuts` (sorted nearest first).
+fn smallest_slice(values: &[f32], cuts: &[f32]) -> usize {
+    let mut counts = vec![0usize; cuts.len() + 1];
+    for &v in values {
+        counts[cuts.iter().take_while(|&&t| v <= t).count()] += 1;
+    }
+    counts.into_iter().min().unwrap_or(0)
+}
+
+/// Median |ΔD| over 4-neighbour pairs of background pixels on either side of cut `t`.
+fn edge_jump(disp: &Image, background: &[bool], t: f32) -> f32 {
+    let near: Vec<bool> = disp.data.iter().map(|&d| d > t).collect();
+    super::segment::median_edge_jump(&disp.data, &near, Some(background), disp.width, disp.height)
+}
+
+/// The soft alpha of the slice nearer than `t` in a background's disparity `disp`: the hard
+/// split, its edge softened like the depth split's (`edge_softness`).
+pub fn slice_alpha(disp: &Image, t: f32, edge_softness: f32) -> Image {
+    let hard = Image::from_vec(disp.width, disp.height, 1, disp.data.iter().map(|&d| (d > t) as u8 as f32).collect()).expect("plane size");
+    let mut alpha = super::mask::gaussian_blur(&hard, edge_softness);
+    alpha.map_inplace(|a| a.clamp(0.0, 1.0));
+    alpha
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Image {
+        Image::from_vec(w, h, 1, (0..w * h).map(|i| f(i % w, i / w)).collect()).unwrap()
+    }
+
+    #[test]
+    fn counts_parse_and_check() {
+        assert_eq!(LayerCount::parse("auto"), Ok(LayerCount::Auto));
+        assert_eq!(LayerCount::parse(" 3 "), Ok(LayerCount::Fixed(3)));
+        for bad in ["0", "9", "-1", "two", ""] {
+            assert!(LayerCount::parse(bad).is_err(), "{bad}");
+        }
+        assert!(LayerCount::Fixed(0).check("segment.layers").is_err());
+        assert!(LayerCount::Fixed(2).check("segment.layers").is_ok());
+    }
+
+    #[test]
+    fn auto_cuts_a_stepped_background_and_not_a_ramp() {
+        let opts = SegmentOptions::default();
+        let all = vec![true; 64 * 48];
+        // Left half at 0.6, right half at 0.1: one gap, one cut between.
+        let step = plane(64, 48, |x, _| if x < 32 { 0.6 } else { 0.1 });
+        let cuts = background_cuts(&step, &all, LayerCount::Auto, &opts);
+        assert_eq!(cuts.thresholds.len(), 1, "{cuts:?}");
+        assert!((0.1..0.6).contains(&cuts.thresholds[0]));
+        // Three planes: two cuts, nearest first.
+        let three = plane(60, 48, |x, _| [0.9, 0.5, 0.1][x / 20]);
+        let cuts = background_cuts(&three, &vec![true; 60 * 48], LayerCount::Auto, &opts);
+        assert_eq!(cuts.thresholds.len(), 2, "{cuts:?}");
+        assert!(cuts.thresholds[0] > 0.5 && cuts.thresholds[1] < 0.5 && cuts.thresholds[1] > 0.1);
+        // A ground plane sloping smoothly: no gap, no cut.
+        let ramp = plane(64, 48, |_, y| y as f32 / 47.0);
+        let cuts = background_cuts(&ramp, &all, LayerCount::Auto, &opts);
+        assert!(cuts.thresholds.is_empty() && cuts.limit.is_some(), "{cuts:?}");
+        // Two layers asked for: never a cut.
+        assert_eq!(background_cuts(&step, &all, LayerCount::Fixed(2), &opts), Cuts::default());
+    }
+
+    #[test]
+    fn a_gap_without_an_edge_is_not_cut() {
+        // Two background regions at different depths that only meet through the foreground:
+        // neither is seen in front of the other, so there is no edge to cut along.
+        let opts = SegmentOptions::default();
+        let d = plane(64, 48, |x, _| {
+            if x < 20 {
+                0.7
+            } else if x < 44 {
+                0.5
+            } else {
+                0.1
+            }
+        });
+        // The middle third is the foreground: the two background parts never meet.
+        let bg: Vec<bool> = (0..64 * 48).map(|i| !(20..44).contains(&(i % 64))).collect();
+        let cuts = background_cuts(&d, &bg, LayerCount::Auto, &opts);
+        assert!(cuts.thresholds.is_empty(), "{cuts:?}");
+    }
+
+    #[test]
+    fn fixed_counts_follow_otsu_and_respect_the_smallest_slice() {
+        let opts = SegmentOptions::default();
+        let three = plane(60, 48, |x, _| [0.9, 0.5, 0.1][x / 20]);
+        let all = vec![true; 60 * 48];
+        let cuts = background_cuts(&three, &all, LayerCount::Fixed(4), &opts);
+        assert_eq!(cuts.thresholds.len(), 2, "{cuts:?}");
+        assert!(cuts.limit.is_none());
+        // More than the planes: as many as the depth allows, and says so.
+        let cuts = background_cuts(&three, &all, LayerCount::Fixed(6), &opts);
+        assert_eq!(cuts.thresholds.len(), 2, "{cuts:?}");
+        assert!(cuts.limit.as_deref().is_some_and(|m| m.contains("6 layers asked for")), "{cuts:?}");
+    }
+
+    #[test]
+    fn slice_alpha_is_soft_only_at_the_cut() {
+        let d = plane(32, 8, |x, _| if x < 16 { 0.8 } else { 0.2 });
+        let a = slice_alpha(&d, 0.5, 0.8);
+        assert!(a.data[4 * 32 + 2] > 0.999 && a.data[4 * 32 + 29] < 1e-3);
+        assert!(a.data[4 * 32 + 15] > 0.5 && a.data[4 * 32 + 15] < 1.0);
+    }
+}
