@@ -368,8 +368,20 @@ impl Pipeline {
     fn peel_layers(&self, scene: &Scene, alpha: Image, (focus, blur, max_coc): (f32, f32, f32), report: &mut Report) -> Result<Vec<Layer>> {
         let cfg = &self.config;
         let t = Instant::now();
-        let background: Vec<bool> = alpha.data.iter().map(|&a| a <= cfg.fill_depth.threshold).collect();
-        let cuts = slices::background_cuts(&scene.disparity.map, &background, cfg.segment.layers, &cfg.segment);
+        let cuts = if cfg.segment.layers.most() > 2 {
+            // The visible background, less the band where a soft depth map still ramps towards
+            // the foreground's depth (its values belong to neither population).
+            let hard = hard_mask(&alpha, &cfg.fill_depth);
+            let ramp = match cfg.fill_depth.edges {
+                DepthEdges::Snapped => depth_edges::measure(&scene.disparity.map, &hard, alpha.width, alpha.height).outside_px,
+                DepthEdges::AsGiven => 0.0,
+            };
+            let near = crate::stages::mask::dilate(&hard, alpha.width, alpha.height, ramp + 1.0);
+            let background: Vec<bool> = near.iter().map(|&n| !n).collect();
+            slices::background_cuts(&scene.disparity.map, &background, cfg.segment.layers, &cfg.segment)
+        } else {
+            slices::Cuts::default()
+        };
         let cut_ms = ms_since(t);
         // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
         // a layer keeps that layer's depth and would be taken for a nearer slice.

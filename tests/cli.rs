@@ -1030,6 +1030,9 @@ fn bad_flag_values() {
     s.bad(&with(&["--focus", "1", "--blur", "nan"]), &["--blur"]);
     s.bad(&with(&["--focus", "1", "--blur", "abc"]), &["--blur"]);
     s.bad(&with(&["--focus", "nan"]), &["--focus"]);
+    s.bad(&with(&["--focus", "1", "--layers", "0"]), &["--layers"]);
+    s.bad(&with(&["--focus", "1", "--layers", "9"]), &["--layers"]);
+    s.bad(&with(&["--focus", "1", "--layers", "many"]), &["--layers"]);
     s.bad(&with(&["--focus", "1", "--gamma", "0"]), &["--gamma"]);
     s.bad(&with(&["--focus-at", "32,5"]), &["--focus-at"]);
     s.bad(&with(&["--focus-at", "5,24"]), &["--focus-at"]);

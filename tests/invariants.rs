@@ -423,6 +423,60 @@ fn no_colour_bleeding_through_the_full_pipeline() {
     println!("pipeline, depth split: worst bleeding (>= 2 px inside) = {worst_split:e}");
 }
 
+/// `--layers`: a subject (matte) over a background with a depth step (a wall at 0.6 on the
+/// left, the far plane at 0.1 on the right). `auto` peels the wall as a layer of its own, with
+/// the far plane inpainted behind it; 2 keeps one background layer; 1 renders one layer; a
+/// count follows the depth (3 here) and says when it cannot reach the count.
+#[test]
+fn more_layers_peel_a_stepped_background() {
+    use drbokeh::stages::slices::LayerCount;
+    let (w, h) = (64, 48);
+    let rgb = Image::stack(&[&random_plane(w, h, 21), &random_plane(w, h, 22), &random_plane(w, h, 23)]);
+    let subject = |x: usize, y: usize| (40..52).contains(&x) && (16..32).contains(&y);
+    let d = plane(w, h, |x, y| if subject(x, y) { 0.95 } else if x < 24 { 0.6 } else { 0.1 });
+    let matte = plane(w, h, |x, y| subject(x, y) as u8 as f32);
+    let scene = Scene { rgb, disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: Some(matte) };
+    let run = |layers: LayerCount| {
+        let mut cfg = Config::default();
+        cfg.render.blur = Some(8.0);
+        cfg.segment.layers = layers;
+        Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(0.1)).unwrap()
+    };
+    let stage = |out: &drbokeh::pipeline::Outcome, name: &str| {
+        let s = out.report.stages.iter().find(|s| s.name == name).unwrap_or_else(|| panic!("no {name} stage"));
+        serde_json::to_value(s).unwrap()
+    };
+    let auto = run(LayerCount::Auto);
+    assert_eq!(auto.layers.len(), 3, "subject, wall, far plane");
+    assert!(auto.image.all_finite());
+    let slice = stage(&auto, "slice");
+    assert_eq!(slice["status"], "ran", "{slice}");
+    let cuts = slice["detail"]["cuts"]["thresholds"].as_array().unwrap();
+    assert_eq!(cuts.len(), 1, "{slice}");
+    let cut = cuts[0].as_f64().unwrap();
+    assert!(cut > 0.1 && cut < 0.6, "{slice}");
+    // The wall layer: opaque on the wall, transparent over the far plane, at the wall's depth.
+    let (wall, far) = (auto.layers[1].image(), auto.layers[2].image());
+    let at = |img: &Image, x: usize, y: usize| img.pixel(x, y).to_vec();
+    assert!(at(wall, 10, 24)[3] > 0.999 && at(wall, 40, 4)[3] < 1e-3);
+    assert!((at(wall, 10, 24)[4] - 0.6).abs() < 1e-3);
+    // The far plane goes on behind the wall: opaque, its depth inpainted, not the wall's.
+    assert_eq!(at(far, 10, 24)[3], 1.0);
+    assert!((at(far, 10, 24)[4] - 0.1).abs() < 0.02, "far plane behind the wall at {}", at(far, 10, 24)[4]);
+    // Two layers: one background; the slice stage says why it did not run.
+    let two = run(LayerCount::Fixed(2));
+    assert_eq!(two.layers.len(), 2);
+    assert_eq!(stage(&two, "slice")["status"], "skipped");
+    assert_eq!(run(LayerCount::Fixed(1)).layers.len(), 1);
+    // A count: as many as the depth allows, and a warning-free reason in the report.
+    let three = run(LayerCount::Fixed(3));
+    assert_eq!(three.layers.len(), 3);
+    let five = run(LayerCount::Fixed(5));
+    assert_eq!(five.layers.len(), 3, "one depth step gives one background cut");
+    let limit = stage(&five, "slice")["detail"]["cuts"]["limit"].as_str().unwrap_or_default().to_string();
+    assert!(limit.contains("5 layers asked for"), "{limit}");
+}
+
 // ---------------------------------------------------------------------------------------------
 // Partial occlusion
 // ---------------------------------------------------------------------------------------------

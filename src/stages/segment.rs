@@ -99,7 +99,7 @@ pub fn from_disparity(disp: &Image, opts: &SegmentOptions) -> Segmentation {
             opts.max_fraction * 100.0
         ));
     }
-    let jump = median_edge_jump(&disp.data, &hard, None, w, h);
+    let jump = median_edge_jump(&disp.data, &hard, w, h);
     if jump < opts.min_jump {
         return Segmentation::SingleLayer(format!(
             "no foreground in the depth: the disparity changes smoothly (edge jump {jump:.3} < {})",
@@ -139,18 +139,16 @@ pub fn otsu_threshold(values: &[f32]) -> f32 {
     (best_t as f32 + 0.5) / (BINS - 1) as f32
 }
 
-/// Median of |D(inside) - D(outside)| over 4-neighbour pairs that cross the mask's outline,
-/// counting only pairs of `valid` pixels when given (0 when there is no such pair).
-pub(crate) fn median_edge_jump(d: &[f32], mask: &[bool], valid: Option<&[bool]>, w: usize, h: usize) -> f32 {
-    let ok = |i: usize, j: usize| valid.is_none_or(|v| v[i] && v[j]);
+/// Median of |D(inside) - D(outside)| over 4-neighbour pairs that cross the mask's outline.
+fn median_edge_jump(d: &[f32], mask: &[bool], w: usize, h: usize) -> f32 {
     let mut jumps = Vec::new();
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
-            if x + 1 < w && mask[i] != mask[i + 1] && ok(i, i + 1) {
+            if x + 1 < w && mask[i] != mask[i + 1] {
                 jumps.push((d[i] - d[i + 1]).abs());
             }
-            if y + 1 < h && mask[i] != mask[i + w] && ok(i, i + w) {
+            if y + 1 < h && mask[i] != mask[i + w] {
                 jumps.push((d[i] - d[i + w]).abs());
             }
         }

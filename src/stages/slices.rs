@@ -25,17 +25,27 @@ pub const MAX_LAYERS: usize = 8;
 /// Histogram bins over the disparity range [0, 1].
 const BINS: usize = 256;
 
-/// A bin holding less than this fraction of the mean bin count is part of a gap: a depth map
-/// smoothed by an estimator puts a thin ramp of values between two planes (measured on the
-/// bench's `realistic-depth` scenes: 3–12% of the mean count per bin), a real surface does not
-/// leave its bins that empty.
+/// A bin whose smoothed count is below this fraction of the lower of the two peaks around it
+/// is part of a valley between two depth populations. A depth map smoothed like an estimator's
+/// fills a gap between two planes with a thin ramp of values: on the bench's `realistic-depth`
+/// scenes (seed 3) that ramp stays below 12% of the smaller plane's peak.
 const GAP_DENSITY: f64 = 0.15;
+
+/// How far (pixels) on each side of a cut the depth jump is read: past the ramp of a depth
+/// map smoothed like an estimator's (the bench's realistic depth: 4x4 blocks, bilinear, then a
+/// Gaussian of 1.5 px).
+const EDGE_SPAN_PX: usize = 3;
+
+/// Bins the histogram is smoothed over before peaks and valleys are looked for (a plane's
+/// values spread over a few bins once the depth map is smoothed).
+const SMOOTH_BINS: usize = 5;
 
 /// How many layers the pipeline builds when the scene has a foreground.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LayerCount {
-    /// The foreground, then one background slice per gap of the background's disparity
-    /// histogram wider than `[segment] layer_gap` (at most [`MAX_AUTO_LAYERS`] layers).
+    /// The foreground, then one background slice per valley of the background's disparity
+    /// histogram between populations at least `[segment] layer_gap` apart (at most
+    /// [`MAX_AUTO_LAYERS`] layers).
     Auto,
     /// Exactly this many (1 ..= [`MAX_LAYERS`]) where the depth allows it: 1 renders the scene
     /// as one layer, 2 is the foreground over the inpainted background, more cut the background
@@ -142,7 +152,7 @@ pub fn background_cuts(disp: &Image, background: &[bool], count: LayerCount, opt
         return Cuts { thresholds: Vec::new(), limit: Some("the visible background is too small to cut".into()) };
     }
     let candidates = match count {
-        LayerCount::Auto => gaps(&values, opts.layer_gap),
+        LayerCount::Auto => valleys(&values, opts.layer_gap),
         LayerCount::Fixed(_) => otsu_levels(&values, wanted, min_px),
     };
     let mut chosen: Vec<f32> = Vec::new();
@@ -163,9 +173,9 @@ pub fn background_cuts(disp: &Image, background: &[bool], count: LayerCount, opt
     }
     let limit = (chosen.len() < wanted).then(|| match count {
         LayerCount::Auto if chosen.is_empty() => {
-            format!("no gap of at least {} in the visible background's disparity with a depth edge", opts.layer_gap)
+            format!("no valley between depth populations at least {} apart in the visible background's disparity, across a depth edge", opts.layer_gap)
         }
-        LayerCount::Auto => format!("{} gap(s) in the visible background's disparity", chosen.len()),
+        LayerCount::Auto => format!("{} valley(s) in the visible background's disparity", chosen.len()),
         LayerCount::Fixed(n) => format!(
             "{n} layers asked for, the visible background's depth allows {} (slices of at least {:.1}% of the image across real depth edges)",
             chosen.len() + 2,
@@ -175,34 +185,51 @@ pub fn background_cuts(disp: &Image, background: &[bool], count: LayerCount, opt
     Cuts { thresholds: chosen, limit }
 }
 
-/// Midpoints of the interior runs of near-empty histogram bins at least `min_gap` wide, widest
-/// first.
-fn gaps(values: &[f32], min_gap: f32) -> Vec<f32> {
-    let hist = histogram(values);
-    let sparse_below = GAP_DENSITY * values.len() as f64 / BINS as f64;
-    let sparse: Vec<bool> = hist.iter().map(|&c| (c as f64) < sparse_below).collect();
-    let mut runs = Vec::new();
-    let mut b = 0;
-    while b < BINS {
-        if !sparse[b] {
+/// Cuts at the valleys of the histogram, deepest-sided first: a run of bins whose density
+/// (histogram smoothed over [`SMOOTH_BINS`]) is below [`GAP_DENSITY`] of the lower of the
+/// highest peaks on its two sides, where those peaks lie at least `min_gap` apart. An empty
+/// gap between planes is such a valley, and so is the thin ramp a smoothed depth map puts
+/// between them; a slanted surface, whose values spread evenly, has none. The cut is the
+/// valley run's midpoint.
+fn valleys(values: &[f32], min_gap: f32) -> Vec<f32> {
+    let raw = histogram(values);
+    let half = SMOOTH_BINS / 2;
+    let hist: Vec<f64> = (0..BINS)
+        .map(|b| {
+            let (lo, hi) = (b.saturating_sub(half), (b + half).min(BINS - 1));
+            raw[lo..=hi].iter().sum::<u64>() as f64 / (hi - lo + 1) as f64
+        })
+        .collect();
+    // The highest bin at or left of b, and at or right of b.
+    let mut left = vec![(0.0f64, 0usize); BINS];
+    let mut right = vec![(0.0f64, 0usize); BINS];
+    for b in 0..BINS {
+        left[b] = if b > 0 && left[b - 1].0 >= hist[b] { left[b - 1] } else { (hist[b], b) };
+    }
+    for b in (0..BINS).rev() {
+        right[b] = if b + 1 < BINS && right[b + 1].0 >= hist[b] { right[b + 1] } else { (hist[b], b) };
+    }
+    let low = |b: usize| b > 0 && b + 1 < BINS && hist[b] < GAP_DENSITY * left[b - 1].0.min(right[b + 1].0);
+    let mut cuts = Vec::new();
+    let mut b = 1;
+    while b + 1 < BINS {
+        if !low(b) {
             b += 1;
             continue;
         }
         let start = b;
-        while b < BINS && sparse[b] {
+        while b + 1 < BINS && low(b) {
             b += 1;
         }
-        // Interior only: populated bins on both sides.
-        if start > 0 && b < BINS {
-            let width = (b - start) as f32 / (BINS - 1) as f32;
-            if width >= min_gap {
-                let mid = (start as f32 + b as f32 - 1.0) / 2.0 / (BINS - 1) as f32;
-                runs.push((width, mid));
-            }
+        let (peak_l, peak_r) = (left[start - 1], right[b]);
+        let apart = (peak_r.1 - peak_l.1) as f32 / (BINS - 1) as f32;
+        if apart >= min_gap {
+            let mid = (start as f32 + b as f32 - 1.0) / 2.0 / (BINS - 1) as f32;
+            cuts.push((peak_l.0.min(peak_r.0), mid));
         }
     }
-    runs.sort_by(|a, b| b.0.total_cmp(&a.0));
-    runs.into_iter().map(|(_, t)| t).collect()
+    cuts.sort_by(|a, b| b.0.total_cmp(&a.0));
+    cuts.into_iter().map(|(_, t)| t).collect()
 }
 
 /// Up to `cuts` multi-level Otsu thresholds, found greedily: the class with the largest
@@ -259,10 +286,32 @@ fn smallest_slice(values: &[f32], cuts: &[f32]) -> usize {
     counts.into_iter().min().unwrap_or(0)
 }
 
-/// Median |ΔD| over 4-neighbour pairs of background pixels on either side of cut `t`.
+/// Median |ΔD| across cut `t` of the visible background: for every 4-neighbour pair that the
+/// cut separates, the difference between the pixels [`EDGE_SPAN_PX`] farther out on each side
+/// (both background), so that a depth edge a smoothed map spreads over a few pixels still
+/// shows its full jump. 0 when no such pair exists.
 fn edge_jump(disp: &Image, background: &[bool], t: f32) -> f32 {
-    let near: Vec<bool> = disp.data.iter().map(|&d| d > t).collect();
-    super::segment::median_edge_jump(&disp.data, &near, Some(background), disp.width, disp.height)
+    let (w, h) = (disp.width as isize, disp.height as isize);
+    let d = &disp.data;
+    let s = EDGE_SPAN_PX as isize;
+    let mut jumps = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            for (dx, dy) in [(1isize, 0isize), (0, 1)] {
+                let (x1, y1) = (x + dx, y + dy);
+                let (xa, ya, xb, yb) = (x - s * dx, y - s * dy, x1 + s * dx, y1 + s * dy);
+                if xa < 0 || ya < 0 || xb >= w || yb >= h {
+                    continue;
+                }
+                let (i, j) = ((y * w + x) as usize, (y1 * w + x1) as usize);
+                let (a, b) = ((ya * w + xa) as usize, (yb * w + xb) as usize);
+                if (d[i] > t) != (d[j] > t) && background[a] && background[b] && background[i] && background[j] {
+                    jumps.push((d[a] - d[b]).abs());
+                }
+            }
+        }
+    }
+    super::mask::median(&mut jumps).unwrap_or(0.0)
 }
 
 /// The soft alpha of the slice nearer than `t` in a background's disparity `disp`: the hard
