@@ -70,6 +70,38 @@ for depth in ["exact", "realistic"]:
     start, end = f"<!-- pipeline-table {depth} -->\n", f"<!-- /pipeline-table {depth} -->"
     if start in readme:
         readme = replace_between(readme, start, end, pipeline_table(depth) + "\n")
+
+
+def options_table():
+    """The pipeline's optional settings against its defaults, per seed and depth map: mean
+    PSNR sRGB / PSNR linear / SSIM sRGB over all cases, and the number of cases where the
+    option is better by PSNR sRGB. Variants absent from a report are left out."""
+    options = [("layers-auto", "realistic-depth-layers-auto", "`--layers auto`"),
+               ("patchmatch", "realistic-depth-patchmatch", "`--inpaint patchmatch`")]
+    out = ["| seed | depth | setting | pipeline | better / worse cases (sRGB) |", "| ---: | --- | --- | ---: | ---: |"]
+    for seed, folder in [(1, "docs/bench"), (2, "docs/bench-seed2")]:
+        rows = collections.defaultdict(dict)
+        for r in csv.DictReader(open(root / folder / "report.csv")):
+            if r["method"] == "drbokeh-pipeline":
+                rows[r["variant"]][(r["scene"], r["setting"])] = (float(r["psnr_srgb"]), float(r["psnr_linear"]), float(r["ssim_srgb"]))
+        for depth, base in [("exact", "physical-fast-q2"), ("realistic", "realistic-depth")]:
+            cases = rows.get(base, {})
+            if not cases:
+                continue
+            mean = lambda v: " / ".join(f"{sum(x[i] for x in v) / len(v):.{2 if i < 2 else 4}f}" for i in range(3))
+            out.append(f"| {seed} | {depth} | defaults (2 layers, Telea) | {mean(list(cases.values()))} | |")
+            for exact_v, real_v, label in options:
+                v = rows.get(exact_v if depth == "exact" else real_v)
+                if not v:
+                    continue
+                better = sum(1 for k, x in v.items() if k in cases and x[0] > cases[k][0] + 1e-3)
+                worse = sum(1 for k, x in v.items() if k in cases and x[0] < cases[k][0] - 1e-3)
+                out.append(f"| {seed} | {depth} | {label} | {mean(list(v.values()))} | {better} / {worse} |")
+    return "\n".join(out)
+
+
+if "<!-- pipeline-options -->\n" in readme:
+    readme = replace_between(readme, "<!-- pipeline-options -->\n", "<!-- /pipeline-options -->", options_table() + "\n")
 # Depth from defocus (bench --dfd): the means over all cases of each seed, and the
 # acceptance bullets of both seeds, copied from the reports.
 for seed, folder in [("seed1", "docs/dfd-bench"), ("seed2", "docs/dfd-bench-seed2")]:
