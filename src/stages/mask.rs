@@ -4,10 +4,11 @@
 
 use crate::image::Image;
 use image::{ImageBuffer, Luma};
+use rayon::prelude::*;
 
 /// Euclidean distance (pixels) from every pixel to the nearest `true` pixel of `mask`;
-/// `f32::INFINITY` everywhere when the mask is empty. Linear time (Felzenszwalb–Huttenlocher,
-/// via imageproc). Allocates one f64 plane.
+/// `f32::INFINITY` everywhere when the mask is empty. Linear time ([`sq_distance_window`] on the
+/// whole image). Allocates the answer and one u32 plane.
 pub fn distance_to(mask: &[bool], width: usize, height: usize) -> Vec<f32> {
     distance_in(mask, width, height, (0, 0, width, height))
 }
@@ -40,22 +41,108 @@ pub fn grown_bbox(mask: &[bool], width: usize, height: usize, margin: f32) -> Op
 }
 
 /// Distance to the mask's pixels inside the window `(x0, y0, x1, y1)`, computed on that window
-/// only; `INFINITY` outside it.
+/// only; `INFINITY` outside it. Exact (see [`sq_distance_window`]). Allocates the full plane
+/// (4 bytes per pixel) plus the window's squared distances.
 pub fn distance_in(mask: &[bool], width: usize, height: usize, (x0, y0, x1, y1): (usize, usize, usize, usize)) -> Vec<f32> {
     let mut out = vec![f32::INFINITY; width * height];
-    let (cw, ch) = (x1 - x0, y1 - y0);
-    if cw == 0 || ch == 0 || !(y0..y1).any(|y| mask[y * width + x0..y * width + x1].iter().any(|&m| m)) {
+    let cw = x1 - x0;
+    if cw == 0 || y1 == y0 {
         return out;
     }
-    let crop: Vec<u8> = (y0..y1).flat_map(|y| mask[y * width + x0..y * width + x1].iter().map(|&m| m as u8)).collect();
-    let buf = ImageBuffer::<Luma<u8>, Vec<u8>>::from_raw(cw as u32, ch as u32, crop).expect("mask size");
-    let d2 = imageproc::distance_transform::euclidean_squared_distance_transform(&buf).into_raw();
-    for (row, src) in out[y0 * width..y1 * width].chunks_exact_mut(width).zip(d2.chunks_exact(cw)) {
+    let d2 = sq_distance_window(mask, width, (x0, y0, x1, y1));
+    out[y0 * width..y1 * width].par_chunks_exact_mut(width).zip(d2.par_chunks_exact(cw)).for_each(|(row, src)| {
         for (o, &d) in row[x0..x1].iter_mut().zip(src) {
-            *o = d.sqrt() as f32;
+            *o = if d == NONE { f32::INFINITY } else { (d as f64).sqrt() as f32 };
+        }
+    });
+    out
+}
+
+/// "No mask pixel in the window" in [`sq_distance_window`]'s output.
+pub const NONE: u32 = u32::MAX;
+
+/// Squared Euclidean distance (pixels²) from every pixel of the window `(x0, y0, x1, y1)`
+/// (exclusive ends) to the nearest `true` pixel of `mask` inside it, row-major over the window;
+/// [`NONE`] everywhere when the window holds no mask pixel.
+///
+/// Exact, in integers (Felzenszwalb–Huttenlocher: per column the distance to the nearest mask
+/// pixel, then per row the lower envelope of the parabolas `(x - q)² + g(q)²`), so the values
+/// are those of any exact transform (imageproc's, used before, gives the same squares).
+/// O(window pixels): two sequential sweeps down the window for the columns, then the rows in
+/// parallel (rayon). Allocates the answer and one scratch row per row task. Measured on the
+/// 12.2 MP end-to-end scene (2 cores): ~4x faster than imageproc's f64 transform of the same
+/// window, which also needed a u8 copy of the mask.
+pub fn sq_distance_window(mask: &[bool], width: usize, (x0, y0, x1, y1): (usize, usize, usize, usize)) -> Vec<u32> {
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    // Column pass: g = rows to the nearest mask pixel in the same column (NONE: none).
+    let mut g = vec![NONE; cw * ch];
+    for y in 0..ch {
+        let src = &mask[(y0 + y) * width + x0..][..cw];
+        let (done, rest) = g.split_at_mut(y * cw);
+        let row = &mut rest[..cw];
+        let above = if y > 0 { Some(&done[(y - 1) * cw..]) } else { None };
+        for x in 0..cw {
+            row[x] = if src[x] {
+                0
+            } else {
+                match above {
+                    Some(a) if a[x] != NONE => a[x] + 1,
+                    _ => NONE,
+                }
+            };
         }
     }
-    out
+    for y in (0..ch.saturating_sub(1)).rev() {
+        let (head, tail) = g.split_at_mut((y + 1) * cw);
+        let (row, below) = (&mut head[y * cw..], &tail[..cw]);
+        for (v, &b) in row.iter_mut().zip(below) {
+            if b != NONE && b + 1 < *v {
+                *v = b + 1;
+            }
+        }
+    }
+    // Row pass: the lower envelope of the column parabolas, each row on its own.
+    g.par_chunks_exact_mut(cw).for_each_init(
+        || (Vec::with_capacity(cw), Vec::with_capacity(cw + 1), Vec::with_capacity(cw)),
+        |(v, z, f): &mut (Vec<usize>, Vec<f64>, Vec<u64>), row| {
+            v.clear();
+            z.clear();
+            f.clear();
+            f.extend(row.iter().map(|&d| if d == NONE { u64::MAX } else { d as u64 * d as u64 }));
+            for q in 0..cw {
+                if f[q] == u64::MAX {
+                    continue;
+                }
+                // Where parabola q starts to lie below the envelope's last one.
+                let fq = (f[q] + (q * q) as u64) as f64;
+                let mut start = f64::NEG_INFINITY;
+                while let Some(&p) = v.last() {
+                    let s = (fq - (f[p] + (p * p) as u64) as f64) / (2 * (q - p)) as f64;
+                    if s > *z.last().expect("one boundary per parabola") {
+                        start = s;
+                        break;
+                    }
+                    v.pop();
+                    z.pop();
+                }
+                z.push(start);
+                v.push(q);
+            }
+            if v.is_empty() {
+                return;
+            }
+            let mut k = 0;
+            for (x, out) in row.iter_mut().enumerate() {
+                while k + 1 < v.len() && z[k + 1] < x as f64 {
+                    k += 1;
+                }
+                let p = v[k];
+                let d = (x.abs_diff(p) * x.abs_diff(p)) as u64 + f[p];
+                *out = d.min(NONE as u64 - 1) as u32;
+            }
+        },
+    );
+    g
 }
 
 /// A fast-marching `max_distance` (Telea) that surely covers every pixel within Euclidean
@@ -109,6 +196,45 @@ pub fn gaussian_blur(plane: &Image, sigma: f32) -> Image {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The integer transform against imageproc's f64 one (the oracle it replaced) and a brute
+    /// force, on seeded random masks of several densities, windows included.
+    #[test]
+    fn distances_match_imageproc_and_brute_force() {
+        let mut s = 7u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        };
+        for (w, h, per_mille) in [(1, 1, 500), (1, 9, 200), (13, 1, 100), (37, 23, 3), (40, 31, 50), (29, 40, 600), (16, 16, 0)] {
+            let mask: Vec<bool> = (0..w * h).map(|_| rnd() % 1000 < per_mille).collect();
+            let buf = ImageBuffer::<Luma<u8>, Vec<u8>>::from_raw(w as u32, h as u32, mask.iter().map(|&m| m as u8).collect()).unwrap();
+            let oracle = imageproc::distance_transform::euclidean_squared_distance_transform(&buf).into_raw();
+            let ours = sq_distance_window(&mask, w, (0, 0, w, h));
+            for i in 0..w * h {
+                let brute =
+                    (0..w * h).filter(|&j| mask[j]).map(|j| ((i % w).abs_diff(j % w).pow(2) + (i / w).abs_diff(j / w).pow(2)) as u32).min();
+                assert_eq!(Some(ours[i]).filter(|&d| d != NONE), brute, "{w}x{h} pixel {i}");
+                if brute.is_some() {
+                    assert_eq!(ours[i] as f64, oracle[i], "{w}x{h} pixel {i}");
+                }
+            }
+            let (x0, y0, x1, y1) = (w / 4, h / 3, w - w / 5, h);
+            let win = distance_in(&mask, w, h, (x0, y0, x1, y1));
+            for y in 0..h {
+                for x in 0..w {
+                    let inside = (x0..x1).contains(&x) && (y0..y1).contains(&y);
+                    let brute = (y0..y1)
+                        .flat_map(|yy| (x0..x1).map(move |xx| (xx, yy)))
+                        .filter(|&(xx, yy)| mask[yy * w + xx])
+                        .map(|(xx, yy)| ((x.abs_diff(xx).pow(2) + y.abs_diff(yy).pow(2)) as f64).sqrt() as f32)
+                        .fold(f32::INFINITY, f32::min);
+                    let want = if inside { brute } else { f32::INFINITY };
+                    assert_eq!(win[y * w + x].to_bits(), want.to_bits(), "{w}x{h} window, ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn morphology() {
