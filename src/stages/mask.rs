@@ -69,9 +69,9 @@ pub const NONE: u32 = u32::MAX;
 /// pixel, then per row the lower envelope of the parabolas `(x - q)² + g(q)²`), so the values
 /// are those of any exact transform (imageproc's, used before, gives the same squares).
 /// O(window pixels): two sequential sweeps down the window for the columns, then the rows in
-/// parallel (rayon). Allocates the answer and one scratch row per row task. Measured on the
-/// 12.2 MP end-to-end scene (2 cores): ~4x faster than imageproc's f64 transform of the same
-/// window, which also needed a u8 copy of the mask.
+/// parallel (rayon). Allocates the answer and one scratch row per row task (imageproc's
+/// transform also needed a u8 copy of the mask and answered in f64: on the 12.2 MP end-to-end
+/// scene the command's peak RSS fell from 1325 to 1226 MB with this one).
 pub fn sq_distance_window(mask: &[bool], width: usize, (x0, y0, x1, y1): (usize, usize, usize, usize)) -> Vec<u32> {
     let (cw, ch) = (x1 - x0, y1 - y0);
     // Column pass: g = rows to the nearest mask pixel in the same column (NONE: none).
