@@ -388,13 +388,17 @@ impl Pipeline {
                             "model": inpaint_model
                         })),
                     );
-                    vec![
-                        Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, "foreground layer")?,
-                        Layer::from_parts(&bg.rgb, &opaque, &bg.disparity, "background layer")?,
-                    ]
+                    // Each layer's parts are dropped once it is stacked (12.2 MP: 16 bytes per
+                    // pixel less at the stage's peak, with the background's mask).
+                    let front = Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, "foreground layer")?;
+                    drop((fg_rgb, fd, alpha, bg.mask));
+                    let back = Layer::from_parts(&bg.rgb, &opaque, &bg.disparity, "background layer")?;
+                    vec![front, back]
                 }
             }
         };
+        // The layers hold their alpha now: no full-size plane of ones while rendering.
+        drop(opaque);
         if let Some(why) = sharp {
             report.skipped("render", why);
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
