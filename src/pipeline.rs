@@ -388,7 +388,7 @@ impl Pipeline {
                             "model": inpaint_model
                         })),
                     );
-                    // Each layer's parts are dropped once it is stacked (12.2 MP: 16 bytes per
+                    // Each layer's parts are dropped once it is stacked (12.2 MP: 21 bytes per
                     // pixel less at the stage's peak, with the background's mask).
                     let front = Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, "foreground layer")?;
                     drop((fg_rgb, fd, alpha, bg.mask));
