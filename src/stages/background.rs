@@ -9,7 +9,7 @@
 //! foreground.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::{dilate, distance_within};
+use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;
 use serde::{Deserialize, Serialize};
@@ -182,8 +182,15 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
     }
     let mut highlights = vec![false; w * h];
     if opts.highlights == HighlightSources::Excluded {
-        let near = distance_within(&mask, w, h, opts.radius + 1.0);
-        let candidates: Vec<usize> = (0..w * h).filter(|&i| !mask[i] && near[i] <= opts.radius + 1.0).collect();
+        // Every pixel that close to the mask lies in its box grown by that much.
+        let limit = opts.radius + 1.0;
+        let candidates: Vec<usize> = match super::mask::grown_bbox(&mask, w, h, limit) {
+            Some(bb @ (x0, y0, x1, y1)) => {
+                let near = super::mask::BoxDistance::new(&mask, w, bb);
+                (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)).filter(|&i| !mask[i] && near.at(i) <= limit).collect()
+            }
+            None => Vec::new(),
+        };
         for (&i, hl) in candidates.iter().zip(super::highlights::point_highlights(rgb, &candidates)) {
             highlights[i] = hl;
         }

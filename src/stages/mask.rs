@@ -146,6 +146,36 @@ pub fn sq_distance_window(mask: &[bool], width: usize, (x0, y0, x1, y1): (usize,
     g
 }
 
+/// Distances (pixels) to a mask's pixels inside a box, kept on the box only: what
+/// [`distance_in`] gives, without its full-size plane. 4 bytes per pixel of the box.
+pub struct BoxDistance {
+    width: usize,
+    bbox: (usize, usize, usize, usize),
+    d2: Vec<u32>,
+}
+
+impl BoxDistance {
+    /// The exact distances to `mask`'s pixels inside `bbox` `(x0, y0, x1, y1)` (exclusive ends),
+    /// on that box ([`sq_distance_window`]).
+    pub fn new(mask: &[bool], width: usize, bbox: (usize, usize, usize, usize)) -> Self {
+        BoxDistance { width, bbox, d2: sq_distance_window(mask, width, bbox, true) }
+    }
+
+    /// No mask pixel anywhere: every distance is infinite.
+    pub fn none(width: usize) -> Self {
+        BoxDistance { width, bbox: (0, 0, 0, 0), d2: Vec::new() }
+    }
+
+    /// The distance at pixel index `i` (row-major in the image): `INFINITY` outside the box,
+    /// or where the box holds no mask pixel. The same value as [`distance_in`] on that box.
+    #[inline]
+    pub fn at(&self, i: usize) -> f32 {
+        let (x, y) = (i % self.width, i / self.width);
+        let (x0, y0, x1, y1) = self.bbox;
+        if (x0..x1).contains(&x) && (y0..y1).contains(&y) { root(self.d2[(y - y0) * (x1 - x0) + x - x0]) } else { f32::INFINITY }
+    }
+}
+
 /// A fast-marching `max_distance` (Telea) that surely covers every pixel within Euclidean
 /// distance `d`: fast marching overestimates distance by a few percent on diagonals.
 pub fn marching_reach(d: f32) -> f32 {
