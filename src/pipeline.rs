@@ -349,6 +349,8 @@ impl Pipeline {
                 }
             }
         };
+        // The layers hold their alpha now: no full-size plane of ones while rendering.
+        drop(opaque);
         if let Some(why) = sharp {
             report.skipped("render", why);
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
@@ -483,6 +485,9 @@ impl Pipeline {
             "model": inpaint_model
         });
         let layer = Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, what)?;
+        // The layer's parts and the fill's mask go before the caller stacks the next layer
+        // (12.2 MP: 21 bytes per pixel less at the stage's peak).
+        drop((fg_rgb, fd, alpha, bg.mask));
         Ok(Peeled { layer, behind_rgb: bg.rgb, behind_disparity: bg.disparity, fill_ms, fill_detail, inpaint_ms, inpaint_detail })
     }
 

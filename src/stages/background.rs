@@ -9,7 +9,7 @@
 //! foreground.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::{dilate, distance_within};
+use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;
 use serde::{Deserialize, Serialize};
@@ -182,8 +182,15 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
     }
     let mut highlights = vec![false; w * h];
     if opts.highlights == HighlightSources::Excluded {
-        let near = distance_within(&mask, w, h, opts.radius + 1.0);
-        let candidates: Vec<usize> = (0..w * h).filter(|&i| !mask[i] && near[i] <= opts.radius + 1.0).collect();
+        // Every pixel that close to the mask lies in its box grown by that much.
+        let limit = opts.radius + 1.0;
+        let candidates: Vec<usize> = match super::mask::grown_bbox(&mask, w, h, limit) {
+            Some(bb @ (x0, y0, x1, y1)) => {
+                let near = super::mask::BoxDistance::new(&mask, w, bb);
+                (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)).filter(|&i| !mask[i] && near.at(i) <= limit).collect()
+            }
+            None => Vec::new(),
+        };
         for (&i, hl) in candidates.iter().zip(super::highlights::point_highlights(rgb, &candidates)) {
             highlights[i] = hl;
         }
@@ -200,15 +207,22 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
 /// background: background values are seen through the foreground wherever its visibility is
 /// below 1, i.e. within `see` pixels (visibility box plus a background scatter radius) of a
 /// pixel whose alpha is below 1. Translucent pixels deep inside the mask (fur, glass) push the
-/// reach inward accordingly. Computes the dilated mask and one distance transform.
+/// reach inward accordingly. Computes the dilated mask and one distance transform, on the
+/// mask's box only.
 pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
     let (w, h) = (alpha.width, alpha.height);
     let mask = inpaint_mask(alpha, opts);
     // Every masked pixel's nearest outside pixel lies within the mask's box grown by 1.
     let Some(bb) = super::mask::grown_bbox(&mask, w, h, 1.0) else { return super::mask::marching_reach(see) };
-    let outside: Vec<bool> = mask.iter().map(|&m| !m).collect();
-    let to_outside = super::mask::distance_in(&outside, w, h, bb);
-    let deep = to_outside.iter().zip(&alpha.data).filter(|(d, a)| d.is_finite() && **a < 1.0).map(|(&d, _)| d).fold(0.0, f32::max);
+    let to_outside = super::mask::sq_distance_window(&mask, w, bb, false);
+    let (x0, y0, x1, _) = bb;
+    let deep = to_outside
+        .chunks_exact(x1 - x0)
+        .enumerate()
+        .flat_map(|(y, row)| row.iter().zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1]))
+        .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
+        .map(|(&d, _)| super::mask::root(d))
+        .fold(0.0, f32::max);
     super::mask::marching_reach(deep + see)
 }
 

@@ -10,7 +10,7 @@
 //! map whose edges are on the photo's, both widths come out at about a pixel and nothing
 //! changes.
 
-use super::mask::{distance_in, grown_bbox, median};
+use super::mask::{grown_bbox, median, root, sq_distance_window};
 use crate::image::Image;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -45,21 +45,31 @@ pub struct EdgeWidths {
 /// Measures the ramp of `disp` across the outline of `inside` (the matte's hard mask, e.g.
 /// `alpha ≥ 0.5`): the median normalized profile of the disparity against the signed distance
 /// to the outline, each sample normalized by the median plateaus on both sides within a
-/// window around it. Cost: two distance transforms near the outline and one window median
+/// window around it. Cost: two distance transforms on the outline's box (in parallel; the
+/// signed distance is kept on that box only, 4 bytes per pixel of it) and one window median
 /// per sample (at most [`MAX_SAMPLES`]), in parallel.
 pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths {
     let reach = PLATEAU.1 + 1.0;
     // Every pixel within `reach` of the outline lies in the inside's box grown by `reach`:
     // both transforms run there only (a small subject in a large frame costs little).
     let Some(bb) = grown_bbox(inside, w, h, reach + 1.0) else { return EdgeWidths::default() };
-    let outside: Vec<bool> = inside.iter().map(|&m| !m).collect();
-    // Signed distance: > 0 inside (distance to the outside), < 0 outside.
-    let to_out = distance_in(&outside, w, h, bb);
-    let to_in = distance_in(inside, w, h, bb);
-    let signed: Vec<f32> = (0..w * h).map(|i| if inside[i] { to_out[i] } else { -to_in[i] }).collect();
+    // Signed distance on the box (row-major over it): > 0 inside (distance to the outside),
+    // < 0 outside; outside the box it is infinite, which no test below accepts.
     let (x0, y0, x1, y1) = bb;
+    let bw = x1 - x0;
+    let (to_out, to_in) = rayon::join(|| sq_distance_window(inside, w, bb, false), || sq_distance_window(inside, w, bb, true));
+    let at = |i: usize| (i / w - y0) * bw + i % w - x0;
+    let signed_box: Vec<f32> = (y0..y1)
+        .flat_map(|y| (x0..x1).map(move |x| y * w + x))
+        .map(|i| if inside[i] { root(to_out[at(i)]) } else { -root(to_in[at(i)]) })
+        .collect();
+    drop((to_out, to_in));
+    let signed = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        if (x0..x1).contains(&x) && (y0..y1).contains(&y) { signed_box[(y - y0) * bw + x - x0] } else { f32::INFINITY }
+    };
     let band: Vec<usize> =
-        (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)).filter(|&i| signed[i].abs() <= MAX_WIDTH as f32 + 0.5).collect();
+        (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)).filter(|&i| signed(i).abs() <= MAX_WIDTH as f32 + 0.5).collect();
     if band.is_empty() {
         return EdgeWidths::default();
     }
@@ -75,7 +85,7 @@ pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths 
             for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
                 for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
                     let j = yy * w + xx;
-                    let s = signed[j];
+                    let s = signed(j);
                     if s >= PLATEAU.0 && s <= PLATEAU.1 {
                         fin.push(disp.data[j]);
                     } else if -s >= PLATEAU.0 && -s <= PLATEAU.1 {
@@ -84,7 +94,7 @@ pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths 
                 }
             }
             let (din, dout) = (median(&mut fin)?, median(&mut fout)?);
-            ((din - dout).abs() >= MIN_STEP).then(|| (signed[i].round() as i32, (disp.data[i] - dout) / (din - dout)))
+            ((din - dout).abs() >= MIN_STEP).then(|| (signed(i).round() as i32, (disp.data[i] - dout) / (din - dout)))
         })
         .collect();
     if samples.is_empty() {

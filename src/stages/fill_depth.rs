@@ -6,7 +6,7 @@
 //! shrunk hard mask is kept and everything outside it is Telea-inpainted from it.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::{distance_in, distance_to, erode, grown_bbox};
+use super::mask::{BoxDistance, erode, grown_bbox};
 use crate::error::Result;
 use crate::image::Image;
 use crate::render::lens::coc_radius;
@@ -80,9 +80,13 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
         return core;
     }
     let limit = erode_px + 1.0;
-    let near = super::mask::distance_within(&core, w, h, limit);
-    for ((c, &hd), &d) in core.iter_mut().zip(hard).zip(&near) {
-        *c = *c || (hd && d > limit);
+    // Distances to the shrunk mask on its box grown by `limit` (infinite beyond it).
+    let near = match grown_bbox(&core, w, h, limit) {
+        Some(bb) => BoxDistance::new(&core, w, bb),
+        None => BoxDistance::none(w),
+    };
+    for (i, (c, &hd)) in core.iter_mut().zip(hard).enumerate() {
+        *c = *c || (hd && near.at(i) > limit);
     }
     core
 }
@@ -131,21 +135,18 @@ pub fn foreground_disparity(
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the
     // core lies inside it): exact wherever the fill can matter.
     let visible: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
-    let to_core = match grown_bbox(&visible, w, h, visible_reach + 2.0) {
-        Some(bb) => distance_in(&core, w, h, bb),
-        None => distance_to(&core, w, h),
-    };
-    let edge = to_core.iter().zip(&visible).filter(|(_, v)| **v).map(|(&d, _)| d).fold(0.0, f32::max);
+    let to_core = BoxDistance::new(&core, w, grown_bbox(&visible, w, h, visible_reach + 2.0).unwrap_or((0, 0, w, h)));
+    let edge = visible.iter().enumerate().filter(|(_, v)| **v).map(|(i, _)| to_core.at(i)).fold(0.0, f32::max);
     let reach = super::mask::marching_reach(edge + visible_reach);
     let unknown: Vec<bool> = core.iter().map(|&m| !m).collect();
     let filled = inpaint_telea(&mut out, &unknown, TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) })?;
     let quiet = focus.clamp(lo, hi);
     let mut skipped = 0;
-    for ((v, &u), &d) in out.data.iter_mut().zip(&unknown).zip(&to_core) {
+    for (i, (v, &u)) in out.data.iter_mut().zip(&unknown).enumerate() {
         if !u {
             continue;
         }
-        if d <= edge + visible_reach {
+        if to_core.at(i) <= edge + visible_reach {
             *v = v.clamp(lo, hi);
         } else {
             *v = quiet;

@@ -100,9 +100,14 @@ impl OpenCvCompat {
 /// and positive, a negative or NaN `compat.max_code`, an image too large to index (more than 2³²
 /// cells once padded by the radius).
 ///
-/// Allocates O(pixels) working memory once per call (flags and distances over the image padded
-/// by the radius, the queue; with an integer `compat`, also a copy of the image as codes);
-/// nothing per pixel. Single-threaded: fill several images in parallel if needed.
+/// Works on the window the fill can touch only (the hole's box, cut to `max_distance` beyond the
+/// known pixels' box, grown by the radius; see `fill_window`), with the same result as on the
+/// whole image: a small hole, or a short `max_distance` around a small known region, costs a
+/// small fill however large the image. One pass over the mask finds the window; when it is not
+/// the whole image, the window is copied out and back. Allocates O(window pixels) working
+/// memory once per call (flags and distances over the window padded by the radius, the queue;
+/// with an integer `compat`, also a copy of the window as codes); nothing per pixel.
+/// Single-threaded: fill several images in parallel if needed.
 pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Result<usize> {
     let (w, h, c) = (img.width, img.height, img.channels);
     let pixels = w.checked_mul(h).ok_or_else(|| Error::usage("inpaint: image size overflows"))?;
@@ -131,20 +136,79 @@ pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Resu
     }
     // `as` saturates (+inf becomes i64::MAX), so every radius lands in 1..=100 as in OpenCV.
     let radius = (opts.radius.round_ties_even() as i64).clamp(1, 100) as usize;
-    let pad = radius;
-    let (gw, gh) = (w + 2 * pad, h + 2 * pad);
+    let (gw, gh) = (w + 2 * radius, h + 2 * radius);
     if gw.checked_mul(gh).is_none_or(|n| n > u32::MAX as usize) {
         return Err(Error::usage(format!("inpaint: image of {w}x{h} is too large")));
     }
-    let mut m = March::new(w, h, pad, mask);
-    m.outside_distances(radius);
     let max_distance = opts.max_distance.unwrap_or(f32::INFINITY);
-    let filled = match opts.compat {
+    let Some(win) = fill_window(mask, w, h, radius, max_distance) else { return Ok(0) };
+    if win == (0, 0, w, h) {
+        return Ok(fill_all(img, mask, radius, max_distance, opts.compat));
+    }
+    // Everything the march reads or writes lies inside the window: run it there.
+    let (x0, y0, x1, y1) = win;
+    let (cw, chh) = (x1 - x0, y1 - y0);
+    let mut crop = img.crop(x0, y0, cw, chh);
+    let crop_mask: Vec<bool> = (y0..y1).flat_map(|y| mask[y * w + x0..y * w + x1].iter().copied()).collect();
+    let filled = fill_all(&mut crop, &crop_mask, radius, max_distance, opts.compat);
+    for (y, row) in crop.data.chunks_exact(cw * c).enumerate() {
+        let i = img.index(x0, y0 + y);
+        img.data[i..i + cw * c].copy_from_slice(row);
+    }
+    Ok(filled)
+}
+
+/// The part of the image a fill can touch, `(x0, y0, x1, y1)` with exclusive ends; None when
+/// nothing can be filled (nothing is known, or no hole pixel is within reach of a known one).
+///
+/// A filled pixel is a hole pixel whose T is at most `max_distance`. The eikonal solve gives a
+/// cell at least 1/√2 more than its smallest accepted 4-neighbour (OpenCV's two-sided solve
+/// `(a + b + √(2 - (a-b)²))/2` is smallest, `a + 1/√2`, at `a = b`), and a hole pixel's
+/// accepted neighbours are band cells (T = 0) or filled ones. So a filled pixel is within
+/// `√2·max_distance` 4-steps of a known pixel: inside the known pixels' box grown by that
+/// (1.5× here, for rounding), and inside the hole's box. Grown by `radius + 2`, the window
+/// holds every cell the march reads for them (disc taps, one more for differences) and the
+/// whole ring of known cells within `radius` of the hole that the outward march covers (a
+/// ring cell is within `radius` of a band cell, which is known and next to a hole pixel of the
+/// window), so the fill inside the window is the same, bit for bit, as on the whole image.
+/// One pass over the mask.
+fn fill_window(mask: &[bool], w: usize, h: usize, radius: usize, max_distance: f32) -> Option<(usize, usize, usize, usize)> {
+    let (hole, known) = (bbox(mask, w, true)?, bbox(mask, w, false)?);
+    let reach = if max_distance < (w + h) as f32 { (1.5 * max_distance.max(0.0)).ceil() as usize + 2 } else { w + h };
+    let grow =
+        |b: (usize, usize, usize, usize), m: usize| (b.0.saturating_sub(m), b.1.saturating_sub(m), (b.2 + m).min(w), (b.3 + m).min(h));
+    let k = grow(known, reach);
+    let r = (hole.0.max(k.0), hole.1.max(k.1), hole.2.min(k.2), hole.3.min(k.3));
+    if r.0 >= r.2 || r.1 >= r.3 {
+        // No hole pixel is close enough to a known one to be filled.
+        return None;
+    }
+    Some(grow(r, radius + 2))
+}
+
+/// Bounding box `(x0, y0, x1, y1)` (exclusive ends) of the pixels of `mask` equal to `value`.
+fn bbox(mask: &[bool], w: usize, value: bool) -> Option<(usize, usize, usize, usize)> {
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for (y, row) in mask.chunks_exact(w).enumerate() {
+        let Some(a) = row.iter().position(|&m| m == value) else { continue };
+        let b = row.iter().rposition(|&m| m == value).expect("a match exists");
+        (x0, x1, y0, y1) = (x0.min(a), x1.max(b + 1), y0.min(y), y + 1);
+    }
+    (x0 != usize::MAX).then_some((x0, y0, x1, y1))
+}
+
+/// The march on the whole of `img` (already checked); returns the number of pixels filled.
+fn fill_all(img: &mut Image, mask: &[bool], radius: usize, max_distance: f32, compat: Option<OpenCvCompat>) -> usize {
+    if img.data.is_empty() || !mask.contains(&true) {
+        return 0;
+    }
+    let mut m = March::new(img.width, img.height, radius, mask);
+    m.outside_distances(radius);
+    match compat {
         None => m.fill::<PLAIN>(img, radius, max_distance, OpenCvCompat::f32()),
         Some(cv) if cv.max_code.is_none() => m.fill::<CV_FLOAT>(img, radius, max_distance, cv),
         Some(cv) => m.fill::<CV_INT>(img, radius, max_distance, cv),
-    };
-    Ok(filled)
+    }
 }
 
 // Cell states, as in OpenCV. VOID is the padding around the image: never unknown (so the eikonal
@@ -543,6 +607,17 @@ impl Ctx<'_> {
                 grads.push(k);
             }
         }
+        if MODE == PLAIN && ch == 3 {
+            // RGB in one pass over the taps; each channel's sum keeps its order (same bits).
+            let (mut r, mut g, mut b) = (0.0f32, 0.0f32, 0.0f32);
+            for &(wgt, src) in known.iter() {
+                r += wgt * data[src];
+                g += wgt * data[src + 1];
+                b += wgt * data[src + 2];
+            }
+            data[centre..centre + 3].copy_from_slice(&[r / s, g / s, b / s]);
+            return;
+        }
         for c in 0..ch {
             let mut ia = 0.0f32;
             if MODE == PLAIN {
@@ -704,11 +779,17 @@ mod tests {
     #[test]
     fn channels_are_filled_independently() {
         let (w, h) = (15, 12);
-        let img = noise_image(w, h, 5, 6);
+        for chans in [3, 5] {
+            channels_independent(w, h, chans);
+        }
+    }
+
+    fn channels_independent(w: usize, h: usize, chans: usize) {
+        let img = noise_image(w, h, chans, 6);
         let mask: Vec<bool> = (0..w * h).map(|i| (i % w + i / w) % 5 < 2 && i % w > 2).collect();
         for compat in all_modes() {
             let whole = fill_checked(&img, &mask, opts(3.0, compat));
-            for c in 0..5 {
+            for c in 0..chans {
                 let single = fill_checked(&img.channel(c), &mask, opts(3.0, compat));
                 assert_eq!(
                     whole.channel(c).data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
@@ -776,6 +857,37 @@ mod tests {
         // Out-of-range radii are clamped like OpenCV's, not refused.
         for r in [0.0, 0.4, f32::INFINITY, 1e9] {
             fill_checked(&img, &mask, TeleaOptions::new(r));
+        }
+    }
+
+    /// The window the fill runs on gives the whole-image march's result, bit for bit, in every
+    /// mode: small holes far from the border, holes at the border, and the complement of a
+    /// small known region with a distance limit (the depth fill's case).
+    #[test]
+    fn the_window_fill_is_the_whole_image_fill() {
+        let (w, h) = (64, 48);
+        let img = noise_image(w, h, 3, 11);
+        let disc = |cx: f32, cy: f32, r: f32| move |i: usize| ((i % w) as f32 - cx).powi(2) + ((i / w) as f32 - cy).powi(2) < r * r;
+        let masks: Vec<Vec<bool>> = vec![
+            (0..w * h).map(disc(30.0, 20.0, 6.0)).collect(),
+            (0..w * h).map(|i| disc(3.0, 40.0, 7.0)(i) || disc(50.0, 10.0, 3.0)(i)).collect(),
+            (0..w * h).map(|i| !disc(32.0, 24.0, 8.0)(i)).collect(),
+            (0..w * h).map(|i| !(disc(20.0, 20.0, 4.0)(i) || disc(45.0, 30.0, 2.0)(i))).collect(),
+        ];
+        for mask in &masks {
+            for compat in all_modes() {
+                for (r, md) in [(3.0, None), (5.0, Some(4.0)), (2.0, Some(0.5)), (4.0, Some(9.0))] {
+                    let o = TeleaOptions { max_distance: md, ..opts(r, compat) };
+                    let mut windowed = img.clone();
+                    let n = inpaint_telea(&mut windowed, mask, o).unwrap();
+                    let mut whole = img.clone();
+                    let radius = (r as i64).clamp(1, 100) as usize;
+                    let m = fill_all(&mut whole, mask, radius, md.unwrap_or(f32::INFINITY), compat);
+                    assert_eq!(n, m, "{compat:?} r {r} md {md:?}");
+                    let bits = |im: &Image| im.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&windowed), bits(&whole), "{compat:?} r {r} md {md:?}");
+                }
+            }
         }
     }
 
