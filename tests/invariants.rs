@@ -433,7 +433,15 @@ fn more_layers_peel_a_stepped_background() {
     let (w, h) = (64, 48);
     let rgb = Image::stack(&[&random_plane(w, h, 21), &random_plane(w, h, 22), &random_plane(w, h, 23)]);
     let subject = |x: usize, y: usize| (40..52).contains(&x) && (16..32).contains(&y);
-    let d = plane(w, h, |x, y| if subject(x, y) { 0.95 } else if x < 24 { 0.6 } else { 0.1 });
+    let d = plane(w, h, |x, y| {
+        if subject(x, y) {
+            0.95
+        } else if x < 24 {
+            0.6
+        } else {
+            0.1
+        }
+    });
     let matte = plane(w, h, |x, y| subject(x, y) as u8 as f32);
     let scene = Scene { rgb, disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: Some(matte) };
     let run = |layers: LayerCount| {

@@ -36,6 +36,11 @@ const GAP_DENSITY: f64 = 0.15;
 /// Gaussian of 1.5 px).
 const EDGE_SPAN_PX: usize = 3;
 
+/// How much the jump across a cut may still grow from [`EDGE_SPAN_PX`] to three times that
+/// distance for the cut to count as a depth edge: a ramp's grows 19/7 ≈ 2.7 times, an edge
+/// smoothed over a few pixels hardly at all.
+const RAMP_GROWTH: f32 = 1.5;
+
 /// Bins the histogram is smoothed over before peaks and valleys are looked for (a plane's
 /// values spread over a few bins once the depth map is smoothed).
 const SMOOTH_BINS: usize = 5;
@@ -166,7 +171,7 @@ pub fn background_cuts(disp: &Image, background: &[bool], count: LayerCount, opt
         if smallest_slice(&values, &trial) < min_px {
             continue;
         }
-        if edge_jump(disp, background, t) < opts.min_jump {
+        if !is_depth_edge(disp, background, t, opts.min_jump) {
             continue;
         }
         chosen = trial;
@@ -286,23 +291,35 @@ fn smallest_slice(values: &[f32], cuts: &[f32]) -> usize {
     counts.into_iter().min().unwrap_or(0)
 }
 
+/// Whether cut `t` of the visible background follows a depth edge: the median jump across it
+/// ([`edge_jump`], [`EDGE_SPAN_PX`] out on each side) is at least `min_jump`, and it has
+/// levelled off there: three times farther out it is less than [`RAMP_GROWTH`] times as
+/// large. Across a slanted surface the difference keeps growing with the distance (a
+/// quantized ramp has histogram valleys between its levels and must not be cut).
+fn is_depth_edge(disp: &Image, background: &[bool], t: f32, min_jump: f32) -> bool {
+    let near = edge_jump(disp, background, t, EDGE_SPAN_PX);
+    near >= min_jump && edge_jump(disp, background, t, 3 * EDGE_SPAN_PX) < RAMP_GROWTH * near
+}
+
 /// Median |ΔD| across cut `t` of the visible background: for every 4-neighbour pair that the
-/// cut separates, the difference between the pixels [`EDGE_SPAN_PX`] farther out on each side
-/// (both background), so that a depth edge a smoothed map spreads over a few pixels still
-/// shows its full jump. 0 when no such pair exists.
-fn edge_jump(disp: &Image, background: &[bool], t: f32) -> f32 {
+/// cut separates, the difference between the pixels `span` farther out on each side (both
+/// background; positions past the image border are clamped to it), so that a depth edge a
+/// smoothed map spreads over a few pixels still shows its full jump. 0 when no such pair
+/// exists.
+fn edge_jump(disp: &Image, background: &[bool], t: f32, span: usize) -> f32 {
     let (w, h) = (disp.width as isize, disp.height as isize);
     let d = &disp.data;
-    let s = EDGE_SPAN_PX as isize;
+    let s = span as isize;
     let mut jumps = Vec::new();
     for y in 0..h {
         for x in 0..w {
             for (dx, dy) in [(1isize, 0isize), (0, 1)] {
                 let (x1, y1) = (x + dx, y + dy);
-                let (xa, ya, xb, yb) = (x - s * dx, y - s * dy, x1 + s * dx, y1 + s * dy);
-                if xa < 0 || ya < 0 || xb >= w || yb >= h {
+                if x1 >= w || y1 >= h {
                     continue;
                 }
+                let (xa, ya) = ((x - s * dx).max(0), (y - s * dy).max(0));
+                let (xb, yb) = ((x1 + s * dx).min(w - 1), (y1 + s * dy).min(h - 1));
                 let (i, j) = ((y * w + x) as usize, (y1 * w + x1) as usize);
                 let (a, b) = ((ya * w + xa) as usize, (yb * w + xb) as usize);
                 if (d[i] > t) != (d[j] > t) && background[a] && background[b] && background[i] && background[j] {
