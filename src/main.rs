@@ -86,6 +86,9 @@ enum InpaintArg {
     Telea,
     /// The inpainting model of [inpaint.onnx] (or lama.onnx in --model-dir).
     Onnx,
+    /// Telea, then an exemplar (PatchMatch) fill of the colour: texture continues behind the
+    /// subject (slower).
+    Patchmatch,
 }
 
 /// `--bit-depth`: bits per sample of a PNG output.
@@ -299,6 +302,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
         cfg.inpaint.method = match m {
             InpaintArg::Telea => InpaintMethod::Telea,
             InpaintArg::Onnx => InpaintMethod::Onnx,
+            InpaintArg::Patchmatch => InpaintMethod::PatchMatch,
         };
     }
     if let Some(d) = &args.model_dir {

@@ -467,7 +467,11 @@ impl Pipeline {
         } else {
             (inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None)
         };
-        let method = if inpaint_model.is_some() { "onnx" } else { "telea" };
+        let method = match cfg.inpaint.method {
+            crate::stages::inpaint_onnx::InpaintMethod::Telea => "telea",
+            crate::stages::inpaint_onnx::InpaintMethod::PatchMatch => "patchmatch",
+            crate::stages::inpaint_onnx::InpaintMethod::Onnx => "onnx",
+        };
         let (fg_rgb, unmixed) = match cfg.inpaint.foreground {
             ForegroundColour::Unmixed => separate(photo, &alpha, &mut bg.rgb, cfg.inpaint.radius)?,
             ForegroundColour::Photo => (photo.clone(), 0),

@@ -100,7 +100,9 @@ impl Method {
         match self {
             Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact, PhysicalFast(2)],
             Method::Sliced => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2)],
-            Method::Pipeline => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth, LayersAuto, RealisticLayersAuto],
+            Method::Pipeline => {
+                vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth, LayersAuto, RealisticLayersAuto, PatchMatch]
+            }
             Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth],
             Method::Gather => vec![Plain, RealisticDepth],
         }
@@ -134,6 +136,9 @@ pub enum Variant {
     LayersAuto,
     /// [`Variant::LayersAuto`] fed the realistic depth map of [`Variant::RealisticDepth`].
     RealisticLayersAuto,
+    /// The pipeline's default settings with `--inpaint patchmatch` (the colour behind the
+    /// foreground filled from exemplar patches, `stages::patchmatch`), exact depth map.
+    PatchMatch,
 }
 
 impl Variant {
@@ -148,6 +153,7 @@ impl Variant {
             Variant::RealisticDepth => "realistic-depth".into(),
             Variant::LayersAuto => "layers-auto".into(),
             Variant::RealisticLayersAuto => "realistic-depth-layers-auto".into(),
+            Variant::PatchMatch => "patchmatch".into(),
         }
     }
     /// Whether this setting reads the realistic depth map instead of the exact one.
@@ -162,14 +168,17 @@ impl Variant {
             | Variant::PhysicalFast(_)
             | Variant::RealisticDepth
             | Variant::LayersAuto
-            | Variant::RealisticLayersAuto => crate::render::Profile::Physical,
+            | Variant::RealisticLayersAuto
+            | Variant::PatchMatch => crate::render::Profile::Physical,
             _ => crate::render::Profile::Official,
         }
     }
     fn kernel(self) -> Kernel {
         match self {
             Variant::Fast(q) | Variant::PhysicalFast(q) => Kernel::Fast { quality: q },
-            Variant::RealisticDepth | Variant::LayersAuto | Variant::RealisticLayersAuto => Kernel::Fast { quality: 2 },
+            Variant::RealisticDepth | Variant::LayersAuto | Variant::RealisticLayersAuto | Variant::PatchMatch => {
+                Kernel::Fast { quality: 2 }
+            }
             _ => Kernel::Exact,
         }
     }
@@ -495,6 +504,9 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
             cfg.render.profile = v.profile();
             if matches!(v, Variant::LayersAuto | Variant::RealisticLayersAuto) {
                 cfg.segment.layers = crate::stages::slices::LayerCount::Auto;
+            }
+            if v == Variant::PatchMatch {
+                cfg.inpaint.method = crate::stages::inpaint_onnx::InpaintMethod::PatchMatch;
             }
             let scene = Scene {
                 rgb: inp.aif.clone(),

@@ -53,7 +53,8 @@ pub struct InpaintOptions {
     pub foreground: ForegroundColour,
     /// Telea neighbourhood radius, pixels.
     pub radius: f32,
-    /// "telea" (this module) or "onnx" (the `[inpaint.onnx]` model, `stages::inpaint_onnx`).
+    /// "telea" (this module), "patchmatch" (Telea, then [`super::patchmatch`] on the colour) or
+    /// "onnx" (the `[inpaint.onnx]` model, `stages::inpaint_onnx`).
     pub method: super::inpaint_onnx::InpaintMethod,
     /// `[inpaint.onnx]`: the model used by `method = "onnx"`.
     pub onnx: crate::onnx::ModelSpec,
@@ -228,6 +229,8 @@ pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
 
 /// Inpaints `rgb` and `disp` over [`fill_region`]'s masks, up to `reach` pixels from the
 /// visible background (deeper pixels cannot be seen through any blur and keep their input).
+/// With `opts.method` = PatchMatch, the colour within `reach` (Euclidean) is then re-filled by
+/// [`super::patchmatch::fill`] from Telea's start, with the filled disparity as its depth term.
 pub fn inpaint_background(
     rgb: &Image,
     disp: &Image,
@@ -244,10 +247,13 @@ pub fn inpaint_background(
     let (filled, filled_disp) =
         rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
     filled_disp?;
+    disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
+    if opts.method == super::inpaint_onnx::InpaintMethod::PatchMatch {
+        super::patchmatch::fill(&mut rgb_out, &rgb_mask, &disp_out, reach, &Default::default())?;
+    }
     // Kept highlights sit next to known pixels: the fill always reached them.
     let filled = filled?.saturating_sub(region.highlights_kept);
     region.restore_highlights(&mut rgb_out, rgb);
-    disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
     let stats = (region.band, region.band_replaced, region.highlights_kept);
     Ok(Background::new(rgb_out, disp_out, region.mask, filled, stats))
 }

@@ -168,4 +168,7 @@ pub enum InpaintMethod {
     Telea,
     /// The `[inpaint.onnx]` model.
     Onnx,
+    /// Telea, then an exemplar (PatchMatch) fill of the colour within reach
+    /// ([`super::patchmatch`]); disparity stays Telea's.
+    PatchMatch,
 }

@@ -3,7 +3,8 @@
 //! past the matte's) → `fill_depth` → `background` (inpaint, with the `contamination` and
 //! `highlights` rules) → `foreground` (colour at soft edges) → layers; with `--layers`, `slices`
 //! cuts the background at gaps of its depth and the same stages peel each slice in turn.
-//! `inpaint` is the Telea algorithm the fills use; `mask` holds shared mask helpers.
+//! `inpaint` is the Telea algorithm the fills use (`patchmatch` the optional exemplar fill of
+//! the colour); `mask` holds shared mask helpers.
 //! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
 
 pub mod background;
@@ -17,6 +18,7 @@ pub mod highlights;
 pub mod inpaint;
 pub mod inpaint_onnx;
 pub mod mask;
+pub mod patchmatch;
 pub mod segment;
 pub mod segment_onnx;
 pub mod slices;
