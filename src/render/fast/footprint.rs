@@ -8,8 +8,8 @@
 
 use super::super::aperture::Tap;
 use super::super::lens::{
-    FACTORED_STEP_MAX, MAX_RADIUS, Profile, STEP_GAIN, STEP_LN_OFFSET, coc_radius, disk_coverage, scatter_radius, soft_step,
-    step_source_factor, step_tap_factor,
+    FACTORED_STEP_MAX, MAX_RADIUS, Profile, STEP_GAIN, STEP_LN_OFFSET, coc_radius, disk_coverage, disk_coverage_smooth, scatter_radius,
+    soft_step, step_source_factor, step_tap_factor,
 };
 use super::super::splat::{Stripe, lattice_row_reach};
 use std::f32::consts::{FRAC_PI_3, PI};
@@ -183,6 +183,44 @@ pub(super) fn coverage_disk(st: &mut Stripe, (sx, sy): (i64, i64), r: f32, norm:
     rim_footprint(st, (sx, sy), &rim, p, |rho| disk_coverage(r, rho) / norm, v, e)
 }
 
+/// The smooth-edged physical disk of the differentiable renders
+/// ([`lens::disk_coverage_smooth`] with an edge `width` pixels wide, over the flux `norm`),
+/// drawn as [`coverage_disk`] draws the hard one: the plateau as one span per row, the edge as
+/// taps. Same clipping (window `|offset| < p`, the stripe). Returns the writes.
+///
+/// [`lens::disk_coverage_smooth`]: super::super::lens::disk_coverage_smooth
+#[allow(clippy::too_many_arguments)]
+pub(in crate::render) fn smooth_coverage_disk(
+    st: &mut Stripe,
+    centre: (i64, i64),
+    r: f32,
+    width: f32,
+    norm: f32,
+    p: i64,
+    v: [f32; 4],
+    e: &mut Vec<f32>,
+) -> u64 {
+    let rim = Rim { reach: r + 0.5 * width, inner: r - 0.5 * width, plateau: v.map(|c| c / norm) };
+    rim_footprint(st, centre, &rim, p, |rho| disk_coverage_smooth(r, rho, width) / norm, v, e)
+}
+
+/// The pixels of row offset `dy` that a rim footprint (value constant within `inner` of the
+/// centre, tapered out to `reach`) covers in a window of half-size `p` (strict disk, as the
+/// official mask): `(xi, xo)`, the plateau is `|dx| ≤ xi` (none when `xi < 0`) and the taper
+/// `xi < |dx| ≤ xo`; None where the row holds nothing. Shared by the scatter
+/// ([`rim_footprint`]) and the gathers of the differentiable span render
+/// (`render::backward::span`), so both walk the same pixels.
+// Always inlined: the per-row step of every exact disk.
+#[inline(always)]
+pub(in crate::render) fn rim_row(reach: f32, inner: f32, p: i64, dy: i64) -> Option<(i64, i64)> {
+    // Largest |dx| inside the window (strict disk, as the official mask).
+    let m = lattice_row_reach(p, dy)?;
+    let dyf = (dy * dy) as f32;
+    let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { return None };
+    let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
+    Some((xi, xo))
+}
+
 /// A footprint's rings: its value is `plateau` within `inner` of the centre and `tap(ρ)·v`
 /// out to `reach` (exclusive).
 struct Rim {
@@ -201,11 +239,8 @@ fn rim_footprint(st: &mut Stripe, (sx, sy): (i64, i64), rim: &Rim, p: i64, tap: 
     let mut ops = 0;
     for row in (sy - rr).max(y0)..=(sy + rr).min(y1 - 1) {
         let dy = row - sy;
-        // Largest |dx| inside the window (strict disk, as the official mask).
-        let Some(m) = lattice_row_reach(p, dy) else { continue };
+        let Some((xi, xo)) = rim_row(reach, inner, p, dy) else { continue };
         let dyf = (dy * dy) as f32;
-        let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { continue };
-        let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
         if xi >= 0 {
             st.pixels(row, sx - xi, sx + xi, rim.plateau);
             ops += 4;
