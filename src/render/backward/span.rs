@@ -379,7 +379,8 @@ fn composite_adjoint(px: &[f32], g: [f64; 3]) -> [f64; 4] {
 struct Scratch {
     stripes: Vec<Stripe>,
     walk: Walk,
-    used: Vec<bool>,
+    /// Per bin, the columns `[x0, x1)` the stripe's sources of that bin reach (None: unused).
+    used: Vec<Option<(usize, usize)>>,
     row: Vec<f32>,
     e: Vec<f32>,
 }
@@ -389,7 +390,7 @@ impl Scratch {
         Scratch {
             stripes: (0..bins.count).map(|_| Stripe::new(w)).collect(),
             walk: Walk::new(bins),
-            used: vec![false; bins.count],
+            used: vec![None; bins.count],
             row: vec![0.0; w * 4],
             e: Vec::new(),
         }
@@ -402,22 +403,28 @@ impl Scratch {
 fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scratch, out: &mut [f32], tg: &mut [Target]) {
     let w = ctx.w;
     let rows = ctx.source_rows(y0, y1);
-    // Survey: the bins this stripe's sources use.
-    sc.used.iter_mut().for_each(|u| *u = false);
+    // Survey: the bins this stripe's sources use, and the columns they reach (a bin holds a
+    // few blocks of depth: its rows are summed and gathered there only).
+    sc.used.iter_mut().for_each(|u| *u = None);
     for sy in rows.clone() {
         for sx in -ctx.pad..w as i64 + ctx.pad {
             let j = ctx.clamp_index(sx, sy);
             let (lo, hi, ..) = ctx.extent(j, sy);
-            if hi < y0 as i64 || lo >= y1 as i64 {
+            let reach = sy - lo;
+            let (xa, xb) = ((sx - reach).max(0), (sx + reach).min(w as i64 - 1));
+            if hi < y0 as i64 || lo >= y1 as i64 || xa > xb {
                 continue;
             }
             for (b, hat, _) in ctx.bins.locate(ctx.d[j]) {
-                sc.used[b] |= hat != 0.0;
+                if hat != 0.0 {
+                    let e = sc.used[b].get_or_insert((xa as usize, xb as usize + 1));
+                    *e = (e.0.min(xa as usize), e.1.max(xb as usize + 1));
+                }
             }
         }
     }
-    for (st, &u) in sc.stripes.iter_mut().zip(&sc.used) {
-        if u {
+    for (st, u) in sc.stripes.iter_mut().zip(&sc.used) {
+        if u.is_some() {
             st.reset(y0, y1);
         }
     }
@@ -450,11 +457,12 @@ fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scr
         let tg = &mut tg[r * w..(r + 1) * w];
         let drow = &ctx.d[y * w..(y + 1) * w];
         sc.walk.targets(drow);
-        for b in (0..ctx.bins.count).filter(|&b| sc.used[b]) {
-            sc.row.iter_mut().for_each(|v| *v = 0.0);
-            sc.stripes[b].add_row_to(r, &mut sc.row);
+        for b in 0..ctx.bins.count {
+            let Some((x0, x1)) = sc.used[b] else { continue };
+            sc.row[x0 * 4..x1 * 4].fill(0.0);
+            sc.stripes[b].add_row_range_to(r, x0, x1, &mut sc.row);
             sc.walk.goto(&ctx.bins, b);
-            for (x, t) in tg.iter_mut().enumerate() {
+            for (x, t) in tg.iter_mut().enumerate().take(x1).skip(x0) {
                 let v = &sc.row[x * 4..x * 4 + 4];
                 if v.iter().all(|&c| c == 0.0) {
                     continue;
