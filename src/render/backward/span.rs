@@ -11,7 +11,7 @@
 //! [`BIN_STEP`], relative disparity): a source is drawn, with hat weights `hat_b(d_y)`, into
 //! the two bins around its depth, each bin one 4-channel scatter `B_b(x) = Σ_y hat_b(d_y)·u_y(x)·v_y`
 //! (a smooth disk per source, its plateau one span per row and its edge as taps:
-//! [`crate::render::fast::footprint::smooth_coverage_disk`] into [`Stripe`]s), and a target
+//! `render::fast::footprint::smooth_coverage_disk` into [`Stripe`]s), and a target
 //! takes `G_k(x) = Σ_b γ_k(δ_b, d_x)·B_b(x)` with its exact depth. The target's own source, which
 //! the exact kernel puts whole into the "same surface" group, is moved there exactly. The
 //! groups are filled by [`lens::over_groups_smooth`]; the pixel is composited as the tape does
@@ -52,7 +52,8 @@ use rayon::prelude::*;
 /// Spacing of the depth bins over which the depth groups are interpolated, in relative
 /// (normalized) disparity. The soft depth test `0.5 + 0.5·tanh(10(d_y - d_x - 0.1))` changes
 /// over ~0.1; linear interpolation at 0.01 moves a group weight by at most 5e-4. Measured
-/// (`tests/span_tape.rs`, README): gradients within a few % of the exact tape's.
+/// (`tests/span_tape.rs`, README): images within 4e-5 and disparity gradients within 0.3%
+/// (relative L2) of the exact tape's.
 pub const BIN_STEP: f32 = 0.01;
 
 /// Target rows per forward stripe: the stripe keeps one 4-channel accumulator per depth bin its
