@@ -3,7 +3,7 @@
 
 use crate::{ProfileArg, as_flags, print_json, set_threads};
 use clap::{Args, ValueEnum};
-use drbokeh::diff::dfd::{DfdOptions, LossVariant};
+use drbokeh::diff::dfd::{DfdKernel, DfdOptions, LossVariant};
 use drbokeh::diff::dfd_job::{self, DfdJob};
 use drbokeh::io::ReadLimits;
 use drbokeh::render::RenderSettings;
@@ -29,6 +29,25 @@ impl From<LossArg> for LossVariant {
             LossArg::L1Grad => LossVariant::L1Grad,
             LossArg::L1GradSsim => LossVariant::L1GradSsim,
             LossArg::L1GradHssim => LossVariant::L1GradHssim,
+        }
+    }
+}
+
+/// `--kernel`: which differentiable render is inverted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum DfdKernelArg {
+    /// Spans, depth groups interpolated between depth bins (physical profile; the official
+    /// profile always uses the exact kernel).
+    Fast,
+    /// The exact kernel, tap by tap (O(pixels·lens²) per step).
+    Exact,
+}
+
+impl From<DfdKernelArg> for DfdKernel {
+    fn from(k: DfdKernelArg) -> DfdKernel {
+        match k {
+            DfdKernelArg::Fast => DfdKernel::Fast,
+            DfdKernelArg::Exact => DfdKernel::Exact,
         }
     }
 }
@@ -70,6 +89,9 @@ pub struct DfdArgs {
     /// Invert the classical scatter without occlusion terms (the ablation).
     #[arg(long)]
     no_occlusion: bool,
+    /// The differentiable render: fast (spans; physical profile) or exact (tap by tap).
+    #[arg(long, value_enum, default_value = "fast")]
+    kernel: DfdKernelArg,
     /// Write the loss terms of every step to this CSV (level, size, iteration, terms).
     #[arg(long, value_name = "CSV")]
     log: Option<PathBuf>,
@@ -97,6 +119,7 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
         learning_rate: args.learning_rate,
         init: args.init,
         weights: LossVariant::from(args.loss).weights(),
+        kernel: args.kernel.into(),
         ..DfdOptions::default()
     };
     let job = DfdJob {

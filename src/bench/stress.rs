@@ -3,7 +3,7 @@
 //! so that the largest circle of confusion is a chosen radius.
 
 use crate::image::Image;
-use crate::render::{Layer, RenderSettings, auto_lens};
+use crate::render::{Layer, Profile, RenderSettings, auto_lens};
 
 /// Two layers (foreground disk + bars, opaque background) of `width × height` and render
 /// settings whose largest CoC radius is `max_coc` px, focused on the foreground
@@ -56,4 +56,35 @@ pub fn bars_in_one_layer(width: usize, height: usize, max_coc: f32) -> (Vec<Laye
     let blur = (max_coc / 0.5).max(0.0);
     let lens = auto_lens(&layers, blur, 1.0);
     (layers, RenderSettings { blur, focus: 1.0, lens, occlusion: true, profile: crate::render::Profile::Official })
+}
+
+/// A depth-from-defocus scene of `n × n` pixels: a seeded noise texture over blocks of 32 px
+/// at seeded disparities in [0, 1] plus a gentle slant, opaque, and the target it is compared
+/// with (seeded noise: only the cost matters). For timing the depth-from-defocus step.
+pub fn dfd_scene(n: usize) -> (Layer, Image) {
+    let mut x = 0x2545_F491_4F6C_DD1Du64;
+    let mut rnd = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        (x >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let blocks: Vec<f32> = (0..(n / 32 + 1) * (n / 32 + 1)).map(|_| rnd()).collect();
+    let mut px = Vec::with_capacity(n * n * 5);
+    for i in 0..n * n {
+        let (cx, cy) = (i % n, i / n);
+        let d = (0.8 * blocks[(cy / 32) * (n / 32 + 1) + cx / 32] + 0.2 * cx as f32 / n as f32).clamp(0.0, 1.0);
+        px.extend_from_slice(&[rnd(), rnd(), rnd(), 1.0, d]);
+    }
+    let layer = Layer::new(Image::from_vec(n, n, 5, px).unwrap(), "dfd bench").unwrap();
+    let mut target = Image::new(n, n, 3);
+    target.data.iter_mut().for_each(|v| *v = rnd());
+    (layer, target)
+}
+
+/// The settings `diff::dfd::estimate` uses at full size: focus 1 (the nearest plane), blur
+/// `k`, the window the disparity range [0, 1] needs.
+pub fn dfd_settings(k: f32, occlusion: bool) -> RenderSettings {
+    let reach = k.ceil() as usize + 3;
+    RenderSettings { blur: k, focus: 1.0, lens: 2 * reach + 1, occlusion, profile: Profile::Physical }
 }

@@ -2,18 +2,21 @@
 //! that, rendered with an all-in-focus photo as one opaque layer, reproduces a photo of the
 //! same view focused at `focus` with blur `K`. Adam on the disparity, coarse to fine, loss
 //! `λ₁·L1 + λ₂·G + λ₃·HSSIM` (Eqn. 7; see [`super::loss`]), gradients through
-//! [`crate::render::Tape`] (the exact kernel), or through the Gaussian-PSF renderer of the
-//! ablation ([`super::gauss_psf`], chosen by [`DfdRenderer`]).
+//! [`crate::render::SpanTape`] (the span render of one opaque layer, physical profile; the
+//! default, [`DfdKernel::Fast`]) or [`crate::render::Tape`] (the exact kernel:
+//! [`DfdKernel::Exact`], and always for the official profile), or through the Gaussian-PSF
+//! renderer of the ablation ([`super::gauss_psf`], chosen by [`DfdRenderer`]).
 //!
 //! The optimisation behind `drbokeh dfd` (files in and out: [`super::dfd_job`]). Cost per
-//! iteration: one exact render and its VJP at the level's size, O(pixels·lens²) (the Gaussian
-//! PSF: O(pixels·(2R+1)²), R ≈ 1.5·K·max(focus, 1 − focus)).
+//! iteration: one render and its VJP at the level's size: O(pixels·(R + bins)) with the span
+//! render (R the largest CoC, bins the depth bins a stripe of rows sees), O(pixels·lens²) with
+//! the exact tape (the Gaussian PSF: O(pixels·(2R+1)²), R ≈ 1.5·K·max(focus, 1 − focus)).
 
 use super::gauss_psf::{GaussTape, window_radius};
 use super::loss::{self, HSSIM_WINDOWS};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render::{Layer, RenderSettings, Smoothing, Tape, check_blur, check_focus, max_lens};
+use crate::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape, check_blur, check_focus, max_lens};
 
 /// The window of the plain (single-scale) SSIM term, pixels: the usual 11×11 of Wang et al.
 pub const SSIM_WINDOW: [usize; 1] = [11];
@@ -91,9 +94,39 @@ impl DfdRenderer {
     }
 }
 
+/// Which differentiable Dr.Bokeh render [`estimate`] inverts (with [`DfdRenderer::DrBokeh`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DfdKernel {
+    /// [`SpanTape`]: spans instead of taps, the in-layer depth groups interpolated between
+    /// depth bins (disparity gradients within 0.3% of the exact tape's in relative L2 on the
+    /// scenes of `tests/span_tape.rs`; README "Depth from defocus").
+    /// Physical profile only: the official profile uses the exact tape.
+    #[default]
+    Fast,
+    /// [`Tape`]: the exact kernel, O(pixels·lens²) per step.
+    Exact,
+}
+
+impl DfdKernel {
+    /// The command-line name ("fast", "exact"; also the serialized one).
+    pub fn name(self) -> &'static str {
+        match self {
+            DfdKernel::Fast => "fast",
+            DfdKernel::Exact => "exact",
+        }
+    }
+
+    /// Whether a render with profile `profile` runs on the span render.
+    pub fn uses_span(self, profile: Profile) -> bool {
+        self == DfdKernel::Fast && profile == Profile::Physical
+    }
+}
+
 /// One recorded forward render of a level's disparity, whichever renderer made it.
 enum Recording<'a> {
     DrBokeh(Tape<'a>),
+    Span(SpanTape<'a>),
     Gauss(GaussTape),
 }
 
@@ -101,6 +134,7 @@ impl Recording<'_> {
     fn image(&self) -> &Image {
         match self {
             Recording::DrBokeh(t) => t.image(),
+            Recording::Span(t) => t.image(),
             Recording::Gauss(t) => t.image(),
         }
     }
@@ -110,6 +144,7 @@ impl Recording<'_> {
         use crate::render::layer::{CHANNELS, D};
         Ok(match self {
             Recording::DrBokeh(t) => t.vjp(seed)?.layers[0].data.iter().skip(D).step_by(CHANNELS).copied().collect(),
+            Recording::Span(t) => t.disparity_vjp(seed)?.data,
             Recording::Gauss(t) => t.vjp(seed).data,
         })
     }
@@ -133,6 +168,8 @@ pub struct DfdOptions {
     pub init: f32,
     /// The renderer inverted.
     pub renderer: DfdRenderer,
+    /// The Dr.Bokeh render differentiated (span or exact).
+    pub kernel: DfdKernel,
 }
 
 impl Default for DfdOptions {
@@ -145,6 +182,7 @@ impl Default for DfdOptions {
             smoothing: Smoothing { edge_width: 1.0, fill_width: 0.1 },
             init: 0.5,
             renderer: DfdRenderer::DrBokeh,
+            kernel: DfdKernel::Fast,
         }
     }
 }
@@ -241,7 +279,11 @@ fn optimise_level(
         let tape = match opts.renderer {
             DfdRenderer::DrBokeh => {
                 layers = [Layer::from_parts(aif, &alpha, &d, "dfd")?];
-                Recording::DrBokeh(Tape::record(&layers, s, opts.smoothing)?)
+                if opts.kernel.uses_span(s.profile) {
+                    Recording::Span(SpanTape::record(&layers[0], s, opts.smoothing)?)
+                } else {
+                    Recording::DrBokeh(Tape::record(&layers, s, opts.smoothing)?)
+                }
             }
             DfdRenderer::GaussPsf => Recording::Gauss(GaussTape::record(aif, &d, s.focus, s.blur, gauss_radius)?),
         };
@@ -281,7 +323,8 @@ mod tests {
 
     /// A textured 32×32 view, near half at disparity 1 (the focal plane), far half at 0.4,
     /// K = 4, start 0.5 everywhere: 2 levels × 40 steps bring the full-size L1 from 0.0123
-    /// to 0.0013 and the mean disparity error from 0.30 to 0.022 (asserted: ×0.25, ×0.15).
+    /// to 0.0013 and the mean disparity error from 0.30 to 0.022 (asserted: ×0.25, ×0.15),
+    /// with the span render (the default) and with the exact tape.
     #[test]
     fn recovers_a_two_plane_scene() {
         let (w, h) = (32usize, 32usize);
@@ -298,14 +341,23 @@ mod tests {
         rs.lens = 2 * ((s.blur * 1.0).ceil() as usize + 3) + 1;
         let layer = Layer::from_parts(&aif, &Image::filled(w, h, 1, 1.0), &truth, "truth").unwrap();
         let bokeh = render(&[layer], &rs, Kernel::Exact).unwrap();
-        let mut log = Vec::new();
-        let d = estimate(&aif, &bokeh, &s, &opts, |st| log.push(st)).unwrap();
-        let full: Vec<&Step> = log.iter().filter(|st| st.level == 0).collect();
-        assert!(full.last().unwrap().l1 < 0.25 * full[0].l1, "L1 {} → {}", full[0].l1, full.last().unwrap().l1);
-        let err = |d: &Image| d.data.iter().zip(&truth.data).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / (w * h) as f64;
-        let start = Image::filled(w, h, 1, opts.init);
-        eprintln!("L1 {:.4} → {:.4}; disparity error {:.4} (start {:.4})", full[0].l1, full.last().unwrap().l1, err(&d), err(&start));
-        assert!(err(&d) < 0.15 * err(&start), "disparity error {} (start {})", err(&d), err(&start));
+        for kernel in [DfdKernel::Fast, DfdKernel::Exact] {
+            let opts = DfdOptions { kernel, ..opts };
+            let mut log = Vec::new();
+            let d = estimate(&aif, &bokeh, &s, &opts, |st| log.push(st)).unwrap();
+            let full: Vec<&Step> = log.iter().filter(|st| st.level == 0).collect();
+            assert!(full.last().unwrap().l1 < 0.25 * full[0].l1, "{kernel:?}: L1 {} → {}", full[0].l1, full.last().unwrap().l1);
+            let err = |d: &Image| d.data.iter().zip(&truth.data).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / (w * h) as f64;
+            let start = Image::filled(w, h, 1, opts.init);
+            eprintln!(
+                "{kernel:?}: L1 {:.4} → {:.4}; disparity error {:.4} (start {:.4})",
+                full[0].l1,
+                full.last().unwrap().l1,
+                err(&d),
+                err(&start)
+            );
+            assert!(err(&d) < 0.15 * err(&start), "{kernel:?}: disparity error {} (start {})", err(&d), err(&start));
+        }
         // Mismatched photos are a usage error naming both sizes.
         let e = estimate(&aif, &Image::new(8, 8, 3), &s, &opts, |_| {}).unwrap_err().to_string();
         assert!(e.contains("32x32") && e.contains("8x8"), "{e}");

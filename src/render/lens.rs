@@ -106,8 +106,49 @@ pub fn focal_defocus(d_target: f32, k: f32) -> f32 {
 /// Soft "neighbour is in front": `0.5 + 0.5·tanh(10·(d_y - d_x - 0.1))`.
 #[inline(always)]
 pub fn in_front(d_neighbour: f32, d_target: f32) -> f32 {
-    0.5 + 0.5 * (10.0 * (d_neighbour - d_target - 0.1)).tanh()
+    0.5 + 0.5 * in_front_tanh(d_neighbour, d_target)
 }
+
+/// Gain of the soft "in front" test (per unit of relative disparity): `tanh(10·(..))`.
+pub const IN_FRONT_GAIN: f32 = 10.0;
+/// Margin of the soft "in front" test, relative disparity: a neighbour is half in front at
+/// `d_y = d_x + 0.1`.
+pub const IN_FRONT_MARGIN: f32 = 0.1;
+
+/// The tanh inside [`in_front`]: `tanh(10·(d_y - d_x - 0.1))`.
+#[inline(always)]
+pub fn in_front_tanh(d_neighbour: f32, d_target: f32) -> f32 {
+    (IN_FRONT_GAIN * (d_neighbour - d_target - IN_FRONT_MARGIN)).tanh()
+}
+
+/// Both tanh of [`depth_groups`] split into a neighbour factor and a target factor, for kernels
+/// that evaluate many (neighbour depth, target) pairs: with `p = in_front_neighbour_factor(d_y,
+/// c)·in_front_target_factor(d_x, c)` (any centre `c`), `tanh(a) = (p - 1)/(p + 1)` for
+/// `a = 10(d_y - d_x - 0.1)`, and the reverse test's `tanh(10(d_x - d_y - 0.1)) = (e - p)/(e + p)`
+/// with `e = exp(-4·10·0.1)` ([`in_front_tanh_pair`]). f64, finite while `|d - c|` stays
+/// within [`IN_FRONT_FACTORED_MAX`] for both depths.
+#[inline(always)]
+pub fn in_front_neighbour_factor(d_neighbour: f32, centre: f32) -> f64 {
+    (2.0 * IN_FRONT_GAIN as f64 * (d_neighbour as f64 - centre as f64)).exp()
+}
+
+/// See [`in_front_neighbour_factor`]: `exp(-2·10·(d_x - c + 0.1))`.
+#[inline(always)]
+pub fn in_front_target_factor(d_target: f32, centre: f32) -> f64 {
+    (-2.0 * IN_FRONT_GAIN as f64 * (d_target as f64 - centre as f64 + IN_FRONT_MARGIN as f64)).exp()
+}
+
+/// `(in_front_tanh(d_y, d_x), in_front_tanh(d_x, d_y))` from the product `p` of the factors
+/// ([`in_front_neighbour_factor`]). Two divisions instead of two tanh.
+#[inline(always)]
+pub fn in_front_tanh_pair(p: f64) -> (f32, f32) {
+    let e = (-4.0 * IN_FRONT_GAIN as f64 * IN_FRONT_MARGIN as f64).exp();
+    (((p - 1.0) / (p + 1.0)) as f32, ((e - p) / (e + p)) as f32)
+}
+
+/// Largest `|d - centre|` (relative disparity) for the factored tanh: the product's exponent
+/// `2·10·(2·17 + 0.1)` = 682 stays below f64's 709.
+pub const IN_FRONT_FACTORED_MAX: f32 = 17.0;
 
 /// On-focal occlusion of neighbour `y` seen from target `x` (not the centre tap, whose
 /// occlusion is 1): `q(x) + (1 - q(x))·in_front(d_y, d_x)`, with `q = focal_defocus(d_x)`.
@@ -382,8 +423,14 @@ pub fn focal_defocus_grad(d_target: f32, k: f32) -> (f32, f32) {
 /// `(0.5 + 0.5·t, 5·(1 - t²))` with `t = tanh(10(d_y - d_x - 0.1))`; the slope is in [0, 5].
 #[inline(always)]
 pub fn in_front_with_grad(d_neighbour: f32, d_target: f32) -> (f32, f32) {
-    let t = (10.0 * (d_neighbour - d_target - 0.1)).tanh();
-    (0.5 + 0.5 * t, 5.0 * (1.0 - t) * (1.0 + t))
+    in_front_from_tanh(in_front_tanh(d_neighbour, d_target))
+}
+
+/// [`in_front`] and its derivative in `d_y` from its tanh `t` ([`in_front_tanh`]):
+/// `(0.5 + 0.5·t, 5·(1 - t²))`.
+#[inline(always)]
+pub fn in_front_from_tanh(t: f32) -> (f32, f32) {
+    (0.5 + 0.5 * t, 0.5 * IN_FRONT_GAIN * (1.0 - t) * (1.0 + t))
 }
 
 /// `∂ disk_coverage_smooth(r, ρ, width) / ∂r` (`= -∂/∂ρ`): the smoothstep's slope `6t(1 - t)`
@@ -435,8 +482,15 @@ impl LatticeRings {
 /// positive for every input).
 #[inline(always)]
 pub fn depth_groups_with_grad(d_source: f32, d_target: f32) -> ([f32; 3], [f32; 3]) {
-    let (front, d_front) = in_front_with_grad(d_source, d_target);
-    let (behind, d_behind) = in_front_with_grad(d_target, d_source);
+    depth_groups_from_tanh(in_front_tanh(d_source, d_target), in_front_tanh(d_target, d_source))
+}
+
+/// [`depth_groups_with_grad`] from its two tanh, `t_front = in_front_tanh(d_source, d_target)`
+/// and `t_behind = in_front_tanh(d_target, d_source)` (see [`in_front_tanh`]).
+#[inline(always)]
+pub fn depth_groups_from_tanh(t_front: f32, t_behind: f32) -> ([f32; 3], [f32; 3]) {
+    let (front, d_front) = in_front_from_tanh(t_front);
+    let (behind, d_behind) = in_front_from_tanh(t_behind);
     ([front, (1.0 - front - behind).max(0.0), behind], [d_front, d_behind - d_front, -d_behind])
 }
 

@@ -28,6 +28,7 @@
 mod accum;
 mod official;
 mod physical;
+mod span;
 
 use super::aperture::{self, Tap};
 use super::layer::{self, Layer};
@@ -37,6 +38,7 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use accum::PixelGrad;
 use rayon::prelude::*;
+pub use span::{BIN_STEP, SpanTape};
 
 /// Widths of the physical profile's smooth edges in differentiable renders (the official
 /// profile has none to round).

@@ -8,8 +8,8 @@
 
 use super::super::aperture::Tap;
 use super::super::lens::{
-    FACTORED_STEP_MAX, MAX_RADIUS, Profile, STEP_GAIN, STEP_LN_OFFSET, coc_radius, disk_coverage, scatter_radius, soft_step,
-    step_source_factor, step_tap_factor,
+    FACTORED_STEP_MAX, MAX_RADIUS, Profile, STEP_GAIN, STEP_LN_OFFSET, coc_radius, disk_coverage, disk_coverage_smooth, scatter_radius,
+    soft_step, step_source_factor, step_tap_factor,
 };
 use super::super::splat::{Stripe, lattice_row_reach};
 use std::f32::consts::{FRAC_PI_3, PI};
@@ -169,8 +169,8 @@ impl Stencil {
 /// plateau (`r ≤ σ - RIM`, soft step taken as 1) and explicit taps on the rim out to
 /// `σ + STENCIL_TAIL`. `e` is scratch (one rim row). Returns the number of writes.
 pub(super) fn rim_disk(st: &mut Stripe, (sx, sy): (i64, i64), sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
-    let rim = Rim { reach: sigma + STENCIL_TAIL, inner: sigma - RIM, plateau: v.map(|c| c * dens) };
-    rim_footprint(st, (sx, sy), &rim, p, |r| dens * soft_step(sigma, r), v, e)
+    let rim = Rim { reach: sigma + STENCIL_TAIL, inner: sigma - RIM, plateau: [v.map(|c| c * dens)] };
+    rim_footprint([st], (sx, sy), &rim, p, |r| dens * soft_step(sigma, r), [v], e)
 }
 
 /// The physical footprint `disk_coverage(r, ρ) / norm` of one source of drawn CoC `r` at
@@ -179,49 +179,104 @@ pub(super) fn rim_disk(st: &mut Stripe, (sx, sy): (i64, i64), sigma: f32, dens: 
 /// [`Stripe::disk`] is no substitute: its edge ramps along the row, not along the radius, and
 /// it leaves out the rows beyond `r`; see the test `span_disk_edge_is_not_the_physical_ramp`.)
 pub(super) fn coverage_disk(st: &mut Stripe, (sx, sy): (i64, i64), r: f32, norm: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
-    let rim = Rim { reach: r + EDGE, inner: r - EDGE, plateau: v.map(|c| c / norm) };
-    rim_footprint(st, (sx, sy), &rim, p, |rho| disk_coverage(r, rho) / norm, v, e)
+    let rim = Rim { reach: r + EDGE, inner: r - EDGE, plateau: [v.map(|c| c / norm)] };
+    rim_footprint([st], (sx, sy), &rim, p, |rho| disk_coverage(r, rho) / norm, [v], e)
+}
+
+/// The smooth-edged physical disk of the differentiable renders
+/// ([`lens::disk_coverage_smooth`] with an edge `width` pixels wide, over the flux `norm`),
+/// drawn as [`coverage_disk`] draws the hard one: the plateau as one span per row, the edge as
+/// taps; the same disk of values `vs[k]` into each stripe `sts[k]` (the edge's coverage is
+/// computed once for all). Same clipping (window `|offset| < p`, the stripes' rows, which must
+/// be the same). Returns the writes.
+///
+/// [`lens::disk_coverage_smooth`]: super::super::lens::disk_coverage_smooth
+#[allow(clippy::too_many_arguments)]
+pub(in crate::render) fn smooth_coverage_disk<const N: usize>(
+    sts: [&mut Stripe; N],
+    centre: (i64, i64),
+    r: f32,
+    width: f32,
+    norm: f32,
+    p: i64,
+    vs: [[f32; 4]; N],
+    e: &mut Vec<f32>,
+) -> u64 {
+    let rim = Rim { reach: r + 0.5 * width, inner: r - 0.5 * width, plateau: vs.map(|v| v.map(|c| c / norm)) };
+    rim_footprint(sts, centre, &rim, p, |rho| disk_coverage_smooth(r, rho, width) / norm, vs, e)
+}
+
+/// The pixels of row offset `dy` that a rim footprint (value constant within `inner` of the
+/// centre, tapered out to `reach`) covers in a window of half-size `p` (strict disk, as the
+/// official mask): `(xi, xo)`, the plateau is `|dx| ≤ xi` (none when `xi < 0`) and the taper
+/// `xi < |dx| ≤ xo`; None where the row holds nothing. Shared by the scatter
+/// ([`rim_footprint`]) and the gathers of the differentiable span render
+/// (`render::backward::span`), so both walk the same pixels.
+// Always inlined: the per-row step of every exact disk.
+#[inline(always)]
+pub(in crate::render) fn rim_row(reach: f32, inner: f32, p: i64, dy: i64) -> Option<(i64, i64)> {
+    // Largest |dx| inside the window (strict disk, as the official mask). A footprint that
+    // reaches at most p - 1 lies inside it (xo² ≤ reach² - dy² < p² - dy²): no clip to compute.
+    let m = if reach <= (p - 1) as f32 { i64::MAX } else { lattice_row_reach(p, dy)? };
+    let dyf = (dy * dy) as f32;
+    let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { return None };
+    let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
+    Some((xi, xo))
 }
 
 /// A footprint's rings: its value is `plateau` within `inner` of the centre and `tap(ρ)·v`
-/// out to `reach` (exclusive).
-struct Rim {
+/// out to `reach` (exclusive); `N` copies of it (see [`rim_footprint`]).
+struct Rim<const N: usize> {
     reach: f32,
     inner: f32,
-    plateau: [f32; 4],
+    plateau: [[f32; 4]; N],
 }
 
-/// Draws a [`Rim`] footprint at (sx, sy), clipped to the window `|offset| < p` and the stripe.
-// Always inlined: each caller's tap is then a direct call (rim_disk's arithmetic unchanged).
+/// Draws a [`Rim`] footprint at (sx, sy), clipped to the window `|offset| < p` and the stripe:
+/// copy `k` (plateau `rim.plateau[k]`, rim `tap(ρ)·vs[k]`) into `sts[k]` (stripes of the same
+/// rows), the geometry and the rim's taps computed once.
+// Always inlined: each caller's tap is then a direct call (rim_disk's arithmetic unchanged);
+// `N` is a constant, so the copies' loops unroll (the kernels' callers draw one).
 #[inline(always)]
-fn rim_footprint(st: &mut Stripe, (sx, sy): (i64, i64), rim: &Rim, p: i64, tap: impl Fn(f32) -> f32, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
-    let (y0, y1) = st.rows();
+fn rim_footprint<const N: usize>(
+    mut sts: [&mut Stripe; N],
+    (sx, sy): (i64, i64),
+    rim: &Rim<N>,
+    p: i64,
+    tap: impl Fn(f32) -> f32,
+    vs: [[f32; 4]; N],
+    e: &mut Vec<f32>,
+) -> u64 {
+    let (y0, y1) = sts[0].rows();
     let (reach, inner) = (rim.reach, rim.inner);
     let rr = (reach.min(1e9).ceil() as i64).min(p);
     let mut ops = 0;
     for row in (sy - rr).max(y0)..=(sy + rr).min(y1 - 1) {
         let dy = row - sy;
-        // Largest |dx| inside the window (strict disk, as the official mask).
-        let Some(m) = lattice_row_reach(p, dy) else { continue };
+        let Some((xi, xo)) = rim_row(reach, inner, p, dy) else { continue };
         let dyf = (dy * dy) as f32;
-        let xo = if reach * reach > dyf { ((reach * reach - dyf).sqrt() as i64).min(m) } else { continue };
-        let xi = if inner > 0.0 && inner * inner >= dyf { ((inner * inner - dyf).sqrt() as i64).min(xo) } else { -1 };
         if xi >= 0 {
-            st.pixels(row, sx - xi, sx + xi, rim.plateau);
-            ops += 4;
+            for (st, plateau) in sts.iter_mut().zip(&rim.plateau) {
+                st.pixels(row, sx - xi, sx + xi, *plateau);
+            }
+            ops += 4 * N as u64;
         }
         if xo > xi {
             e.clear();
             e.extend((xi + 1..=xo).map(|dx| tap(((dx * dx) as f32 + dyf).sqrt())));
-            st.tap_row(sx + xi + 1, row, e, v);
+            for (st, v) in sts.iter_mut().zip(&vs) {
+                st.tap_row(sx + xi + 1, row, e, *v);
+            }
             if xi >= 0 || xo > 0 {
                 // The left rim mirrors the right one (without the centre column when xi < 0).
                 let skip = usize::from(xi < 0);
                 e.reverse();
                 let left = &e[..e.len() - skip];
-                st.tap_row(sx - xo, row, left, v);
+                for (st, v) in sts.iter_mut().zip(&vs) {
+                    st.tap_row(sx - xo, row, left, *v);
+                }
             }
-            ops += 2 * e.len() as u64;
+            ops += 2 * (N * e.len()) as u64;
         }
     }
     ops

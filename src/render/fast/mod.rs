@@ -45,7 +45,7 @@
 mod band;
 mod bright;
 mod coarse;
-mod footprint;
+pub(in crate::render) mod footprint;
 mod physical;
 mod stripe;
 mod survey;

@@ -1,0 +1,212 @@
+//! The span render of one opaque layer (`render::SpanTape`, the fast differentiable render of
+//! depth from defocus) against the exact tape (`render::Tape`, itself checked against central
+//! differences in tests/backward.rs) and against central differences of its own function, on
+//! seeded small scenes: blocks at several depths (depth edges), a slanted plane and pixels
+//! near the focal plane; finiteness on extreme inputs.
+
+mod common;
+
+use common::Rng;
+use drbokeh::Image;
+use drbokeh::render::layer::{CHANNELS, D};
+use drbokeh::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape};
+
+/// A `w × h` opaque layer: noise colours (times `gain`), disparity from `depth(x, y)`.
+fn layer(w: usize, h: usize, seed: u64, gain: f32, depth: impl Fn(usize, usize) -> f32) -> Layer {
+    let mut rng = Rng::new(seed);
+    let mut px = Vec::with_capacity(w * h * CHANNELS);
+    for i in 0..w * h {
+        px.extend_from_slice(&[rng.next_f32() * gain, rng.next_f32() * gain, rng.next_f32() * gain, 1.0, depth(i % w, i / w)]);
+    }
+    Layer::new(Image::from_vec(w, h, CHANNELS, px).unwrap(), "span test").unwrap()
+}
+
+/// The scenes: (name, layer, blur K, focus). Focus 1 (the nearest plane, as `bench --dfd`)
+/// or just off a plane's disparity (pixels near the focal plane).
+fn scenes() -> Vec<(&'static str, Layer, f32, f32)> {
+    let (w, h) = (14, 13);
+    // Depths off the bins' lattice (multiples of BIN_STEP relative to the focus), where the
+    // interpolation has kinks that central differences straddle.
+    let blocks = |x: usize, y: usize| {
+        if x < 5 {
+            1.0
+        } else if y < 6 {
+            0.6237
+        } else {
+            0.3071
+        }
+    };
+    let mut rng = Rng::new(77);
+    let noisy: Vec<f32> = (0..w * h).map(|_| 0.2 + 0.8 * rng.next_f32()).collect();
+    vec![
+        ("blocks K6 focus 1", layer(w, h, 1, 1.0, blocks), 6.0, 1.0),
+        ("blocks K9 focus 0.99", layer(w, h, 2, 1.0, blocks), 9.0, 0.99),
+        ("slant K5 focus 0.5", layer(w, h, 3, 1.0, |x, y| 0.3 + 0.03 * x as f32 + 0.01 * y as f32), 5.0, 0.503),
+        ("noise K4 focus 1", layer(w, h, 4, 1.0, |x, y| noisy[y * w + x]), 4.0, 1.0),
+        ("near focus K12", layer(w, h, 5, 1.0, |x, y| if (x + y) % 7 < 3 { 0.9813 } else { 0.9042 }), 12.0, 0.97),
+    ]
+}
+
+/// The settings of a scene: a lens window that holds every disk (as `drbokeh dfd` sizes it).
+fn settings(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
+    let reach = (blur * focus.max(1.0 - focus)).ceil() as usize + 3;
+    RenderSettings { blur, focus, lens: 2 * reach + 1, occlusion, profile: Profile::Physical }
+}
+
+/// A seeded cotangent in [-1, 1].
+fn cotangent(w: usize, h: usize, seed: u64) -> Image {
+    let mut rng = Rng::new(seed);
+    Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| 2.0 * rng.next_f32() - 1.0).collect()).unwrap()
+}
+
+fn disparity_of(g: &Image) -> Vec<f64> {
+    g.data.iter().skip(D).step_by(CHANNELS).map(|&v| v as f64).collect()
+}
+
+/// `‖a - b‖ / ‖b‖` and `max|a - b| / max|b|`.
+fn rel_err(a: &[f64], b: &[f64]) -> (f64, f64) {
+    let n2 = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    let diff = n2(&mut a.iter().zip(b).map(|(x, y)| x - y));
+    let max_d = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let max_b = b.iter().fold(0f64, |m, x| m.max(x.abs()));
+    (diff / n2(&mut b.iter().copied()).max(1e-30), max_d / max_b.max(1e-30))
+}
+
+const SMOOTH: Smoothing = Smoothing { edge_width: 1.0, fill_width: 0.1 };
+
+/// Without occlusion the span render is the exact tape's function (one group, no bins): the
+/// image to rounding and the disparity gradient to 1e-5 relative (measured: 9e-8 … 5e-7).
+#[test]
+fn without_occlusion_it_is_the_tape() {
+    for (name, l, blur, focus) in scenes() {
+        let s = settings(blur, focus, false);
+        let (w, h) = (l.width(), l.height());
+        let tape = Tape::record(std::slice::from_ref(&l), &s, SMOOTH).unwrap();
+        let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
+        let dimg = common::max_abs_diff(&span.image().data, &tape.image().data);
+        let cot = cotangent(w, h, 11);
+        let exact = disparity_of(&tape.vjp(&cot).unwrap().layers[0]);
+        let fast: Vec<f64> = span.disparity_vjp(&cot).unwrap().data.iter().map(|&v| v as f64).collect();
+        let (l2, lmax) = rel_err(&fast, &exact);
+        eprintln!("{name}, no occlusion: image {dimg:.1e}, gradient rel L2 {l2:.1e}, max {lmax:.1e}");
+        assert!(dimg < 1e-5, "{name}: image differs by {dimg}");
+        assert!(l2 < 1e-5 && lmax < 1e-5, "{name}: gradient {l2} {lmax}");
+    }
+}
+
+/// With occlusion the depth groups are interpolated between bins `BIN_STEP` apart: the image
+/// within 2e-4 of the tape's (measured 2e-5 … 4e-5) and the disparity gradient within 1% in
+/// relative L2 (measured 0.05% … 0.26%) and 2% of the largest entry at the worst pixel
+/// (measured 0.09% … 0.35%): margins of ~4x over the measurement.
+#[test]
+fn with_occlusion_it_is_close_to_the_tape() {
+    for (name, l, blur, focus) in scenes() {
+        let s = settings(blur, focus, true);
+        let (w, h) = (l.width(), l.height());
+        let tape = Tape::record(std::slice::from_ref(&l), &s, SMOOTH).unwrap();
+        let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
+        let dimg = common::max_abs_diff(&span.image().data, &tape.image().data);
+        let cot = cotangent(w, h, 12);
+        let exact = disparity_of(&tape.vjp(&cot).unwrap().layers[0]);
+        let fast: Vec<f64> = span.disparity_vjp(&cot).unwrap().data.iter().map(|&v| v as f64).collect();
+        let (l2, lmax) = rel_err(&fast, &exact);
+        eprintln!("{name}, occlusion: image {dimg:.1e}, gradient rel L2 {l2:.1e}, max {lmax:.1e}");
+        assert!(dimg < 2e-4, "{name}: image differs by {dimg}");
+        assert!(l2 < 0.01 && lmax < 0.02, "{name}: gradient {l2} {lmax}");
+    }
+}
+
+/// How uncertain the central differences below are in absolute terms: the f32 render's
+/// rounding (~1e-6 on the loss, over steps of 2·5e-4) moves them by ~1e-3.
+const NOISE: f64 = 1e-3;
+
+/// The VJP is the derivative of the span render's own function: central differences of
+/// `<cot, image>` in every pixel's disparity (step 5e-4, checked against 2e-3: where they
+/// disagree by more than 2% the function is not smooth there, e.g. a depth bin's centre or
+/// the kink of `|d|` at the focal plane, and the pixel is skipped), both occlusion settings;
+/// they agree to 2% plus 0.5% of the largest gradient plus `NOISE`; the worst relative error
+/// where the difference is above `10·NOISE` is reported.
+#[test]
+fn vjp_matches_central_differences() {
+    let mut worst = 0f64;
+    let (mut checked, mut skipped) = (0, 0);
+    for (name, l, blur, focus) in scenes().into_iter().take(4) {
+        for occlusion in [true, false] {
+            let s = settings(blur, focus, occlusion);
+            let (w, h) = (l.width(), l.height());
+            let cot = cotangent(w, h, 13);
+            let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
+            let g = span.disparity_vjp(&cot).unwrap();
+            let gmax = g.data.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
+            let loss = |i: usize, dv: f32| {
+                let mut img = l.image().clone();
+                img.data[i * CHANNELS + D] += dv;
+                let l2 = Layer::new(img, "fd").unwrap();
+                let t = SpanTape::record(&l2, &s, SMOOTH).unwrap();
+                t.image().data.iter().zip(&cot.data).map(|(a, b)| *a as f64 * *b as f64).sum::<f64>()
+            };
+            for i in 0..w * h {
+                let fd = |hh: f32| (loss(i, hh) - loss(i, -hh)) / (2.0 * hh as f64);
+                let (a, b) = (fd(2e-3), fd(5e-4));
+                if (a - b).abs() > 0.02 * a.abs().max(b.abs()) + 2e-3 * gmax + NOISE {
+                    skipped += 1;
+                    continue;
+                }
+                checked += 1;
+                let diff = (g.data[i] as f64 - b).abs();
+                if b.abs() > 10.0 * NOISE {
+                    worst = worst.max(diff / b.abs());
+                }
+                assert!(
+                    diff <= 0.02 * b.abs() + 0.005 * gmax + NOISE,
+                    "{name} occlusion {occlusion} pixel {i}: vjp {} vs fd {b} (fd 4h {a})",
+                    g.data[i]
+                );
+            }
+        }
+    }
+    eprintln!("span VJP vs central differences: {checked} pixels checked, {skipped} not smooth, worst relative error {worst:.1e}");
+    assert!(skipped * 5 < checked, "{skipped} of {} skipped", checked + skipped);
+}
+
+/// Finite images and gradients on the extreme grid: K up to 1e4, HDR colours 1e4 beside 0,
+/// disparity steps 0/1, focus on a plane and outside [0, 1], hard cotangents.
+#[test]
+fn extreme_inputs_give_finite_gradients() {
+    let (w, h) = (9, 8);
+    let mut n = 0;
+    for blur in [0.0f32, 1.0, 30.0, 1e4] {
+        for gain in [1.0f32, 1e4] {
+            for focus in [1.0f32, 0.0, -3.0] {
+                for occlusion in [true, false] {
+                    let l = layer(w, h, 21, gain, |x, y| if (x / 3 + y / 3) % 2 == 0 { 1.0 } else { 0.0 });
+                    let s = RenderSettings { blur, focus, lens: 15, occlusion, profile: Profile::Physical };
+                    let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
+                    assert!(span.image().all_finite());
+                    let mut cot = cotangent(w, h, 5);
+                    cot.data.iter_mut().for_each(|v| *v *= 1e20);
+                    let g = span.disparity_vjp(&cot).unwrap();
+                    assert!(g.all_finite(), "K {blur} gain {gain} focus {focus} occlusion {occlusion}");
+                    n += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(n, 48);
+}
+
+/// The span render refuses what it does not model: a layer with alpha below 1, the official
+/// profile, a cotangent of the wrong size.
+#[test]
+fn refuses_what_it_does_not_model() {
+    let l = layer(6, 5, 1, 1.0, |_, _| 0.5);
+    let mut s = settings(4.0, 1.0, true);
+    s.profile = Profile::Official;
+    assert!(SpanTape::record(&l, &s, SMOOTH).err().unwrap().to_string().contains("physical"));
+    let mut img = l.image().clone();
+    img.data[3] = 0.5;
+    let half = Layer::new(img, "half").unwrap();
+    assert!(SpanTape::record(&half, &settings(4.0, 1.0, true), SMOOTH).err().unwrap().to_string().contains("opaque"));
+    let t = SpanTape::record(&l, &settings(4.0, 1.0, true), SMOOTH).unwrap();
+    assert!(t.disparity_vjp(&Image::new(5, 5, 3)).unwrap_err().to_string().contains("5x5"));
+}
