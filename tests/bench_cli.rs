@@ -95,10 +95,14 @@ fn tiny_bench_run_writes_the_report() {
     let rep = dir.join("rep");
     let csv = std::fs::read_to_string(rep.join("report.csv")).unwrap();
     let lines: Vec<&str> = csv.lines().collect();
-    // 2 scenes x (7 + 4 + 5 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
-    // every profile-aware method, realistic-depth for the three that read the depth map).
-    assert_eq!(lines.len(), 1 + 2 * 23, "{csv}");
+    // 2 scenes x (7 + 4 + 8 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
+    // every profile-aware method, realistic-depth for the three that read the depth map, and
+    // the pipeline's options: layers-auto with both depth maps, patchmatch).
+    assert_eq!(lines.len(), 1 + 2 * 26, "{csv}");
     assert_eq!(lines.iter().filter(|l| l.contains(",realistic-depth,")).count(), 2 * 3);
+    for option in [",layers-auto,", ",realistic-depth-layers-auto,", ",patchmatch,"] {
+        assert_eq!(lines.iter().filter(|l| l.contains(option)).count(), 2, "{option}");
+    }
     assert_eq!(lines.iter().filter(|l| l.contains(",physical-exact,")).count(), 2 * 4);
     assert!(lines[0].starts_with("scene,setting,categories,method,variant,width,height,threads"));
     for l in &lines[1..] {
