@@ -55,6 +55,21 @@ pub struct Smoothing {
     pub fill_width: f32,
 }
 
+/// Checks a VJP's `cotangent`: linear RGB of the render's size `w`×`h`, every value finite
+/// (a usage error otherwise: the caller's loss made it).
+pub(crate) fn check_cotangent(cotangent: &Image, w: usize, h: usize) -> Result<()> {
+    if (cotangent.width, cotangent.height, cotangent.channels) != (w, h, 3) {
+        return Err(Error::usage(format!(
+            "the cotangent is {}x{} with {} channels but the render is {w}x{h} RGB",
+            cotangent.width, cotangent.height, cotangent.channels
+        )));
+    }
+    if !cotangent.all_finite() {
+        return Err(Error::usage("the cotangent has non-finite values"));
+    }
+    Ok(())
+}
+
 impl Default for Smoothing {
     fn default() -> Self {
         Smoothing { edge_width: 1.0, fill_width: 0.0 }
@@ -187,15 +202,7 @@ impl<'a> Tape<'a> {
     /// pixel) and the gradient accumulators (56 bytes per pixel, plus the row bands').
     pub fn vjp(&self, cotangent: &Image) -> Result<Gradients> {
         let (w, h) = (self.image.width, self.image.height);
-        if (cotangent.width, cotangent.height, cotangent.channels) != (w, h, 3) {
-            return Err(Error::usage(format!(
-                "the cotangent is {}x{} with {} channels but the render is {w}x{h} RGB",
-                cotangent.width, cotangent.height, cotangent.channels
-            )));
-        }
-        if !cotangent.all_finite() {
-            return Err(Error::usage("the cotangent has non-finite values"));
-        }
+        check_cotangent(cotangent, w, h)?;
         let cots = self.composite_backward(cotangent);
         let s = &self.settings;
         let (mut g_focus, mut g_blur) = (0f64, 0f64);

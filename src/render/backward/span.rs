@@ -315,15 +315,7 @@ impl<'a> SpanTape<'a> {
     /// cotangents and, per backward stripe, one bin's prefix rows. Cost: see the module notes.
     pub fn disparity_vjp(&self, cotangent: &Image) -> Result<Image> {
         let (w, h) = (self.ctx.w, self.ctx.h);
-        if (cotangent.width, cotangent.height, cotangent.channels) != (w, h, 3) {
-            return Err(Error::usage(format!(
-                "the cotangent is {}x{} with {} channels but the render is {w}x{h} RGB",
-                cotangent.width, cotangent.height, cotangent.channels
-            )));
-        }
-        if !cotangent.all_finite() {
-            return Err(Error::usage("the cotangent has non-finite values"));
-        }
+        super::check_cotangent(cotangent, w, h)?;
         // Targets: the composite's and the fill's adjoints, and the target's own depth.
         let mut own_grad = vec![0f64; w * h];
         let gg: Vec<[[f64; 4]; 3]> = self
