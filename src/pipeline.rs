@@ -370,15 +370,15 @@ impl Pipeline {
     fn peel_layers(&self, scene: &Scene, alpha: Image, (focus, blur, max_coc): (f32, f32, f32), report: &mut Report) -> Result<Vec<Layer>> {
         let cfg = &self.config;
         let t = Instant::now();
+        // The foreground's depth-edge ramp: the first peel's, and what the cuts leave out.
+        let edges = self.edge_widths(&scene.disparity.map, &alpha);
+        let edges_ms = ms_since(t);
+        let t = Instant::now();
         let cuts = if cfg.segment.layers.most() > 2 {
             // The visible background, less the band where a soft depth map still ramps towards
             // the foreground's depth (its values belong to neither population).
             let hard = hard_mask(&alpha, &cfg.fill_depth);
-            let ramp = match cfg.fill_depth.edges {
-                DepthEdges::Snapped => depth_edges::measure(&scene.disparity.map, &hard, alpha.width, alpha.height).outside_px,
-                DepthEdges::AsGiven => 0.0,
-            };
-            let near = crate::stages::mask::dilate(&hard, alpha.width, alpha.height, ramp + 1.0);
+            let near = crate::stages::mask::dilate(&hard, alpha.width, alpha.height, edges.outside_px + 1.0);
             let background: Vec<bool> = near.iter().map(|&n| !n).collect();
             slices::background_cuts(&scene.disparity.map, &background, cfg.segment.layers, &cfg.segment)
         } else {
@@ -388,8 +388,8 @@ impl Pipeline {
         // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
         // a layer keeps that layer's depth and would be taken for a nearer slice.
         let whole = !cuts.thresholds.is_empty();
-        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, (focus, blur, max_coc), whole, "foreground layer", report)?;
-        report.stages.push(StageReport::ran("fill_depth", first.fill_ms, Some(first.fill_detail)));
+        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, edges, (focus, blur, max_coc), whole, "foreground layer", report)?;
+        report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
         let mut layers = vec![first.layer];
         let (mut rgb, mut disp) = (first.behind_rgb, first.behind_disparity);
@@ -401,8 +401,9 @@ impl Pipeline {
             let mut peeled = Vec::new();
             for (k, &cut) in cuts.thresholds.iter().enumerate() {
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
+                let edges = self.edge_widths(&disp, &alpha);
                 let whole = k + 1 < cuts.thresholds.len();
-                let p = self.peel(&rgb, &disp, alpha, (focus, blur, max_coc), whole, "background slice", report)?;
+                let p = self.peel(&rgb, &disp, alpha, edges, (focus, blur, max_coc), whole, "background slice", report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
                 (rgb, disp) = (p.behind_rgb, p.behind_disparity);
@@ -418,27 +419,34 @@ impl Pipeline {
         Ok(layers)
     }
 
+    /// The ramp of `disp` across the outline of `alpha` (`[fill_depth] edges`; none when the
+    /// depth map is trusted as given).
+    fn edge_widths(&self, disp: &Image, alpha: &Image) -> depth_edges::EdgeWidths {
+        let cfg = &self.config;
+        match cfg.fill_depth.edges {
+            DepthEdges::Snapped => depth_edges::measure(disp, &hard_mask(alpha, &cfg.fill_depth), alpha.width, alpha.height),
+            DepthEdges::AsGiven => depth_edges::EdgeWidths::default(),
+        }
+    }
+
     /// One peel: the layer of `alpha` in the opaque scene (`photo`, `disp`) and the scene behind
-    /// it. Fills the layer's disparity beyond its outline (fill_depth), inpaints what it hides
-    /// (as deep as a blur can show it, or `whole`), and separates colours at its soft edge.
+    /// it. Fills the layer's disparity beyond its outline (fill_depth, with the depth map's
+    /// ramp `edges` across that outline), inpaints what it hides (as deep as a blur can show
+    /// it, or `whole`), and separates colours at its soft edge.
     #[allow(clippy::too_many_arguments)]
     fn peel(
         &self,
         photo: &Image,
         disp: &Image,
         alpha: Image,
+        edges: depth_edges::EdgeWidths,
         (focus, blur, max_coc): (f32, f32, f32),
         whole: bool,
         what: &str,
         report: &mut Report,
     ) -> Result<Peeled> {
         let cfg = &self.config;
-        let (w, h) = (photo.width, photo.height);
         let t = Instant::now();
-        let edges = match cfg.fill_depth.edges {
-            DepthEdges::Snapped => depth_edges::measure(disp, &hard_mask(&alpha, &cfg.fill_depth), w, h),
-            DepthEdges::AsGiven => depth_edges::EdgeWidths::default(),
-        };
         let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges)?;
         let fill_ms = ms_since(t);
         let fill_detail = serde_json::json!({

@@ -74,21 +74,33 @@ fn rel_err(a: &[f64], b: &[f64]) -> (f64, f64) {
 
 const SMOOTH: Smoothing = Smoothing { edge_width: 1.0, fill_width: 0.1 };
 
+/// For each seeded scene: the span render against the exact tape with occlusion on or off,
+/// (name, max abs image difference, gradient relative L2, gradient relative max), printed.
+fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<(String, f32, f64, f64)> {
+    scenes()
+        .into_iter()
+        .map(|(name, l, blur, focus)| {
+            let s = settings(blur, focus, occlusion);
+            let (w, h) = (l.width(), l.height());
+            let tape = Tape::record(std::slice::from_ref(&l), &s, SMOOTH).unwrap();
+            let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
+            let dimg = common::max_abs_diff(&span.image().data, &tape.image().data);
+            let cot = cotangent(w, h, cot_seed);
+            let exact = disparity_of(&tape.vjp(&cot).unwrap().layers[0]);
+            let fast: Vec<f64> = span.disparity_vjp(&cot).unwrap().data.iter().map(|&v| v as f64).collect();
+            let (l2, lmax) = rel_err(&fast, &exact);
+            let what = if occlusion { "occlusion" } else { "no occlusion" };
+            eprintln!("{name}, {what}: image {dimg:.1e}, gradient rel L2 {l2:.1e}, max {lmax:.1e}");
+            (name.to_string(), dimg, l2, lmax)
+        })
+        .collect()
+}
+
 /// Without occlusion the span render is the exact tape's function (one group, no bins): the
 /// image to rounding and the disparity gradient to 1e-5 relative (measured: 9e-8 … 5e-7).
 #[test]
 fn without_occlusion_it_is_the_tape() {
-    for (name, l, blur, focus) in scenes() {
-        let s = settings(blur, focus, false);
-        let (w, h) = (l.width(), l.height());
-        let tape = Tape::record(std::slice::from_ref(&l), &s, SMOOTH).unwrap();
-        let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
-        let dimg = common::max_abs_diff(&span.image().data, &tape.image().data);
-        let cot = cotangent(w, h, 11);
-        let exact = disparity_of(&tape.vjp(&cot).unwrap().layers[0]);
-        let fast: Vec<f64> = span.disparity_vjp(&cot).unwrap().data.iter().map(|&v| v as f64).collect();
-        let (l2, lmax) = rel_err(&fast, &exact);
-        eprintln!("{name}, no occlusion: image {dimg:.1e}, gradient rel L2 {l2:.1e}, max {lmax:.1e}");
+    for (name, dimg, l2, lmax) in span_vs_tape(false, 11) {
         assert!(dimg < 1e-5, "{name}: image differs by {dimg}");
         assert!(l2 < 1e-5 && lmax < 1e-5, "{name}: gradient {l2} {lmax}");
     }
@@ -100,17 +112,7 @@ fn without_occlusion_it_is_the_tape() {
 /// (measured 0.09% … 0.35%): margins of ~4x over the measurement.
 #[test]
 fn with_occlusion_it_is_close_to_the_tape() {
-    for (name, l, blur, focus) in scenes() {
-        let s = settings(blur, focus, true);
-        let (w, h) = (l.width(), l.height());
-        let tape = Tape::record(std::slice::from_ref(&l), &s, SMOOTH).unwrap();
-        let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
-        let dimg = common::max_abs_diff(&span.image().data, &tape.image().data);
-        let cot = cotangent(w, h, 12);
-        let exact = disparity_of(&tape.vjp(&cot).unwrap().layers[0]);
-        let fast: Vec<f64> = span.disparity_vjp(&cot).unwrap().data.iter().map(|&v| v as f64).collect();
-        let (l2, lmax) = rel_err(&fast, &exact);
-        eprintln!("{name}, occlusion: image {dimg:.1e}, gradient rel L2 {l2:.1e}, max {lmax:.1e}");
+    for (name, dimg, l2, lmax) in span_vs_tape(true, 12) {
         assert!(dimg < 2e-4, "{name}: image differs by {dimg}");
         assert!(l2 < 0.01 && lmax < 0.02, "{name}: gradient {l2} {lmax}");
     }

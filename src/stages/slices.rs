@@ -144,8 +144,8 @@ pub struct Cuts {
 /// Chooses the cuts of the visible background (`background[i]`: pixel i shows the background)
 /// of `disp` (one channel, normalized) for `count` layers in all, the foreground included.
 /// Every slice keeps at least `opts.layer_min_fraction` of the image, and a cut must be a real
-/// depth edge (median disparity jump across it at least `opts.min_jump`), so a slanted ground
-/// is never cut by `auto`. Cost: one histogram pass, and one pass over the image per candidate.
+/// depth edge (median disparity jump across it at least `opts.min_jump`, levelled off a few
+/// pixels out: see `is_depth_edge`), so a slanted ground is never cut. Cost: one histogram pass, and one pass over the image per candidate.
 pub fn background_cuts(disp: &Image, background: &[bool], count: LayerCount, opts: &SegmentOptions) -> Cuts {
     let wanted = count.most().saturating_sub(2);
     if wanted == 0 {
