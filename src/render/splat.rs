@@ -182,6 +182,65 @@ impl Stripe {
         }
     }
 
+    /// Adds `f·run[i]` to the row difference of column `x0 + i` of `row` for each `i`: the
+    /// starts (`f = 1`) or ends (`f = -1`, one past the last pixel) of a span per element of a
+    /// run of equal footprints. Clipped as [`Stripe::pixels`] clips: a column left of the grid
+    /// counts as column -1 (the span starts at 0), one right of it is dropped. O(run).
+    // Inline: called per template row and run by `fast::binned` (another module).
+    #[inline]
+    pub fn diff_run(&mut self, row: i64, x0: i64, run: &[[f32; 4]], f: f64) {
+        if row < self.y0 || row >= self.y1 || run.is_empty() {
+            return;
+        }
+        self.spans = true;
+        let w = self.width as i64;
+        let base = (row - self.y0) as usize * (self.width + 2);
+        // Elements i < a land left of column -1, i ≥ b right of the grid.
+        let n = run.len() as i64;
+        let a = (-1 - x0).clamp(0, n) as usize;
+        let b = (w - x0).clamp(0, n) as usize;
+        if a > 0 {
+            let d = &mut self.diff[base * 4..base * 4 + 4];
+            for v in &run[..a] {
+                for c in 0..4 {
+                    d[c] += v[c] as f64 * f;
+                }
+            }
+        }
+        if b > a {
+            let start = (base as i64 + x0 + a as i64 + 1) as usize * 4;
+            let dst = &mut self.diff[start..start + (b - a) * 4];
+            for (o, v) in dst.chunks_exact_mut(4).zip(&run[a..b]) {
+                for c in 0..4 {
+                    o[c] += v[c] as f64 * f;
+                }
+            }
+        }
+    }
+
+    /// Adds `wgt·run[i]` to pixel `(x0 + i, row)` for each `i` (one tap of a run of equal
+    /// footprints), clipped to the stripe and grid. O(run).
+    // Inline: called per template tap and run by `fast::binned` (another module).
+    #[inline]
+    pub fn tap_run(&mut self, row: i64, x0: i64, run: &[[f32; 4]], wgt: f32) {
+        if row < self.y0 || row >= self.y1 {
+            return;
+        }
+        let n = run.len() as i64;
+        let (a, b) = ((-x0).clamp(0, n) as usize, (self.width as i64 - x0).clamp(0, n) as usize);
+        if a >= b {
+            return;
+        }
+        self.taps = true;
+        let start = ((row - self.y0) as usize * self.width) as i64 + x0 + a as i64;
+        let dst = &mut self.direct[start as usize * 4..(start as usize + b - a) * 4];
+        for (o, v) in dst.chunks_exact_mut(4).zip(&run[a..b]) {
+            for c in 0..4 {
+                o[c] += v[c] * wgt;
+            }
+        }
+    }
+
     /// Adds the values of stripe row `r` (prefix sum of the spans plus the taps) to `out`
     /// (`width * 4` f32).
     pub fn add_row_to(&self, r: usize, out: &mut [f32]) {

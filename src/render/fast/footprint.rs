@@ -224,6 +224,18 @@ pub(in crate::render) fn rim_row(reach: f32, inner: f32, p: i64, dy: i64) -> Opt
     Some((xi, xo))
 }
 
+/// [`rim_row`] with the taper's taps `tap(ρ)` of columns `dx = xi + 1 ..= xo` in `e` (the left
+/// taper mirrors them). Shared by [`rim_footprint`] and the radius bins' templates
+/// ([`super::binned`]), so both draw the same pixels with the same weights.
+#[inline(always)]
+pub(super) fn rim_row_taps(reach: f32, inner: f32, p: i64, dy: i64, tap: impl Fn(f32) -> f32, e: &mut Vec<f32>) -> Option<(i64, i64)> {
+    let (xi, xo) = rim_row(reach, inner, p, dy)?;
+    let dyf = (dy * dy) as f32;
+    e.clear();
+    e.extend((xi + 1..=xo).map(|dx| tap(((dx * dx) as f32 + dyf).sqrt())));
+    Some((xi, xo))
+}
+
 /// A footprint's rings: its value is `plateau` within `inner` of the centre and `tap(ρ)·v`
 /// out to `reach` (exclusive); `N` copies of it (see [`rim_footprint`]).
 struct Rim<const N: usize> {
@@ -252,9 +264,7 @@ fn rim_footprint<const N: usize>(
     let rr = (reach.min(1e9).ceil() as i64).min(p);
     let mut ops = 0;
     for row in (sy - rr).max(y0)..=(sy + rr).min(y1 - 1) {
-        let dy = row - sy;
-        let Some((xi, xo)) = rim_row(reach, inner, p, dy) else { continue };
-        let dyf = (dy * dy) as f32;
+        let Some((xi, xo)) = rim_row_taps(reach, inner, p, row - sy, &tap, e) else { continue };
         if xi >= 0 {
             for (st, plateau) in sts.iter_mut().zip(&rim.plateau) {
                 st.pixels(row, sx - xi, sx + xi, *plateau);
@@ -262,8 +272,6 @@ fn rim_footprint<const N: usize>(
             ops += 4 * N as u64;
         }
         if xo > xi {
-            e.clear();
-            e.extend((xi + 1..=xo).map(|dx| tap(((dx * dx) as f32 + dyf).sqrt())));
             for (st, v) in sts.iter_mut().zip(&vs) {
                 st.tap_row(sx + xi + 1, row, e, *v);
             }

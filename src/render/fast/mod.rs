@@ -43,6 +43,7 @@
 //! Each finished pixel's sums are turned into `[P, A, V]` there.
 
 mod band;
+mod binned;
 mod bright;
 mod coarse;
 pub(in crate::render) mod footprint;
@@ -74,6 +75,9 @@ pub struct FastParams {
     /// Draw full-resolution disks with the soft step's edge profile (3 nested disks) instead
     /// of one antialiased disk: 3× the span cost, closer to exact at small radii.
     pub soft_edge: bool,
+    /// Physical profile: width of the radius bins of the disks between `stencil_max` and
+    /// `2·r0` (pixels; a disk's edge moves by at most half of it, see [`binned`]).
+    pub radius_bin: f32,
 }
 
 impl FastParams {
@@ -82,7 +86,7 @@ impl FastParams {
     pub fn from_quality(q: u32) -> Self {
         let q = q.clamp(1, 8);
         let stencil_max = if q == 8 { f32::INFINITY } else { 2.0 + q as f32 };
-        FastParams { stencil_max, r0: (2u32 << q) as f32, node_step: 0.04 / q as f32, soft_edge: q >= 3 }
+        FastParams { stencil_max, r0: (2u32 << q) as f32, node_step: 0.04 / q as f32, soft_edge: q >= 3, radius_bin: 0.25 / q as f32 }
     }
 }
 
@@ -164,6 +168,8 @@ struct Ctx<'a> {
     reach: Option<physical::DepthReach>,
     /// The exact taps out to the stencil reach.
     stencil: Stencil,
+    /// Physical profile: the radius bins of the medium disks (`stencil_max ≤ r < 2·r0`).
+    bins: Option<binned::Bins>,
 }
 
 impl<'a> Ctx<'a> {
@@ -200,6 +206,8 @@ impl<'a> Ctx<'a> {
             band,
             sides: [SidePresence::default(); 2],
             reach,
+            bins: (s.profile == Profile::Physical && params.stencil_max < 2.0 * params.r0)
+                .then(|| binned::Bins::new(params.stencil_max, 2.0 * params.r0, params.radius_bin, p)),
         }
     }
 

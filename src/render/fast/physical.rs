@@ -30,6 +30,7 @@
 //! one-group render at CoC 64 and had to be switched off for large blurs.
 
 use super::band::Side;
+use super::binned;
 use super::bright::is_bright;
 use super::footprint::{EDGE, coverage_disk};
 use super::stripe::Scratch;
@@ -90,6 +91,13 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                         ops += (e.len() * sc.dests.len()) as u64;
                     }
                 }
+            } else if let Some(bins) = ctx.bins.as_ref().filter(|_| !bright && r == true_r && r < 2.0 * pr.r0) {
+                // A medium disk: batched per radius bin, drawn with its row's run below.
+                n_sp += own;
+                let (k, inv_norm) = bins.bin(r);
+                for &(slot, f) in &sc.dests {
+                    sc.bins.push(slot, k, sx, v.map(|c| c * f * inv_norm));
+                }
             } else {
                 if bright && r >= 2.0 * pr.r0 {
                     n_br += own;
@@ -101,6 +109,9 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                     ops += coverage_disk(&mut sc.accs[slot], (sx, sy), r, norm, ctx.p as i64, v.map(|c| c * f), &mut sc.rim);
                 }
             }
+        }
+        if let Some(bins) = &ctx.bins {
+            ops += binned::flush(bins, sy, sc);
         }
     }
     counts.stencil.fetch_add(n_st, Ordering::Relaxed);

@@ -44,6 +44,8 @@ pub(super) struct Scratch {
     band_x: Vec<usize>,
     /// (accumulator, factor) pairs a source scatters into.
     pub(super) dests: Vec<(usize, f32)>,
+    /// The physical profile's medium disks of one row of sources, batched per radius bin.
+    pub(super) bins: super::binned::RowBatch,
     /// The visibility's summed-area table and the stripe's visibilities.
     sat: Vec<f64>,
     vis: Vec<f32>,
