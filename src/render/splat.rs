@@ -314,12 +314,9 @@ impl Stripe {
             self.add_diff(row, il + 1, v, -(r - l) as f64);
             return;
         }
-        let a = (il as f32 + 1.0 - l) as f64;
-        let b = (r - ir as f32) as f64;
-        self.add_diff(row, il, v, a);
-        self.add_diff(row, il + 1, v, 1.0 - a);
-        self.add_diff(row, ir, v, b - 1.0);
-        self.add_diff(row, ir + 1, v, -b);
+        for (col, f) in span_edges(l, r, il, ir) {
+            self.add_diff(row, col, v, f);
+        }
     }
 
     /// Adds `v` over an antialiased disk of radius `rho` centred at (cx, cy) (grid pixels,
@@ -330,14 +327,31 @@ impl Stripe {
         let hi = ((cy + rho).floor() as i64).min(self.y1 - 1);
         let mut area = 0.0;
         for row in lo..=hi {
-            let dy = row as f32 - cy;
-            let Some(mw) = window.half_width(dy) else { continue };
-            let hw = (rho * rho - dy * dy).max(0.0).sqrt().min(mw);
+            let Some(hw) = disk_chord(rho, window, row as f32 - cy) else { continue };
             self.span(row, cx - hw + 0.5, cx + hw + 0.5, v);
             area += 2.0 * hw;
         }
         area
     }
+}
+
+/// Half the chord of a disk of radius `rho` at row offset `dy` from its centre, clipped to
+/// `window`; None where the window excludes the row. (Rows use their centre's chord: the
+/// midpoint rule of [`Stripe::disk`].)
+#[inline]
+pub fn disk_chord(rho: f32, window: Window, dy: f32) -> Option<f32> {
+    let mw = window.half_width(dy)?;
+    Some((rho * rho - dy * dy).max(0.0).sqrt().min(mw))
+}
+
+/// The row differences of an antialiased span covering `[l, r]` in edge coordinates (pixel
+/// `i` covers `[i, i+1]`; `il`, `ir` the floors of `l` and `r`): each pixel gets its covered
+/// fraction. Four (column, weight) pairs, some at the same column when `il == ir`.
+#[inline(always)]
+pub fn span_edges(l: f32, r: f32, il: i64, ir: i64) -> [(i64, f64); 4] {
+    let a = (il as f32 + 1.0 - l) as f64;
+    let b = (r - ir as f32) as f64;
+    [(il, a), (il + 1, 1.0 - a), (ir, b - 1.0), (ir + 1, -b)]
 }
 
 /// Accumulates into `out` by running `visit` once per stripe of rows; `visit` adds taps and

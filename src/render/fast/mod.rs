@@ -75,8 +75,8 @@ pub struct FastParams {
     /// Draw full-resolution disks with the soft step's edge profile (3 nested disks) instead
     /// of one antialiased disk: 3× the span cost, closer to exact at small radii.
     pub soft_edge: bool,
-    /// Physical profile: width of the radius bins of the disks between `stencil_max` and
-    /// `2·r0` (pixels; a disk's edge moves by at most half of it, see [`binned`]).
+    /// Width of the radius bins of the disks between `stencil_max` and `2·r0` (pixels; a
+    /// disk's edge moves by at most half of it, see [`binned`]).
     pub radius_bin: f32,
 }
 
@@ -168,7 +168,7 @@ struct Ctx<'a> {
     reach: Option<physical::DepthReach>,
     /// The exact taps out to the stencil reach.
     stencil: Stencil,
-    /// Physical profile: the radius bins of the medium disks (`stencil_max ≤ r < 2·r0`).
+    /// The radius bins of the medium disks (`stencil_max ≤ r < 2·r0`; None at quality 8).
     bins: Option<binned::Bins>,
 }
 
@@ -206,8 +206,14 @@ impl<'a> Ctx<'a> {
             band,
             sides: [SidePresence::default(); 2],
             reach,
-            bins: (s.profile == Profile::Physical && params.stencil_max < 2.0 * params.r0)
-                .then(|| binned::Bins::new(params.stencil_max, 2.0 * params.r0, params.radius_bin, p)),
+            bins: (params.stencil_max < 2.0 * params.r0).then(|| {
+                let shape = match s.profile {
+                    Profile::Physical => binned::Shape::Physical,
+                    Profile::Official if params.soft_edge => binned::Shape::Official { soft_below: f32::INFINITY },
+                    Profile::Official => binned::Shape::Official { soft_below: 2.0 * params.stencil_max },
+                };
+                binned::Bins::new(shape, params.stencil_max, 2.0 * params.r0, params.radius_bin, p)
+            }),
         }
     }
 

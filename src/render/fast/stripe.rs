@@ -226,6 +226,14 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                     }
                     ops += (e.len() * sc.dests.len()) as u64;
                 }
+            } else if let Some(bins) = ctx.bins.as_ref().filter(|_| sig < 2.0 * pr.r0) {
+                // A medium disk: batched per radius bin, drawn with its row's run below.
+                n_sp += own;
+                let (k, factor) = bins.bin(sig);
+                let scale = dens * factor;
+                for &(slot, f) in &sc.dests {
+                    sc.bins.push(slot, k, sx, v.map(|c| c * scale * f));
+                }
             } else {
                 n_sp += own;
                 let rho = equivalent_radius(sig);
@@ -238,6 +246,9 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                     }
                 }
             }
+        }
+        if let Some(bins) = &ctx.bins {
+            ops += super::binned::flush(bins, sy, sc);
         }
     }
 
