@@ -18,11 +18,10 @@
 //! scaled by the ratio of its disk's area to the bin's.
 
 use super::footprint::{EDGE, HARD_EDGE, SOFT_EDGE, equivalent_radius, rim_row_taps};
-use super::stripe::Scratch;
 use crate::render::lens::{disk_coverage, disk_norm};
 use crate::render::splat::{Stripe, Window, disk_chord, span_edges};
+use std::collections::HashMap;
 use std::f32::consts::PI;
-use std::sync::OnceLock;
 
 /// Sources of one bin at most this many pixels apart share a run (the zeros between them are
 /// added too). A run costs a loop per template row and entry; a zero element, one add per
@@ -38,7 +37,16 @@ pub(super) enum Shape {
     /// equivalent radius, or its soft edge as 3 nested disks below `soft_below` (as
     /// `stripe::scan_sources` draws a source).
     Official { soft_below: f32 },
+    /// A coarse grid's aggregated source ([`super::coarse`]): an antialiased hard disk of
+    /// radius `ρ` (grid pixels) at a centre off the grid's lattice, rounded to `1/PHASES` of a
+    /// grid pixel, clipped to a disk window of radius `window` (as `Stripe::disk` draws it).
+    Coarse { window: f32 },
 }
+
+/// Coarse shape: centre positions per grid pixel along each axis (a centre moves by at most
+/// 1/32 of a grid pixel; a uniform cell's centroid lies on a position exactly). See
+/// `coarse::COARSE_BIN` for the measurement that chose it.
+pub(super) const PHASES: usize = 16;
 
 impl Shape {
     /// The hard disks (radius offset, weight) a source of radius `r` is drawn as, around its
@@ -50,23 +58,34 @@ impl Shape {
         }
     }
 
-    /// The area of the nested disks `edge` around the equivalent radius of (drawn) radius
-    /// `r`: an official source's density is scaled by its area over its bin's, so the bin keeps
-    /// its flux (exact for the disks' continuous areas).
-    fn area(edge: &[(f32, f32)], r: f32) -> f32 {
-        let rho = equivalent_radius(r);
+    /// The radius of the hard disk drawn for radius `r`: the official footprint's equivalent
+    /// radius, else `r` itself.
+    fn disk_radius(self, r: f32) -> f32 {
+        match self {
+            Shape::Official { .. } => equivalent_radius(r),
+            _ => r,
+        }
+    }
+
+    /// Template positions per pixel along each axis.
+    fn phases(self) -> usize {
+        match self {
+            Shape::Coarse { .. } => PHASES,
+            _ => 1,
+        }
+    }
+
+    /// The area of the nested disks `edge` around disk radius `rho`: an official or coarse
+    /// source's value is scaled by its area over its bin's, so the bin keeps its flux (exact
+    /// for the disks' continuous areas).
+    fn area(edge: &[(f32, f32)], rho: f32) -> f32 {
         edge.iter().map(|&(off, wt)| wt * PI * (rho + off) * (rho + off)).sum()
     }
 }
 
-/// One radius bin's footprint, for a source of value 1 before its scale (see
-/// [`Template::flux`]).
+/// One bin's footprint, for a source of value 1 before its factor (see [`Bins::bin`]).
 struct Template {
-    /// Physical: `disk_norm` of the bin's radius (a source's value is divided by it once);
-    /// official: [`Shape::area`] of the bin's radius and nested disks `edge`.
-    flux: f32,
-    edge: &'static [(f32, f32)],
-    /// Largest row offset; row `dy` is `rows[dy + rr]`.
+    /// Largest row offset from the centre's lattice row; row `j` is `rows[j + rr]`.
     rr: i64,
     /// Per row offset: its row differences `diffs[..]` and taps `taps[..]` (column offset,
     /// weight).
@@ -82,11 +101,11 @@ struct TemplateRow {
 }
 
 impl Template {
-    /// The footprint of radius `r` (CoC or scatter radius, per `shape`) in a window of
-    /// half-size `p`: the rows, spans and taps the one-by-one draw of a source at an integer
-    /// position makes.
-    fn new(shape: Shape, r: f32, p: i64) -> Self {
-        let mut t = Template { flux: 0.0, edge: shape.edge(r), rr: 0, rows: Vec::new(), diffs: Vec::new(), taps: Vec::new() };
+    /// The footprint of radius `r` (CoC, scatter radius or disk radius, per `shape`) in a
+    /// window of half-size `p`, centred `phase` (x, y; in `[0, 1)`, coarse shape only) past a
+    /// lattice point: the rows, spans and taps the one-by-one draw of such a source makes.
+    fn new(shape: Shape, r: f32, phase: (f32, f32), p: i64) -> Self {
+        let mut t = Template { rr: 0, rows: Vec::new(), diffs: Vec::new(), taps: Vec::new() };
         match shape {
             Shape::Physical => {
                 let (reach, inner) = (r + EDGE, r - EDGE);
@@ -104,19 +123,25 @@ impl Template {
                     let taps: Vec<(i64, f32)> = right.clone().chain(right.filter(|&(dx, _)| dx > 0).map(|(dx, c)| (-dx, c))).collect();
                     t.push_row(plateau, &taps);
                 }
-                t.flux = disk_norm(r);
             }
-            Shape::Official { .. } => {
-                let (edge, rho) = (t.edge, equivalent_radius(r));
-                let window = Window::Lattice(p);
-                t.rr = (rho + edge[edge.len() - 1].0).floor().max(0.0) as i64;
-                for dy in -t.rr..=t.rr {
+            Shape::Official { .. } | Shape::Coarse { .. } => {
+                let (fx, fy) = phase;
+                let (edge, rho) = (shape.edge(r), shape.disk_radius(r));
+                let window = match shape {
+                    Shape::Coarse { window } => Window::Disk(window),
+                    _ => Window::Lattice(p),
+                };
+                // Rows j (from the centre's lattice row) with |j - fy| within a disk.
+                let outer = rho + edge[edge.len() - 1].0;
+                t.rr = (outer + fy).floor().max((fy - outer).ceil().abs()) as i64;
+                for j in -t.rr..=t.rr {
+                    let dy = j as f32 - fy;
                     let mut diffs = Vec::new();
                     for &(off, wt) in edge {
-                        let Some(hw) = disk_chord(rho + off, window, dy as f32).filter(|_| (dy as f32).abs() <= rho + off) else {
+                        let Some(hw) = disk_chord(rho + off, window, dy).filter(|_| dy.abs() <= rho + off) else {
                             continue;
                         };
-                        let (l, r) = (-hw + 0.5, hw + 0.5);
+                        let (l, r) = (fx - hw + 0.5, fx + hw + 0.5);
                         if r > l {
                             let edges = span_edges(l, r, l.floor() as i64, r.floor() as i64);
                             diffs.extend(edges.iter().map(|&(dx, f)| (dx, f * wt as f64)));
@@ -124,7 +149,6 @@ impl Template {
                     }
                     t.push_row(&diffs, &[]);
                 }
-                t.flux = Shape::area(edge, r);
             }
         }
         t
@@ -157,62 +181,98 @@ impl Template {
     }
 }
 
-/// The radius bins of one layer: templates built on first use, shared by every stripe.
+/// How one layer's (or coarse level's) sources map to templates: radius bins `width` px wide
+/// (and centre positions, for the coarse shape). Key `(k·P + py)·P + px` is bin `k` (radius
+/// `k·width`) at centre position `(px, py)/P` past a lattice point (`P` = `shape.phases()`).
+#[derive(Clone, Copy, Debug)]
 pub(super) struct Bins {
     shape: Shape,
     /// Window half-size.
     p: i64,
     /// Width of a bin, pixels.
     width: f32,
-    /// Bin of the smallest radius drawn here; `templates[k - k0]` is bin `k` (radius
-    /// `k·width`).
-    k0: usize,
-    templates: Vec<OnceLock<Template>>,
 }
 
 impl Bins {
-    /// Bins `width` px wide for radii `[r_lo, r_hi)` of footprint `shape` in a window of
-    /// half-size `p`. O(bins); templates are built when first drawn (O(r) each).
-    pub(super) fn new(shape: Shape, r_lo: f32, r_hi: f32, width: f32, p: usize) -> Self {
-        let bin_of = |r: f32| (r.max(0.0) / width).round() as usize;
-        let (k0, k1) = (bin_of(r_lo), bin_of(r_hi));
-        Bins { shape, p: p as i64, width, k0, templates: (k0..=k1.max(k0)).map(|_| OnceLock::new()).collect() }
+    /// Bins `width` px wide of footprint `shape` in a window of half-size `p`.
+    pub(super) fn new(shape: Shape, width: f32, p: usize) -> Self {
+        Bins { shape, p: p as i64, width }
     }
 
-    /// The bin of radius `r` (within the range [`Bins::new`] was given) and the factor that
-    /// scales a source's value for it: `1 / disk_norm` of the bin (physical, unit flux), or the
-    /// ratio of the source's area to the bin's (official; its density is applied besides).
+    /// The bin of radius `r` (a source centred on a lattice point) and the factor that scales
+    /// a source's value for it: `1 / disk_norm` of the bin (physical, unit flux), or the ratio
+    /// of the source's area to the bin's (official: its density is applied besides). O(1).
     #[inline]
-    pub(super) fn bin(&self, r: f32) -> (u32, f32) {
-        let k = ((r.max(0.0) / self.width).round() as usize).clamp(self.k0, self.k0 + self.templates.len() - 1);
-        let t = self.template(k);
-        let factor = match self.shape {
-            Shape::Physical => 1.0 / t.flux,
-            Shape::Official { .. } => Shape::area(t.edge, r) / t.flux,
-        };
-        (k as u32, factor)
+    pub(super) fn bin(&self, r: f32) -> (u64, f32) {
+        let k = self.bin_index(r);
+        (k, self.factor(k, r))
+    }
+
+    /// Coarse shape: the template of a disk of radius `rho` centred at `(cx, cy)` (grid
+    /// pixels), the lattice point `(x, y)` it is placed at, and its value's factor. O(1).
+    #[inline]
+    pub(super) fn place(&self, cx: f32, cy: f32, rho: f32) -> (u64, i64, i64, f32) {
+        let n = self.shape.phases() as i64;
+        let (qx, qy) = ((cx * n as f32).round() as i64, (cy * n as f32).round() as i64);
+        let k = self.bin_index(rho);
+        let key = (k * n as u64 + qy.rem_euclid(n) as u64) * n as u64 + qx.rem_euclid(n) as u64;
+        (key, qx.div_euclid(n), qy.div_euclid(n), self.factor(k, rho))
+    }
+
+    #[inline]
+    fn bin_index(&self, r: f32) -> u64 {
+        (r.max(0.0) / self.width).round() as u64
+    }
+
+    /// The factor of a source of radius `r` drawn by bin `k` (see [`Bins::bin`]).
+    #[inline]
+    fn factor(&self, k: u64, r: f32) -> f32 {
+        let rk = self.radius(k);
+        match self.shape {
+            Shape::Physical => 1.0 / disk_norm(rk),
+            shape => {
+                let edge = shape.edge(rk);
+                Shape::area(edge, shape.disk_radius(r)) / Shape::area(edge, shape.disk_radius(rk))
+            }
+        }
     }
 
     /// The radius of bin `k`, pixels.
-    fn radius(&self, k: usize) -> f32 {
+    fn radius(&self, k: u64) -> f32 {
         k as f32 * self.width
     }
 
-    fn template(&self, k: usize) -> &Template {
-        self.templates[k - self.k0].get_or_init(|| Template::new(self.shape, self.radius(k), self.p))
+    /// The template of `key`, built (O(r)).
+    fn template(&self, key: u64) -> Template {
+        let n = self.shape.phases() as u64;
+        let (k, py, px) = (key / (n * n), key / n % n, key % n);
+        Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), self.p)
     }
 }
 
-/// One source waiting in a row: its accumulator, bin, column and value at unit flux.
+/// The templates one worker has drawn, by key (built on first use; per layer, or per coarse
+/// level, as its [`Bins`]).
+#[derive(Default)]
+pub(super) struct Templates(HashMap<u64, Template>);
+
+impl Templates {
+    fn get(&mut self, bins: &Bins, key: u64) -> &Template {
+        self.0.entry(key).or_insert_with(|| bins.template(key))
+    }
+}
+
+/// One source waiting in a batch: its accumulator, template, lattice position and value
+/// (scaled for its template).
 #[derive(Clone, Copy)]
 pub(super) struct Entry {
     slot: u32,
-    bin: u32,
+    bin: u64,
+    y: i64,
     x: i64,
     v: [f32; 4],
 }
 
-/// The sources of one row of sources that go to the radius bins (see [`flush`]).
+/// Sources waiting to be drawn by their templates (see [`flush`]).
 #[derive(Default)]
 pub(super) struct RowBatch {
     entries: Vec<Entry>,
@@ -220,32 +280,33 @@ pub(super) struct RowBatch {
 }
 
 impl RowBatch {
-    /// Adds a source at column `x` with value `v` (at unit flux for bin `bin`) to accumulator
-    /// `slot`.
+    /// Adds a source at `(x, y)` with value `v` (scaled for template `bin`) to accumulator
+    /// `slot`. Sources of one template and row must come in column order.
     #[inline]
-    pub(super) fn push(&mut self, slot: usize, bin: u32, x: i64, v: [f32; 4]) {
-        self.entries.push(Entry { slot: slot as u32, bin, x, v });
+    pub(super) fn push(&mut self, slot: usize, bin: u64, (x, y): (i64, i64), v: [f32; 4]) {
+        self.entries.push(Entry { slot: slot as u32, bin, y, x, v });
     }
 }
 
-/// Draws the row's batched sources (centred on row `sy`) into the stripe accumulators
-/// `sc.accs`, per accumulator and bin in runs of sources at most `GAP` apart, and empties the
-/// batch. Returns the writes. Allocation-free once the scratch has grown.
-pub(super) fn flush(bins: &Bins, sy: i64, sc: &mut Scratch) -> u64 {
-    let batch = &mut sc.bins;
+/// Draws the batched sources into the accumulators `accs`, per accumulator, row and template
+/// in runs of sources at most `GAP` apart (templates from `templates`, built there on first
+/// use), and empties the batch. Returns the writes. Allocation-free once the batch and the
+/// templates have grown.
+pub(super) fn flush(bins: &Bins, templates: &mut Templates, batch: &mut RowBatch, accs: &mut [Stripe]) -> u64 {
     if batch.entries.is_empty() {
         return 0;
     }
-    // Entries arrive in column order; a stable sort by (slot, bin) keeps it within a group.
-    batch.entries.sort_by_key(|e| (e.slot, e.bin));
+    // Entries arrive in column order per row; a stable sort keeps it within a group.
+    batch.entries.sort_by_key(|e| (e.slot, e.y, e.bin));
     let mut ops = 0;
     let mut i = 0;
     let es = &batch.entries;
     while i < es.len() {
-        // The run: entries of one (slot, bin) each within GAP of the previous.
+        // The run: entries of one (slot, row, template) each within GAP of the previous.
         let first = es[i];
+        let same = |e: &Entry| e.slot == first.slot && e.y == first.y && e.bin == first.bin;
         let mut j = i + 1;
-        while j < es.len() && es[j].slot == first.slot && es[j].bin == first.bin && es[j].x - es[j - 1].x <= GAP {
+        while j < es.len() && same(&es[j]) && es[j].x - es[j - 1].x <= GAP {
             j += 1;
         }
         let x0 = first.x;
@@ -256,7 +317,7 @@ pub(super) fn flush(bins: &Bins, sy: i64, sc: &mut Scratch) -> u64 {
                 *o += v;
             }
         }
-        ops += bins.template(first.bin as usize).draw(&mut sc.accs[first.slot as usize], sy, x0, &batch.run);
+        ops += templates.get(bins, first.bin).draw(&mut accs[first.slot as usize], first.y, x0, &batch.run);
         i = j;
     }
     batch.entries.clear();
@@ -266,20 +327,26 @@ pub(super) fn flush(bins: &Bins, sy: i64, sc: &mut Scratch) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::super::footprint::coverage_disk;
+    use super::super::stripe::Scratch;
     use super::*;
 
     /// A run of sources drawn from a template equals the same sources drawn one by one at the
     /// bin's radius (the template is the one-by-one footprint, only shifted), in both
-    /// profiles, including runs clipped by the grid's edges and the window, with gaps inside
-    /// the run.
+    /// profiles and for a coarse grid's disks off the lattice, including runs clipped by the
+    /// grid's edges and the window, with gaps inside the run.
     #[test]
     fn a_run_is_its_sources_drawn_one_by_one() {
         let (w, y0, y1) = (40usize, 3usize, 19usize);
-        let shapes = [Shape::Physical, Shape::Official { soft_below: 8.0 }];
+        let shapes = [Shape::Physical, Shape::Official { soft_below: 8.0 }, Shape::Coarse { window: 9.5 }, Shape::Coarse { window: 40.0 }];
         for (shape, (r, p)) in shapes.into_iter().flat_map(|s| [(4.0f32, 30usize), (6.375, 30), (11.5, 8), (15.875, 60)].map(|c| (s, c))) {
-            let bins = Bins::new(shape, r, r + 1.0, 0.125, p);
+            let bins = Bins::new(shape, 0.125, p);
+            // Coarse: a centre off the lattice, on one of the template positions.
+            let (fx, fy) = match shape {
+                Shape::Coarse { .. } => (3.0 / 8.0, 5.0 / 8.0),
+                _ => (0.0, 0.0),
+            };
             let (k, factor) = bins.bin(r);
-            assert_eq!(bins.radius(k as usize), r);
+            assert_eq!(bins.radius(k), r);
             let mut sc = Scratch::default();
             sc.accs.push(Stripe::new(w));
             sc.accs[0].reset(y0, y1);
@@ -290,10 +357,19 @@ mod tests {
             let sy = 1i64;
             for x in (-6i64..46).filter(|x| x % 7 != 3) {
                 let v = [0.1 * (x as f32).sin().abs(), 0.5, 0.2 + 0.01 * x as f32, 0.7];
-                sc.bins.push(0, k, x, v.map(|c| c * factor));
+                let (k, x0, y0, factor) = match shape {
+                    Shape::Coarse { .. } => bins.place(x as f32 + fx, sy as f32 + fy, r),
+                    _ => (k, x, sy, factor),
+                };
+                assert_eq!((x0, y0), (x, sy));
+                sc.bins.push(0, k, (x0, y0), v.map(|c| c * factor));
                 match shape {
                     Shape::Physical => {
                         coverage_disk(&mut one, (x, sy), r, disk_norm(r), p as i64, v, &mut e);
+                    }
+                    Shape::Coarse { window } => {
+                        assert_eq!(factor, 1.0);
+                        one.disk(x as f32 + fx, sy as f32 + fy, r, Window::Disk(window), v);
                     }
                     Shape::Official { .. } => {
                         assert_eq!(factor, 1.0);
@@ -303,7 +379,7 @@ mod tests {
                     }
                 }
             }
-            assert!(flush(&bins, sy, &mut sc) > 0);
+            assert!(flush(&bins, &mut Templates::default(), &mut sc.bins, &mut sc.accs) > 0);
             assert!(sc.bins.entries.is_empty());
             for row in 0..y1 - y0 {
                 let (mut a, mut b) = (vec![0f32; w * 4], vec![0f32; w * 4]);
@@ -316,28 +392,48 @@ mod tests {
         }
     }
 
-    /// Bins round to the nearest radius and clamp to their range; the factor is the bin's unit
-    /// flux (physical) or the ratio of areas that keeps an official source's flux.
+    /// Bins round to the nearest radius; the factor is the bin's unit flux (physical) or the
+    /// ratio of areas that keeps an official source's flux (the bin's nested disks with the
+    /// source's area).
     #[test]
     fn bins_round_to_the_nearest_and_keep_the_flux() {
         for width in [0.25f32, 0.125, 0.0625] {
             for shape in [Shape::Physical, Shape::Official { soft_below: 8.0 }] {
-                let bins = Bins::new(shape, 4.0, 16.0, width, 200);
+                let bins = Bins::new(shape, width, 200);
                 for r in [4.0f32, 4.06, 4.07, 7.97, 8.01, 9.99, 15.99] {
                     let (k, factor) = bins.bin(r);
-                    let rk = bins.radius(k as usize);
+                    let rk = bins.radius(k);
                     assert!((rk - r).abs() <= 0.5 * width + 1e-6, "r={r}: bin {k}");
-                    match shape {
-                        Shape::Physical => assert_eq!(factor, 1.0 / disk_norm(rk)),
-                        // The bin's nested disks with the source's area.
-                        Shape::Official { .. } => {
-                            let t = bins.template(k as usize);
-                            assert!((factor * t.flux - Shape::area(t.edge, r)).abs() <= 1e-5 * t.flux);
+                    let expected = match shape {
+                        Shape::Physical => 1.0 / disk_norm(rk),
+                        _ => {
+                            let (a, ak) = (equivalent_radius(r), equivalent_radius(rk));
+                            let area = |rho: f32| shape.edge(rk).iter().map(|&(off, wt)| wt * (rho + off).powi(2)).sum::<f32>();
+                            area(a) / area(ak)
                         }
-                    }
+                    };
+                    assert!((factor - expected).abs() <= 1e-6 * expected, "{shape:?} r={r}: {factor} vs {expected}");
                 }
-                assert_eq!(bins.radius(bins.bin(3.0).0 as usize), 4.0);
-                assert_eq!(bins.radius(bins.bin(20.0).0 as usize), 16.0);
+            }
+        }
+    }
+
+    /// A coarse disk's centre goes to the nearest of `PHASES²` template positions around its
+    /// lattice point, in any quadrant; the factor keeps its area.
+    #[test]
+    fn coarse_centres_round_to_the_nearest_position() {
+        let bins = Bins::new(Shape::Coarse { window: 100.0 }, 0.125, 0);
+        let n = PHASES as f32;
+        for (cx, cy) in [(0.0f32, 0.0f32), (3.49, -2.51), (-0.03, 7.97), (-5.2, -0.7), (12.0625, 3.9374)] {
+            for rho in [7.0f32, 9.3, 16.96] {
+                let (key, x, y, factor) = bins.place(cx, cy, rho);
+                let n2 = PHASES as u64;
+                let (k, py, px) = (key / n2 / n2, key / n2 % n2, key % n2);
+                let (qx, qy) = (x as f32 + px as f32 / n, y as f32 + py as f32 / n);
+                assert!((qx - cx).abs() <= 0.5 / n + 1e-5 && (qy - cy).abs() <= 0.5 / n + 1e-5, "({cx}, {cy}) -> ({qx}, {qy})");
+                let rk = bins.radius(k);
+                assert!((rk - rho).abs() <= 0.0625 + 1e-5);
+                assert!((factor - (rho / rk).powi(2)).abs() <= 1e-5, "rho {rho}: factor {factor}");
             }
         }
     }

@@ -212,7 +212,7 @@ impl<'a> Ctx<'a> {
                     Profile::Official if params.soft_edge => binned::Shape::Official { soft_below: f32::INFINITY },
                     Profile::Official => binned::Shape::Official { soft_below: 2.0 * params.stencil_max },
                 };
-                binned::Bins::new(shape, params.stencil_max, 2.0 * params.r0, params.radius_bin, p)
+                binned::Bins::new(shape, params.radius_bin, p)
             }),
         }
     }

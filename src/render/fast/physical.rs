@@ -96,7 +96,7 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                 n_sp += own;
                 let (k, inv_norm) = bins.bin(r);
                 for &(slot, f) in &sc.dests {
-                    sc.bins.push(slot, k, sx, v.map(|c| c * f * inv_norm));
+                    sc.bins.push(slot, k, (sx, sy), v.map(|c| c * f * inv_norm));
                 }
             } else {
                 if bright && r >= 2.0 * pr.r0 {
@@ -111,7 +111,7 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
             }
         }
         if let Some(bins) = &ctx.bins {
-            ops += binned::flush(bins, sy, sc);
+            ops += binned::flush(bins, &mut sc.templates, &mut sc.bins, &mut sc.accs);
         }
     }
     counts.stencil.fetch_add(n_st, Ordering::Relaxed);

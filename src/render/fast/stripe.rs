@@ -46,6 +46,8 @@ pub(super) struct Scratch {
     pub(super) dests: Vec<(usize, f32)>,
     /// The physical profile's medium disks of one row of sources, batched per radius bin.
     pub(super) bins: super::binned::RowBatch,
+    /// The templates this worker drew them with (the pool of scratch is per layer).
+    pub(super) templates: super::binned::Templates,
     /// The visibility's summed-area table and the stripe's visibilities.
     sat: Vec<f64>,
     vis: Vec<f32>,
@@ -232,7 +234,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
                 let (k, factor) = bins.bin(sig);
                 let scale = dens * factor;
                 for &(slot, f) in &sc.dests {
-                    sc.bins.push(slot, k, sx, v.map(|c| c * scale * f));
+                    sc.bins.push(slot, k, (sx, sy), v.map(|c| c * scale * f));
                 }
             } else {
                 n_sp += own;
@@ -248,7 +250,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
             }
         }
         if let Some(bins) = &ctx.bins {
-            ops += super::binned::flush(bins, sy, sc);
+            ops += super::binned::flush(bins, &mut sc.templates, &mut sc.bins, &mut sc.accs);
         }
     }
 
