@@ -210,10 +210,9 @@ impl Stripe {
         if b > a {
             let start = (base as i64 + x0 + a as i64 + 1) as usize * 4;
             let dst = &mut self.diff[start..start + (b - a) * 4];
-            for (o, v) in dst.chunks_exact_mut(4).zip(&run[a..b]) {
-                for c in 0..4 {
-                    o[c] += v[c] as f64 * f;
-                }
+            // Flat slices: one vectorized multiply-add loop.
+            for (o, &v) in dst.iter_mut().zip(run[a..b].as_flattened()) {
+                *o += v as f64 * f;
             }
         }
     }
@@ -234,10 +233,9 @@ impl Stripe {
         self.taps = true;
         let start = ((row - self.y0) as usize * self.width) as i64 + x0 + a as i64;
         let dst = &mut self.direct[start as usize * 4..(start as usize + b - a) * 4];
-        for (o, v) in dst.chunks_exact_mut(4).zip(&run[a..b]) {
-            for c in 0..4 {
-                o[c] += v[c] * wgt;
-            }
+        // Flat slices: one vectorized multiply-add loop.
+        for (o, &v) in dst.iter_mut().zip(run[a..b].as_flattened()) {
+            *o += v * wgt;
         }
     }
 
