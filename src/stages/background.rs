@@ -8,7 +8,7 @@
 //! not used as fill sources ([`super::highlights`]), so no bright blob is spread behind the
 //! foreground.
 
-use super::inpaint::{TeleaOptions, inpaint_telea};
+use super::inpaint::{TeleaOptions, inpaint_telea, inpaint_telea_many};
 use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;
@@ -244,9 +244,15 @@ pub fn inpaint_background(
     let mut rgb_out = rgb.clone();
     let mut disp_out = disp.clone();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
-    let (filled, filled_disp) =
-        rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
-    filled_disp?;
+    let filled = if rgb_mask == region.depth_mask {
+        // One march fills both (the usual case: no kept highlight, no depth ramp).
+        inpaint_telea_many(&mut [&mut rgb_out, &mut disp_out], &rgb_mask, topts)
+    } else {
+        let (filled, filled_disp) =
+            rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
+        filled_disp?;
+        filled
+    };
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
     if opts.method == super::inpaint_onnx::InpaintMethod::PatchMatch {
         super::patchmatch::fill(&mut rgb_out, &rgb_mask, &disp_out, reach, &Default::default())?;
