@@ -457,19 +457,19 @@ impl Pipeline {
             "ramp_model": fd.ramp_model,
             "depth_edge_ramp": edges
         });
-        // How deep under the layer a value behind it can still be seen: the layer shows what is
-        // behind up to its visibility reach inside its outline, and a pixel behind scatters up to
-        // σ ≤ max CoC + 1 plus the soft step's tail (disparities stay in [0, 1], so max_coc
-        // bounds σ).
         let t = Instant::now();
-        let reach = if whole {
-            f32::INFINITY
-        } else {
-            crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0)
-        };
         // The foreground's carried colour needs no background: it runs beside the fill.
         let (filled, carried) = rayon::join(
             || {
+                // How deep under the layer a value behind it can still be seen: the layer shows
+                // what is behind up to its visibility reach inside its outline, and a pixel
+                // behind scatters up to σ ≤ max CoC + 1 plus the soft step's tail (disparities
+                // stay in [0, 1], so max_coc bounds σ).
+                let reach = if whole {
+                    f32::INFINITY
+                } else {
+                    crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0)
+                };
                 if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
                     let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
                         photo,
@@ -480,9 +480,9 @@ impl Pipeline {
                         edges.outside_px,
                         &cfg.onnx,
                     )?;
-                    Ok((bg, Some(r)))
+                    Ok((bg, Some(r), reach))
                 } else {
-                    Ok((inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None))
+                    Ok((inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None, reach))
                 }
             },
             || match cfg.inpaint.foreground {
@@ -490,7 +490,7 @@ impl Pipeline {
                 ForegroundColour::Photo => Ok(None),
             },
         );
-        let (mut bg, inpaint_model): (_, Option<crate::onnx::OnnxReport>) = filled?;
+        let (mut bg, inpaint_model, reach): (_, Option<crate::onnx::OnnxReport>, f32) = filled?;
         if let Some(r) = &inpaint_model {
             report.warnings.extend(r.warnings.iter().cloned());
         }

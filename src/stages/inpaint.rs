@@ -185,7 +185,7 @@ fn check(img: &Image, mask: &[bool], opts: &TeleaOptions) -> Result<()> {
 /// window), so the fill inside the window is the same, bit for bit, as on the whole image.
 /// One pass over the mask.
 fn fill_window(mask: &[bool], w: usize, h: usize, radius: usize, max_distance: f32) -> Option<(usize, usize, usize, usize)> {
-    let (hole, known) = (bbox(mask, w, true)?, bbox(mask, w, false)?);
+    let (hole, known) = (super::mask::bbox(mask, w, true)?, super::mask::bbox(mask, w, false)?);
     let reach = if max_distance < (w + h) as f32 { (1.5 * max_distance.max(0.0)).ceil() as usize + 2 } else { w + h };
     let grow =
         |b: (usize, usize, usize, usize), m: usize| (b.0.saturating_sub(m), b.1.saturating_sub(m), (b.2 + m).min(w), (b.3 + m).min(h));
@@ -196,17 +196,6 @@ fn fill_window(mask: &[bool], w: usize, h: usize, radius: usize, max_distance: f
         return None;
     }
     Some(grow(r, radius + 2))
-}
-
-/// Bounding box `(x0, y0, x1, y1)` (exclusive ends) of the pixels of `mask` equal to `value`.
-fn bbox(mask: &[bool], w: usize, value: bool) -> Option<(usize, usize, usize, usize)> {
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for (y, row) in mask.chunks_exact(w).enumerate() {
-        let Some(a) = row.iter().position(|&m| m == value) else { continue };
-        let b = row.iter().rposition(|&m| m == value).expect("a match exists");
-        (x0, x1, y0, y1) = (x0.min(a), x1.max(b + 1), y0.min(y), y + 1);
-    }
-    (x0 != usize::MAX).then_some((x0, y0, x1, y1))
 }
 
 /// The march on the window `win` `(x0, y0, x1, y1)` (exclusive ends) of the images (already

@@ -25,19 +25,39 @@ pub fn distance_within(mask: &[bool], width: usize, height: usize, limit: f32) -
 }
 
 /// Bounding box `(x0, y0, x1, y1)` (exclusive ends) of the `true` pixels grown by `margin`
-/// and clipped to the image; None for an empty mask.
+/// and clipped to the image; None for an empty mask. One pass over the mask ([`bbox`]).
 pub fn grown_bbox(mask: &[bool], width: usize, height: usize, margin: f32) -> Option<(usize, usize, usize, usize)> {
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for (y, row) in mask.chunks_exact(width).enumerate() {
-        if let (Some(a), Some(b)) = (row.iter().position(|&m| m), row.iter().rposition(|&m| m)) {
-            (x0, x1, y0, y1) = (x0.min(a), x1.max(b + 1), y0.min(y), y + 1);
-        }
-    }
-    if x0 == usize::MAX {
-        return None;
-    }
+    let (x0, y0, x1, y1) = bbox(mask, width, true)?;
     let m = if margin.is_finite() { margin.max(0.0).ceil() as usize + 1 } else { width.max(height) };
     Some((x0.saturating_sub(m), y0.saturating_sub(m), (x1 + m).min(width), (y1 + m).min(height)))
+}
+
+/// Bounding box `(x0, y0, x1, y1)` (exclusive ends) of the pixels of `mask` (rows of `width`)
+/// equal to `value`; None when there is none. One pass over the mask, 64 pixels at a time
+/// until a row's first and last match ([`row_span`]).
+pub fn bbox(mask: &[bool], width: usize, value: bool) -> Option<(usize, usize, usize, usize)> {
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for (y, row) in mask.chunks_exact(width).enumerate() {
+        if let Some((a, b)) = row_span(row, value) {
+            (x0, x1, y0, y1) = (x0.min(a), x1.max(b), y0.min(y), y + 1);
+        }
+    }
+    (x0 != usize::MAX).then_some((x0, y0, x1, y1))
+}
+
+/// Pixels a block of [`row_span`]'s scan holds: the compiler ORs a block without branches
+/// (SIMD). The boxes of a 12.2 MP mask with a 31% ellipse and of its complement: 2.4-3.5 ms a
+/// pixel at a time (`position`/`rposition`), 0.5-1.1 ms by blocks.
+const SPAN_BLOCK: usize = 64;
+
+/// The first and one past the last index of `row` equal to `value`; None when there is none.
+fn row_span(row: &[bool], value: bool) -> Option<(usize, usize)> {
+    let hit = |block: &[bool]| block.iter().fold(false, |any, &m| any | (m == value));
+    let first = row.chunks(SPAN_BLOCK).position(hit)? * SPAN_BLOCK;
+    let a = first + row[first..].iter().position(|&m| m == value).expect("the block holds a match");
+    let last = row.len() - row.rchunks(SPAN_BLOCK).position(hit).expect("a match exists") * SPAN_BLOCK;
+    let b = row[..last].iter().rposition(|&m| m == value).expect("the block holds a match") + 1;
+    Some((a, b))
 }
 
 /// Distance to the mask's pixels inside the window `(x0, y0, x1, y1)`, computed on that window
@@ -164,6 +184,19 @@ impl BoxDistance {
     /// No mask pixel anywhere: every distance is infinite.
     pub fn none(width: usize) -> Self {
         BoxDistance { width, bbox: (0, 0, 0, 0), d2: Vec::new() }
+    }
+
+    /// Image row `y`'s distances into `out` (the image's width of values): what
+    /// [`BoxDistance::at`] gives along the row, without a division per pixel.
+    pub fn row_into(&self, y: usize, out: &mut [f32]) {
+        let (x0, y0, x1, y1) = self.bbox;
+        out.fill(f32::INFINITY);
+        if (y0..y1).contains(&y) {
+            let cw = x1 - x0;
+            for (o, &d) in out[x0..x1].iter_mut().zip(&self.d2[(y - y0) * cw..][..cw]) {
+                *o = root(d);
+            }
+        }
     }
 
     /// The distance at pixel index `i` (row-major in the image): `INFINITY` outside the box,
@@ -326,6 +359,44 @@ mod tests {
                 let got = erode(&mask, w, h, r);
                 if grown_bbox(&mask, w, h, r) == Some((0, 0, w, h)) {
                     assert_eq!(got, want, "erode {per_mille} {r}");
+                }
+            }
+        }
+    }
+
+    /// The block scan's boxes against a pixel-by-pixel scan (rows longer than a block, matches
+    /// at block edges, empty rows, both values), and `row_into` against `at`.
+    #[test]
+    fn boxes_and_distance_rows_are_the_plain_scans() {
+        let mut s = 3u64;
+        for (w, h) in [(1, 1), (63, 4), (64, 3), (65, 5), (200, 7), (130, 9)] {
+            for per_mille in [0, 2, 20, 500, 1000] {
+                let mut mask: Vec<bool> = (0..w * h)
+                    .map(|_| {
+                        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                        (s >> 33) % 1000 < per_mille
+                    })
+                    .collect();
+                if w > 64 && per_mille == 2 {
+                    (mask[63], mask[64], mask[w - 65]) = (true, true, true);
+                }
+                for value in [true, false] {
+                    let hits: Vec<(usize, usize)> = (0..w * h).filter(|&i| mask[i] == value).map(|i| (i % w, i / w)).collect();
+                    let want = (!hits.is_empty()).then(|| {
+                        let (xs, ys) = (hits.iter().map(|p| p.0), hits.iter().map(|p| p.1));
+                        (xs.clone().min().unwrap(), ys.clone().min().unwrap(), xs.max().unwrap() + 1, ys.max().unwrap() + 1)
+                    });
+                    assert_eq!(bbox(&mask, w, value), want, "{w}x{h} {per_mille} {value}");
+                }
+                if let Some(bb) = grown_bbox(&mask, w, h, 1.5) {
+                    let near = BoxDistance::new(&mask, w, bb);
+                    let mut row = vec![0.0; w];
+                    for y in 0..h {
+                        near.row_into(y, &mut row);
+                        for (x, d) in row.iter().enumerate() {
+                            assert_eq!(d.to_bits(), near.at(y * w + x).to_bits(), "{w}x{h} ({x}, {y})");
+                        }
+                    }
                 }
             }
         }
