@@ -187,7 +187,7 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
         let limit = opts.radius + 1.0;
         let candidates: Vec<usize> = match super::mask::grown_bbox(&mask, w, h, limit) {
             Some(bb @ (x0, y0, x1, y1)) => {
-                let near = super::mask::BoxDistance::new(&mask, w, bb);
+                let near = super::mask::BoxDistance::upto(&mask, w, bb, limit);
                 let mut dist = vec![0.0; w];
                 let mut candidates = Vec::new();
                 for y in y0..y1 {

@@ -82,9 +82,10 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
         return core;
     }
     let limit = erode_px + 1.0;
-    // Distances to the shrunk mask on its box grown by `limit` (infinite beyond it).
+    // Distances to the shrunk mask on its box grown by `limit`: exact up to `limit`, all the
+    // test needs.
     let near = match grown_bbox(&core, w, h, limit) {
-        Some(bb) => BoxDistance::new(&core, w, bb),
+        Some(bb) => BoxDistance::upto(&core, w, bb, limit),
         None => BoxDistance::none(w),
     };
     core.par_chunks_mut(w).zip(hard.par_chunks(w)).enumerate().for_each_init(
