@@ -12,7 +12,7 @@ use crate::stages::background::{ForegroundColour, inpaint_background};
 use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
-use crate::stages::foreground::separate;
+use crate::stages::foreground::{carried_colour, unmix_edges};
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::stages::slices::{self, LayerCount};
 use crate::timing::ms_since;
@@ -457,33 +457,49 @@ impl Pipeline {
             "ramp_model": fd.ramp_model,
             "depth_edge_ramp": edges
         });
-        // How deep under the layer a value behind it can still be seen: the layer shows what is
-        // behind up to its visibility reach inside its outline, and a pixel behind scatters up to
-        // σ ≤ max CoC + 1 plus the soft step's tail (disparities stay in [0, 1], so max_coc
-        // bounds σ).
         let t = Instant::now();
-        let reach = if whole {
-            f32::INFINITY
-        } else {
-            crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0)
-        };
-        let (mut bg, inpaint_model) = if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
-            let (bg, r) =
-                crate::stages::inpaint_onnx::inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px, &cfg.onnx)?;
+        // The foreground's carried colour needs no background: it runs beside the fill.
+        let (filled, carried) = rayon::join(
+            || {
+                // How deep under the layer a value behind it can still be seen: the layer shows
+                // what is behind up to its visibility reach inside its outline, and a pixel
+                // behind scatters up to σ ≤ max CoC + 1 plus the soft step's tail (disparities
+                // stay in [0, 1], so max_coc bounds σ).
+                let reach = if whole {
+                    f32::INFINITY
+                } else {
+                    crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0)
+                };
+                if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
+                    let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
+                        photo,
+                        disp,
+                        &alpha,
+                        &cfg.inpaint,
+                        reach,
+                        edges.outside_px,
+                        &cfg.onnx,
+                    )?;
+                    Ok((bg, Some(r), reach))
+                } else {
+                    Ok((inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None, reach))
+                }
+            },
+            || match cfg.inpaint.foreground {
+                ForegroundColour::Unmixed => carried_colour(photo, &alpha, cfg.inpaint.radius),
+                ForegroundColour::Photo => Ok(None),
+            },
+        );
+        let (mut bg, inpaint_model, reach): (_, Option<crate::onnx::OnnxReport>, f32) = filled?;
+        if let Some(r) = &inpaint_model {
             report.warnings.extend(r.warnings.iter().cloned());
-            (bg, Some(r))
-        } else {
-            (inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None)
-        };
+        }
         let method = match cfg.inpaint.method {
             crate::stages::inpaint_onnx::InpaintMethod::Telea => "telea",
             crate::stages::inpaint_onnx::InpaintMethod::PatchMatch => "patchmatch",
             crate::stages::inpaint_onnx::InpaintMethod::Onnx => "onnx",
         };
-        let (fg_rgb, unmixed) = match cfg.inpaint.foreground {
-            ForegroundColour::Unmixed => separate(photo, &alpha, &mut bg.rgb, cfg.inpaint.radius)?,
-            ForegroundColour::Photo => (photo.clone(), 0),
-        };
+        let (fg_rgb, unmixed) = unmix_edges(photo, &alpha, carried?, &mut bg.rgb);
         let inpaint_ms = ms_since(t);
         let inpaint_detail = serde_json::json!({
             "method": method,

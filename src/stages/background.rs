@@ -8,7 +8,7 @@
 //! not used as fill sources ([`super::highlights`]), so no bright blob is spread behind the
 //! foreground.
 
-use super::inpaint::{TeleaOptions, inpaint_telea};
+use super::inpaint::{TeleaOptions, inpaint_telea, inpaint_telea_many};
 use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;
@@ -187,8 +187,14 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
         let limit = opts.radius + 1.0;
         let candidates: Vec<usize> = match super::mask::grown_bbox(&mask, w, h, limit) {
             Some(bb @ (x0, y0, x1, y1)) => {
-                let near = super::mask::BoxDistance::new(&mask, w, bb);
-                (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)).filter(|&i| !mask[i] && near.at(i) <= limit).collect()
+                let near = super::mask::BoxDistance::upto(&mask, w, bb, limit);
+                let mut dist = vec![0.0; w];
+                let mut candidates = Vec::new();
+                for y in y0..y1 {
+                    near.row_into(y, &mut dist);
+                    candidates.extend((x0..x1).filter(|&x| !mask[y * w + x] && dist[x] <= limit).map(|x| y * w + x));
+                }
+                candidates
             }
             None => Vec::new(),
         };
@@ -239,14 +245,19 @@ pub fn inpaint_background(
     reach: f32,
     ramp_outside: f32,
 ) -> Result<Background> {
-    let region = fill_region(rgb, alpha, opts, ramp_outside);
+    // The copies the fill starts from (page faults mostly) beside the region's tests.
+    let (region, (mut rgb_out, mut disp_out)) = rayon::join(|| fill_region(rgb, alpha, opts, ramp_outside), || (rgb.clone(), disp.clone()));
     let rgb_mask = region.colour_holes();
-    let mut rgb_out = rgb.clone();
-    let mut disp_out = disp.clone();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
-    let (filled, filled_disp) =
-        rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
-    filled_disp?;
+    let filled = if rgb_mask == region.depth_mask {
+        // One march fills both (the usual case: no kept highlight, no depth ramp).
+        inpaint_telea_many(&mut [&mut rgb_out, &mut disp_out], &rgb_mask, topts)
+    } else {
+        let (filled, filled_disp) =
+            rayon::join(|| inpaint_telea(&mut rgb_out, &rgb_mask, topts), || inpaint_telea(&mut disp_out, &region.depth_mask, topts));
+        filled_disp?;
+        filled
+    };
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
     if opts.method == super::inpaint_onnx::InpaintMethod::PatchMatch {
         super::patchmatch::fill(&mut rgb_out, &rgb_mask, &disp_out, reach, &Default::default())?;

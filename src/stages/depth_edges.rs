@@ -58,43 +58,49 @@ pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths 
     let (x0, y0, x1, y1) = bb;
     let bw = x1 - x0;
     let (to_out, to_in) = rayon::join(|| sq_distance_window(inside, w, bb, false), || sq_distance_window(inside, w, bb, true));
-    let at = |i: usize| (i / w - y0) * bw + i % w - x0;
-    let signed_box: Vec<f32> = (y0..y1)
-        .flat_map(|y| (x0..x1).map(move |x| y * w + x))
-        .map(|i| if inside[i] { root(to_out[at(i)]) } else { -root(to_in[at(i)]) })
-        .collect();
+    let mut signed_box = vec![0.0f32; to_out.len()];
+    signed_box.par_chunks_mut(bw).enumerate().for_each(|(y, row)| {
+        let (inside, i0) = (&inside[(y0 + y) * w + x0..][..bw], y * bw);
+        for (x, s) in row.iter_mut().enumerate() {
+            *s = if inside[x] { root(to_out[i0 + x]) } else { -root(to_in[i0 + x]) };
+        }
+    });
     drop((to_out, to_in));
-    let signed = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        if (x0..x1).contains(&x) && (y0..y1).contains(&y) { signed_box[(y - y0) * bw + x - x0] } else { f32::INFINITY }
-    };
-    let band: Vec<usize> =
-        (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)).filter(|&i| signed(i).abs() <= MAX_WIDTH as f32 + 0.5).collect();
+    // The band's pixels as box coordinates, in raster order.
+    let band: Vec<(usize, usize)> = signed_box
+        .par_chunks(bw)
+        .enumerate()
+        .flat_map_iter(|(y, row)| row.iter().enumerate().filter(|(_, s)| s.abs() <= MAX_WIDTH as f32 + 0.5).map(move |(x, _)| (x, y)))
+        .collect();
     if band.is_empty() {
         return EdgeWidths::default();
     }
     let stride = band.len().div_ceil(MAX_SAMPLES);
     let r = PLATEAU.1.ceil() as usize + 2;
+    let (bh, signed) = (y1 - y0, &signed_box);
     // (signed distance bucket, normalized disparity) per usable sample.
     let samples: Vec<(i32, f32)> = band
         .par_iter()
         .step_by(stride)
-        .filter_map(|&i| {
-            let (x, y) = (i % w, i / w);
+        .filter_map(|&(x, y)| {
             let (mut fin, mut fout) = (Vec::new(), Vec::new());
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
-                    let j = yy * w + xx;
-                    let s = signed(j);
+            // The window, clipped to the box: beyond it the signed distance is infinite, which
+            // no plateau test accepts.
+            for yy in y.saturating_sub(r)..(y + r + 1).min(bh) {
+                let (xs, xe) = (x.saturating_sub(r), (x + r + 1).min(bw));
+                let srow = &signed[yy * bw + xs..yy * bw + xe];
+                let drow = &disp.data[(y0 + yy) * w + x0 + xs..(y0 + yy) * w + x0 + xe];
+                for (&s, &d) in srow.iter().zip(drow) {
                     if s >= PLATEAU.0 && s <= PLATEAU.1 {
-                        fin.push(disp.data[j]);
+                        fin.push(d);
                     } else if -s >= PLATEAU.0 && -s <= PLATEAU.1 {
-                        fout.push(disp.data[j]);
+                        fout.push(d);
                     }
                 }
             }
             let (din, dout) = (median(&mut fin)?, median(&mut fout)?);
-            ((din - dout).abs() >= MIN_STEP).then(|| (signed(i).round() as i32, (disp.data[i] - dout) / (din - dout)))
+            let (s, d) = (signed[y * bw + x], disp.data[(y0 + y) * w + x0 + x]);
+            ((din - dout).abs() >= MIN_STEP).then(|| (s.round() as i32, (d - dout) / (din - dout)))
         })
         .collect();
     if samples.is_empty() {

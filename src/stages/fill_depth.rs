@@ -10,6 +10,8 @@ use super::mask::{BoxDistance, erode, grown_bbox};
 use crate::error::Result;
 use crate::image::Image;
 use crate::render::lens::coc_radius;
+use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// `[fill_depth]` options.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -80,14 +82,21 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
         return core;
     }
     let limit = erode_px + 1.0;
-    // Distances to the shrunk mask on its box grown by `limit` (infinite beyond it).
+    // Distances to the shrunk mask on its box grown by `limit`: exact up to `limit`, all the
+    // test needs.
     let near = match grown_bbox(&core, w, h, limit) {
-        Some(bb) => BoxDistance::new(&core, w, bb),
+        Some(bb) => BoxDistance::upto(&core, w, bb, limit),
         None => BoxDistance::none(w),
     };
-    for (i, (c, &hd)) in core.iter_mut().zip(hard).enumerate() {
-        *c = *c || (hd && near.at(i) > limit);
-    }
+    core.par_chunks_mut(w).zip(hard.par_chunks(w)).enumerate().for_each_init(
+        || vec![0.0; w],
+        |dist, (y, (core, hard))| {
+            near.row_into(y, dist);
+            for ((c, &hd), &d) in core.iter_mut().zip(hard).zip(dist.iter()) {
+                *c = *c || (hd && d > limit);
+            }
+        },
+    );
     core
 }
 
@@ -117,41 +126,69 @@ pub fn foreground_disparity(
     let hard = hard_mask(alpha, opts);
     let erode = opts.erode;
     let (disp, core, ramp_model) = match super::depth_edges::foreground_estimate(disp, alpha, ramp, opts.radius)? {
-        Some((est, valid)) if valid.iter().any(|&v| v) => (est, valid, true),
-        _ => (disp.clone(), core_of(&hard, w, h, erode), false),
+        Some((est, valid)) if valid.iter().any(|&v| v) => (Cow::Owned(est), valid, true),
+        _ => (Cow::Borrowed(disp), core_of(&hard, w, h, erode), false),
     };
-    let disp = &disp;
-    let mut out = disp.clone();
+    drop(hard);
+    let mut out = disp.into_owned();
     if !core.iter().any(|&m| m) {
         return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode, ramp_model });
     }
     let (lo, hi) = core
-        .iter()
-        .zip(&disp.data)
+        .par_iter()
+        .zip(&out.data)
         .filter(|(c, _)| **c)
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (_, &d)| (lo.min(d), hi.max(d)));
+        .fold(|| (f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), (_, &d)| (lo.min(d), hi.max(d)))
+        .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)));
     let coc = coc_radius(lo - focus, blur).max(coc_radius(hi - focus, blur)).min(1e9);
     let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the
     // core lies inside it): exact wherever the fill can matter.
     let visible: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
     let to_core = BoxDistance::new(&core, w, grown_bbox(&visible, w, h, visible_reach + 2.0).unwrap_or((0, 0, w, h)));
-    let edge = visible.iter().enumerate().filter(|(_, v)| **v).map(|(i, _)| to_core.at(i)).fold(0.0, f32::max);
+    drop(visible);
+    // The farthest visible pixel from the core.
+    let edge = alpha
+        .data
+        .par_chunks(w)
+        .enumerate()
+        .map_init(
+            || vec![0.0; w],
+            |dist, (y, alpha)| {
+                to_core.row_into(y, dist);
+                alpha.iter().zip(dist.iter()).filter(|(a, _)| **a > 0.0).map(|(_, &d)| d).fold(0.0, f32::max)
+            },
+        )
+        .reduce(|| 0.0, f32::max);
     let reach = super::mask::marching_reach(edge + visible_reach);
     let unknown: Vec<bool> = core.iter().map(|&m| !m).collect();
+    drop(core);
     let filled = inpaint_telea(&mut out, &unknown, TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) })?;
     let quiet = focus.clamp(lo, hi);
-    let mut skipped = 0;
-    for (i, (v, &u)) in out.data.iter_mut().zip(&unknown).enumerate() {
-        if !u {
-            continue;
-        }
-        if to_core.at(i) <= edge + visible_reach {
-            *v = v.clamp(lo, hi);
-        } else {
-            *v = quiet;
-            skipped += 1;
-        }
-    }
+    let skipped = out
+        .data
+        .par_chunks_mut(w)
+        .zip(unknown.par_chunks(w))
+        .enumerate()
+        .map_init(
+            || vec![0.0; w],
+            |dist, (y, (out, unknown))| {
+                to_core.row_into(y, dist);
+                let mut skipped = 0;
+                for ((v, &u), &d) in out.iter_mut().zip(unknown).zip(dist.iter()) {
+                    if !u {
+                        continue;
+                    }
+                    if d <= edge + visible_reach {
+                        *v = v.clamp(lo, hi);
+                    } else {
+                        *v = quiet;
+                        skipped += 1;
+                    }
+                }
+                skipped
+            },
+        )
+        .sum();
     Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach, erode, ramp_model })
 }

@@ -63,16 +63,31 @@ fn carry_solid_colour(img: &mut Image, alpha: &Image, soft: &[bool], radius: f32
 /// background's (`bg`, the filled background layer, corrected in place) as the module doc
 /// says. Solid pixels keep the photo's colour; transparent pixels get the carried solid colour
 /// (their colour only matters through rounding). Returns the foreground colour and the number
-/// of soft pixels. Cost: one Telea fill over the soft pixels up to [`CARRY_PX`] from solid
-/// ones plus a pass; allocates one image.
+/// of soft pixels. Cost: [`carried_colour`] (which needs no background: run it beside the
+/// background fill) then [`unmix_edges`].
 pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Result<(Image, usize)> {
+    Ok(unmix_edges(rgb, alpha, carried_colour(rgb, alpha, radius)?, bg))
+}
+
+/// The first half of [`separate`]: the photo with the solid pixels' colour carried over the
+/// soft ones, or None when there is nothing to separate (no soft pixel with α > 0, or no solid
+/// colour to carry). Cost: one Telea fill over the soft pixels up to [`CARRY_PX`] from solid
+/// ones, on the visible pixels' box; allocates the image.
+pub fn carried_colour(rgb: &Image, alpha: &Image, radius: f32) -> Result<Option<Image>> {
     let soft: Vec<bool> = alpha.data.iter().map(|&a| a < SOLID_ALPHA).collect();
     if soft.iter().all(|&s| s) || !alpha.data.iter().any(|&a| a > 0.0 && a < SOLID_ALPHA) {
-        // No solid colour to carry, or nothing to separate.
-        return Ok((rgb.clone(), 0));
+        return Ok(None);
     }
     let mut out = rgb.clone();
     carry_solid_colour(&mut out, alpha, &soft, radius)?;
+    Ok(Some(out))
+}
+
+/// The second half of [`separate`], given [`carried_colour`]'s answer: unmixes the soft pixels
+/// (one pass) and returns the foreground colour and the number of soft pixels; without a
+/// carried colour, the photo's colour as it is.
+pub fn unmix_edges(rgb: &Image, alpha: &Image, carried: Option<Image>, bg: &mut Image) -> (Image, usize) {
+    let Some(mut out) = carried else { return (rgb.clone(), 0) };
     let mut changed = 0;
     for (i, &a) in alpha.data.iter().enumerate() {
         if !(a > 0.0 && a < SOLID_ALPHA) {
@@ -89,7 +104,7 @@ pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Resu
         }
         changed += 1;
     }
-    Ok((out, changed))
+    (out, changed)
 }
 
 #[cfg(test)]
