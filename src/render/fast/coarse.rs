@@ -93,6 +93,7 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
         // The aggregates' disks through radius-bin templates (contiguous adds per run of
         // cells, as the full-resolution medium disks): radii within a bin of the level's
         // range [r0, 2·r0) (equivalent radius, grid pixels), centres to 1/PHASES of a cell.
+        let window = Window::Disk(ctx.p as f32 / f);
         let shape = Shape::Coarse { window: ctx.p as f32 / f };
         let bins = Bins::new(shape, ctx.params.radius_bin * COARSE_BIN, 0);
         let reach = 2.0 * r0 + 2.0;
@@ -100,7 +101,7 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
         let writes = AtomicU64::new(0);
         accumulate(&mut grid, |st| {
             let (y0, y1) = st.rows();
-            let (mut batch, mut templates) = (RowBatch::default(), Templates::default());
+            let (mut batch, mut templates, mut places) = (RowBatch::default(), Templates::default(), Vec::new());
             let mut ops = 0;
             for (i, row) in aggs.iter().enumerate() {
                 // Centres of cell row i lie within ±1 of this coarse coordinate.
@@ -108,15 +109,19 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
                 if cy + 1.0 + reach < y0 as f32 || cy - 1.0 - reach > y1 as f32 {
                     continue;
                 }
-                for a in row {
-                    if max_rgb(&a.v) > HDR * a.v[3] {
-                        // HDR light: a template's rounding errs in proportion to it.
-                        st.disk(a.cx, a.cy, a.rho, Window::Disk(ctx.p as f32 / f), a.v);
+                places.clear();
+                places.extend(row.iter().map(|a| bins.place(a.cx, a.cy, a.rho)));
+                for (k, (a, &(key, x, y, factor))) in row.iter().zip(&places).enumerate() {
+                    // A template pays where a run forms (its neighbours in the row share it);
+                    // an aggregate alone, or of HDR light (the rounding errs in proportion to
+                    // it), is drawn at its own centre and radius.
+                    let shared = |j: Option<usize>| j.and_then(|j| places.get(j)).is_some_and(|p| p.0 == key);
+                    if !(shared(k.checked_sub(1)) || shared(Some(k + 1))) || max_rgb(&a.v) > HDR * a.v[3] {
+                        st.disk(a.cx, a.cy, a.rho, window, a.v);
                         ops += 1;
-                        continue;
+                    } else {
+                        batch.push(0, key, (x, y), a.v.map(|c| c * factor));
                     }
-                    let (key, x, y, factor) = bins.place(a.cx, a.cy, a.rho);
-                    batch.push(0, key, (x, y), a.v.map(|c| c * factor));
                 }
                 ops += flush(&bins, &mut templates, &mut batch, std::slice::from_mut(st));
             }
