@@ -1,11 +1,11 @@
 //! Renderer benchmarks (release build): `cargo bench --bench kernels`.
 //! Groups: the exact kernel (the baseline), the fast kernel against blur radius at a fixed
-//! size and against size at a fixed radius, threads 1 vs 2, and Telea inpainting vs size.
+//! size (official and physical profile) and against size at a fixed radius, threads 1 vs 2, and Telea inpainting vs size.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use drbokeh::Image;
 use drbokeh::bench::stress::two_layer_scene;
-use drbokeh::render::{Kernel, render};
+use drbokeh::render::{Kernel, Profile, render};
 use drbokeh::stages::inpaint::{TeleaOptions, inpaint_telea};
 use std::time::Duration;
 
@@ -25,6 +25,19 @@ fn fast_vs_radius(c: &mut Criterion) {
     g.sample_size(10);
     for r in [16.0f32, 32.0, 64.0, 128.0] {
         let (layers, s) = two_layer_scene(1024, 1024, r, true);
+        g.bench_with_input(BenchmarkId::from_parameter(r), &r, |b, _| b.iter(|| render(&layers, &s, FAST).unwrap()));
+    }
+    g.finish();
+}
+
+/// The default (physical) profile against blur radius: CoC 16 is where most sources are medium
+/// disks drawn per radius bin (`render::fast::binned`).
+fn fast_physical_vs_radius(c: &mut Criterion) {
+    let mut g = c.benchmark_group("fast_physical_vs_radius_1MP");
+    g.sample_size(10);
+    for r in [16.0f32, 32.0, 64.0] {
+        let (layers, mut s) = two_layer_scene(1024, 1024, r, true);
+        s.profile = Profile::Physical;
         g.bench_with_input(BenchmarkId::from_parameter(r), &r, |b, _| b.iter(|| render(&layers, &s, FAST).unwrap()));
     }
     g.finish();
@@ -74,5 +87,5 @@ fn telea(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, exact, fast_vs_radius, fast_vs_size, threads, telea);
+criterion_group!(benches, exact, fast_vs_radius, fast_physical_vs_radius, fast_vs_size, threads, telea);
 criterion_main!(benches);
