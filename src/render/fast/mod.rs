@@ -14,7 +14,7 @@
 //! Every plain scatter sorts its sources by scatter radius σ:
 //! - σ below `stencil_max`: the exact taps `E(σ, r)` (the model's footprint is a few pixels),
 //! - up to `2·r0`: an antialiased disk of the soft step's equivalent radius, one span per row
-//!   into a difference array (cost O(σ), not O(σ²)),
+//!   into a difference array (cost O(σ), not O(σ²)), drawn per radius bin ([`binned`]),
 //! - beyond: sources are aggregated per cell and radius bin on a grid 2^ℓ times coarser,
 //!   where their radius is again below `2·r0`, scattered there and upsampled bilinearly
 //!   (cost per source O(1)).
@@ -30,7 +30,9 @@
 //!
 //! The pieces, one idea per module: [`band`] (the on-focal band and its interpolation
 //! nodes), [`footprint`] (how one source is drawn at full resolution: stencils, equivalent
-//! disks, exact rims), [`bright`] (which sources get the exact footprint at any radius),
+//! disks, exact rims), [`binned`] (the medium disks and the coarse grids' disks drawn per
+//! radius bin, a row's run of sources at once), [`bright`] (which sources get the exact
+//! footprint at any radius),
 //! [`coarse`] (the coarse grids), [`visibility`] (eq. 4 from a summed-area table), [`survey`]
 //! (the layer-wide passes) and [`stripe`] (scatter and combine, one stripe of rows at a time).
 //! [`scatter_layer_into`] reads as their sequence.
