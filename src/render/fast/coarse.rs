@@ -8,7 +8,7 @@
 
 use super::band;
 use super::binned::{Bins, RowBatch, Shape, Templates, flush};
-use super::bright::is_bright;
+use super::bright::{BRIGHT_MIN, is_bright};
 use super::footprint::equivalent;
 use super::{Counts, Ctx, Presence};
 use crate::render::layer::max_rgb;
@@ -21,11 +21,6 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub(super) fn level_of(sigma: f32, r0: f32) -> Option<usize> {
     (sigma >= 2.0 * r0).then(|| ((sigma / r0).log2().floor() as usize).clamp(1, 63))
 }
-
-/// An aggregate whose mean colour exceeds this (linear; the bright sources' threshold,
-/// [`super::bright::BRIGHT_MIN`]) is drawn at its exact centre and radius rather than by a
-/// rounded template.
-const HDR: f32 = 1.25;
 
 /// The coarse grids' radius bins are this fraction of the full-resolution ones
 /// ([`super::FastParams::radius_bin`]), in grid pixels: every cell of a surface at one depth
@@ -93,9 +88,9 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
         // The aggregates' disks through radius-bin templates (contiguous adds per run of
         // cells, as the full-resolution medium disks): radii within a bin of the level's
         // range [r0, 2·r0) (equivalent radius, grid pixels), centres to 1/PHASES of a cell.
-        let window = Window::Disk(ctx.p as f32 / f);
-        let shape = Shape::Coarse { window: ctx.p as f32 / f };
-        let bins = Bins::new(shape, ctx.params.radius_bin * COARSE_BIN, 0);
+        let radius = ctx.p as f32 / f;
+        let window = Window::Disk(radius);
+        let bins = Bins::new(Shape::Coarse { window: radius }, ctx.params.radius_bin * COARSE_BIN, 0);
         let reach = 2.0 * r0 + 2.0;
         let pad = ctx.pad(ctx.sigma_max + 3.0) as f32;
         let writes = AtomicU64::new(0);
@@ -113,10 +108,11 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
                 places.extend(row.iter().map(|a| bins.place(a.cx, a.cy, a.rho)));
                 for (k, (a, &(key, x, y, factor))) in row.iter().zip(&places).enumerate() {
                     // A template pays where a run forms (its neighbours in the row share it);
-                    // an aggregate alone, or of HDR light (the rounding errs in proportion to
-                    // it), is drawn at its own centre and radius.
+                    // an aggregate alone, or of bright light (the rounding errs in proportion
+                    // to it; the bright sources' lowest level), is drawn at its own centre and
+                    // radius.
                     let shared = |j: Option<usize>| j.and_then(|j| places.get(j)).is_some_and(|p| p.0 == key);
-                    if !(shared(k.checked_sub(1)) || shared(Some(k + 1))) || max_rgb(&a.v) > HDR * a.v[3] {
+                    if !(shared(k.checked_sub(1)) || shared(Some(k + 1))) || is_bright(max_rgb(&a.v), a.v[3], BRIGHT_MIN) {
                         st.disk(a.cx, a.cy, a.rho, window, a.v);
                         ops += 1;
                     } else {

@@ -94,9 +94,10 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
             } else if let Some(bins) = ctx.bins.as_ref().filter(|_| !bright && r == true_r && r < 2.0 * pr.r0) {
                 // A medium disk: batched per radius bin, drawn with its row's run below.
                 n_sp += own;
-                let (k, inv_norm) = bins.bin(r);
+                // Factor 1: the bin's template carries the flux norm.
+                let (k, _) = bins.bin(r);
                 for &(slot, f) in &sc.dests {
-                    sc.bins.push(slot, k, (sx, sy), v.map(|c| c * f * inv_norm));
+                    sc.bins.push(slot, k, (sx, sy), v.map(|c| c * f));
                 }
             } else {
                 if bright && r >= 2.0 * pr.r0 {

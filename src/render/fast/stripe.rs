@@ -44,7 +44,7 @@ pub(super) struct Scratch {
     band_x: Vec<usize>,
     /// (accumulator, factor) pairs a source scatters into.
     pub(super) dests: Vec<(usize, f32)>,
-    /// The physical profile's medium disks of one row of sources, batched per radius bin.
+    /// The medium disks of one row of sources, batched per radius bin.
     pub(super) bins: super::binned::RowBatch,
     /// The templates this worker drew them with (the pool of scratch is per layer).
     pub(super) templates: super::binned::Templates,
