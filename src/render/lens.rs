@@ -210,7 +210,9 @@ pub fn disk_coverage(r: f32, rho: f32) -> f32 {
 /// continuous disk.
 #[inline]
 pub fn disk_coverage_smooth(r: f32, rho: f32, width: f32) -> f32 {
-    let t = ((r - rho) / width.max(f32::MIN_POSITIVE) + 0.5).clamp(0.0, 1.0);
+    // Times the reciprocal: hoisted out of a disk's loop over taps (a division per tap was 6%
+    // of a dfd step); exact for the default width 1.
+    let t = ((r - rho) * (1.0 / width.max(f32::MIN_POSITIVE)) + 0.5).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
 }
 
@@ -437,9 +439,9 @@ pub fn in_front_from_tanh(t: f32) -> (f32, f32) {
 /// over `width`; 0 outside the edge.
 #[inline]
 pub fn disk_coverage_smooth_grad(r: f32, rho: f32, width: f32) -> f32 {
-    let width = width.max(f32::MIN_POSITIVE);
-    let t = (r - rho) / width + 0.5;
-    if t <= 0.0 || t >= 1.0 { 0.0 } else { 6.0 * t * (1.0 - t) / width }
+    let inv = 1.0 / width.max(f32::MIN_POSITIVE);
+    let t = (r - rho) * inv + 0.5;
+    if t <= 0.0 || t >= 1.0 { 0.0 } else { 6.0 * t * (1.0 - t) * inv }
 }
 
 /// `(Σ, ∂Σ/∂r)`: the lattice sum of [`disk_coverage_smooth`] around a source (its flux before

@@ -290,8 +290,11 @@ impl Stripe {
     // render at CoC 16.
     #[inline]
     pub fn pixels(&mut self, row: i64, x0: i64, x1: i64, v: [f32; 4]) {
-        if row >= self.y0 && row < self.y1 && x1 >= x0 {
-            self.span(row, x0 as f32, (x1 + 1) as f32, v);
+        // Whole pixels: two differences (the antialiased span's other two weigh 0).
+        let (a, b) = (x0.max(0), (x1 + 1).min(self.width as i64));
+        if row >= self.y0 && row < self.y1 && b > a {
+            self.add_diff(row, a, v, 1.0);
+            self.add_diff(row, b, v, -1.0);
         }
     }
 
