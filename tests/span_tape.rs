@@ -63,6 +63,15 @@ fn disparity_of(g: &Image) -> Vec<f64> {
     g.data.iter().skip(D).step_by(CHANNELS).map(|&v| v as f64).collect()
 }
 
+/// The colour channels (R, G, B) of a layer-shaped gradient.
+fn colour_of(g: &Image) -> Vec<f64> {
+    g.data.chunks_exact(CHANNELS).flat_map(|px| px[..3].iter().map(|&v| v as f64)).collect()
+}
+
+fn f64s(g: &Image) -> Vec<f64> {
+    g.data.iter().map(|&v| v as f64).collect()
+}
+
 /// `‖a - b‖ / ‖b‖` and `max|a - b| / max|b|`.
 fn rel_err(a: &[f64], b: &[f64]) -> (f64, f64) {
     let n2 = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
@@ -74,9 +83,23 @@ fn rel_err(a: &[f64], b: &[f64]) -> (f64, f64) {
 
 const SMOOTH: Smoothing = Smoothing { edge_width: 1.0, fill_width: 0.1 };
 
+/// One scene's span render against the exact tape.
+struct VsTape {
+    name: String,
+    /// Max abs difference of the images.
+    image: f32,
+    /// Disparity gradient: relative L2 and relative max (see [`rel_err`]).
+    disparity: (f64, f64),
+    /// Colour gradient: relative L2 and relative max.
+    colour: (f64, f64),
+    /// `|Δ| / max(|tape|, 1e-3)` of the focus and K gradients.
+    focus: f64,
+    blur: f64,
+}
+
 /// For each seeded scene: the span render against the exact tape with occlusion on or off,
-/// (name, max abs image difference, gradient relative L2, gradient relative max), printed.
-fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<(String, f32, f64, f64)> {
+/// printed.
+fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<VsTape> {
     scenes()
         .into_iter()
         .map(|(name, l, blur, focus)| {
@@ -86,35 +109,50 @@ fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<(String, f32, f64, f64)> 
             let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
             let dimg = common::max_abs_diff(&span.image().data, &tape.image().data);
             let cot = cotangent(w, h, cot_seed);
-            let exact = disparity_of(&tape.vjp(&cot).unwrap().layers[0]);
-            let fast: Vec<f64> = span.disparity_vjp(&cot).unwrap().data.iter().map(|&v| v as f64).collect();
-            let (l2, lmax) = rel_err(&fast, &exact);
+            let exact = tape.vjp(&cot).unwrap();
+            let fast = span.vjp(&cot).unwrap();
+            assert_eq!(fast.disparity, span.disparity_vjp(&cot).unwrap());
+            let disparity = rel_err(&f64s(&fast.disparity), &disparity_of(&exact.layers[0]));
+            let colour = rel_err(&f64s(&fast.colour), &colour_of(&exact.layers[0]));
+            let scalar = |a: f32, b: f32| (a as f64 - b as f64).abs() / (b.abs() as f64).max(1e-3);
+            let (focus, blur) = (scalar(fast.focus, exact.focus), scalar(fast.blur, exact.blur));
             let what = if occlusion { "occlusion" } else { "no occlusion" };
-            eprintln!("{name}, {what}: image {dimg:.1e}, gradient rel L2 {l2:.1e}, max {lmax:.1e}");
-            (name.to_string(), dimg, l2, lmax)
+            eprintln!(
+                "{name}, {what}: image {dimg:.1e}, disparity gradient rel L2 {:.1e}, max {:.1e}; colour {:.1e}, {:.1e}; focus {:.1e} ({} vs {}), K {:.1e} ({} vs {})",
+                disparity.0, disparity.1, colour.0, colour.1, focus, fast.focus, exact.focus, blur, fast.blur, exact.blur
+            );
+            VsTape { name: name.to_string(), image: dimg, disparity, colour, focus, blur }
         })
         .collect()
 }
 
 /// Without occlusion the span render is the exact tape's function (one group, no bins): the
-/// image to rounding and the disparity gradient to 1e-5 relative (measured: 9e-8 … 5e-7).
+/// image to rounding and every gradient (disparity, colour, focus, K) to 1e-5 relative.
 #[test]
 fn without_occlusion_it_is_the_tape() {
-    for (name, dimg, l2, lmax) in span_vs_tape(false, 11) {
-        assert!(dimg < 1e-5, "{name}: image differs by {dimg}");
-        assert!(l2 < 1e-5 && lmax < 1e-5, "{name}: gradient {l2} {lmax}");
+    for t in span_vs_tape(false, 11) {
+        let name = &t.name;
+        assert!(t.image < 1e-5, "{name}: image differs by {}", t.image);
+        assert!(t.disparity.0 < 1e-5 && t.disparity.1 < 1e-5, "{name}: disparity gradient {:?}", t.disparity);
+        assert!(t.colour.0 < 1e-5 && t.colour.1 < 1e-5, "{name}: colour gradient {:?}", t.colour);
+        assert!(t.focus < 1e-5 && t.blur < 1e-5, "{name}: focus {} K {}", t.focus, t.blur);
     }
 }
 
 /// With occlusion the depth groups are interpolated between bins `BIN_STEP` apart: the image
 /// within 2e-4 of the tape's (measured 2e-5 … 4e-5) and the disparity gradient within 1% in
 /// relative L2 (measured 0.05% … 0.26%) and 2% of the largest entry at the worst pixel
-/// (measured 0.09% … 0.35%): margins of ~4x over the measurement.
+/// (measured 0.09% … 0.35%); the colour gradient within 5e-4 (measured 1.5e-5 … 6.3e-5), the
+/// focus gradient (the sum of every disparity gradient) within 3% (measured 0.02% … 0.8%) and
+/// K's within 1% (measured 4e-6 … 0.22%): margins of ~4x over the measurement.
 #[test]
 fn with_occlusion_it_is_close_to_the_tape() {
-    for (name, dimg, l2, lmax) in span_vs_tape(true, 12) {
-        assert!(dimg < 2e-4, "{name}: image differs by {dimg}");
-        assert!(l2 < 0.01 && lmax < 0.02, "{name}: gradient {l2} {lmax}");
+    for t in span_vs_tape(true, 12) {
+        let name = &t.name;
+        assert!(t.image < 2e-4, "{name}: image differs by {}", t.image);
+        assert!(t.disparity.0 < 0.01 && t.disparity.1 < 0.02, "{name}: disparity gradient {:?}", t.disparity);
+        assert!(t.colour.0 < 5e-4 && t.colour.1 < 5e-4, "{name}: colour gradient {:?}", t.colour);
+        assert!(t.focus < 0.03 && t.blur < 0.01, "{name}: focus {} K {}", t.focus, t.blur);
     }
 }
 
@@ -171,6 +209,63 @@ fn vjp_matches_central_differences() {
     assert!(skipped * 5 < checked, "{skipped} of {} skipped", checked + skipped);
 }
 
+/// The colour, focus and K gradients are the derivatives of the span render's own function:
+/// central differences of `<cot, image>` in 12 pixels' colour channels (the render is linear in
+/// colour: one step, 1e-2), in the focus and in K (steps 5e-4 and 2e-3 as above, skipped where
+/// the two disagree: a depth bin's kink crossed by some pixel), both occlusion settings.
+#[test]
+fn colour_focus_and_k_gradients_match_central_differences() {
+    let mut checked = 0;
+    for (name, l, blur, focus) in scenes().into_iter().take(4) {
+        for occlusion in [true, false] {
+            let s = settings(blur, focus, occlusion);
+            let (w, h) = (l.width(), l.height());
+            let cot = cotangent(w, h, 17);
+            let g = SpanTape::record(&l, &s, SMOOTH).unwrap().vjp(&cot).unwrap();
+            let loss = |layer: &Layer, s: &RenderSettings| {
+                let t = SpanTape::record(layer, s, SMOOTH).unwrap();
+                t.image().data.iter().zip(&cot.data).map(|(a, b)| *a as f64 * *b as f64).sum::<f64>()
+            };
+            let what = format!("{name} occlusion {occlusion}");
+            for i in (0..w * h).step_by(w * h / 12) {
+                for c in 0..3 {
+                    let at = |dv: f32| {
+                        let mut img = l.image().clone();
+                        img.data[i * CHANNELS + c] += dv;
+                        loss(&Layer::new(img, "fd").unwrap(), &s)
+                    };
+                    let fd = (at(1e-2) - at(-1e-2)) / 2e-2;
+                    let got = g.colour.data[i * 3 + c] as f64;
+                    assert!((got - fd).abs() <= 1e-3 * fd.abs() + 2e-4, "{what} pixel {i} channel {c}: vjp {got} vs fd {fd}");
+                    checked += 1;
+                }
+            }
+            for (which, got) in [("focus", g.focus), ("K", g.blur)] {
+                let at = |dv: f32| {
+                    let mut s2 = s;
+                    if which == "focus" {
+                        s2.focus += dv
+                    } else {
+                        s2.blur += dv
+                    }
+                    loss(&l, &s2)
+                };
+                let fd = |hh: f32| (at(hh) - at(-hh)) / (2.0 * hh as f64);
+                let (a, b) = (fd(2e-3), fd(5e-4));
+                if (a - b).abs() > 0.02 * a.abs().max(b.abs()) + NOISE {
+                    eprintln!("{what} {which}: not smooth here (fd {a} vs {b})");
+                    continue;
+                }
+                let got = got as f64;
+                eprintln!("{what} {which}: vjp {got:.5} fd {b:.5}");
+                assert!((got - b).abs() <= 0.02 * b.abs() + NOISE, "{what} {which}: vjp {got} vs fd {b} (fd 4h {a})");
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 8 * 36 + 12, "{checked} checks");
+}
+
 /// Finite images and gradients on the extreme grid: K up to 1e4, HDR colours 1e4 beside 0,
 /// disparity steps 0/1, focus on a plane and outside [0, 1], hard cotangents.
 #[test]
@@ -187,8 +282,10 @@ fn extreme_inputs_give_finite_gradients() {
                     assert!(span.image().all_finite());
                     let mut cot = cotangent(w, h, 5);
                     cot.data.iter_mut().for_each(|v| *v *= 1e20);
-                    let g = span.disparity_vjp(&cot).unwrap();
-                    assert!(g.all_finite(), "K {blur} gain {gain} focus {focus} occlusion {occlusion}");
+                    let g = span.vjp(&cot).unwrap();
+                    let what = format!("K {blur} gain {gain} focus {focus} occlusion {occlusion}");
+                    assert!(g.disparity.all_finite() && g.colour.all_finite(), "{what}");
+                    assert!(g.focus.is_finite() && g.blur.is_finite(), "{what}");
                     n += 1;
                 }
             }

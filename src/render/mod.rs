@@ -15,7 +15,7 @@ pub mod splat;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
-pub use backward::{Gradients, Smoothing, SpanTape, Tape, render_differentiable, vjp};
+pub use backward::{Gradients, Smoothing, SpanGradients, SpanTape, Tape, render_differentiable, vjp};
 pub use layer::Layer;
 pub use lens::Profile;
 use rayon::prelude::*;

@@ -38,7 +38,7 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use accum::PixelGrad;
 use rayon::prelude::*;
-pub use span::{BIN_STEP, SpanTape};
+pub use span::{BIN_STEP, SpanGradients, SpanTape};
 
 /// Widths of the physical profile's smooth edges in differentiable renders (the official
 /// profile has none to round).

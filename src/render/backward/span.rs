@@ -18,15 +18,18 @@
 //! (one backdrop layer of alpha 1). Without occlusion there is one bin and one group: the plain
 //! normalized scatter.
 //!
-//! Backward (w.r.t. the disparity only; colour and alpha gradients would be three more dot
-//! products per gather, not computed). The targets' group cotangents come from
+//! Backward (w.r.t. every pixel's colour and disparity, the focus and K; the layer is opaque,
+//! so there is no alpha gradient). The targets' group cotangents come from
 //! [`lens::over_groups_smooth_vjp`]; a target's own depth moves its `γ(δ_b, d_x)` (whose
 //! derivative in `d_x` the forward keeps per pixel, 96 bytes) and its own-source correction. A
 //! source's depth moves its hats and its radius: with `gB_b(x) = Σ_k γ_k(δ_b, d_x)·ḡ_k(x)` the
 //! cotangent of bin `b`, `∂L/∂d_y = Σ_b hat_b'·S_b + hat_b·(T_b/N - S_b·N'/N)·∂R/∂d` where
 //! `S_b = Σ_x u_y(x)·gB_b(x)·v_y` is read from row prefix sums of `gB_b` at the span ends (the
 //! adjoint of "difference-array spans + row prefix sums") and the edge taps, and
-//! `T_b = Σ_x cov'(R_y, ρ)·gB_b(x)·v_y` needs only the edge taps.
+//! `T_b = Σ_x cov'(R_y, ρ)·gB_b(x)·v_y` needs only the edge taps. The same gathers before the
+//! dot with `v_y` give the colour, `∂L/∂c_y = Σ_b hat_b·S_b/N` per channel (plus the own-source
+//! correction); `d = D - focus` makes `∂L/∂focus = -Σ_y ∂L/∂D_y`, and `R = K·|d|` makes
+//! `∂L/∂K = Σ_y ∂L/∂R_y·|d_y|`.
 //!
 //! Accuracy: the only approximation is the interpolation of `γ` in the source's depth
 //! (error ≤ `BIN_STEP²/8·max|γ''|` ≈ 5e-4 of a source's weight at `BIN_STEP` = 0.01); without
@@ -178,6 +181,8 @@ struct Ctx<'a> {
     radius: Vec<f32>,
     norm: Vec<(f32, f32)>,
     dr_dd: Vec<f32>,
+    /// `∂R/∂K` (`|d|`, 0 where the radius is capped).
+    dr_dk: Vec<f32>,
     bins: Bins,
 }
 
@@ -188,12 +193,12 @@ impl<'a> Ctx<'a> {
         let d: Vec<f32> = img.data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
         let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
         let norm = radius.par_iter().map(|&r| lens::disk_norm_smooth(r, sm.edge_width)).collect();
-        let dr_dd = d.iter().map(|&d| lens::coc_radius_grad(d, s.blur).0).collect();
+        let (dr_dd, dr_dk) = d.iter().map(|&d| lens::coc_radius_grad(d, s.blur)).unzip();
         let p = (s.lens / 2) as i64;
         let reach = radius.iter().fold(0f32, |m, &r| m.max(r)) + 0.5 * sm.edge_width;
         let pad = (reach.min(1e9).ceil() as i64).min(p);
         let bins = Bins::new(&d, s.occlusion);
-        Ctx { img, w, h, p, pad, edge: sm.edge_width, d, radius, norm, dr_dd, bins }
+        Ctx { img, w, h, p, pad, edge: sm.edge_width, d, radius, norm, dr_dd, dr_dk, bins }
     }
 
     /// The pixel a (possibly padded) source position reads, replicate padding.
@@ -223,7 +228,7 @@ impl<'a> Ctx<'a> {
         (sy - rr, sy + rr, reach, inner)
     }
 
-    /// The own-source terms of target `i`: its weight at its own pixel `u`, `∂u/∂d`, and per
+    /// The own-source terms of target `i`: its weight at its own pixel `u`, `∂u/∂R`, and per
     /// group `η_k` (the share of it the bins gave group k) and `∂η_k/∂d`. The exact kernel
     /// puts the centre tap whole into the same-surface group: `δ_k1 - η_k` moves it there.
     fn own(&self, i: usize) -> (f64, f64, [f64; 3], [f64; 3]) {
@@ -232,7 +237,7 @@ impl<'a> Ctx<'a> {
         }
         let (r, (n, dn)) = (self.radius[i], self.norm[i]);
         let u = lens::disk_coverage_smooth(r, 0.0, self.edge) as f64 / n as f64;
-        let du = (lens::disk_coverage_smooth_grad(r, 0.0, self.edge) as f64 / n as f64 - u * dn as f64 / n as f64) * self.dr_dd[i] as f64;
+        let du = lens::disk_coverage_smooth_grad(r, 0.0, self.edge) as f64 / n as f64 - u * dn as f64 / n as f64;
         let dx = self.d[i];
         let (mut eta, mut deta) = ([0f64; 3], [0f64; 3]);
         for (b, hat, dhat) in self.bins.locate(dx) {
@@ -255,7 +260,7 @@ struct Target {
 }
 
 /// A recorded span render of one opaque layer (physical profile): its image and what
-/// [`SpanTape::disparity_vjp`] needs. The function is that of [`super::Tape`] for the same
+/// [`SpanTape::vjp`] needs. The function is that of [`super::Tape`] for the same
 /// layer, settings and smoothing, except that the depth groups' split is interpolated between
 /// depth bins [`BIN_STEP`] apart (see the module notes); without occlusion, the same up to
 /// rounding.
@@ -309,19 +314,22 @@ impl<'a> SpanTape<'a> {
         &self.image
     }
 
-    /// `∂L/∂D` (one channel, the layer's size; D the normalized disparity) of a loss whose
-    /// gradient with respect to [`SpanTape::image`] is `cotangent` (3 channels, the image's size,
-    /// finite). f64 sums, saturated at ±`f32::MAX`. Allocates 96 bytes per pixel of group
-    /// cotangents and, per backward stripe, one bin's prefix rows. Cost: see the module notes.
-    pub fn disparity_vjp(&self, cotangent: &Image) -> Result<Image> {
+    /// The gradients of a loss whose gradient with respect to [`SpanTape::image`] is
+    /// `cotangent` (3 channels, the image's size, finite): with respect to every pixel's colour
+    /// and normalized disparity, the focus and K (the layer is opaque: no alpha gradient). f64
+    /// sums, saturated at ±`f32::MAX`. Allocates 96 bytes per pixel of group cotangents, 48 of
+    /// sums and, per backward worker, two bins' prefix rows. Cost: see the module notes.
+    pub fn vjp(&self, cotangent: &Image) -> Result<SpanGradients> {
         let (w, h) = (self.ctx.w, self.ctx.h);
         super::check_cotangent(cotangent, w, h)?;
-        // Targets: the composite's and the fill's adjoints, and the target's own depth.
-        let mut own_grad = vec![0f64; w * h];
+        let ctx = &self.ctx;
+        // Targets: the composite's and the fill's adjoints, the target's own depth and its own
+        // source's correction (moved whole to the surface group).
+        let mut grads = vec![SourceGrad::default(); w * h];
         let gg: Vec<[[f64; 4]; 3]> = self
             .targets
             .par_iter()
-            .zip(own_grad.par_iter_mut())
+            .zip(grads.par_iter_mut())
             .enumerate()
             .map(|(i, (t, og))| {
                 let g: [f64; 3] = std::array::from_fn(|c| cotangent.data[i * 3 + c] as f64);
@@ -330,22 +338,80 @@ impl<'a> SpanTape<'a> {
                     return [[0.0; 4]; 3];
                 }
                 let gg = lens::over_groups_smooth_vjp(&t.groups, self.fill_width, &cot);
-                *og = (0..3).map(|k| (0..4).map(|c| gg[k][c] * t.dgroups[k][c]).sum::<f64>()).sum();
+                og.d = (0..3).map(|k| (0..4).map(|c| gg[k][c] * t.dgroups[k][c]).sum::<f64>()).sum();
+                let (u, du_dr, eta, _) = ctx.own(i);
+                if u != 0.0 || du_dr != 0.0 {
+                    let v = ctx.value(i);
+                    for k in 0..3 {
+                        let keep = if k == 1 { 1.0 } else { 0.0 } - eta[k];
+                        og.r += du_dr * keep * (0..4).map(|c| gg[k][c] * v[c] as f64).sum::<f64>();
+                        for (o, g) in og.c.iter_mut().zip(&gg[k]) {
+                            *o += u * keep * g;
+                        }
+                    }
+                }
                 gg
             })
             .collect();
         // Sources: gathers of the bins' cotangents over each source's disk.
-        let ctx = &self.ctx;
         let rows: Vec<i64> = (-ctx.pad..h as i64 + ctx.pad).step_by(BWD_ROWS).collect();
-        let parts: Vec<Vec<(usize, f64)>> =
+        let parts: Vec<Vec<(usize, SourceGrad)>> =
             rows.par_iter().map(|&sy0| backward_stripe(ctx, &gg, sy0, (sy0 + BWD_ROWS as i64).min(h as i64 + ctx.pad))).collect();
         for part in parts {
             for (j, v) in part {
-                own_grad[j] += v;
+                grads[j].add(&v);
             }
         }
-        let data = own_grad.iter().map(|&v| v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32).collect();
-        Ok(Image::from_vec(w, h, 1, data).expect("one value per pixel"))
+        // The focus moves every relative disparity (d = D - focus), K every radius (R = K·|d|).
+        let focus = -grads.iter().map(|g| g.d).sum::<f64>();
+        let blur = grads.iter().zip(&ctx.dr_dk).map(|(g, &k)| g.r * k as f64).sum::<f64>();
+        let sat = |v: f64| v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32;
+        let colour = grads.iter().flat_map(|g| g.c.map(sat)).collect();
+        let disparity = grads.iter().map(|g| sat(g.d)).collect();
+        Ok(SpanGradients {
+            colour: Image::from_vec(w, h, 3, colour).expect("three values per pixel"),
+            disparity: Image::from_vec(w, h, 1, disparity).expect("one value per pixel"),
+            focus: sat(focus),
+            blur: sat(blur),
+        })
+    }
+
+    /// `∂L/∂D` alone (one channel, the layer's size; D the normalized disparity): the
+    /// `disparity` of [`SpanTape::vjp`].
+    pub fn disparity_vjp(&self, cotangent: &Image) -> Result<Image> {
+        Ok(self.vjp(cotangent)?.disparity)
+    }
+}
+
+/// The gradients of [`SpanTape::vjp`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpanGradients {
+    /// `∂L/∂` R, G, B of every pixel (linear, straight colour): 3 channels, the layer's size.
+    pub colour: Image,
+    /// `∂L/∂D` of every pixel (D the normalized disparity): 1 channel.
+    pub disparity: Image,
+    /// `∂L/∂focus`.
+    pub focus: f32,
+    /// `∂L/∂K` (`RenderSettings::blur`).
+    pub blur: f32,
+}
+
+/// One pixel's share of the gradients, summed over the sources it replicates and its target:
+/// `∂L/∂d` (everything), `∂L/∂R` (the radius' part of it, for K), `∂L/∂c`.
+#[derive(Clone, Copy, Default)]
+struct SourceGrad {
+    d: f64,
+    r: f64,
+    c: [f64; 3],
+}
+
+impl SourceGrad {
+    fn add(&mut self, o: &SourceGrad) {
+        self.d += o.d;
+        self.r += o.r;
+        for c in 0..3 {
+            self.c[c] += o.c[c];
+        }
     }
 }
 
@@ -471,7 +537,8 @@ fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scr
         }
         for (x, t) in tg.iter_mut().enumerate() {
             let i = y * w + x;
-            let (u, du, eta, deta) = ctx.own(i);
+            let (u, du_dr, eta, deta) = ctx.own(i);
+            let du = du_dr * ctx.dr_dd[i] as f64;
             if u != 0.0 || du != 0.0 {
                 let v = ctx.value(i);
                 for k in 0..3 {
@@ -501,7 +568,7 @@ fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scr
 /// bins are visited in increasing order, each bin's cotangent `gB_b` built once as row prefix
 /// sums over the box its sources reach (two buffers in turn: bins `b` and `b + 1`), and each
 /// source gathers both of its bins in one walk over its disk.
-fn backward_stripe(ctx: &Ctx, gg: &[[[f64; 4]; 3]], sy0: i64, sy1: i64) -> Vec<(usize, f64)> {
+fn backward_stripe(ctx: &Ctx, gg: &[[[f64; 4]; 3]], sy0: i64, sy1: i64) -> Vec<(usize, SourceGrad)> {
     let (w, h) = (ctx.w, ctx.h);
     let (r0, r1) = ((sy0 - ctx.pad).max(0) as usize, ((sy1 + ctx.pad).min(h as i64)).max(0) as usize);
     if r0 >= r1 {
@@ -554,10 +621,15 @@ fn backward_stripe(ctx: &Ctx, gg: &[[[f64; 4]; 3]], sy0: i64, sy1: i64) -> Vec<(
             let (n, dn) = (ctx.norm[j].0 as f64, ctx.norm[j].1 as f64);
             let v = ctx.value(j);
             let dot = |a: &[f64; 4]| (0..4).map(|c| a[c] * v[c] as f64).sum::<f64>();
-            let mut g = 0f64;
+            let mut g = SourceGrad::default();
             let mut add = |(s, t): ([f64; 4], [f64; 4]), (_, hat, dhat): (usize, f32, f32)| {
-                let (s, t) = (dot(&s) / n, dot(&t));
-                g += dhat as f64 * s + hat as f64 * (t / n - s * dn / n) * ctx.dr_dd[j] as f64;
+                let (hat, sv, tv) = (hat as f64, dot(&s) / n, dot(&t));
+                let gr = hat * (tv / n - sv * dn / n);
+                g.d += dhat as f64 * sv + gr * ctx.dr_dd[j] as f64;
+                g.r += gr;
+                for (o, sc) in g.c.iter_mut().zip(&s) {
+                    *o += hat * sc / n;
+                }
             };
             if ctx.bins.grouped {
                 let [a, b] = gather(ctx, [&bufs[b0 % 2], &bufs[(b0 + 1) % 2]], r0, r1, j, (sx, sy));
@@ -567,9 +639,7 @@ fn backward_stripe(ctx: &Ctx, gg: &[[[f64; 4]; 3]], sy0: i64, sy1: i64) -> Vec<(
                 let [a] = gather(ctx, [&bufs[0]], r0, r1, j, (sx, sy));
                 add(a, entries[0]);
             }
-            if g != 0.0 {
-                out.push((j, g));
-            }
+            out.push((j, g));
         }
     }
     out
