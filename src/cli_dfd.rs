@@ -36,8 +36,7 @@ impl From<LossArg> for LossVariant {
 /// `--kernel`: which differentiable render is inverted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum DfdKernelArg {
-    /// Spans, depth groups interpolated between depth bins (physical profile; the official
-    /// profile always uses the exact kernel).
+    /// Spans, depth groups interpolated between depth bins (either profile).
     Fast,
     /// The exact kernel, tap by tap (O(pixels·lens²) per step).
     Exact,

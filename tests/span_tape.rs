@@ -53,6 +53,20 @@ fn settings(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
     RenderSettings { blur, focus, lens: 2 * reach + 1, occlusion, profile: Profile::Physical }
 }
 
+/// [`settings`] in the official profile.
+fn official(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
+    RenderSettings { profile: Profile::Official, ..settings(blur, focus, occlusion) }
+}
+
+/// [`official`] with the focus moved off the depth bins' lattice for central differences: a
+/// plane exactly in focus (or at any multiple of `BIN_STEP` from it) sits on a kink of the
+/// bins' hat weights, and the official footprint (`σ ≥ 1`) spreads even in focus, so its
+/// one-sided VJP and the central difference disagree there (the physical in-focus source
+/// stays on its own pixel, where the hats do not matter).
+fn official_fd(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
+    official(blur, focus + 0.0037, occlusion)
+}
+
 /// A seeded cotangent in [-1, 1].
 fn cotangent(w: usize, h: usize, seed: u64) -> Image {
     let mut rng = Rng::new(seed);
@@ -92,7 +106,9 @@ struct VsTape {
     disparity: (f64, f64),
     /// Colour gradient: relative L2 and relative max.
     colour: (f64, f64),
-    /// `|Δ| / max(|tape|, 1e-3)` of the focus and K gradients.
+    /// `|Δ|` of the focus gradient over `Σ|∂L/∂D|` of the tape (the focus gradient is minus
+    /// the sum of the disparity gradients, which may cancel), and `|Δ| / max(|tape|, 1e-3)` of
+    /// K's.
     focus: f64,
     blur: f64,
 }
@@ -100,6 +116,10 @@ struct VsTape {
 /// For each seeded scene: the span render against the exact tape with occlusion on or off,
 /// printed.
 fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<VsTape> {
+    span_vs_tape_with(occlusion, cot_seed, settings)
+}
+
+fn span_vs_tape_with(occlusion: bool, cot_seed: u64, settings: fn(f32, f32, bool) -> RenderSettings) -> Vec<VsTape> {
     scenes()
         .into_iter()
         .map(|(name, l, blur, focus)| {
@@ -115,8 +135,10 @@ fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<VsTape> {
             let disparity = rel_err(&f64s(&fast.disparity), &disparity_of(&exact.layers[0]));
             let colour = rel_err(&f64s(&fast.colour), &colour_of(&exact.layers[0]));
             let scalar = |a: f32, b: f32| (a as f64 - b as f64).abs() / (b.abs() as f64).max(1e-3);
-            let (focus, blur) = (scalar(fast.focus, exact.focus), scalar(fast.blur, exact.blur));
-            let what = if occlusion { "occlusion" } else { "no occlusion" };
+            let d_l1: f64 = disparity_of(&exact.layers[0]).iter().map(|v| v.abs()).sum();
+            let focus = (fast.focus as f64 - exact.focus as f64).abs() / d_l1.max(1e-3);
+            let blur = scalar(fast.blur, exact.blur);
+            let what = format!("{:?}, {}", s.profile, if occlusion { "occlusion" } else { "no occlusion" });
             eprintln!(
                 "{name}, {what}: image {dimg:.1e}, disparity gradient rel L2 {:.1e}, max {:.1e}; colour {:.1e}, {:.1e}; focus {:.1e} ({} vs {}), K {:.1e} ({} vs {})",
                 disparity.0, disparity.1, colour.0, colour.1, focus, fast.focus, exact.focus, blur, fast.blur, exact.blur
@@ -156,6 +178,28 @@ fn with_occlusion_it_is_close_to_the_tape() {
     }
 }
 
+/// The official profile: the span render draws the exact kernel's soft step as the fast
+/// kernel does (1 within `σ - 4`, the step out to `σ + 2.5`: within 6.2e-5 of the step), so
+/// even without occlusion it differs from the tape by that truncation: the image within 5e-4
+/// (measured 3.5e-5 … 1.9e-4), every gradient within 0.5% (measured ≤ 0.24%). With occlusion
+/// the in-front weight `f`, interpolated between depth bins, has a steeper slope than the
+/// physical groups where the target is in focus (`q = 0`): the disparity gradient within 8%
+/// relative L2 (measured 0.18% … 3.5%; the interpolant's slope is piecewise constant), the
+/// image, colour, focus and K as without.
+#[test]
+fn official_profile_is_close_to_the_tape() {
+    for occlusion in [false, true] {
+        let grad = if occlusion { 0.08 } else { 5e-3 };
+        for t in span_vs_tape_with(occlusion, 14, official) {
+            let name = &t.name;
+            assert!(t.image < 5e-4, "{name}: image differs by {}", t.image);
+            assert!(t.disparity.0 < grad && t.disparity.1 < grad, "{name}: disparity gradient {:?}", t.disparity);
+            assert!(t.colour.0 < 5e-3 && t.colour.1 < 5e-3, "{name}: colour gradient {:?}", t.colour);
+            assert!(t.focus < grad && t.blur < 0.01, "{name}: focus {} K {}", t.focus, t.blur);
+        }
+    }
+}
+
 /// How uncertain the central differences below are in absolute terms: the f32 render's
 /// rounding (~1e-6 on the loss, over steps of 2·5e-4) moves them by ~1e-3.
 const NOISE: f64 = 1e-3;
@@ -165,14 +209,17 @@ const NOISE: f64 = 1e-3;
 /// disagree by more than 2% the function is not smooth there, e.g. a depth bin's centre or
 /// the kink of `|d|` at the focal plane, and the pixel is skipped), both occlusion settings;
 /// they agree to 2% plus 0.5% of the largest gradient plus `NOISE`; the worst relative error
-/// where the difference is above `10·NOISE` is reported.
+/// where the difference is above `10·NOISE` is reported. Both profiles (the official one with
+/// its focus off the bins' lattice, see [`official_fd`]).
 #[test]
 fn vjp_matches_central_differences() {
     let mut worst = 0f64;
     let (mut checked, mut skipped) = (0, 0);
     for (name, l, blur, focus) in scenes().into_iter().take(4) {
-        for occlusion in [true, false] {
-            let s = settings(blur, focus, occlusion);
+        for (occlusion, make) in
+            [(true, settings as fn(f32, f32, bool) -> RenderSettings), (false, settings), (true, official_fd), (false, official_fd)]
+        {
+            let s = make(blur, focus, occlusion);
             let (w, h) = (l.width(), l.height());
             let cot = cotangent(w, h, 13);
             let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
@@ -199,7 +246,8 @@ fn vjp_matches_central_differences() {
                 }
                 assert!(
                     diff <= 0.02 * b.abs() + 0.005 * gmax + NOISE,
-                    "{name} occlusion {occlusion} pixel {i}: vjp {} vs fd {b} (fd 4h {a})",
+                    "{name} {:?} occlusion {occlusion} pixel {i}: vjp {} vs fd {b} (fd 4h {a})",
+                    s.profile,
                     g.data[i]
                 );
             }
@@ -212,13 +260,16 @@ fn vjp_matches_central_differences() {
 /// The colour, focus and K gradients are the derivatives of the span render's own function:
 /// central differences of `<cot, image>` in 12 pixels' colour channels (the render is linear in
 /// colour: one step, 1e-2), in the focus and in K (steps 5e-4 and 2e-3 as above, skipped where
-/// the two disagree: a depth bin's kink crossed by some pixel), both occlusion settings.
+/// the two disagree: a depth bin's kink crossed by some pixel), both occlusion settings, both
+/// profiles.
 #[test]
 fn colour_focus_and_k_gradients_match_central_differences() {
     let mut checked = 0;
     for (name, l, blur, focus) in scenes().into_iter().take(4) {
-        for occlusion in [true, false] {
-            let s = settings(blur, focus, occlusion);
+        for (occlusion, make) in
+            [(true, settings as fn(f32, f32, bool) -> RenderSettings), (false, settings), (true, official_fd), (false, official_fd)]
+        {
+            let s = make(blur, focus, occlusion);
             let (w, h) = (l.width(), l.height());
             let cot = cotangent(w, h, 17);
             let g = SpanTape::record(&l, &s, SMOOTH).unwrap().vjp(&cot).unwrap();
@@ -226,7 +277,7 @@ fn colour_focus_and_k_gradients_match_central_differences() {
                 let t = SpanTape::record(layer, s, SMOOTH).unwrap();
                 t.image().data.iter().zip(&cot.data).map(|(a, b)| *a as f64 * *b as f64).sum::<f64>()
             };
-            let what = format!("{name} occlusion {occlusion}");
+            let what = format!("{name} {:?} occlusion {occlusion}", s.profile);
             for i in (0..w * h).step_by(w * h / 12) {
                 for c in 0..3 {
                     let at = |dv: f32| {
@@ -258,16 +309,21 @@ fn colour_focus_and_k_gradients_match_central_differences() {
                 }
                 let got = got as f64;
                 eprintln!("{what} {which}: vjp {got:.5} fd {b:.5}");
-                assert!((got - b).abs() <= 0.02 * b.abs() + NOISE, "{what} {which}: vjp {got} vs fd {b} (fd 4h {a})");
+                // The official footprint is truncated (1 within σ - 4, nothing beyond σ + 2.5):
+                // as K or the focus moves every radius, taps cross those edges and the function
+                // jumps by up to 6e-5 of a tap's weight, which central differences pick up and
+                // the VJP (of the smooth pieces) does not.
+                let tol = if s.profile == Profile::Official { 0.02 * b.abs() + 5.0 * NOISE } else { 0.02 * b.abs() + NOISE };
+                assert!((got - b).abs() <= tol, "{what} {which}: vjp {got} vs fd {b} (fd 4h {a})");
                 checked += 1;
             }
         }
     }
-    assert!(checked >= 8 * 36 + 12, "{checked} checks");
+    assert!(checked >= 16 * 36 + 24, "{checked} checks");
 }
 
 /// Finite images and gradients on the extreme grid: K up to 1e4, HDR colours 1e4 beside 0,
-/// disparity steps 0/1, focus on a plane and outside [0, 1], hard cotangents.
+/// disparity steps 0/1, focus on a plane and outside [0, 1], hard cotangents; both profiles.
 #[test]
 fn extreme_inputs_give_finite_gradients() {
     let (w, h) = (9, 8);
@@ -275,15 +331,15 @@ fn extreme_inputs_give_finite_gradients() {
     for blur in [0.0f32, 1.0, 30.0, 1e4] {
         for gain in [1.0f32, 1e4] {
             for focus in [1.0f32, 0.0, -3.0] {
-                for occlusion in [true, false] {
+                for (occlusion, profile) in [true, false].into_iter().flat_map(|o| [(o, Profile::Physical), (o, Profile::Official)]) {
                     let l = layer(w, h, 21, gain, |x, y| if (x / 3 + y / 3) % 2 == 0 { 1.0 } else { 0.0 });
-                    let s = RenderSettings { blur, focus, lens: 15, occlusion, profile: Profile::Physical };
+                    let s = RenderSettings { blur, focus, lens: 15, occlusion, profile };
                     let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
                     assert!(span.image().all_finite());
                     let mut cot = cotangent(w, h, 5);
                     cot.data.iter_mut().for_each(|v| *v *= 1e20);
                     let g = span.vjp(&cot).unwrap();
-                    let what = format!("K {blur} gain {gain} focus {focus} occlusion {occlusion}");
+                    let what = format!("K {blur} gain {gain} focus {focus} occlusion {occlusion} {profile:?}");
                     assert!(g.disparity.all_finite() && g.colour.all_finite(), "{what}");
                     assert!(g.focus.is_finite() && g.blur.is_finite(), "{what}");
                     n += 1;
@@ -291,17 +347,14 @@ fn extreme_inputs_give_finite_gradients() {
             }
         }
     }
-    assert_eq!(n, 48);
+    assert_eq!(n, 96);
 }
 
-/// The span render refuses what it does not model: a layer with alpha below 1, the official
-/// profile, a cotangent of the wrong size.
+/// The span render refuses what it does not model: a layer with alpha below 1, a cotangent of
+/// the wrong size.
 #[test]
 fn refuses_what_it_does_not_model() {
     let l = layer(6, 5, 1, 1.0, |_, _| 0.5);
-    let mut s = settings(4.0, 1.0, true);
-    s.profile = Profile::Official;
-    assert!(SpanTape::record(&l, &s, SMOOTH).err().unwrap().to_string().contains("physical"));
     let mut img = l.image().clone();
     img.data[3] = 0.5;
     let half = Layer::new(img, "half").unwrap();

@@ -2,9 +2,9 @@
 //! that, rendered with an all-in-focus photo as one opaque layer, reproduces a photo of the
 //! same view focused at `focus` with blur `K`. Adam on the disparity, coarse to fine, loss
 //! `λ₁·L1 + λ₂·G + λ₃·HSSIM` (Eqn. 7; see [`super::loss`]), gradients through
-//! [`crate::render::SpanTape`] (the span render of one opaque layer, physical profile; the
+//! [`crate::render::SpanTape`] (the span render of one opaque layer, either profile; the
 //! default, [`DfdKernel::Fast`]) or [`crate::render::Tape`] (the exact kernel:
-//! [`DfdKernel::Exact`], and always for the official profile), or through the Gaussian-PSF
+//! [`DfdKernel::Exact`]), or through the Gaussian-PSF
 //! renderer of the ablation ([`super::gauss_psf`], chosen by [`DfdRenderer`]).
 //!
 //! The optimisation behind `drbokeh dfd` (files in and out: [`super::dfd_job`]). Cost per
@@ -16,7 +16,7 @@ use super::gauss_psf::{GaussTape, window_radius};
 use super::loss::{self, HSSIM_WINDOWS};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape, check_blur, check_focus, max_lens};
+use crate::render::{Layer, RenderSettings, Smoothing, SpanTape, Tape, check_blur, check_focus, max_lens};
 
 /// The window of the plain (single-scale) SSIM term, pixels: the usual 11×11 of Wang et al.
 pub const SSIM_WINDOW: [usize; 1] = [11];
@@ -99,9 +99,9 @@ impl DfdRenderer {
 #[serde(rename_all = "kebab-case")]
 pub enum DfdKernel {
     /// [`SpanTape`]: spans instead of taps, the in-layer depth groups interpolated between
-    /// depth bins (disparity gradients within 0.3% of the exact tape's in relative L2 on the
-    /// scenes of `tests/span_tape.rs`; README "Depth from defocus").
-    /// Physical profile only: the official profile uses the exact tape.
+    /// depth bins (disparity gradients within 0.3% (physical) and 3.5% (official) of the exact
+    /// tape's in relative L2 on the scenes of `tests/span_tape.rs`; README "Depth from
+    /// defocus").
     #[default]
     Fast,
     /// [`Tape`]: the exact kernel, O(pixels·lens²) per step.
@@ -115,11 +115,6 @@ impl DfdKernel {
             DfdKernel::Fast => "fast",
             DfdKernel::Exact => "exact",
         }
-    }
-
-    /// Whether a render with profile `profile` runs on the span render.
-    pub fn uses_span(self, profile: Profile) -> bool {
-        self == DfdKernel::Fast && profile == Profile::Physical
     }
 }
 
@@ -279,7 +274,7 @@ fn optimise_level(
         let tape = match opts.renderer {
             DfdRenderer::DrBokeh => {
                 layers = [Layer::from_parts(aif, &alpha, &d, "dfd")?];
-                if opts.kernel.uses_span(s.profile) {
+                if opts.kernel == DfdKernel::Fast {
                     Recording::Span(SpanTape::record(&layers[0], s, opts.smoothing)?)
                 } else {
                     Recording::DrBokeh(Tape::record(&layers, s, opts.smoothing)?)

@@ -1,8 +1,9 @@
-//! A fast differentiable render of one opaque layer in the physical profile, for depth from
-//! defocus: the function of [`super::Tape`] (the exact kernel with [`Smoothing`]'s edges) for a
-//! single layer of alpha 1, drawn as spans instead of taps, with the in-layer depth groups
-//! interpolated over the sources' depth; its vector-Jacobian product with respect to the
-//! disparity.
+//! A fast differentiable render of one opaque layer, for depth from defocus: the function of
+//! [`super::Tape`] (the exact kernel; physical: with [`Smoothing`]'s edges) for a single layer
+//! of alpha 1, drawn as spans instead of taps, with the in-layer depth terms interpolated over
+//! the sources' depth; its vector-Jacobian product with respect to the colour, the disparity,
+//! the focus and K. Both profiles; they differ in the footprint ([`Model`]), in what the bins'
+//! weights split a source into ([`Bins::shape`]) and in how a target combines them.
 //!
 //! Forward. Each source `y` spreads `u_y = cov(R_y, ρ)/N(R_y)` ([`lens::disk_coverage_smooth`],
 //! [`lens::disk_norm_smooth`], `R = K·|d|`) of `v_y = [c_y, 1]`. The depth group a source
@@ -18,6 +19,15 @@
 //! (one backdrop layer of alpha 1). Without occlusion there is one bin and one group: the plain
 //! normalized scatter.
 //!
+//! Official profile: the footprint is the soft step `E = step(σ, ρ)·(unit/σ)²`, `σ = K·|d| + 1`
+//! (the norm `N = (σ/unit)²`), drawn as the fast kernel draws it
+//! (`render::fast::footprint::soft_step_disk`: 1 within `σ - 4`, the step out to `σ + 2.5`,
+//! within 6.2e-5 of the step). The on-focal occlusion `O = q(x) + (1 - q(x))·f(d_y, d_x)` needs
+//! two sums per target: slot 0 weighs each bin by the in-front weight `f(δ_b, d_x)`, slot 1
+//! takes every bin whole, and the target's `[ΣRGB, W] = q·slot 1 + (1 - q)·slot 0`, its own
+//! source moved to `O = 1`; the pixel is `ΣRGB/W`. The same scatter, gathers and VJP serve
+//! both profiles with the split `[f, 1, 0]` in place of the three groups.
+//!
 //! Backward (w.r.t. every pixel's colour and disparity, the focus and K; the layer is opaque,
 //! so there is no alpha gradient). The targets' group cotangents come from
 //! [`lens::over_groups_smooth_vjp`]; a target's own depth moves its `γ(δ_b, d_x)` (whose
@@ -32,8 +42,9 @@
 //! `∂L/∂K = Σ_y ∂L/∂R_y·|d_y|`.
 //!
 //! Accuracy: the only approximation is the interpolation of `γ` in the source's depth
-//! (error ≤ `BIN_STEP²/8·max|γ''|` ≈ 5e-4 of a source's weight at `BIN_STEP` = 0.01); without
-//! occlusion the render is the tape's up to rounding. `tests/span_tape.rs` measures both
+//! (error ≤ `BIN_STEP²/8·max|γ''|` ≈ 5e-4 of a source's weight at `BIN_STEP` = 0.01), and in
+//! the official profile the truncated soft step; without occlusion the physical render is the
+//! tape's up to rounding. `tests/span_tape.rs` measures both
 //! against [`super::Tape`] and central differences.
 //!
 //! Cost: O(pixels·(R + bins)) per render and per VJP instead of the tape's O(pixels·lens²):
@@ -45,7 +56,7 @@
 use super::Smoothing;
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render::fast::footprint::{rim_row, smooth_coverage_disk};
+use crate::render::fast::footprint::{RIM, STENCIL_TAIL, rim_row, smooth_coverage_disk, soft_step_disk};
 use crate::render::layer::{CHANNELS, D, Layer};
 use crate::render::lens::{self, Profile};
 use crate::render::splat::Stripe;
@@ -75,17 +86,41 @@ struct Bins {
     count: usize,
     step: f32,
     grouped: bool,
+    /// The official profile's split (see [`Bins::shape`]).
+    official: bool,
 }
 
 impl Bins {
-    fn new(d: &[f32], grouped: bool) -> Self {
+    fn new(d: &[f32], grouped: bool, official: bool) -> Self {
         if !grouped {
-            return Bins { first: 0, count: 1, step: 1.0, grouped };
+            return Bins { first: 0, count: 1, step: 1.0, grouped, official };
         }
         let (lo, hi) = d.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
         let first = (lo / BIN_STEP).floor() as i64;
         let last = ((hi / BIN_STEP).floor() as i64 + 1).max(first + 1);
-        Bins { first, count: (last - first + 1) as usize, step: BIN_STEP, grouped }
+        Bins { first, count: (last - first + 1) as usize, step: BIN_STEP, grouped, official }
+    }
+
+    /// The split of a unit of a source's weight seen from a target, from the two tanh of the
+    /// soft depth test (`t_front` for "the source is in front", `t_behind` the reverse), and
+    /// its derivative in the source's depth. Physical: the three depth groups
+    /// ([`lens::depth_groups_from_tanh`]). Official: `[f, 1, 0]` with `f` the in-front weight
+    /// ([`lens::in_front_from_tanh`]): slot 0 sums the light the on-focal occlusion weighs by
+    /// `f`, slot 1 all of it (the target mixes them as `(1 - q)·slot 0 + q·slot 1`).
+    #[inline(always)]
+    fn shape(&self, t_front: f32, t_behind: f32) -> ([f32; 3], [f32; 3]) {
+        if self.official {
+            let (f, df) = lens::in_front_from_tanh(t_front);
+            ([f, 1.0, 0.0], [df, 0.0, 0.0])
+        } else {
+            lens::depth_groups_from_tanh(t_front, t_behind)
+        }
+    }
+
+    /// Where a target's own source belongs: the surface group (physical), or weight 1 in both
+    /// slots (official: the centre tap is never occluded).
+    fn centre_split(&self) -> [f64; 3] {
+        if self.official { [1.0, 1.0, 0.0] } else { [0.0, 1.0, 0.0] }
     }
 
     /// The centre of bin `b`.
@@ -110,7 +145,12 @@ impl Bins {
     /// derivative in the bin's depth (`-∂/∂dx`).
     #[inline]
     fn split(&self, b: usize, dx: f32) -> ([f32; 3], [f32; 3]) {
-        if self.grouped { lens::depth_groups_with_grad(self.centre(b), dx) } else { ([0.0, 1.0, 0.0], [0.0; 3]) }
+        if self.grouped {
+            let c = self.centre(b);
+            self.shape(lens::in_front_tanh(c, dx), lens::in_front_tanh(dx, c))
+        } else {
+            ([0.0, 1.0, 0.0], [0.0; 3])
+        }
     }
 }
 
@@ -159,15 +199,25 @@ impl Walk {
             ([0.0, 1.0, 0.0], [0.0; 3])
         } else if self.factored {
             let (tf, tb) = lens::in_front_tanh_pair(self.nb * self.tx[x]);
-            lens::depth_groups_from_tanh(tf, tb)
+            bins.shape(tf, tb)
         } else {
             bins.split(self.bin, dx)
         }
     }
 }
 
-/// The per-pixel terms every pass reads: relative disparity, CoC radius, flux norm and its
-/// derivative, `∂R/∂d`.
+/// The footprint a source spreads: what differs between the profiles on the source side.
+#[derive(Clone, Copy, Debug)]
+enum Model {
+    /// The smooth-edged disk `cov(R, ρ)/N(R)` of radius `R = K·|d|`, edge `edge` px wide.
+    Physical { edge: f32 },
+    /// The official soft step `step(σ, ρ)·(unit/σ)²` of radius `σ = K·|d| + 1`, drawn as the
+    /// fast kernel draws it: 1 within `σ - RIM`, the step out to `σ + STENCIL_TAIL`.
+    Official { unit: f32 },
+}
+
+/// The per-pixel terms every pass reads: relative disparity, footprint radius (`R` or `σ`),
+/// norm `N` (the footprint's value is `cov/N`) and its derivative, `∂R/∂d`.
 struct Ctx<'a> {
     img: &'a Image,
     w: usize,
@@ -176,13 +226,14 @@ struct Ctx<'a> {
     p: i64,
     /// How far outside the image the (replicate-padded) sources that reach it lie.
     pad: i64,
-    edge: f32,
+    model: Model,
     d: Vec<f32>,
     radius: Vec<f32>,
     norm: Vec<(f32, f32)>,
     dr_dd: Vec<f32>,
     /// `∂R/∂K` (`|d|`, 0 where the radius is capped).
     dr_dk: Vec<f32>,
+    blur: f32,
     bins: Bins,
 }
 
@@ -191,14 +242,71 @@ impl<'a> Ctx<'a> {
         let img = layer.image();
         let (w, h) = (img.width, img.height);
         let d: Vec<f32> = img.data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
-        let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
-        let norm = radius.par_iter().map(|&r| lens::disk_norm_smooth(r, sm.edge_width)).collect();
+        let (model, radius, norm): (_, Vec<f32>, Vec<(f32, f32)>) = match s.profile {
+            Profile::Physical => {
+                let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
+                let norm = radius.par_iter().map(|&r| lens::disk_norm_smooth(r, sm.edge_width)).collect();
+                (Model::Physical { edge: sm.edge_width }, radius, norm)
+            }
+            Profile::Official => {
+                let sigma: Vec<f32> = d.iter().map(|&d| lens::scatter_radius(d, s.blur)).collect();
+                let unit = lens::weight_unit(crate::render::min_visible_radius(img, &sigma));
+                // `(unit/σ)²` is the density: N = (σ/unit)², ∂N/∂σ = 2σ/unit².
+                let norm = sigma.iter().map(|&g| ((g / unit) * (g / unit), 2.0 * g / (unit * unit))).collect();
+                (Model::Official { unit }, sigma, norm)
+            }
+        };
         let (dr_dd, dr_dk) = d.iter().map(|&d| lens::coc_radius_grad(d, s.blur)).unzip();
         let p = (s.lens / 2) as i64;
-        let reach = radius.iter().fold(0f32, |m, &r| m.max(r)) + 0.5 * sm.edge_width;
-        let pad = (reach.min(1e9).ceil() as i64).min(p);
-        let bins = Bins::new(&d, s.occlusion);
-        Ctx { img, w, h, p, pad, edge: sm.edge_width, d, radius, norm, dr_dd, dr_dk, bins }
+        let mut ctx = Ctx { img, w, h, p, pad: 0, model, d, radius, norm, dr_dd, dr_dk, blur: s.blur, bins: Bins::new(&[], false, false) };
+        let reach = ctx.radius.iter().fold(0f32, |m, &r| m.max(ctx.edges(r).0));
+        ctx.pad = (reach.min(1e9).ceil() as i64).min(p);
+        ctx.bins = Bins::new(&ctx.d, s.occlusion, s.profile == Profile::Official);
+        ctx
+    }
+
+    /// The official on-focal factor `q` of target `i` and `(∂q/∂d, ∂q/∂K)`
+    /// ([`lens::focal_defocus`]); 1 (no occlusion) without occlusion terms or in the physical
+    /// profile.
+    #[inline]
+    fn defocus(&self, i: usize) -> (f32, f32, f32) {
+        if matches!(self.model, Model::Official { .. }) && self.bins.grouped {
+            let (dq_dd, dq_dk) = lens::focal_defocus_grad(self.d[i], self.blur);
+            (lens::focal_defocus(self.d[i], self.blur), dq_dd, dq_dk)
+        } else {
+            (1.0, 0.0, 0.0)
+        }
+    }
+
+    /// A footprint of radius `r`'s `(reach, inner)`: nothing beyond `reach`, the plateau
+    /// (value `1/N`) within `inner`, the rim taps between.
+    #[inline]
+    fn edges(&self, r: f32) -> (f32, f32) {
+        match self.model {
+            Model::Physical { edge } => (r + 0.5 * edge, r - 0.5 * edge),
+            Model::Official { .. } => (r + STENCIL_TAIL, r - RIM),
+        }
+    }
+
+    /// A rim tap of a footprint of radius `r` at distance `rho`: its value times `N` and the
+    /// derivative of that in `r`.
+    #[inline]
+    fn rim(&self, r: f32, rho: f32) -> (f32, f32) {
+        match self.model {
+            Model::Physical { edge } => (lens::disk_coverage_smooth(r, rho, edge), lens::disk_coverage_smooth_grad(r, rho, edge)),
+            Model::Official { .. } => (lens::soft_step(r, rho), lens::soft_step_grad(r, rho)),
+        }
+    }
+
+    /// Draws source `j` at `(sx, sy)` into `N` stripes with values `vs` (its footprint over
+    /// its norm).
+    #[inline]
+    fn draw<const N: usize>(&self, sts: [&mut Stripe; N], (sx, sy): (i64, i64), j: usize, vs: [[f32; 4]; N], e: &mut Vec<f32>) {
+        let (r, norm) = (self.radius[j], self.norm[j].0);
+        match self.model {
+            Model::Physical { edge } => smooth_coverage_disk(sts, (sx, sy), r, edge, norm, self.p, vs, e),
+            Model::Official { unit } => soft_step_disk(sts, (sx, sy), r, lens::density(r, unit), self.p, vs, e),
+        };
     }
 
     /// The pixel a (possibly padded) source position reads, replicate padding.
@@ -222,22 +330,23 @@ impl<'a> Ctx<'a> {
     /// The rows `[lo, hi]` a source at row `sy` reaches, and its edge `(reach, inner)`.
     #[inline]
     fn extent(&self, j: usize, sy: i64) -> (i64, i64, f32, f32) {
-        let r = self.radius[j];
-        let (reach, inner) = (r + 0.5 * self.edge, r - 0.5 * self.edge);
+        let (reach, inner) = self.edges(self.radius[j]);
         let rr = (reach.min(1e9).ceil() as i64).min(self.p);
         (sy - rr, sy + rr, reach, inner)
     }
 
     /// The own-source terms of target `i`: its weight at its own pixel `u`, `∂u/∂R`, and per
     /// group `η_k` (the share of it the bins gave group k) and `∂η_k/∂d`. The exact kernel
-    /// puts the centre tap whole into the same-surface group: `δ_k1 - η_k` moves it there.
+    /// never occludes the centre tap: `centre_split - η_k` moves it where it belongs.
     fn own(&self, i: usize) -> (f64, f64, [f64; 3], [f64; 3]) {
         if !self.bins.grouped || self.p < 1 {
             return (0.0, 0.0, [0.0; 3], [0.0; 3]);
         }
         let (r, (n, dn)) = (self.radius[i], self.norm[i]);
-        let u = lens::disk_coverage_smooth(r, 0.0, self.edge) as f64 / n as f64;
-        let du = lens::disk_coverage_smooth_grad(r, 0.0, self.edge) as f64 / n as f64 - u * dn as f64 / n as f64;
+        // The centre is a plateau pixel where the plateau reaches it (as `rim_row` decides).
+        let (cov, dcov) = if self.edges(r).1 > 0.0 { (1.0, 0.0) } else { self.rim(r, 0.0) };
+        let u = cov as f64 / n as f64;
+        let du = dcov as f64 / n as f64 - u * dn as f64 / n as f64;
         let dx = self.d[i];
         let (mut eta, mut deta) = ([0f64; 3], [0f64; 3]);
         for (b, hat, dhat) in self.bins.locate(dx) {
@@ -280,9 +389,6 @@ impl<'a> SpanTape<'a> {
     pub fn record(layer: &'a Layer, s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
         validate(std::slice::from_ref(layer), s)?;
         smoothing.validate()?;
-        if s.profile != Profile::Physical {
-            return Err(Error::usage("the span render differentiates the physical profile only (render.profile); use the exact tape"));
-        }
         if !layer.is_opaque() {
             return Err(Error::usage("the span render takes one opaque layer (alpha 1 everywhere)"));
         }
@@ -333,17 +439,28 @@ impl<'a> SpanTape<'a> {
             .enumerate()
             .map(|(i, (t, og))| {
                 let g: [f64; 3] = std::array::from_fn(|c| cotangent.data[i * 3 + c] as f64);
-                let cot = composite_adjoint(self.raw.pixel(i), g);
+                let official = matches!(ctx.model, Model::Official { .. });
+                let cot = composite_adjoint(self.raw.pixel(i), g, official);
                 if cot == [0.0; 4] {
                     return [[0.0; 4]; 3];
                 }
-                let gg = lens::over_groups_smooth_vjp(&t.groups, self.fill_width, &cot);
-                og.d = (0..3).map(|k| (0..4).map(|c| gg[k][c] * t.dgroups[k][c]).sum::<f64>()).sum();
+                let gg = if official {
+                    // S = q·slot 1 + (1 - q)·slot 0: q's own derivative, then the slots'.
+                    let (q, dq_dd, dq_dk) = ctx.defocus(i);
+                    let g_q = (0..4).map(|c| cot[c] * (t.groups[1][c] - t.groups[0][c])).sum::<f64>();
+                    og.d = g_q * dq_dd as f64;
+                    og.k = g_q * dq_dk as f64;
+                    [cot.map(|c| (1.0 - q as f64) * c), cot.map(|c| q as f64 * c), [0.0; 4]]
+                } else {
+                    lens::over_groups_smooth_vjp(&t.groups, self.fill_width, &cot)
+                };
+                og.d += (0..3).map(|k| (0..4).map(|c| gg[k][c] * t.dgroups[k][c]).sum::<f64>()).sum::<f64>();
                 let (u, du_dr, eta, _) = ctx.own(i);
                 if u != 0.0 || du_dr != 0.0 {
                     let v = ctx.value(i);
+                    let centre = ctx.bins.centre_split();
                     for k in 0..3 {
-                        let keep = if k == 1 { 1.0 } else { 0.0 } - eta[k];
+                        let keep = centre[k] - eta[k];
                         og.r += du_dr * keep * (0..4).map(|c| gg[k][c] * v[c] as f64).sum::<f64>();
                         for (o, g) in og.c.iter_mut().zip(&gg[k]) {
                             *o += u * keep * g;
@@ -364,7 +481,7 @@ impl<'a> SpanTape<'a> {
         }
         // The focus moves every relative disparity (d = D - focus), K every radius (R = K·|d|).
         let focus = -grads.iter().map(|g| g.d).sum::<f64>();
-        let blur = grads.iter().zip(&ctx.dr_dk).map(|(g, &k)| g.r * k as f64).sum::<f64>();
+        let blur = grads.iter().zip(&ctx.dr_dk).map(|(g, &k)| g.r * k as f64 + g.k).sum::<f64>();
         let sat = |v: f64| v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32;
         let colour = grads.iter().flat_map(|g| g.c.map(sat)).collect();
         let disparity = grads.iter().map(|g| sat(g.d)).collect();
@@ -397,11 +514,13 @@ pub struct SpanGradients {
 }
 
 /// One pixel's share of the gradients, summed over the sources it replicates and its target:
-/// `∂L/∂d` (everything), `∂L/∂R` (the radius' part of it, for K), `∂L/∂c`.
+/// `∂L/∂d` (everything), `∂L/∂R` (the radius' part of it, for K), `∂L/∂K` through the
+/// official on-focal factor `q`, `∂L/∂c`.
 #[derive(Clone, Copy, Default)]
 struct SourceGrad {
     d: f64,
     r: f64,
+    k: f64,
     c: [f64; 3],
 }
 
@@ -409,6 +528,7 @@ impl SourceGrad {
     fn add(&mut self, o: &SourceGrad) {
         self.d += o.d;
         self.r += o.r;
+        self.k += o.k;
         for c in 0..3 {
             self.c[c] += o.c[c];
         }
@@ -416,13 +536,14 @@ impl SourceGrad {
 }
 
 /// The compositor's adjoint for one backdrop layer of alpha 1 (as [`super::Tape`] takes it):
-/// the pixel is `clamp(P/A)` where `A < 1` (the backdrop's visibility is its alpha, 1) and `P`
-/// where `A = 1`; the clamp, which only removes rounding, is the identity. Returns the
-/// cotangent of `[P_r, P_g, P_b, A]`.
+/// physical, the pixel is `clamp(P/A)` where `A < 1` (the backdrop's visibility is its alpha
+/// of 1) and `P` where `A = 1`; official, `clamp(ΣRGB/W)` (visibility 1). The clamp, which
+/// only removes rounding, is the identity. Returns the cotangent of `[P_r, P_g, P_b, A]` or
+/// `[ΣR, ΣG, ΣB, W]`.
 #[inline]
-fn composite_adjoint(px: &[f32], g: [f64; 3]) -> [f64; 4] {
+fn composite_adjoint(px: &[f32], g: [f64; 3], official: bool) -> [f64; 4] {
     let a = px[raw::WEIGHT] as f64;
-    if 1.0 > a {
+    if official || 1.0 > a {
         if a <= 0.0 {
             return [0.0; 4];
         }
@@ -496,22 +617,20 @@ fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scr
                 continue;
             }
             let v = ctx.value(j);
-            let (r, norm) = (ctx.radius[j], ctx.norm[j].0);
             match ctx.bins.locate(ctx.d[j]) {
-                // Both bins at once: the disk's geometry and edge computed once.
+                // Both bins at once: the footprint's geometry and rim computed once.
                 [(b0, h0, _), (_, h1, _)] if h0 != 0.0 && h1 != 0.0 => {
                     let (lo, hi) = sc.stripes.split_at_mut(b0 + 1);
-                    let vs = [v.map(|c| c * h0), v.map(|c| c * h1)];
-                    smooth_coverage_disk([&mut lo[b0], &mut hi[0]], (sx, sy), r, ctx.edge, norm, ctx.p, vs, &mut sc.e);
+                    ctx.draw([&mut lo[b0], &mut hi[0]], (sx, sy), j, [v.map(|c| c * h0), v.map(|c| c * h1)], &mut sc.e);
                 }
                 [(b0, h0, _), (b1, h1, _)] => {
                     let (b, hat) = if h0 != 0.0 { (b0, h0) } else { (b1, h1) };
-                    smooth_coverage_disk([&mut sc.stripes[b]], (sx, sy), r, ctx.edge, norm, ctx.p, [v.map(|c| c * hat)], &mut sc.e);
+                    ctx.draw([&mut sc.stripes[b]], (sx, sy), j, [v.map(|c| c * hat)], &mut sc.e);
                 }
             }
         }
     }
-    // Gather: bins → groups → fill.
+    // Gather: bins → groups → fill (physical) or on-focal mix (official).
     for (r, y) in (y0..y1).enumerate() {
         let tg = &mut tg[r * w..(r + 1) * w];
         let drow = &ctx.d[y * w..(y + 1) * w];
@@ -541,22 +660,30 @@ fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scr
             let du = du_dr * ctx.dr_dd[i] as f64;
             if u != 0.0 || du != 0.0 {
                 let v = ctx.value(i);
+                let centre = ctx.bins.centre_split();
                 for k in 0..3 {
-                    let keep = if k == 1 { 1.0 } else { 0.0 } - eta[k];
+                    let keep = centre[k] - eta[k];
                     for (c, &vc) in v.iter().enumerate() {
                         t.groups[k][c] += u * vc as f64 * keep;
                         t.dgroups[k][c] += vc as f64 * (du * keep - u * deta[k]);
                     }
                 }
             }
-            let p = lens::over_groups_smooth(&t.groups, fill_width);
-            let a = p[3] as f32;
-            // The backdrop's visibility max(A, α) with α = 1.
+            let p = match ctx.model {
+                Model::Physical { .. } => lens::over_groups_smooth(&t.groups, fill_width),
+                // `[ΣRGB, W]` of the exact kernel: `O = q + (1 - q)·f` summed.
+                Model::Official { .. } => {
+                    let q = ctx.defocus(i).0 as f64;
+                    std::array::from_fn(|c| q * t.groups[1][c] + (1.0 - q) * t.groups[0][c])
+                }
+            };
+            // Physical: `[P, A]` and the backdrop's visibility max(A, α) with α = 1; official:
+            // `[ΣRGB, W]` and the box visibility of alpha 1.
             out[(r * w + x) * raw::CHANNELS..(r * w + x + 1) * raw::CHANNELS].copy_from_slice(&[
                 p[0] as f32,
                 p[1] as f32,
                 p[2] as f32,
-                a,
+                p[3] as f32,
                 1.0,
             ]);
         }
@@ -698,8 +825,8 @@ fn gather<const N: usize>(ctx: &Ctx, pres: [&[f64]; N], r0: usize, r1: usize, j:
         let dyf = (dy * dy) as f32;
         for dx in (xi + 1).max(0)..=xo {
             let rho = ((dx * dx) as f32 + dyf).sqrt();
-            let (cov, dcov) =
-                (lens::disk_coverage_smooth(r, rho, ctx.edge) as f64, lens::disk_coverage_smooth_grad(r, rho, ctx.edge) as f64);
+            let (cov, dcov) = ctx.rim(r, rho);
+            let (cov, dcov) = (cov as f64, dcov as f64);
             if cov == 0.0 && dcov == 0.0 {
                 continue;
             }
@@ -733,22 +860,24 @@ mod tests {
     #[test]
     fn walk_is_the_split_evaluated_directly() {
         let d: Vec<f32> = (0..300).map(|i| -1.0 + i as f32 / 299.0 + 0.003 * (i % 7) as f32).collect();
-        let bins = Bins::new(&d, true);
-        let mut walk = Walk::new(&bins);
-        assert!(walk.factored);
-        walk.targets(&d);
-        for b in 0..bins.count {
-            walk.goto(&bins, b);
-            for (x, &dx) in d.iter().enumerate() {
-                let (g, dg) = walk.split(&bins, x, dx);
-                let (want, dwant) = bins.split(b, dx);
-                for k in 0..3 {
-                    assert!((g[k] - want[k]).abs() < 1e-6, "bin {b} d {dx}: {g:?} vs {want:?}");
-                    assert!((dg[k] - dwant[k]).abs() < 5e-6, "bin {b} d {dx}: {dg:?} vs {dwant:?}");
+        for official in [false, true] {
+            let bins = Bins::new(&d, true, official);
+            let mut walk = Walk::new(&bins);
+            assert!(walk.factored);
+            walk.targets(&d);
+            for b in 0..bins.count {
+                walk.goto(&bins, b);
+                for (x, &dx) in d.iter().enumerate() {
+                    let (g, dg) = walk.split(&bins, x, dx);
+                    let (want, dwant) = bins.split(b, dx);
+                    for k in 0..3 {
+                        assert!((g[k] - want[k]).abs() < 1e-6, "bin {b} d {dx}: {g:?} vs {want:?}");
+                        assert!((dg[k] - dwant[k]).abs() < 5e-6, "bin {b} d {dx}: {dg:?} vs {dwant:?}");
+                    }
                 }
             }
         }
         // A range too wide for the factored form falls back to the tanh.
-        assert!(!Walk::new(&Bins::new(&[-20.0, 20.0], true)).factored);
+        assert!(!Walk::new(&Bins::new(&[-20.0, 20.0], true, false)).factored);
     }
 }

@@ -23,11 +23,11 @@ pub(super) const HARD_EDGE: [(f32, f32); 1] = [(0.0, 1.0)];
 
 /// Stencil taps reach `σ + STENCIL_TAIL` px: beyond, the soft step is below 5.5e-5 of its
 /// plateau (a ring that holds < 0.1% of a source's energy).
-pub(super) const STENCIL_TAIL: f32 = 2.5;
+pub(in crate::render) const STENCIL_TAIL: f32 = 2.5;
 
 /// Inside this distance from the edge (`r ≤ σ - RIM`) the soft step is within `10·e^-12`
 /// (6.2e-5) of 1.
-pub(super) const RIM: f32 = 4.0;
+pub(in crate::render) const RIM: f32 = 4.0;
 
 /// Radius of the hard disk with the same area as the soft step's footprint
 /// (`∫ 2πr·S(σ, r) dr = π·((σ - ln10/3)² + π²/27)`, a Fermi–Dirac integral: the step is
@@ -168,9 +168,24 @@ impl Stencil {
 /// lens window `|offset| < p` and to the stripe, in O(σ) writes: per row, one span of the
 /// plateau (`r ≤ σ - RIM`, soft step taken as 1) and explicit taps on the rim out to
 /// `σ + STENCIL_TAIL`. `e` is scratch (one rim row). Returns the number of writes.
-pub(super) fn rim_disk(st: &mut Stripe, (sx, sy): (i64, i64), sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
-    let rim = Rim { reach: sigma + STENCIL_TAIL, inner: sigma - RIM, plateau: [v.map(|c| c * dens)] };
-    rim_footprint([st], (sx, sy), &rim, p, |r| dens * soft_step(sigma, r), [v], e)
+pub(super) fn rim_disk(st: &mut Stripe, centre: (i64, i64), sigma: f32, dens: f32, p: i64, v: [f32; 4], e: &mut Vec<f32>) -> u64 {
+    soft_step_disk([st], centre, sigma, dens, p, [v], e)
+}
+
+/// [`rim_disk`] into `N` stripes at once (the same footprint of values `vs[k]` into `sts[k]`,
+/// its rim's taps computed once): the official footprint of the differentiable span render
+/// (`render::backward::span`), which draws a source into two depth bins.
+pub(in crate::render) fn soft_step_disk<const N: usize>(
+    sts: [&mut Stripe; N],
+    centre: (i64, i64),
+    sigma: f32,
+    dens: f32,
+    p: i64,
+    vs: [[f32; 4]; N],
+    e: &mut Vec<f32>,
+) -> u64 {
+    let rim = Rim { reach: sigma + STENCIL_TAIL, inner: sigma - RIM, plateau: vs.map(|v| v.map(|c| c * dens)) };
+    rim_footprint(sts, centre, &rim, p, |r| dens * soft_step(sigma, r), vs, e)
 }
 
 /// The physical footprint `disk_coverage(r, ρ) / norm` of one source of drawn CoC `r` at
