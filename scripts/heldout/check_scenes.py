@@ -11,7 +11,9 @@ edge breaks the alpha model); each setting's K_norm, focus and CoC agree with th
 formulas; gt in focus matches aif (focus_plane_check). Prints one line per scene, exits 1 on
 a failure.
 
-    .venv-heldout/bin/python scripts/heldout/check_scenes.py target/heldout
+    .venv-heldout/bin/python scripts/heldout/check_scenes.py target/heldout [--sheet=docs/heldout/scenes.png]
+
+With --sheet, also writes the scenes' previews stacked at half size (8-bit sRGB, clipped).
 """
 import json
 import math
@@ -87,10 +89,27 @@ def check(d):
     return not fails
 
 
+def contact_sheet(dirs, path):
+    """The scenes' preview.png (aif, disparity, alpha, bg, gt per setting) stacked, at half size."""
+    import imageio.v3 as iio
+    rows = []
+    for d in dirs:
+        im = iio.imread(d / "preview.png").astype(np.float32)
+        h, w = im.shape[0] // 2 * 2, im.shape[1] // 2 * 2
+        rows.append(im[:h:2, :w:2] * 0.25 + im[1:h:2, :w:2] * 0.25 + im[:h:2, 1:w:2] * 0.25 + im[1:h:2, 1:w:2] * 0.25)
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 3), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
+    iio.imwrite(path, np.concatenate(rows, 0).round().astype(np.uint8))
+
+
 def main():
-    root = pathlib.Path(sys.argv[1] if len(sys.argv) > 1 else "target/heldout")
+    args = [a for a in sys.argv[1:] if not a.startswith("--sheet=")]
+    sheet = [a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("--sheet=")]
+    root = pathlib.Path(args[0] if args else "target/heldout")
     dirs = sorted(x.parent for x in root.glob("*/params.json"))
     ok = all([check(d) for d in dirs])
+    if sheet and dirs:
+        contact_sheet(dirs, sheet[0])
     print("%d scene(s) checked: %s" % (len(dirs), "all ok" if ok else "FAILURES"))
     sys.exit(0 if ok and dirs else 1)
 
