@@ -3,7 +3,7 @@
 //! given (`RAYON_NUM_THREADS`): the minimum and the median of `--reps` runs (the minimum is the
 //! least disturbed by other load on a shared machine).
 //!
-//! `cargo run --release --example dfd_step_timing -- SIZE K [occlusion|no-occlusion] [span|exact] [REPS]`
+//! `cargo run --release --example dfd_step_timing -- SIZE K [occlusion|no-occlusion] [span|exact] [REPS] [physical|official]`
 
 use drbokeh::bench::stress::{dfd_scene, dfd_settings};
 use drbokeh::diff::loss::{self, HSSIM_WINDOWS};
@@ -17,8 +17,12 @@ fn main() {
     let occlusion = args.get(3).is_none_or(|v| v != "no-occlusion");
     let exact = args.get(4).is_some_and(|v| v == "exact");
     let reps: usize = args.get(5).map_or(5, |v| v.parse().expect("REPS"));
+    let official = args.get(6).is_some_and(|v| v == "official");
     let (layer, target) = dfd_scene(n);
-    let s = dfd_settings(k, occlusion);
+    let mut s = dfd_settings(k, occlusion);
+    if official {
+        s.profile = drbokeh::render::Profile::Official;
+    }
     let sm = Smoothing { edge_width: 1.0, fill_width: 0.1 };
     let (mut fwd, mut step) = (Vec::new(), Vec::new());
     for _ in 0..reps {
@@ -49,7 +53,8 @@ fn main() {
     };
     let ((fmin, fmed), (smin, smed)) = (stats(&mut fwd), stats(&mut step));
     println!(
-        "{n}x{n} K {k} {} {}, {} threads: forward min {:.3} s median {:.3} s; step min {:.3} s median {:.3} s",
+        "{n}x{n} K {k} {:?} {} {}, {} threads: forward min {:.3} s median {:.3} s; step min {:.3} s median {:.3} s",
+        s.profile,
         if occlusion { "occlusion" } else { "no-occlusion" },
         if exact { "exact" } else { "span" },
         rayon::current_num_threads(),
