@@ -387,8 +387,14 @@ pub fn over_groups(groups: &[[f64; 4]; 3]) -> [f64; 4] {
 /// `b - a` passes ~30 px; this one is at most 0.75 and never NaN.
 #[inline(always)]
 pub fn soft_step_grad(a: f32, b: f32) -> f32 {
+    soft_step_with_grad(a, b).1
+}
+
+/// `(soft_step(a, b), soft_step_grad(a, b))` from one exponential.
+#[inline(always)]
+pub fn soft_step_with_grad(a: f32, b: f32) -> (f32, f32) {
     let s = soft_step(a, b);
-    STEP_GAIN * s * (1.0 - s)
+    (s, STEP_GAIN * s * (1.0 - s))
 }
 
 /// [`energy`] and its derivative in `σ` at fixed `r` and `unit`, from one soft step:

@@ -98,7 +98,7 @@ impl<'a> Ctx<'a> {
     pub(super) fn rim(&self, r: f32, rho: f32) -> (f32, f32) {
         match self.model {
             Model::Physical { edge } => (lens::disk_coverage_smooth(r, rho, edge), lens::disk_coverage_smooth_grad(r, rho, edge)),
-            Model::Official { .. } => (lens::soft_step(r, rho), lens::soft_step_grad(r, rho)),
+            Model::Official { .. } => lens::soft_step_with_grad(r, rho),
         }
     }
 
