@@ -53,6 +53,9 @@ fn settings(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
     RenderSettings { blur, focus, lens: 2 * reach + 1, occlusion, profile: Profile::Physical }
 }
 
+/// A scene's settings from its blur, focus and whether occlusion is on.
+type Make = fn(f32, f32, bool) -> RenderSettings;
+
 /// [`settings`] in the official profile.
 fn official(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
     RenderSettings { profile: Profile::Official, ..settings(blur, focus, occlusion) }
@@ -119,7 +122,7 @@ fn span_vs_tape(occlusion: bool, cot_seed: u64) -> Vec<VsTape> {
     span_vs_tape_with(occlusion, cot_seed, settings)
 }
 
-fn span_vs_tape_with(occlusion: bool, cot_seed: u64, settings: fn(f32, f32, bool) -> RenderSettings) -> Vec<VsTape> {
+fn span_vs_tape_with(occlusion: bool, cot_seed: u64, settings: Make) -> Vec<VsTape> {
     scenes()
         .into_iter()
         .map(|(name, l, blur, focus)| {
@@ -200,6 +203,23 @@ fn official_profile_is_close_to_the_tape() {
     }
 }
 
+/// The cases of the central-difference checks: the first four scenes, occlusion on and off,
+/// both profiles (the official one off the bins' lattice, see [`official_fd`]).
+fn fd_cases() -> Vec<(&'static str, Layer, RenderSettings)> {
+    let makes: [(bool, Make); 4] = [(true, settings), (false, settings), (true, official_fd), (false, official_fd)];
+    scenes()
+        .into_iter()
+        .take(4)
+        .flat_map(|(name, l, blur, focus)| makes.map(|(occlusion, make)| (name, l.clone(), make(blur, focus, occlusion))))
+        .collect()
+}
+
+/// `<cot, span render of layer>`: the scalar the central differences differentiate.
+fn dot_loss(layer: &Layer, s: &RenderSettings, cot: &Image) -> f64 {
+    let t = SpanTape::record(layer, s, SMOOTH).unwrap();
+    t.image().data.iter().zip(&cot.data).map(|(a, b)| *a as f64 * *b as f64).sum()
+}
+
 /// How uncertain the central differences below are in absolute terms: the f32 render's
 /// rounding (~1e-6 on the loss, over steps of 2·5e-4) moves them by ~1e-3.
 const NOISE: f64 = 1e-3;
@@ -215,42 +235,36 @@ const NOISE: f64 = 1e-3;
 fn vjp_matches_central_differences() {
     let mut worst = 0f64;
     let (mut checked, mut skipped) = (0, 0);
-    for (name, l, blur, focus) in scenes().into_iter().take(4) {
-        for (occlusion, make) in
-            [(true, settings as fn(f32, f32, bool) -> RenderSettings), (false, settings), (true, official_fd), (false, official_fd)]
-        {
-            let s = make(blur, focus, occlusion);
-            let (w, h) = (l.width(), l.height());
-            let cot = cotangent(w, h, 13);
-            let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
-            let g = span.disparity_vjp(&cot).unwrap();
-            let gmax = g.data.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
-            let loss = |i: usize, dv: f32| {
-                let mut img = l.image().clone();
-                img.data[i * CHANNELS + D] += dv;
-                let l2 = Layer::new(img, "fd").unwrap();
-                let t = SpanTape::record(&l2, &s, SMOOTH).unwrap();
-                t.image().data.iter().zip(&cot.data).map(|(a, b)| *a as f64 * *b as f64).sum::<f64>()
-            };
-            for i in 0..w * h {
-                let fd = |hh: f32| (loss(i, hh) - loss(i, -hh)) / (2.0 * hh as f64);
-                let (a, b) = (fd(2e-3), fd(5e-4));
-                if (a - b).abs() > 0.02 * a.abs().max(b.abs()) + 2e-3 * gmax + NOISE {
-                    skipped += 1;
-                    continue;
-                }
-                checked += 1;
-                let diff = (g.data[i] as f64 - b).abs();
-                if b.abs() > 10.0 * NOISE {
-                    worst = worst.max(diff / b.abs());
-                }
-                assert!(
-                    diff <= 0.02 * b.abs() + 0.005 * gmax + NOISE,
-                    "{name} {:?} occlusion {occlusion} pixel {i}: vjp {} vs fd {b} (fd 4h {a})",
-                    s.profile,
-                    g.data[i]
-                );
+    for (name, l, s) in fd_cases() {
+        let occlusion = s.occlusion;
+        let (w, h) = (l.width(), l.height());
+        let cot = cotangent(w, h, 13);
+        let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
+        let g = span.disparity_vjp(&cot).unwrap();
+        let gmax = g.data.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
+        let loss = |i: usize, dv: f32| {
+            let mut img = l.image().clone();
+            img.data[i * CHANNELS + D] += dv;
+            dot_loss(&Layer::new(img, "fd").unwrap(), &s, &cot)
+        };
+        for i in 0..w * h {
+            let fd = |hh: f32| (loss(i, hh) - loss(i, -hh)) / (2.0 * hh as f64);
+            let (a, b) = (fd(2e-3), fd(5e-4));
+            if (a - b).abs() > 0.02 * a.abs().max(b.abs()) + 2e-3 * gmax + NOISE {
+                skipped += 1;
+                continue;
             }
+            checked += 1;
+            let diff = (g.data[i] as f64 - b).abs();
+            if b.abs() > 10.0 * NOISE {
+                worst = worst.max(diff / b.abs());
+            }
+            assert!(
+                diff <= 0.02 * b.abs() + 0.005 * gmax + NOISE,
+                "{name} {:?} occlusion {occlusion} pixel {i}: vjp {} vs fd {b} (fd 4h {a})",
+                s.profile,
+                g.data[i]
+            );
         }
     }
     eprintln!("span VJP vs central differences: {checked} pixels checked, {skipped} not smooth, worst relative error {worst:.1e}");
@@ -265,58 +279,51 @@ fn vjp_matches_central_differences() {
 #[test]
 fn colour_focus_and_k_gradients_match_central_differences() {
     let mut checked = 0;
-    for (name, l, blur, focus) in scenes().into_iter().take(4) {
-        for (occlusion, make) in
-            [(true, settings as fn(f32, f32, bool) -> RenderSettings), (false, settings), (true, official_fd), (false, official_fd)]
-        {
-            let s = make(blur, focus, occlusion);
-            let (w, h) = (l.width(), l.height());
-            let cot = cotangent(w, h, 17);
-            let g = SpanTape::record(&l, &s, SMOOTH).unwrap().vjp(&cot).unwrap();
-            let loss = |layer: &Layer, s: &RenderSettings| {
-                let t = SpanTape::record(layer, s, SMOOTH).unwrap();
-                t.image().data.iter().zip(&cot.data).map(|(a, b)| *a as f64 * *b as f64).sum::<f64>()
-            };
-            let what = format!("{name} {:?} occlusion {occlusion}", s.profile);
-            for i in (0..w * h).step_by(w * h / 12) {
-                for c in 0..3 {
-                    let at = |dv: f32| {
-                        let mut img = l.image().clone();
-                        img.data[i * CHANNELS + c] += dv;
-                        loss(&Layer::new(img, "fd").unwrap(), &s)
-                    };
-                    let fd = (at(1e-2) - at(-1e-2)) / 2e-2;
-                    let got = g.colour.data[i * 3 + c] as f64;
-                    assert!((got - fd).abs() <= 1e-3 * fd.abs() + 2e-4, "{what} pixel {i} channel {c}: vjp {got} vs fd {fd}");
-                    checked += 1;
-                }
-            }
-            for (which, got) in [("focus", g.focus), ("K", g.blur)] {
+    for (name, l, s) in fd_cases() {
+        let occlusion = s.occlusion;
+        let (w, h) = (l.width(), l.height());
+        let cot = cotangent(w, h, 17);
+        let g = SpanTape::record(&l, &s, SMOOTH).unwrap().vjp(&cot).unwrap();
+        let loss = |layer: &Layer, s: &RenderSettings| dot_loss(layer, s, &cot);
+        let what = format!("{name} {:?} occlusion {occlusion}", s.profile);
+        for i in (0..w * h).step_by(w * h / 12) {
+            for c in 0..3 {
                 let at = |dv: f32| {
-                    let mut s2 = s;
-                    if which == "focus" {
-                        s2.focus += dv
-                    } else {
-                        s2.blur += dv
-                    }
-                    loss(&l, &s2)
+                    let mut img = l.image().clone();
+                    img.data[i * CHANNELS + c] += dv;
+                    loss(&Layer::new(img, "fd").unwrap(), &s)
                 };
-                let fd = |hh: f32| (at(hh) - at(-hh)) / (2.0 * hh as f64);
-                let (a, b) = (fd(2e-3), fd(5e-4));
-                if (a - b).abs() > 0.02 * a.abs().max(b.abs()) + NOISE {
-                    eprintln!("{what} {which}: not smooth here (fd {a} vs {b})");
-                    continue;
-                }
-                let got = got as f64;
-                eprintln!("{what} {which}: vjp {got:.5} fd {b:.5}");
-                // The official footprint is truncated (1 within σ - 4, nothing beyond σ + 2.5):
-                // as K or the focus moves every radius, taps cross those edges and the function
-                // jumps by up to 6e-5 of a tap's weight, which central differences pick up and
-                // the VJP (of the smooth pieces) does not.
-                let tol = if s.profile == Profile::Official { 0.02 * b.abs() + 5.0 * NOISE } else { 0.02 * b.abs() + NOISE };
-                assert!((got - b).abs() <= tol, "{what} {which}: vjp {got} vs fd {b} (fd 4h {a})");
+                let fd = (at(1e-2) - at(-1e-2)) / 2e-2;
+                let got = g.colour.data[i * 3 + c] as f64;
+                assert!((got - fd).abs() <= 1e-3 * fd.abs() + 2e-4, "{what} pixel {i} channel {c}: vjp {got} vs fd {fd}");
                 checked += 1;
             }
+        }
+        for (which, got) in [("focus", g.focus), ("K", g.blur)] {
+            let at = |dv: f32| {
+                let mut s2 = s;
+                if which == "focus" {
+                    s2.focus += dv
+                } else {
+                    s2.blur += dv
+                }
+                loss(&l, &s2)
+            };
+            let fd = |hh: f32| (at(hh) - at(-hh)) / (2.0 * hh as f64);
+            let (a, b) = (fd(2e-3), fd(5e-4));
+            if (a - b).abs() > 0.02 * a.abs().max(b.abs()) + NOISE {
+                eprintln!("{what} {which}: not smooth here (fd {a} vs {b})");
+                continue;
+            }
+            let got = got as f64;
+            eprintln!("{what} {which}: vjp {got:.5} fd {b:.5}");
+            // The official footprint is truncated (1 within σ - 4, nothing beyond σ + 2.5):
+            // as K or the focus moves every radius, taps cross those edges and the function
+            // jumps by up to 6e-5 of a tap's weight, which central differences pick up and
+            // the VJP (of the smooth pieces) does not.
+            let tol = if s.profile == Profile::Official { 0.02 * b.abs() + 5.0 * NOISE } else { 0.02 * b.abs() + NOISE };
+            assert!((got - b).abs() <= tol, "{what} {which}: vjp {got} vs fd {b} (fd 4h {a})");
+            checked += 1;
         }
     }
     assert!(checked >= 16 * 36 + 24, "{checked} checks");
