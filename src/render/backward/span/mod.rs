@@ -97,6 +97,22 @@ struct Target {
 /// between depth bins [`BIN_STEP`] apart and, in the official profile, the soft step is
 /// truncated (see the module notes); without occlusion in the physical profile, the same up to
 /// rounding.
+///
+/// ```
+/// use drbokeh::Image;
+/// use drbokeh::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape};
+///
+/// // An 8×6 opaque layer: grey, its left half on the focal plane, its right half behind.
+/// let px: Vec<f32> = (0..48).flat_map(|i| [0.5, 0.5, 0.5, 1.0, if i % 8 < 4 { 1.0 } else { 0.4 }]).collect();
+/// let layer = Layer::new(Image::from_vec(8, 6, 5, px).expect("8·6·5 values"), "example")?;
+/// let s = RenderSettings { blur: 6.0, focus: 1.0, lens: 11, occlusion: true, profile: Profile::Physical };
+/// let tape = SpanTape::record(&layer, &s, Smoothing::default())?;
+/// // L = ½‖image − target‖² with a black target: ∂L/∂image = image.
+/// let g = tape.vjp(&tape.image().clone())?;
+/// assert_eq!((g.colour.channels, g.disparity.channels), (3, 1));
+/// assert!(g.disparity.all_finite() && g.focus.is_finite() && g.blur.is_finite());
+/// # Ok::<(), drbokeh::Error>(())
+/// ```
 pub struct SpanTape<'a> {
     ctx: Ctx<'a>,
     fill_width: f64,
