@@ -6,10 +6,11 @@ use super::bins::Walk;
 use super::ctx::Ctx;
 use crate::render::fast::footprint::rim_row;
 
-/// source gathers both of its bins in one walk over its disk.
 /// The source gradients of source rows `[sy0, sy1)` (padded rows included; each gradient goes
 /// to the pixel the source replicates). Sources are bucketed by the first of their two bins;
 /// bins are visited in increasing order, each bin's cotangent `gB_b` built once as row prefix
+/// sums over the box its sources reach (two buffers in turn: bins `b` and `b + 1`), and each
+/// source gathers both of its bins in one walk over its footprint.
 pub(super) fn backward_stripe(ctx: &Ctx, gg: &[[[f64; 4]; 3]], sy0: i64, sy1: i64) -> Vec<(usize, SourceGrad)> {
     let (w, h) = (ctx.w, ctx.h);
     let (r0, r1) = ((sy0 - ctx.pad).max(0) as usize, ((sy1 + ctx.pad).min(h as i64)).max(0) as usize);

@@ -20,6 +20,18 @@ pub(super) enum Model {
     Official { unit: f32 },
 }
 
+impl Model {
+    /// A footprint of radius `r`'s `(reach, inner)`: nothing beyond `reach`, the plateau
+    /// (value `1/N`) within `inner`, the rim taps between.
+    #[inline]
+    pub(super) fn edges(self, r: f32) -> (f32, f32) {
+        match self {
+            Model::Physical { edge } => (r + 0.5 * edge, r - 0.5 * edge),
+            Model::Official { .. } => (r + STENCIL_TAIL, r - RIM),
+        }
+    }
+}
+
 /// The per-pixel terms every pass reads: relative disparity, footprint radius (`R` or `σ`),
 /// norm `N` (the footprint's value is `cov/N`) and its derivative, `∂R/∂d`.
 pub(super) struct Ctx<'a> {
@@ -62,11 +74,10 @@ impl<'a> Ctx<'a> {
         };
         let (dr_dd, dr_dk) = d.iter().map(|&d| lens::coc_radius_grad(d, s.blur)).unzip();
         let p = (s.lens / 2) as i64;
-        let mut ctx = Ctx { img, w, h, p, pad: 0, model, d, radius, norm, dr_dd, dr_dk, blur: s.blur, bins: Bins::new(&[], false, false) };
-        let reach = ctx.radius.iter().fold(0f32, |m, &r| m.max(ctx.edges(r).0));
-        ctx.pad = (reach.min(1e9).ceil() as i64).min(p);
-        ctx.bins = Bins::new(&ctx.d, s.occlusion, s.profile == Profile::Official);
-        ctx
+        let reach = radius.iter().fold(0f32, |m, &r| m.max(model.edges(r).0));
+        let pad = (reach.min(1e9).ceil() as i64).min(p);
+        let bins = Bins::new(&d, s.occlusion, s.profile == Profile::Official);
+        Ctx { img, w, h, p, pad, model, d, radius, norm, dr_dd, dr_dk, blur: s.blur, bins }
     }
 
     /// The official on-focal factor `q` of target `i` and `(∂q/∂d, ∂q/∂K)`
@@ -79,16 +90,6 @@ impl<'a> Ctx<'a> {
             (lens::focal_defocus(self.d[i], self.blur), dq_dd, dq_dk)
         } else {
             (1.0, 0.0, 0.0)
-        }
-    }
-
-    /// A footprint of radius `r`'s `(reach, inner)`: nothing beyond `reach`, the plateau
-    /// (value `1/N`) within `inner`, the rim taps between.
-    #[inline]
-    pub(super) fn edges(&self, r: f32) -> (f32, f32) {
-        match self.model {
-            Model::Physical { edge } => (r + 0.5 * edge, r - 0.5 * edge),
-            Model::Official { .. } => (r + STENCIL_TAIL, r - RIM),
         }
     }
 
@@ -134,7 +135,7 @@ impl<'a> Ctx<'a> {
     /// The rows `[lo, hi]` a source at row `sy` reaches, and its edge `(reach, inner)`.
     #[inline]
     pub(super) fn extent(&self, j: usize, sy: i64) -> (i64, i64, f32, f32) {
-        let (reach, inner) = self.edges(self.radius[j]);
+        let (reach, inner) = self.model.edges(self.radius[j]);
         let rr = (reach.min(1e9).ceil() as i64).min(self.p);
         (sy - rr, sy + rr, reach, inner)
     }
@@ -148,7 +149,7 @@ impl<'a> Ctx<'a> {
         }
         let (r, (n, dn)) = (self.radius[i], self.norm[i]);
         // The centre is a plateau pixel where the plateau reaches it (as `rim_row` decides).
-        let (cov, dcov) = if self.edges(r).1 > 0.0 { (1.0, 0.0) } else { self.rim(r, 0.0) };
+        let (cov, dcov) = if self.model.edges(r).1 > 0.0 { (1.0, 0.0) } else { self.rim(r, 0.0) };
         let u = cov as f64 / n as f64;
         let du = dcov as f64 / n as f64 - u * dn as f64 / n as f64;
         let dx = self.d[i];

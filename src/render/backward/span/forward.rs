@@ -8,6 +8,7 @@ use crate::render::lens;
 use crate::render::raw;
 use crate::render::splat::Stripe;
 
+/// A forward worker's scratch: one stripe accumulator per depth bin (sized on first use),
 /// which bins the current stripe uses, a row of values and the edge taps.
 pub(super) struct Scratch {
     pub(super) stripes: Vec<Stripe>,
@@ -31,8 +32,9 @@ impl Scratch {
 }
 
 /// Renders target rows `[y0, y1)`: scatters the sources that reach them into their bins,
-/// then per target sums the bins into groups, fills them and writes the raw pixel
-/// `[P, A, 1]`, keeping the groups and their depth derivative.
+/// then per target sums the bins into groups and writes the raw pixel, keeping the groups and
+/// their depth derivative: physical, the groups filled, `[P, A, 1]`; official, the two slots
+/// mixed by `q`, `[ΣRGB, W, 1]`.
 pub(super) fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, sc: &mut Scratch, out: &mut [f32], tg: &mut [Target]) {
     let w = ctx.w;
     let rows = ctx.source_rows(y0, y1);
@@ -84,6 +86,7 @@ pub(super) fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, s
         }
     }
     // Gather: bins → groups → fill (physical) or on-focal mix (official).
+    let centre = ctx.bins.centre_split();
     for (r, y) in (y0..y1).enumerate() {
         let tg = &mut tg[r * w..(r + 1) * w];
         let drow = &ctx.d[y * w..(y + 1) * w];
@@ -113,7 +116,6 @@ pub(super) fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, s
             let du = du_dr * ctx.dr_dd[i] as f64;
             if u != 0.0 || du != 0.0 {
                 let v = ctx.value(i);
-                let centre = ctx.bins.centre_split();
                 for k in 0..3 {
                     let keep = centre[k] - eta[k];
                     for (c, &vc) in v.iter().enumerate() {

@@ -169,8 +169,11 @@ impl<'a> SpanTape<'a> {
         let (w, h) = (self.ctx.w, self.ctx.h);
         super::check_cotangent(cotangent, w, h)?;
         let ctx = &self.ctx;
-        // Targets: the composite's and the fill's adjoints, the target's own depth and its own
-        // source's correction (moved whole to the surface group).
+        // Targets: the composite's and the fill's (physical) or q's (official) adjoints, the
+        // target's own depth and its own source's correction (the centre tap put back where
+        // the exact kernel has it).
+        let official = matches!(ctx.model, Model::Official { .. });
+        let centre = ctx.bins.centre_split();
         let mut grads = vec![SourceGrad::default(); w * h];
         let gg: Vec<[[f64; 4]; 3]> = self
             .targets
@@ -179,7 +182,6 @@ impl<'a> SpanTape<'a> {
             .enumerate()
             .map(|(i, (t, og))| {
                 let g: [f64; 3] = std::array::from_fn(|c| cotangent.data[i * 3 + c] as f64);
-                let official = matches!(ctx.model, Model::Official { .. });
                 let cot = composite_adjoint(self.raw.pixel(i), g, official);
                 if cot == [0.0; 4] {
                     return [[0.0; 4]; 3];
@@ -198,7 +200,6 @@ impl<'a> SpanTape<'a> {
                 let (u, du_dr, eta, _) = ctx.own(i);
                 if u != 0.0 || du_dr != 0.0 {
                     let v = ctx.value(i);
-                    let centre = ctx.bins.centre_split();
                     for k in 0..3 {
                         let keep = centre[k] - eta[k];
                         og.r += du_dr * keep * (0..4).map(|c| gg[k][c] * v[c] as f64).sum::<f64>();
