@@ -336,6 +336,16 @@ impl Stripe {
     }
 }
 
+/// The area [`Stripe::disk`] covers for a disk of radius `rho` whose centre lies `fy` rows
+/// past a grid row, without a window: the rows' chords summed (the midpoint rule). It differs
+/// from `π·rho²` by up to ~1.4% at the coarse grids' radii (8–16 grid px), which a disk that
+/// stands for a known flux must divide out (a uniform opaque layer otherwise leaks
+/// transmittance). O(rho).
+pub fn midpoint_area(rho: f32, fy: f32) -> f32 {
+    let (lo, hi) = ((fy - rho).ceil() as i64, (fy + rho).floor() as i64);
+    (lo..=hi).map(|row| 2.0 * (rho * rho - (row as f32 - fy).powi(2)).max(0.0).sqrt()).sum()
+}
+
 /// Half the chord of a disk of radius `rho` at row offset `dy` from its centre, clipped to
 /// `window`; None where the window excludes the row. (Rows use their centre's chord: the
 /// midpoint rule of [`Stripe::disk`].)
@@ -410,6 +420,21 @@ mod tests {
         assert!((area - std::f32::consts::PI * 12.5 * 12.5).abs() / area < 0.01);
         assert!((g.at(31 + 64 * 31)[1] - 2.0).abs() < 1e-6);
         assert!(g.at(0)[0] == 0.0);
+    }
+
+    /// The area `Stripe::disk` draws is [`midpoint_area`] (no window clip), whatever the
+    /// centre's row phase.
+    #[test]
+    fn midpoint_area_is_what_a_disk_draws() {
+        for (cy, rho) in [(30.0f32, 8.0f32), (30.5, 8.0), (30.25, 8.5), (29.9, 10.0), (30.7, 12.5), (30.0, 15.9)] {
+            let mut st = Stripe::new(80);
+            st.reset(0, 64);
+            let drawn = st.disk(40.3, cy, rho, Window::Disk(1e3), [1.0; 4]);
+            let expected = midpoint_area(rho, cy - cy.floor());
+            assert!((drawn - expected).abs() <= 1e-4 * expected, "cy {cy} rho {rho}: {drawn} vs {expected}");
+        }
+        // At radius 8 on a row the chord sum falls short of the disk by more than 1%.
+        assert!(midpoint_area(8.0, 0.0) < 0.99 * std::f32::consts::PI * 64.0);
     }
 
     /// Summing a column range gives the full row's values there when nothing was drawn

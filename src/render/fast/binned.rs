@@ -19,7 +19,7 @@
 
 use super::footprint::{EDGE, HARD_EDGE, SOFT_EDGE, equivalent_radius, rim_row_taps};
 use crate::render::lens::{disk_coverage, disk_norm};
-use crate::render::splat::{Stripe, Window, disk_chord, span_edges};
+use crate::render::splat::{Stripe, Window, disk_chord, midpoint_area, span_edges};
 use std::collections::HashMap;
 use std::f32::consts::PI;
 
@@ -86,7 +86,7 @@ impl Shape {
 /// One bin's footprint, for a source of value 1 before its factor (see [`Bins::bin`]).
 struct Template {
     /// What the footprint's weights were multiplied by: `1 / disk_norm` of the bin's radius
-    /// (physical), 1 otherwise.
+    /// (physical), the disk's area over the area its rows draw (coarse), 1 otherwise.
     scale: f32,
     /// Largest row offset from the centre's lattice row; row `j` is `rows[j + rr]`.
     rr: i64,
@@ -159,8 +159,18 @@ impl Template {
         // Folding the official disks' area the same way moved the golden `bg_focus` case's max
         // abs error against the exact kernel from 0.0031 to 0.0087 (cause not found: the
         // products agree to 1e-7), so those keep a per-source ratio of areas.
-        if let Shape::Physical = shape {
-            t.scale = 1.0 / disk_norm(r);
+        // A coarse disk's rows are chords at their centres: its area is divided out the same
+        // way, so the aggregate's value keeps the flux of a disk of area π·r² (the factor of
+        // `Bins::place` scales that to the source's own radius).
+        t.scale = match shape {
+            Shape::Physical => 1.0 / disk_norm(r),
+            Shape::Coarse { .. } => {
+                let a = midpoint_area(r, phase.1);
+                if a > 0.0 { PI * r * r / a } else { 1.0 }
+            }
+            Shape::Official { .. } => 1.0,
+        };
+        if t.scale != 1.0 {
             t.diffs.iter_mut().for_each(|d| d.1 *= t.scale as f64);
             t.taps.iter_mut().for_each(|c| c.1 *= t.scale);
         }
@@ -392,7 +402,8 @@ mod tests {
                         coverage_disk(&mut one, (x, sy), r, disk_norm(r), p as i64, v, &mut e);
                     }
                     Shape::Coarse { window } => {
-                        one.disk(x as f32 + fx, sy as f32 + fy, r, Window::Disk(window), v);
+                        let norm = PI * r * r / midpoint_area(r, fy);
+                        one.disk(x as f32 + fx, sy as f32 + fy, r, Window::Disk(window), v.map(|c| c * norm));
                     }
                     Shape::Official { .. } => {
                         for &(off, wt) in shape.edge(r) {
@@ -442,7 +453,7 @@ mod tests {
     }
 
     /// A coarse disk's centre goes to the nearest of `PHASES²` template positions around its
-    /// lattice point, in any quadrant; the factor keeps its area.
+    /// lattice point, in any quadrant; the factor keeps its flux.
     #[test]
     fn coarse_centres_round_to_the_nearest_position() {
         let bins = Bins::new(Shape::Coarse { window: 100.0 }, 0.125, 0);
@@ -457,7 +468,9 @@ mod tests {
                 let rk = bins.radius(k);
                 assert!((rk - rho).abs() <= 0.0625 + 1e-5);
                 let total = factor * Templates::default().get(&bins, key).scale;
-                assert!((total - (rho / rk).powi(2)).abs() <= 1e-5, "rho {rho}: factor {total}");
+                // The disk of radius ρ's flux, over the area the bin's rows draw.
+                let expected = PI * rho * rho / midpoint_area(rk, py as f32 / n);
+                assert!((total - expected).abs() <= 1e-5 * expected, "rho {rho}: factor {total} vs {expected}");
             }
         }
     }
