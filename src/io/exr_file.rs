@@ -6,15 +6,14 @@
 //! window are ignored). Half, float and uint channels are all converted to `f32`.
 //!
 //! Before any pixel is decoded the header is read and every part's data window is checked
-//! against [`ReadLimits`]. Decoding runs single-threaded (`non_parallel`) so that the panic
-//! guard in [`super::format::guarded`] covers all decoder code.
+//! against [`ReadLimits`]. Chunks are decompressed in parallel on rayon (whose jobs hand a
+//! panic back to the caller, so the panic guard in [`super::format::guarded`] covers them).
 
 use super::format::{FileFormat, guarded, open};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use crate::image::Image;
-use exr::prelude::{self as x, ReadChannels, ReadLayers, WritableImage};
-use std::io::{Seek, SeekFrom};
+use exr::prelude::{self as x, WritableImage};
 use std::path::Path;
 
 /// One channel of an EXR file, converted to `f32`.
@@ -91,52 +90,174 @@ fn exr_error(path: &Path, e: x::Error) -> Error {
     }
 }
 
-/// Reads every channel of the first valid layer of an EXR file.
+/// Reads every channel of the first flat (non-deep) part of an EXR file, its largest
+/// resolution level.
+///
+/// The chunks are read from the file in order and decompressed in parallel (rayon, in groups
+/// of about [`GROUP_BYTES`] compressed bytes, so memory stays the image plus one group): ZIP
+/// and PIZ decompression was the whole cost of an EXR read on one thread. A rayon job's panic
+/// reaches this thread, so the panic guard still covers all decoder code.
 pub fn read_exr_channels(path: &Path, limits: &ReadLimits) -> Result<ExrChannels> {
-    let mut reader = open(path)?;
+    use exr::block::chunk::Chunk;
+    use exr::block::reader::ChunksReader;
+    use rayon::prelude::*;
+    let reader = open(path)?;
     guarded(path, FileFormat::Exr, || {
-        let meta = x::MetaData::read_from_buffered(&mut reader, false).map_err(|e| exr_error(path, e))?;
-        if meta.headers.is_empty() {
+        let file = exr::block::read(reader, false).map_err(|e| exr_error(path, e))?;
+        let headers = file.headers();
+        if headers.is_empty() {
             return Err(Error::input(path, "corrupt EXR: the file has no image parts"));
         }
-        for h in meta.headers.iter() {
+        for h in headers.iter() {
             limits.check(path, h.layer_size.0 as u64, h.layer_size.1 as u64)?;
         }
-        reader.seek(SeekFrom::Start(0)).map_err(|e| super::format::read_error(path, e))?;
-        let image = x::read()
-            .no_deep_data()
-            .largest_resolution_level()
-            .all_channels()
-            .first_valid_layer()
-            .all_attributes()
-            .non_parallel()
-            .from_buffered(reader)
-            .map_err(|e| exr_error(path, e))?;
-        let layer = image.layer_data;
-        let (width, height) = (layer.size.0, layer.size.1);
-        limits.check(path, width as u64, height as u64)?;
+        let part =
+            headers.iter().position(|h| !h.deep).ok_or_else(|| Error::input(path, "EXR file has only deep-data parts; not supported"))?;
+        let header = &headers[part];
+        let (width, height) = (header.layer_size.0, header.layer_size.1);
         let n = width.saturating_mul(height);
-        let mut channels = Vec::with_capacity(layer.channel_data.list.len());
-        for ch in layer.channel_data.list.into_iter() {
-            let name = ch.name.to_string();
-            let (data, bits): (Vec<f32>, u8) = match ch.sample_data {
-                x::FlatSamples::F16(v) => (v.into_iter().map(|h| h.to_f32()).collect(), 16),
-                x::FlatSamples::F32(v) => (v, 32),
-                x::FlatSamples::U32(v) => (v.into_iter().map(|u| u as f32).collect(), 32),
-            };
-            if data.len() != n {
-                return Err(Error::input(
-                    path,
-                    format!("EXR channel '{name}' is subsampled ({} samples for {width}x{height} pixels); not supported", data.len()),
-                ));
-            }
-            channels.push(ExrChannel { name, data, bits });
-        }
-        if channels.is_empty() {
+        let list = &header.channels.list;
+        if list.is_empty() {
             return Err(Error::input(path, "EXR file has no channels"));
         }
+        if let Some(c) = list.iter().find(|c| c.sampling != x::Vec2(1, 1)) {
+            return Err(Error::input(
+                path,
+                format!("EXR channel '{}' is subsampled ({}x{}); not supported", c.name, c.sampling.0, c.sampling.1),
+            ));
+        }
+        let kinds: Vec<x::SampleType> = list.iter().map(|c| c.sample_type).collect();
+        let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
+        let mut planes: Vec<Vec<f32>> = kinds.iter().map(|_| vec![0f32; n]).collect();
+        let mut chunks =
+            file.filter_chunks(false, |_, _, block| block.layer == part && block.level == x::Vec2(0, 0)).map_err(|e| exr_error(path, e))?;
+        let meta = chunks.meta_data().clone();
+        let mut group: Vec<Chunk> = Vec::new();
+        loop {
+            let next = chunks.next().transpose().map_err(|e| exr_error(path, e))?;
+            let done = next.is_none();
+            if let Some(chunk) = next {
+                group.push(chunk);
+            }
+            let bytes: usize = group.iter().map(chunk_bytes).sum();
+            if group.is_empty() || (!done && bytes < GROUP_BYTES) {
+                if done {
+                    break;
+                }
+                continue;
+            }
+            let blocks: Vec<exr::block::UncompressedBlock> = std::mem::take(&mut group)
+                .into_par_iter()
+                .map(|chunk| exr::block::UncompressedBlock::decompress_chunk(chunk, &meta, false).map_err(|e| exr_error(path, e)))
+                .collect::<Result<_>>()?;
+            place(&mut planes, width, &kinds, blocks).map_err(|m| Error::input(path, format!("corrupt EXR: {m}")))?;
+            if done {
+                break;
+            }
+        }
+        let channels = names
+            .into_iter()
+            .zip(planes)
+            .zip(&kinds)
+            .map(|((name, data), kind)| ExrChannel { name, data, bits: if *kind == x::SampleType::F16 { 16 } else { 32 } })
+            .collect();
         Ok(ExrChannels { width, height, channels })
     })
+}
+
+/// Compressed bytes held per group of chunks decompressed in parallel.
+const GROUP_BYTES: usize = 8 << 20;
+
+/// The compressed bytes of a chunk (for grouping).
+fn chunk_bytes(chunk: &exr::block::chunk::Chunk) -> usize {
+    use exr::block::chunk::CompressedBlock as B;
+    match &chunk.compressed_block {
+        B::ScanLine(b) => b.compressed_pixels_le.len(),
+        B::Tile(b) => b.compressed_pixels_le.len(),
+        B::DeepScanLine(b) => b.compressed_sample_data_le.len() + b.compressed_pixel_offset_table.len(),
+        B::DeepTile(b) => b.compressed_sample_data_le.len() + b.compressed_pixel_offset_table.len(),
+    }
+}
+
+/// Converts decompressed blocks into the channel planes (`width` samples per row), in
+/// parallel over bands of rows: blocks that start on the same row and have the same height
+/// (one scan-line block, or one row of tiles) share a band, and bands never overlap (an
+/// error otherwise, as for a block outside the planes or of the wrong byte count).
+fn place(
+    planes: &mut [Vec<f32>],
+    width: usize,
+    kinds: &[x::SampleType],
+    mut blocks: Vec<exr::block::UncompressedBlock>,
+) -> std::result::Result<(), String> {
+    use rayon::prelude::*;
+    let height = planes.first().map_or(0, |p| p.len() / width.max(1));
+    blocks.sort_by_key(|b| (b.index.pixel_position.1, b.index.pixel_position.0));
+    // Bands: (first row, rows, blocks), checked.
+    let mut bands: Vec<(usize, usize, Vec<exr::block::UncompressedBlock>)> = Vec::new();
+    for b in blocks {
+        let (x::Vec2(bx, by), x::Vec2(bw, bh)) = (b.index.pixel_position, b.index.pixel_size);
+        if bx + bw > width || by + bh > height {
+            return Err("a block lies outside the data window".into());
+        }
+        let line: usize = kinds.iter().map(|k| k.bytes_per_sample() * bw).sum();
+        if line * bh != b.data.len() {
+            return Err("a block's size does not match its channels".into());
+        }
+        match bands.last_mut() {
+            Some((y, h, list)) if *y == by && *h == bh => {
+                let prev = &list[list.len() - 1].index;
+                if bx < prev.pixel_position.0 + prev.pixel_size.0 {
+                    return Err("two blocks overlap".into());
+                }
+                list.push(b);
+            }
+            Some((y, h, _)) if by < *y + *h => return Err("two blocks overlap".into()),
+            _ => bands.push((by, bh, vec![b])),
+        }
+    }
+    // Each band's rows of every plane, split off in order.
+    let mut rest: Vec<&mut [f32]> = planes.iter_mut().map(|p| &mut p[..]).collect();
+    let mut consumed = 0;
+    let mut jobs = Vec::with_capacity(bands.len());
+    for (y, h, list) in bands {
+        let mut rows = Vec::with_capacity(rest.len());
+        for r in rest.iter_mut() {
+            let (_, tail) = std::mem::take(r).split_at_mut((y - consumed) * width);
+            let (mine, tail) = tail.split_at_mut(h * width);
+            rows.push(mine);
+            *r = tail;
+        }
+        consumed = y + h;
+        jobs.push((rows, list));
+    }
+    jobs.into_par_iter().for_each(|(mut rows, list)| {
+        for b in list {
+            let (x0, bw) = (b.index.pixel_position.0, b.index.pixel_size.0);
+            let line: usize = kinds.iter().map(|k| k.bytes_per_sample() * bw).sum();
+            // The block's bytes: line by line, each line channel by channel (native endian).
+            for (l, bytes) in b.data.chunks_exact(line.max(1)).enumerate() {
+                let mut src = bytes;
+                for (kind, plane) in kinds.iter().zip(rows.iter_mut()) {
+                    let (s, tail) = src.split_at(kind.bytes_per_sample() * bw);
+                    src = tail;
+                    let dst = &mut plane[l * width + x0..][..bw];
+                    match kind {
+                        x::SampleType::F16 => {
+                            dst.iter_mut().zip(s.chunks_exact(2)).for_each(|(d, b)| *d = x::f16::from_ne_bytes([b[0], b[1]]).to_f32())
+                        }
+                        x::SampleType::F32 => {
+                            dst.iter_mut().zip(s.chunks_exact(4)).for_each(|(d, b)| *d = f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
+                        }
+                        x::SampleType::U32 => dst
+                            .iter_mut()
+                            .zip(s.chunks_exact(4))
+                            .for_each(|(d, b)| *d = u32::from_ne_bytes([b[0], b[1], b[2], b[3]]) as f32),
+                    }
+                }
+            }
+        }
+    });
+    Ok(())
 }
 
 /// How [`write_exr`] stores pixels: RLE-compressed scan lines, in increasing order (lossless,
