@@ -531,7 +531,9 @@ impl March {
         // Per-pixel scratch, reused: every cell's weight for each path OpenCV takes (3 channels or
         // not, see `Disc::dst3`; computed only when some image needs it), the known cells.
         let need = |three: bool| imgs.iter().any(|im| (im.channels == 3) == three);
-        let (need3, need1) = (need(true), need(false));
+        // The plain mean has no OpenCV path to follow: one table (the root in double) serves
+        // every channel count, so a march that fills colour and disparity weighs its disc once.
+        let (need3, need1) = if MODE == PLAIN { (true, false) } else { (need(true), need(false)) };
         let mut weights3 = vec![0.0f32; if need3 { disc.len() } else { 0 }];
         let mut weights1 = vec![0.0f32; if need1 { disc.len() } else { 0 }];
         let mut known = vec![0u32; disc.len()];
@@ -580,7 +582,7 @@ impl March {
                 for (i, img) in imgs.iter_mut().enumerate() {
                     let ch = img.channels;
                     let buf = if MODE == CV_INT { &mut codes[i][..] } else { &mut img.data[..] };
-                    let wts = if ch == 3 { &weights3[..] } else { &weights1[..] };
+                    let wts = if ch == 3 || MODE == PLAIN { &weights3[..] } else { &weights1[..] };
                     if interior {
                         ctx.pixel::<MODE, false>(buf, ch, (wts, &known[..m]), &mut grads, q, y, x);
                     } else {
