@@ -7,7 +7,7 @@
 //! better than a photo and would flatter the PNG codec) and writes it in every input format into
 //! DIR (default `out/io-timing-WxH`): `png8.png`, `png16.png`, `jpeg.jpg` (quality 92),
 //! `tiff8.tif`, `tiff16.tif` (uncompressed), `exr32.exr` (float, drbokeh's writer) and
-//! `exr16.exr` (half). The JPEG, TIFF and half EXR files are made with the `image` / `exr`
+//! `exr16.exr` (half), `exr32zip.exr` (float, ZIP16 through the `exr` crate). The JPEG, TIFF and half EXR files are made with the `image` / `exr`
 //! crates (drbokeh writes none of them). `scripts/io_timing_ref.py` reads and writes the same
 //! files with Pillow and OpenCV.
 //!
@@ -79,6 +79,19 @@ fn make_files(dir: &Path, img: &Image) {
     let (iw, c) = (img.width, img.channels);
     let px = |x: usize, y: usize, k: usize| exr::prelude::f16::from_f32(img.data[(y * iw + x) * c + k]);
     exr::prelude::write_rgb_file(dir.join("exr16.exr"), img.width, img.height, |x, y| (px(x, y, 0), px(x, y, 1), px(x, y, 2))).unwrap();
+    // Float with ZIP16 (what most tools write): decompression-bound to read.
+    {
+        use exr::prelude::*;
+        let ch = |k: usize, n: &str| AnyChannel::new(n, FlatSamples::F32(img.data.iter().skip(k).step_by(c).copied().collect()));
+        let enc = Encoding { compression: Compression::ZIP16, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+        let layer = Layer::new(
+            (img.width, img.height),
+            LayerAttributes::default(),
+            enc,
+            AnyChannels::sort(SmallVec::from_vec(vec![ch(0, "R"), ch(1, "G"), ch(2, "B")])),
+        );
+        exr::prelude::Image::from_layer(layer).write().to_file(dir.join("exr32zip.exr")).unwrap();
+    }
 }
 
 /// Median and minimum of `runs` timings of `f`, in milliseconds.
@@ -106,13 +119,13 @@ fn main() {
 
     let img = photo(w, h);
     // `--keep` reuses the files of an earlier run (so two builds read the same bytes).
-    if !(args.iter().any(|a| a == "--keep") && dir.join("exr16.exr").exists()) {
+    if !(args.iter().any(|a| a == "--keep") && dir.join("exr32zip.exr").exists()) {
         make_files(&dir, &img);
     }
     let size = |n: &str| std::fs::metadata(dir.join(n)).map(|m| m.len() as f64 / 1e6).unwrap_or(0.0);
     println!("{w}x{h} ({:.1} MP), median of {runs}, {} threads", (w * h) as f64 / 1e6, rayon::current_num_threads());
     let limits = ReadLimits::default();
-    for name in ["png8.png", "png16.png", "jpeg.jpg", "tiff8.tif", "tiff16.tif", "exr32.exr", "exr16.exr"] {
+    for name in ["png8.png", "png16.png", "jpeg.jpg", "tiff8.tif", "tiff16.tif", "exr32.exr", "exr32zip.exr", "exr16.exr"] {
         let case = format!("read {}", name.split('.').next().unwrap());
         if !wanted(&case) {
             continue;
