@@ -132,26 +132,23 @@ pub fn read_exr_channels(path: &Path, limits: &ReadLimits) -> Result<ExrChannels
         let mut chunks =
             file.filter_chunks(false, |_, _, block| block.layer == part && block.level == x::Vec2(0, 0)).map_err(|e| exr_error(path, e))?;
         let meta = chunks.meta_data().clone();
-        let mut group: Vec<Chunk> = Vec::new();
+        let (mut group, mut bytes): (Vec<Chunk>, usize) = (Vec::new(), 0);
         loop {
             let next = chunks.next().transpose().map_err(|e| exr_error(path, e))?;
-            let done = next.is_none();
+            let end = next.is_none();
             if let Some(chunk) = next {
+                bytes += chunk_bytes(&chunk);
                 group.push(chunk);
             }
-            let bytes: usize = group.iter().map(chunk_bytes).sum();
-            if group.is_empty() || (!done && bytes < GROUP_BYTES) {
-                if done {
-                    break;
-                }
-                continue;
+            if !group.is_empty() && (end || bytes >= GROUP_BYTES) {
+                let blocks: Vec<exr::block::UncompressedBlock> = std::mem::take(&mut group)
+                    .into_par_iter()
+                    .map(|chunk| exr::block::UncompressedBlock::decompress_chunk(chunk, &meta, false).map_err(|e| exr_error(path, e)))
+                    .collect::<Result<_>>()?;
+                place(&mut planes, width, &kinds, blocks).map_err(|m| Error::input(path, format!("corrupt EXR: {m}")))?;
+                bytes = 0;
             }
-            let blocks: Vec<exr::block::UncompressedBlock> = std::mem::take(&mut group)
-                .into_par_iter()
-                .map(|chunk| exr::block::UncompressedBlock::decompress_chunk(chunk, &meta, false).map_err(|e| exr_error(path, e)))
-                .collect::<Result<_>>()?;
-            place(&mut planes, width, &kinds, blocks).map_err(|m| Error::input(path, format!("corrupt EXR: {m}")))?;
-            if done {
+            if end {
                 break;
             }
         }
