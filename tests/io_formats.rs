@@ -439,6 +439,27 @@ fn exr_parallel_reader_matches_the_crate_reader() {
     }
 }
 
+/// A multi-part file reads its first part, as the crate's reader does, whatever the later
+/// parts' sizes and compressions.
+#[test]
+fn exr_parallel_reader_takes_the_first_part() {
+    use exr::prelude::*;
+    let dir = tmp();
+    let part = |name: &str, (w, h): (usize, usize), compression: Compression, v: f32| {
+        let data: Vec<f32> = (0..w * h).map(|i| v + i as f32).collect();
+        let ch = AnyChannel::new("Y", FlatSamples::F32(data));
+        let enc = Encoding { compression, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+        Layer::new((w, h), LayerAttributes::named(name), enc, AnyChannels::sort(SmallVec::from_vec(vec![ch])))
+    };
+    let layers = vec![part("first", (21, 13), Compression::ZIP16, 0.5), part("second", (40, 30), Compression::PIZ, 1000.0)];
+    let p = dir.path().join("parts.exr");
+    exr::prelude::Image::from_layers(ImageAttributes::new(IntegerBounds::from_dimensions((40, 30))), layers).write().to_file(&p).unwrap();
+    let got = io::read_exr_channels(&p, &lim()).unwrap();
+    assert_eq!((got.width, got.height, got.channels.len()), (21, 13, 1));
+    let want: Vec<f32> = (0..21 * 13).map(|i| 0.5 + i as f32).collect();
+    assert_eq!(got.channels[0].data, want);
+}
+
 #[test]
 fn exr_half_channel_depth() {
     use exr::prelude::*;
