@@ -185,8 +185,10 @@ pub(crate) fn read_npy_guarded(path: &Path, limits: &super::limits::ReadLimits) 
 /// input, but fuzzing has found panics in such crates before. A panic while decoding `path`
 /// becomes an [`Error::Input`] ("decoder failed on malformed data") instead of tearing the
 /// process down. (The default panic hook still prints the panic message to stderr.) Decoders
-/// must run on the calling thread for this to work, which is why EXR files are decoded with
-/// `non_parallel()`.
+/// must run on the calling thread or in rayon jobs it joins (rayon resumes a job's panic on
+/// the joining thread): a decoder's own thread pool would escape the guard (the `exr` crate's
+/// parallel reader aborts the process on a panic), which is why EXR chunks are decompressed in
+/// rayon jobs of ours.
 pub(crate) fn guarded<T>(path: &Path, format: FileFormat, f: impl FnOnce() -> Result<T>) -> Result<T> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
         Ok(r) => r,
@@ -204,6 +206,20 @@ pub(crate) fn guarded<T>(path: &Path, format: FileFormat, f: impl FnOnce() -> Re
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A panic in a rayon job under the guard becomes an input error, as one on the calling
+    /// thread does (the EXR reader decompresses in such jobs).
+    #[test]
+    fn guard_catches_a_panic_in_a_rayon_job() {
+        use rayon::prelude::*;
+        let e = guarded(Path::new("x.exr"), FileFormat::Exr, || {
+            (0..64).into_par_iter().for_each(|i| assert!(i != 37, "bad block {i}"));
+            Ok(())
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("x.exr") && e.contains("decoder failed") && e.contains("bad block 37"), "{e}");
+    }
 
     #[test]
     fn magic_and_extension() {
