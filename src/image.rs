@@ -83,19 +83,37 @@ impl Image {
         out
     }
 
-    /// Stacks images of equal size channel-wise (e.g. RGB + A + D into RGBAD).
+    /// Stacks images of equal size channel-wise (e.g. RGB + A + D into RGBAD). Parallel over
+    /// rows (rayon); allocates the result.
     pub fn stack(parts: &[&Image]) -> Image {
+        use rayon::prelude::*;
         let (w, h) = (parts[0].width, parts[0].height);
         assert!(parts.iter().all(|p| p.width == w && p.height == h), "stack: size mismatch");
         let channels = parts.iter().map(|p| p.channels).sum();
         let mut out = Image::new(w, h, channels);
-        for (i, dst) in out.data.chunks_exact_mut(channels).enumerate() {
+        if w == 0 || channels == 0 {
+            return out;
+        }
+        // Part by part over a row, sample by sample: a `copy_from_slice` of 1 to 3 values per
+        // pixel and part was a memcpy call each (8.7% of a one-thread end-to-end render).
+        out.data.par_chunks_mut(w * channels).enumerate().for_each(|(y, row)| {
             let mut o = 0;
             for p in parts {
-                dst[o..o + p.channels].copy_from_slice(&p.data[i * p.channels..(i + 1) * p.channels]);
-                o += p.channels;
+                let c = p.channels;
+                let src = &p.data[y * w * c..(y + 1) * w * c];
+                let pixels = row.chunks_exact_mut(channels).zip(src.chunks_exact(c.max(1)));
+                match c {
+                    1 => pixels.for_each(|(dst, s)| dst[o] = s[0]),
+                    3 => pixels.for_each(|(dst, s)| {
+                        dst[o] = s[0];
+                        dst[o + 1] = s[1];
+                        dst[o + 2] = s[2];
+                    }),
+                    _ => pixels.for_each(|(dst, s)| dst[o..o + c].copy_from_slice(s)),
+                }
+                o += c;
             }
-        }
+        });
         out
     }
 
@@ -130,5 +148,25 @@ impl Image {
             .expect("image size");
         let out = image::imageops::resize(&buf, width as u32, height as u32, image::imageops::FilterType::Triangle);
         Image::from_vec(width, height, 1, out.into_raw()).expect("image size")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Stacking interleaves the parts' channels pixel by pixel, in order, at any size.
+    #[test]
+    fn stack_interleaves_the_parts() {
+        for (w, h) in [(1usize, 1usize), (7, 3), (64, 5), (0, 4)] {
+            let part = |c: usize, base: f32| Image::from_vec(w, h, c, (0..w * h * c).map(|i| base + i as f32).collect()).unwrap();
+            let (rgb, a, d) = (part(3, 0.0), part(1, 1000.0), part(1, 2000.0));
+            let out = Image::stack(&[&rgb, &a, &d]);
+            assert_eq!((out.width, out.height, out.channels), (w, h, 5));
+            for i in 0..w * h {
+                let want = [rgb.data[3 * i], rgb.data[3 * i + 1], rgb.data[3 * i + 2], a.data[i], d.data[i]];
+                assert_eq!(out.data[5 * i..5 * i + 5], want, "{w}x{h} pixel {i}");
+            }
+        }
     }
 }

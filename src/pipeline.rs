@@ -414,8 +414,13 @@ impl Pipeline {
                 Some(serde_json::json!({"layers": cfg.segment.layers, "cuts": cuts, "slices": peeled})),
             ));
         }
+        let t = Instant::now();
         let opaque = Image::filled(rgb.width, rgb.height, 1, 1.0);
         layers.push(Layer::from_parts(&rgb, &opaque, &disp, "background layer")?);
+        // The last layer is the inpainting's output: its stacking counts there.
+        if let Some(stage) = report.stages.iter_mut().find(|st| st.name == "inpaint") {
+            stage.ms += ms_since(t);
+        }
         Ok(layers)
     }
 
@@ -500,6 +505,9 @@ impl Pipeline {
             crate::stages::inpaint_onnx::InpaintMethod::Onnx => "onnx",
         };
         let (fg_rgb, unmixed) = unmix_edges(photo, &alpha, carried?, &mut bg.rgb);
+        let layer = Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, what)?;
+        // Stacking the layer is part of the stage (at 12.2 MP it was 0.2-0.3 s that no stage
+        // counted).
         let inpaint_ms = ms_since(t);
         let inpaint_detail = serde_json::json!({
             "method": method,
@@ -512,7 +520,6 @@ impl Pipeline {
             "foreground_unmixed_px": unmixed,
             "model": inpaint_model
         });
-        let layer = Layer::from_parts(&fg_rgb, &alpha, &fd.disparity, what)?;
         // The layer's parts and the fill's mask go before the caller stacks the next layer
         // (12.2 MP: 21 bytes per pixel less at the stage's peak).
         drop((fg_rgb, fd, alpha, bg.mask));
