@@ -12,6 +12,7 @@ use super::inpaint::{TeleaOptions, inpaint_telea, inpaint_telea_many};
 use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Which pixels of the band of `dilate` pixels around the matte are re-synthesized.
@@ -120,7 +121,7 @@ pub fn inpaint_mask(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
 }
 
 fn covered(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
-    alpha.data.iter().map(|&a| a > opts.threshold).collect()
+    alpha.data.par_iter().map(|&a| a > opts.threshold).collect()
 }
 
 /// What a background fill replaces and what it must not spread.
@@ -223,13 +224,18 @@ pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
     let Some(bb) = super::mask::grown_bbox(&mask, w, h, 1.0) else { return super::mask::marching_reach(see) };
     let to_outside = super::mask::sq_distance_window(&mask, w, bb, false);
     let (x0, y0, x1, _) = bb;
+    // Rows in parallel: this scan is on the background fill's critical path.
     let deep = to_outside
-        .chunks_exact(x1 - x0)
+        .par_chunks(x1 - x0)
         .enumerate()
-        .flat_map(|(y, row)| row.iter().zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1]))
-        .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
-        .map(|(&d, _)| super::mask::root(d))
-        .fold(0.0, f32::max);
+        .map(|(y, row)| {
+            row.iter()
+                .zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1])
+                .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
+                .map(|(&d, _)| super::mask::root(d))
+                .fold(0.0, f32::max)
+        })
+        .reduce(|| 0.0, f32::max);
     super::mask::marching_reach(deep + see)
 }
 
