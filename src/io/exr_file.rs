@@ -188,6 +188,8 @@ fn place(
 ) -> std::result::Result<(), String> {
     use rayon::prelude::*;
     let height = planes.first().map_or(0, |p| p.len() / width.max(1));
+    // Bytes of one line of a block `bw` pixels wide: every channel's samples.
+    let line_bytes = |bw: usize| kinds.iter().map(|k| k.bytes_per_sample() * bw).sum::<usize>();
     blocks.sort_by_key(|b| (b.index.pixel_position.1, b.index.pixel_position.0));
     // Bands: (first row, rows, blocks), checked.
     let mut bands: Vec<(usize, usize, Vec<exr::block::UncompressedBlock>)> = Vec::new();
@@ -196,8 +198,7 @@ fn place(
         if bx + bw > width || by + bh > height {
             return Err("a block lies outside the data window".into());
         }
-        let line: usize = kinds.iter().map(|k| k.bytes_per_sample() * bw).sum();
-        if line * bh != b.data.len() {
+        if line_bytes(bw) * bh != b.data.len() {
             return Err("a block's size does not match its channels".into());
         }
         match bands.last_mut() {
@@ -230,7 +231,7 @@ fn place(
     jobs.into_par_iter().for_each(|(mut rows, list)| {
         for b in list {
             let (x0, bw) = (b.index.pixel_position.0, b.index.pixel_size.0);
-            let line: usize = kinds.iter().map(|k| k.bytes_per_sample() * bw).sum();
+            let line = line_bytes(bw);
             // The block's bytes: line by line, each line channel by channel (native endian).
             for (l, bytes) in b.data.chunks_exact(line.max(1)).enumerate() {
                 let mut src = bytes;

@@ -337,13 +337,21 @@ impl Stripe {
 }
 
 /// The area [`Stripe::disk`] covers for a disk of radius `rho` whose centre lies `fy` rows
-/// past a grid row, without a window: the rows' chords summed (the midpoint rule). It differs
-/// from `π·rho²` by up to ~1.4% at the coarse grids' radii (8–16 grid px), which a disk that
-/// stands for a known flux must divide out (a uniform opaque layer otherwise leaks
-/// transmittance). O(rho).
+/// past a grid row, without a window: the rows' chords ([`disk_chord`]) summed (the midpoint
+/// rule). It differs from `π·rho²` by up to ~1.4% at the coarse grids' radii (8–16 grid px),
+/// which a disk that stands for a known flux must divide out ([`flux_scale`]). O(rho).
 pub fn midpoint_area(rho: f32, fy: f32) -> f32 {
     let (lo, hi) = ((fy - rho).ceil() as i64, (fy + rho).floor() as i64);
-    (lo..=hi).map(|row| 2.0 * (rho * rho - (row as f32 - fy).powi(2)).max(0.0).sqrt()).sum()
+    (lo..=hi).filter_map(|row| disk_chord(rho, Window::Disk(f32::INFINITY), row as f32 - fy)).map(|hw| 2.0 * hw).sum()
+}
+
+/// The factor that gives a disk drawn by [`Stripe::disk`] (radius `rho`, centre `fy` rows past
+/// a grid row, no window) the flux of a disk of area `π·rho²` per unit value: `π·rho²` over
+/// [`midpoint_area`] (1 for a disk that draws nothing). Without it a uniform opaque layer
+/// drawn by such disks leaks transmittance.
+pub fn flux_scale(rho: f32, fy: f32) -> f32 {
+    let a = midpoint_area(rho, fy);
+    if a > 0.0 { std::f32::consts::PI * rho * rho / a } else { 1.0 }
 }
 
 /// Half the chord of a disk of radius `rho` at row offset `dy` from its centre, clipped to

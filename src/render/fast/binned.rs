@@ -19,7 +19,7 @@
 
 use super::footprint::{EDGE, HARD_EDGE, SOFT_EDGE, equivalent_radius, rim_row_taps};
 use crate::render::lens::{disk_coverage, disk_norm};
-use crate::render::splat::{Stripe, Window, disk_chord, midpoint_area, span_edges};
+use crate::render::splat::{Stripe, Window, disk_chord, flux_scale, span_edges};
 use std::collections::HashMap;
 use std::f32::consts::PI;
 
@@ -164,10 +164,7 @@ impl Template {
         // `Bins::place` scales that to the source's own radius).
         t.scale = match shape {
             Shape::Physical => 1.0 / disk_norm(r),
-            Shape::Coarse { .. } => {
-                let a = midpoint_area(r, phase.1);
-                if a > 0.0 { PI * r * r / a } else { 1.0 }
-            }
+            Shape::Coarse { .. } => flux_scale(r, phase.1),
             Shape::Official { .. } => 1.0,
         };
         if t.scale != 1.0 {
@@ -402,7 +399,7 @@ mod tests {
                         coverage_disk(&mut one, (x, sy), r, disk_norm(r), p as i64, v, &mut e);
                     }
                     Shape::Coarse { window } => {
-                        let norm = PI * r * r / midpoint_area(r, fy);
+                        let norm = flux_scale(r, fy);
                         one.disk(x as f32 + fx, sy as f32 + fy, r, Window::Disk(window), v.map(|c| c * norm));
                     }
                     Shape::Official { .. } => {
@@ -469,7 +466,7 @@ mod tests {
                 assert!((rk - rho).abs() <= 0.0625 + 1e-5);
                 let total = factor * Templates::default().get(&bins, key).scale;
                 // The disk of radius ρ's flux, over the area the bin's rows draw.
-                let expected = PI * rho * rho / midpoint_area(rk, py as f32 / n);
+                let expected = PI * rho * rho / crate::render::splat::midpoint_area(rk, py as f32 / n);
                 assert!((total - expected).abs() <= 1e-5 * expected, "rho {rho}: factor {total} vs {expected}");
             }
         }

@@ -12,9 +12,8 @@ use super::bright::{BRIGHT_MIN, is_bright};
 use super::footprint::equivalent;
 use super::{Counts, Ctx, Presence};
 use crate::render::layer::max_rgb;
-use crate::render::splat::{Grid4, Window, accumulate, midpoint_area};
+use crate::render::splat::{Grid4, Window, accumulate, flux_scale};
 use rayon::prelude::*;
-use std::f32::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Coarse level of a source: level ℓ ≥ 1 takes σ in `[r0·2^ℓ, r0·2^(ℓ+1))`; None below `2·r0`.
@@ -115,7 +114,7 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
                     let shared = |j: Option<usize>| j.and_then(|j| places.get(j)).is_some_and(|p| p.0 == key);
                     if !(shared(k.checked_sub(1)) || shared(Some(k + 1))) || is_bright(max_rgb(&a.v), a.v[3], BRIGHT_MIN) {
                         // The value stands for the flux of a disk of area π·ρ².
-                        let norm = PI * a.rho * a.rho / midpoint_area(a.rho, a.cy - a.cy.floor());
+                        let norm = flux_scale(a.rho, a.cy - a.cy.floor());
                         st.disk(a.cx, a.cy, a.rho, window, a.v.map(|c| c * norm));
                         ops += 1;
                     } else {
