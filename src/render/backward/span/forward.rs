@@ -15,6 +15,8 @@ pub(super) struct Scratch {
     pub(super) walk: Walk,
     /// Per bin, the columns `[x0, x1)` the stripe's sources of that bin reach (None: unused).
     pub(super) used: Vec<Option<(usize, usize)>>,
+    /// Per bin, the sources (padded positions) whose first bin it is and that reach the stripe.
+    pub(super) by_bin: Vec<Vec<(i64, i64)>>,
     pub(super) row: Vec<f32>,
     pub(super) e: Vec<f32>,
 }
@@ -25,6 +27,7 @@ impl Scratch {
             stripes: (0..bins.count).map(|_| Stripe::new(w)).collect(),
             walk: Walk::new(bins),
             used: vec![None; bins.count],
+            by_bin: vec![Vec::new(); bins.count],
             row: vec![0.0; w * 4],
             e: Vec::new(),
         }
@@ -41,6 +44,7 @@ pub(super) fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, s
     // Survey: the bins this stripe's sources use, and the columns they reach (a bin holds a
     // few blocks of depth: its rows are summed and gathered there only).
     sc.used.iter_mut().for_each(|u| *u = None);
+    sc.by_bin.iter_mut().for_each(Vec::clear);
     for sy in rows.clone() {
         for sx in -ctx.pad..w as i64 + ctx.pad {
             let j = ctx.clamp_index(sx, sy);
@@ -50,12 +54,14 @@ pub(super) fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, s
             if hi < y0 as i64 || lo >= y1 as i64 || xa > xb {
                 continue;
             }
-            for (b, hat, _) in ctx.bins.locate(ctx.d[j]) {
+            let entries = ctx.bins.locate(ctx.d[j]);
+            for (b, hat, _) in entries {
                 if hat != 0.0 {
                     let e = sc.used[b].get_or_insert((xa as usize, xb as usize + 1));
                     *e = (e.0.min(xa as usize), e.1.max(xb as usize + 1));
                 }
             }
+            sc.by_bin[entries[0].0].push((sx, sy));
         }
     }
     for (st, u) in sc.stripes.iter_mut().zip(&sc.used) {
@@ -63,25 +69,20 @@ pub(super) fn forward_stripe(ctx: &Ctx, fill_width: f64, y0: usize, y1: usize, s
             st.reset(y0, y1);
         }
     }
-    // Scatter.
-    for sy in rows {
-        for sx in -ctx.pad..w as i64 + ctx.pad {
-            let j = ctx.clamp_index(sx, sy);
-            let (lo, hi, ..) = ctx.extent(j, sy);
-            if hi < y0 as i64 || lo >= y1 as i64 {
-                continue;
+    // Scatter, bin after bin: a stripe's bins together are far larger than the cache, and
+    // sources drawn in raster order wrote to a different pair of them each.
+    for &(sx, sy) in sc.by_bin.iter().flatten() {
+        let j = ctx.clamp_index(sx, sy);
+        let v = ctx.value(j);
+        match ctx.bins.locate(ctx.d[j]) {
+            // Both bins at once: the footprint's geometry and rim computed once.
+            [(b0, h0, _), (_, h1, _)] if h0 != 0.0 && h1 != 0.0 => {
+                let (lo, hi) = sc.stripes.split_at_mut(b0 + 1);
+                ctx.draw([&mut lo[b0], &mut hi[0]], (sx, sy), j, [v.map(|c| c * h0), v.map(|c| c * h1)], &mut sc.e);
             }
-            let v = ctx.value(j);
-            match ctx.bins.locate(ctx.d[j]) {
-                // Both bins at once: the footprint's geometry and rim computed once.
-                [(b0, h0, _), (_, h1, _)] if h0 != 0.0 && h1 != 0.0 => {
-                    let (lo, hi) = sc.stripes.split_at_mut(b0 + 1);
-                    ctx.draw([&mut lo[b0], &mut hi[0]], (sx, sy), j, [v.map(|c| c * h0), v.map(|c| c * h1)], &mut sc.e);
-                }
-                [(b0, h0, _), (b1, h1, _)] => {
-                    let (b, hat) = if h0 != 0.0 { (b0, h0) } else { (b1, h1) };
-                    ctx.draw([&mut sc.stripes[b]], (sx, sy), j, [v.map(|c| c * hat)], &mut sc.e);
-                }
+            [(b0, h0, _), (b1, h1, _)] => {
+                let (b, hat) = if h0 != 0.0 { (b0, h0) } else { (b1, h1) };
+                ctx.draw([&mut sc.stripes[b]], (sx, sy), j, [v.map(|c| c * hat)], &mut sc.e);
             }
         }
     }
