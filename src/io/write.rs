@@ -108,49 +108,62 @@ fn quantize_value(v: f32, transfer: Transfer, max: f32) -> f32 {
 }
 
 /// [`quantize_value`] for a colour transfer without a `powf` per value: the thresholds where
-/// the quantized level steps up, and a table over the float's top bits that gives the level at
-/// the start of each bit range, from which a few comparisons reach the exact level.
+/// the quantized level steps up, a first guess of the level, and comparisons with the
+/// thresholds around the guess that reach the exact level.
 ///
 /// Equal to [`quantize_value`] for every input as long as that is non-decreasing in `v`
 /// (true of the sRGB curve and of gammas > 0; `tests::encode_table_equals_the_formula` checks
-/// every threshold's neighbourhood and a million random values). Built for 8-bit output with
-/// [`Transfer::Srgb`] or [`Transfer::Gamma`] of a finite positive exponent only; `None`
-/// otherwise (the caller uses the formula). Measured on a noisy 12.2 MP RGB image, 2 cores,
-/// both parallel, same run: 8-bit 0.24 s with the table vs 0.39 s with the formula; 16-bit
-/// 0.93 s vs 0.39 s (its 0.5 MB start table and 4 search steps cost more than `powf`), so
-/// 16-bit output keeps the formula.
+/// every threshold's neighbourhood and a million random values per table). Built for 8-bit
+/// output with [`Transfer::Srgb`] or [`Transfer::Gamma`] of a finite positive exponent, and
+/// for 16-bit sRGB output; `None` otherwise (the caller uses the formula).
+#[derive(Clone)]
 struct EncodeTable {
-    /// The largest level, 255.
+    /// The largest level, 255 or 65535.
     max: u16,
     /// `thresholds[k]`: the smallest positive float whose level is at least `k + 1`; padded
-    /// with infinities so that the steps of [`EncodeTable::level`] never index past the end.
+    /// with infinities so that the searches never index past the end.
     thresholds: Vec<f32>,
-    /// `start[b]`: the level of the float with bits `b << shift` (the smallest of its range).
-    start: Vec<u16>,
-    /// Bits of the float dropped to index `start`: 16 (16 K entries, 32 KB); a range then
-    /// holds at most one threshold (near 1.0 ~0.5 levels, where the sRGB curve is flattest in
-    /// float bits).
-    shift: u32,
-    /// Powers of two, largest first, summing to at least the most levels one range of `start`
-    /// spans: the branchless search steps of [`EncodeTable::level`] (`[1]` for sRGB). A loop of
-    /// comparisons was 2x slower on noisy data (mispredicted branches).
-    steps: Vec<usize>,
+    search: Search,
 }
+
+/// How [`EncodeTable::level`] finds the level among the thresholds.
+#[derive(Clone)]
+enum Search {
+    /// 8-bit. `start[b]`: the level of the float with bits `b << shift` (the smallest of its
+    /// range); shift 16 (16 K entries, 32 KB), so a range holds at most one threshold (near 1.0
+    /// ~0.5 levels, where the sRGB curve is flattest in float bits). `steps`: powers of two,
+    /// largest first, summing to at least the most levels one range spans, the branchless
+    /// search steps (`[1]` for sRGB; a loop of comparisons was 2x slower on noisy data,
+    /// mispredicted branches). Measured on a noisy 12.2 MP RGB image, 2 cores: 0.24 s against
+    /// 0.39 s with the formula; for 16-bit this search (a 0.5 MB start table and 4 steps) took
+    /// 0.93 s, hence [`Search::Interpolated`] there.
+    Steps { start: Vec<u16>, shift: u32, steps: Vec<usize> },
+    /// 16-bit sRGB. Below `2^-9` (on the curve's linear segment) the level is the formula's
+    /// product, no `powf`. Above, `ramp[i] = (c, dc)`: the unrounded level `c` at the start of
+    /// float-bit range `i` (`2^15` floats, 1/256 of a binade: 2304 ranges, 18 KB) and its
+    /// slope per float step; the interpolated level is within 0.05 of the formula's (tested; the
+    /// curve's bend over 1/256 of a binade), so its rounding is off by at most one level, which
+    /// one comparison each way with the thresholds settles.
+    Interpolated { ramp: Vec<(f32, f32)> },
+}
+
+/// First float bits of [`Search::Interpolated`]'s ranges: `2^-9` (below it, sRGB is linear).
+const RAMP_START: u32 = 0x3B00_0000;
+/// Float bits per range of [`Search::Interpolated`].
+const RAMP_SHIFT: u32 = 15;
 
 impl EncodeTable {
     /// O(levels · 30) `encode` calls for the thresholds (bisection over float bits, parallel)
-    /// plus O(table) look-ups: under 1 ms.
+    /// plus O(table) look-ups: under 1 ms for 8 bits, ~20 ms for 16 (built once per process,
+    /// [`EncodeTable::get`]).
     fn new(transfer: Transfer, bits: u8) -> Option<EncodeTable> {
         use rayon::prelude::*;
-        if bits != 8 {
-            return None;
-        }
-        match transfer {
-            Transfer::Srgb => {}
-            Transfer::Gamma(g) if g.is_finite() && g > 0.0 => {}
+        match (transfer, bits) {
+            (Transfer::Srgb, 8 | 16) => {}
+            (Transfer::Gamma(g), 8) if g.is_finite() && g > 0.0 => {}
             _ => return None,
         }
-        let max = 255u16;
+        let max = if bits == 16 { u16::MAX } else { 255 };
         let m = max as f32;
         let level = |v: f32| quantize_value(v, transfer, m) as u32;
         // What the look-up assumes outside (0, 1): NaN, zero and negatives are level 0, 1.0
@@ -171,6 +184,18 @@ impl EncodeTable {
                 f32::from_bits(hi)
             })
             .collect();
+        if bits == 16 {
+            // The formula's level before rounding (its f32 `powf` is within ~0.01 level of exact).
+            let c = |b: u32| transfer.encode(f32::from_bits(b)).clamp(0.0, 1.0) as f64 * max as f64;
+            let ramp = (RAMP_START >> RAMP_SHIFT..one >> RAMP_SHIFT)
+                .map(|i| {
+                    let (c0, c1) = (c(i << RAMP_SHIFT), c((i + 1) << RAMP_SHIFT));
+                    (c0 as f32, ((c1 - c0) / (1u32 << RAMP_SHIFT) as f64) as f32)
+                })
+                .collect();
+            thresholds.resize(max as usize + 2, f32::INFINITY);
+            return Some(EncodeTable { max, thresholds, search: Search::Interpolated { ramp } });
+        }
         let shift = 16;
         let start: Vec<u16> = (0..=one >> shift)
             .map(|b| {
@@ -183,7 +208,18 @@ impl EncodeTable {
         // P, P/2, .., 1 with P the largest power of two <= span: they sum to 2P - 1 >= span.
         let steps: Vec<usize> = if span == 0 { Vec::new() } else { (0..=span.ilog2()).rev().map(|e| 1usize << e).collect() };
         thresholds.resize(max as usize + 2 * steps.iter().sum::<usize>() + 1, f32::INFINITY);
-        Some(EncodeTable { max, thresholds, start, shift, steps })
+        Some(EncodeTable { max, thresholds, search: Search::Steps { start, shift, steps } })
+    }
+
+    /// The table of `transfer` at `bits`, built once per process for 16-bit sRGB (its
+    /// thresholds take ~20 ms), per call otherwise.
+    fn get(transfer: Transfer, bits: u8) -> Option<std::borrow::Cow<'static, EncodeTable>> {
+        static SRGB16: std::sync::OnceLock<Option<EncodeTable>> = std::sync::OnceLock::new();
+        if (transfer, bits) == (Transfer::Srgb, 16) {
+            SRGB16.get_or_init(|| EncodeTable::new(transfer, bits)).as_ref().map(std::borrow::Cow::Borrowed)
+        } else {
+            EncodeTable::new(transfer, bits).map(std::borrow::Cow::Owned)
+        }
     }
 
     /// The level of `v`, equal to `quantize_value(v, transfer, max)`.
@@ -195,13 +231,32 @@ impl EncodeTable {
         if v >= 1.0 {
             return self.max;
         }
-        // Branchless binary search among the range's few thresholds (sorted): add each step
-        // whose last threshold `v` reaches.
-        let mut q = self.start[(v.to_bits() >> self.shift) as usize] as usize;
-        for &s in &self.steps {
-            q += s * (v >= self.thresholds[q + s - 1]) as usize;
+        match &self.search {
+            Search::Steps { start, shift, steps } => {
+                // Branchless binary search among the range's few thresholds (sorted): add each
+                // step whose last threshold `v` reaches.
+                let mut q = start[(v.to_bits() >> shift) as usize] as usize;
+                for &s in steps {
+                    q += s * (v >= self.thresholds[q + s - 1]) as usize;
+                }
+                q as u16
+            }
+            Search::Interpolated { ramp } => {
+                let b = v.to_bits();
+                if b < RAMP_START {
+                    // sRGB's linear segment, as the formula computes it.
+                    return (v * 12.92 * self.max as f32).round() as u16;
+                }
+                let (c, dc) = ramp[((b - RAMP_START) >> RAMP_SHIFT) as usize];
+                let guess = ((c + dc * (b & ((1 << RAMP_SHIFT) - 1)) as f32 + 0.5) as usize).min(self.max as usize);
+                // One level up if `v` reaches the guess's next threshold, one down if it falls
+                // short of the guess's own. (Skipping the comparisons where the guess is far
+                // from a rounding boundary measured no faster: the branch mispredicts.)
+                let up = (v >= self.thresholds[guess]) as usize;
+                let down = (guess > 0 && v < self.thresholds[guess.saturating_sub(1)]) as usize;
+                (guess + up - down) as u16
+            }
         }
-        q as u16
     }
 }
 
@@ -212,7 +267,7 @@ impl EncodeTable {
 /// parallel over blocks of 64 K pixels (rayon). Allocates the output bytes only.
 fn quantize(img: &Image, bit_depth: u8, transfer: Transfer) -> Vec<u8> {
     let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
-    match EncodeTable::new(transfer, bit_depth) {
+    match EncodeTable::get(transfer, bit_depth) {
         Some(t) => quantize_with(img, bit_depth, |v| t.level(v)),
         None => quantize_with(img, bit_depth, |v| quantize_value(v, transfer, max) as u16),
     }
@@ -331,10 +386,23 @@ mod tests {
     /// each way), on a million seeded random values in [0, 1.1], and on the special values.
     #[test]
     fn encode_table_equals_the_formula() {
-        for transfer in [Transfer::Srgb, Transfer::Gamma(2.2), Transfer::Gamma(0.7)] {
-            let t = EncodeTable::new(transfer, 8).unwrap();
-            let check = |v: f32| assert_eq!(t.level(v) as f32, quantize_value(v, transfer, 255.0), "{transfer:?} at {v:e}");
-            for &th in &t.thresholds[..255] {
+        for (transfer, bits) in [(Transfer::Srgb, 8), (Transfer::Gamma(2.2), 8), (Transfer::Gamma(0.7), 8), (Transfer::Srgb, 16)] {
+            let t = EncodeTable::new(transfer, bits).unwrap();
+            let max = t.max as f32;
+            let check = |v: f32| assert_eq!(t.level(v) as f32, quantize_value(v, transfer, max), "{transfer:?} {bits} bits at {v:e}");
+            if let Search::Interpolated { ramp } = &t.search {
+                // The guess is within a small fraction of a level of the formula's unrounded
+                // level across every range (so the one-step corrections suffice).
+                for (i, &(c, dc)) in ramp.iter().enumerate() {
+                    for k in 0..=16u32 {
+                        let off = (k << RAMP_SHIFT) / 16 - u32::from(k == 16);
+                        let v = f32::from_bits(RAMP_START + ((i as u32) << RAMP_SHIFT) + off);
+                        let exact = transfer.encode(v).clamp(0.0, 1.0) * max;
+                        assert!((c + dc * off as f32 - exact).abs() < 0.05, "range {i} at {v:e}");
+                    }
+                }
+            }
+            for &th in &t.thresholds[..t.max as usize] {
                 let b = th.to_bits();
                 (b.saturating_sub(64)..b + 64).for_each(|b| check(f32::from_bits(b)));
             }
@@ -350,7 +418,7 @@ mod tests {
                 .for_each(check);
         }
         assert!(EncodeTable::new(Transfer::Linear, 8).is_none() && EncodeTable::new(Transfer::Gamma(-1.0), 8).is_none());
-        assert!(EncodeTable::new(Transfer::Srgb, 16).is_none(), "16-bit keeps the formula");
+        assert!(EncodeTable::new(Transfer::Gamma(2.2), 16).is_none(), "16-bit gamma keeps the formula");
     }
 
     #[test]
