@@ -123,33 +123,29 @@ struct EncodeTable {
     /// `thresholds[k]`: the smallest positive float whose level is at least `k + 1`; padded
     /// with infinities so that the searches never index past the end.
     thresholds: Vec<f32>,
-    search: Search,
+    /// 8-bit search. `start[b]`: the level of the float with bits `b << shift` (the smallest
+    /// of its range); shift 16 (16 K entries, 32 KB), so a range holds at most one threshold
+    /// (near 1.0 ~0.5 levels, where the sRGB curve is flattest in float bits). `steps`: powers
+    /// of two, largest first, summing to at least the most levels one range spans, the
+    /// branchless search steps (`[1]` for sRGB; a loop of comparisons was 2x slower on noisy
+    /// data, mispredicted branches). Measured on a noisy 12.2 MP RGB image, 2 cores: 0.24 s
+    /// against 0.39 s with the formula; for 16-bit this search (a 0.5 MB start table and 4
+    /// steps) took 0.93 s, hence `ramp` there. Empty for 16-bit.
+    start: Vec<u16>,
+    shift: u32,
+    steps: Vec<usize>,
+    /// 16-bit sRGB search (empty for 8-bit). Below `2^-9` (on the curve's linear segment) the
+    /// level is the formula's product, no `powf`. Above, `ramp[i] = (c, dc)`: the unrounded
+    /// level `c` at the start of float-bit range `i` (`2^15` floats, 1/256 of a binade: 2304
+    /// ranges, 18 KB) and its slope per float step; the interpolated level is within 0.05 of
+    /// the formula's (tested; the curve's bend over 1/256 of a binade), so its rounding is off
+    /// by at most one level, which one comparison each way with the thresholds settles.
+    ramp: Vec<(f32, f32)>,
 }
 
-/// How [`EncodeTable::level`] finds the level among the thresholds.
-#[derive(Clone)]
-enum Search {
-    /// 8-bit. `start[b]`: the level of the float with bits `b << shift` (the smallest of its
-    /// range); shift 16 (16 K entries, 32 KB), so a range holds at most one threshold (near 1.0
-    /// ~0.5 levels, where the sRGB curve is flattest in float bits). `steps`: powers of two,
-    /// largest first, summing to at least the most levels one range spans, the branchless
-    /// search steps (`[1]` for sRGB; a loop of comparisons was 2x slower on noisy data,
-    /// mispredicted branches). Measured on a noisy 12.2 MP RGB image, 2 cores: 0.24 s against
-    /// 0.39 s with the formula; for 16-bit this search (a 0.5 MB start table and 4 steps) took
-    /// 0.93 s, hence [`Search::Interpolated`] there.
-    Steps { start: Vec<u16>, shift: u32, steps: Vec<usize> },
-    /// 16-bit sRGB. Below `2^-9` (on the curve's linear segment) the level is the formula's
-    /// product, no `powf`. Above, `ramp[i] = (c, dc)`: the unrounded level `c` at the start of
-    /// float-bit range `i` (`2^15` floats, 1/256 of a binade: 2304 ranges, 18 KB) and its
-    /// slope per float step; the interpolated level is within 0.05 of the formula's (tested; the
-    /// curve's bend over 1/256 of a binade), so its rounding is off by at most one level, which
-    /// one comparison each way with the thresholds settles.
-    Interpolated { ramp: Vec<(f32, f32)> },
-}
-
-/// First float bits of [`Search::Interpolated`]'s ranges: `2^-9` (below it, sRGB is linear).
+/// First float bits of [`EncodeTable::ramp`]'s ranges: `2^-9` (below it, sRGB is linear).
 const RAMP_START: u32 = 0x3B00_0000;
-/// Float bits per range of [`Search::Interpolated`].
+/// Float bits per range of [`EncodeTable::ramp`].
 const RAMP_SHIFT: u32 = 15;
 
 impl EncodeTable {
@@ -194,7 +190,7 @@ impl EncodeTable {
                 })
                 .collect();
             thresholds.resize(max as usize + 2, f32::INFINITY);
-            return Some(EncodeTable { max, thresholds, search: Search::Interpolated { ramp } });
+            return Some(EncodeTable { max, thresholds, start: Vec::new(), shift: 0, steps: Vec::new(), ramp });
         }
         let shift = 16;
         let start: Vec<u16> = (0..=one >> shift)
@@ -208,7 +204,7 @@ impl EncodeTable {
         // P, P/2, .., 1 with P the largest power of two <= span: they sum to 2P - 1 >= span.
         let steps: Vec<usize> = if span == 0 { Vec::new() } else { (0..=span.ilog2()).rev().map(|e| 1usize << e).collect() };
         thresholds.resize(max as usize + 2 * steps.iter().sum::<usize>() + 1, f32::INFINITY);
-        Some(EncodeTable { max, thresholds, search: Search::Steps { start, shift, steps } })
+        Some(EncodeTable { max, thresholds, start, shift, steps, ramp: Vec::new() })
     }
 
     /// The table of `transfer` at `bits`, built once per process for 16-bit sRGB (its
@@ -223,40 +219,42 @@ impl EncodeTable {
     }
 
     /// The level of `v`, equal to `quantize_value(v, transfer, max)`.
-    #[inline]
     fn level(&self, v: f32) -> u16 {
+        if self.ramp.is_empty() { self.level_by::<false>(v) } else { self.level_by::<true>(v) }
+    }
+
+    /// [`EncodeTable::level`] by the search `INTERPOLATED` names (the `ramp`'s if true, the
+    /// `steps`' otherwise), chosen once per image rather than per sample.
+    #[inline]
+    fn level_by<const INTERPOLATED: bool>(&self, v: f32) -> u16 {
         if v.is_nan() || v <= 0.0 {
             return 0;
         }
         if v >= 1.0 {
             return self.max;
         }
-        match &self.search {
-            Search::Steps { start, shift, steps } => {
-                // Branchless binary search among the range's few thresholds (sorted): add each
-                // step whose last threshold `v` reaches.
-                let mut q = start[(v.to_bits() >> shift) as usize] as usize;
-                for &s in steps {
-                    q += s * (v >= self.thresholds[q + s - 1]) as usize;
-                }
-                q as u16
+        if !INTERPOLATED {
+            // Branchless binary search among the range's few thresholds (sorted): add each
+            // step whose last threshold `v` reaches.
+            let mut q = self.start[(v.to_bits() >> self.shift) as usize] as usize;
+            for &s in &self.steps {
+                q += s * (v >= self.thresholds[q + s - 1]) as usize;
             }
-            Search::Interpolated { ramp } => {
-                let b = v.to_bits();
-                if b < RAMP_START {
-                    // sRGB's linear segment, as the formula computes it.
-                    return (v * 12.92 * self.max as f32).round() as u16;
-                }
-                let (c, dc) = ramp[((b - RAMP_START) >> RAMP_SHIFT) as usize];
-                let guess = ((c + dc * (b & ((1 << RAMP_SHIFT) - 1)) as f32 + 0.5) as usize).min(self.max as usize);
-                // One level up if `v` reaches the guess's next threshold, one down if it falls
-                // short of the guess's own. (Skipping the comparisons where the guess is far
-                // from a rounding boundary measured no faster: the branch mispredicts.)
-                let up = (v >= self.thresholds[guess]) as usize;
-                let down = (guess > 0 && v < self.thresholds[guess.saturating_sub(1)]) as usize;
-                (guess + up - down) as u16
-            }
+            return q as u16;
         }
+        let b = v.to_bits();
+        if b < RAMP_START {
+            // sRGB's linear segment, as the formula computes it.
+            return (v * 12.92 * self.max as f32).round() as u16;
+        }
+        let (c, dc) = self.ramp[((b - RAMP_START) >> RAMP_SHIFT) as usize];
+        let guess = ((c + dc * (b & ((1 << RAMP_SHIFT) - 1)) as f32 + 0.5) as usize).min(self.max as usize);
+        // One level up if `v` reaches the guess's next threshold, one down if it falls short
+        // of the guess's own. (Skipping the comparisons where the guess is far from a rounding
+        // boundary measured no faster: the branch mispredicts.)
+        let up = (v >= self.thresholds[guess]) as usize;
+        let down = (guess > 0 && v < self.thresholds[guess.saturating_sub(1)]) as usize;
+        (guess + up - down) as u16
     }
 }
 
@@ -268,7 +266,8 @@ impl EncodeTable {
 fn quantize(img: &Image, bit_depth: u8, transfer: Transfer) -> Vec<u8> {
     let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
     match EncodeTable::get(transfer, bit_depth) {
-        Some(t) => quantize_with(img, bit_depth, |v| t.level(v)),
+        Some(t) if t.ramp.is_empty() => quantize_with(img, bit_depth, |v| t.level_by::<false>(v)),
+        Some(t) => quantize_with(img, bit_depth, |v| t.level_by::<true>(v)),
         None => quantize_with(img, bit_depth, |v| quantize_value(v, transfer, max) as u16),
     }
 }
@@ -390,10 +389,10 @@ mod tests {
             let t = EncodeTable::new(transfer, bits).unwrap();
             let max = t.max as f32;
             let check = |v: f32| assert_eq!(t.level(v) as f32, quantize_value(v, transfer, max), "{transfer:?} {bits} bits at {v:e}");
-            if let Search::Interpolated { ramp } = &t.search {
+            if !t.ramp.is_empty() {
                 // The guess is within a small fraction of a level of the formula's unrounded
                 // level across every range (so the one-step corrections suffice).
-                for (i, &(c, dc)) in ramp.iter().enumerate() {
+                for (i, &(c, dc)) in t.ramp.iter().enumerate() {
                     for k in 0..=16u32 {
                         let off = (k << RAMP_SHIFT) / 16 - u32::from(k == 16);
                         let v = f32::from_bits(RAMP_START + ((i as u32) << RAMP_SHIFT) + off);
