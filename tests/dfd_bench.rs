@@ -62,3 +62,20 @@ fn dfd_bench_writes_a_sane_report() {
         run(c)
     });
 }
+
+/// A non-square frame (the figure panels once assumed square ones and the report ended in an
+/// internal error after report.md, leaving no figures): the whole report is written, exit 0.
+#[test]
+fn dfd_bench_takes_a_non_square_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let out = run({
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd", "--scenes", "1", "--size", "40x24", "--iters", "5", "--levels", "1", "--spp", "16", "--out", "rep"]);
+        c
+    });
+    assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
+    let fig = image::open(dir.join("rep/figures/s000.png")).expect("the figure");
+    // Panels of 40x24 at 2x zoom under an 18 px label band.
+    assert_eq!(fig.height(), 24 * 2 + 18);
+}

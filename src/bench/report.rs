@@ -415,23 +415,28 @@ pub fn crop_panels(case: &Case, images: &[(String, &Image)], ours: Option<&Image
         .collect()
 }
 
-/// Writes labelled panels (linear RGB, equal sizes) side by side as an 8-bit PNG: sRGB-encoded,
-/// clipped, 2× nearest-neighbour zoom for panels up to 128 px, labels cut to the panel width.
+/// Writes labelled panels (linear RGB, any sizes; non-square ones included) side by side as an
+/// 8-bit PNG: sRGB-encoded, clipped, 2× nearest-neighbour zoom when every panel's larger side
+/// is at most 128 px, labels cut to the panel width; each panel gets a slot as wide as the
+/// widest, white where it is smaller. Nothing to write for no panels.
 pub fn write_panels(path: &Path, panels: &[(String, Image)]) -> Result<()> {
-    let size = panels[0].1.width;
-    let zoom = if size <= 128 { 2 } else { 1 };
-    let (pw, gap, head) = (size * zoom, 6usize, 18usize);
-    let (w, h) = (panels.len() * (pw + gap) - gap, pw + head);
+    let (pw0, ph0) = panels.iter().fold((0, 0), |(w, h), (_, img)| (w.max(img.width), h.max(img.height)));
+    if pw0 == 0 || ph0 == 0 {
+        return Ok(());
+    }
+    let zoom = if pw0.max(ph0) <= 128 { 2 } else { 1 };
+    let (pw, ph, gap, head) = (pw0 * zoom, ph0 * zoom, 6usize, 18usize);
+    let (w, h) = (panels.len() * (pw + gap) - gap, ph + head);
     let mut buf = vec![255u8; w * h * 3];
     for (k, (name, img)) in panels.iter().enumerate() {
         let ox = k * (pw + gap);
         let enc = srgb(img);
-        for y in 0..pw {
-            for x in 0..pw {
+        for y in 0..img.height * zoom {
+            for x in 0..img.width * zoom {
                 let p = enc.pixel(x / zoom, y / zoom);
                 let i = ((y + head) * w + ox + x) * 3;
                 for c in 0..3 {
-                    buf[i + c] = (p[c] * 255.0).round() as u8;
+                    buf[i + c] = (p[c.min(enc.channels - 1)] * 255.0).round() as u8;
                 }
             }
         }
