@@ -3,7 +3,7 @@
 into README.md between their anchors, and computes the pipeline tables (issue 12: the tool's
 defaults from photo + depth + matte against the baselines fed the same inputs, exact and
 realistic depth, per category, seeds 1 and 2) from docs/bench*/report.csv, and copies the depth-from-defocus means and acceptance checks of
-docs/dfd-bench*/report.md (`drbokeh bench --dfd`), so the README's bench tables are never
+docs/dfd-bench*/report.md and docs/dfd-heldout/report.md (`drbokeh bench --dfd`), so the README's bench tables are never
 typed by hand."""
 import collections, csv, pathlib, sys
 
@@ -104,14 +104,19 @@ if "<!-- pipeline-options -->\n" in readme:
     readme = replace_between(readme, "<!-- pipeline-options -->\n", "<!-- /pipeline-options -->", options_table() + "\n")
 # Depth from defocus (bench --dfd): the means over all cases of each seed, and the
 # acceptance bullets of both seeds, copied from the reports.
-for seed, folder in [("seed1", "docs/dfd-bench"), ("seed2", "docs/dfd-bench-seed2")]:
+DFD_REPORTS = [
+    ("seed1", "Seed 1", "docs/dfd-bench"),
+    ("seed2", "Seed 2", "docs/dfd-bench-seed2"),
+    ("heldout", "Held-out Mitsuba scenes", "docs/dfd-heldout"),
+]
+for key, _, folder in DFD_REPORTS:
     md = (root / folder / "report.md").read_text()
-    start, end = f"<!-- dfd-table {seed} -->\n", f"<!-- /dfd-table {seed} -->"
+    start, end = f"<!-- dfd-table {key} -->\n", f"<!-- /dfd-table {key} -->"
     readme = replace_between(readme, start, end, section(md, "## All cases") + "\n")
 acc = []
-for seed, folder in [(1, "docs/dfd-bench"), (2, "docs/dfd-bench-seed2")]:
+for _, label, folder in DFD_REPORTS:
     md = (root / folder / "report.md").read_text()
-    acc.append(f"Seed {seed}:\n\n" + section(md, "## Acceptance"))
+    acc.append(f"{label}:\n\n" + section(md, "## Acceptance"))
 readme = replace_between(readme, "<!-- dfd-acceptance -->\n", "<!-- /dfd-acceptance -->", "\n\n".join(acc) + "\n")
 readme_path.write_text(readme)
 print("README bench tables updated from docs/bench/report.md and docs/dfd-bench*/report.md", file=sys.stderr)
