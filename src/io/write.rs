@@ -246,8 +246,9 @@ impl EncodeTable {
         }
         let b = v.to_bits();
         if b < RAMP_START {
-            // sRGB's linear segment, as the formula computes it.
-            return (v * 12.92 * self.max as f32).round() as u16;
+            // sRGB's linear segment: the formula itself, which takes no `powf` there (the ramp
+            // exists for sRGB only).
+            return quantize_value(v, Transfer::Srgb, self.max as f32) as u16;
         }
         let (c, dc) = self.ramp[((b - RAMP_START) >> RAMP_SHIFT) as usize];
         let guess = ((c + dc * (b & ((1 << RAMP_SHIFT) - 1)) as f32 + 0.5) as usize).min(self.max as usize);
