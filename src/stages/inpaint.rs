@@ -16,7 +16,9 @@
 //! first-in first-out; both matter for reproducing OpenCV's fill order and thus its values.
 //! The plain mean (no [`OpenCvCompat`]) has no such values to reproduce: it pops cells from
 //! buckets 1/16 px of T wide (first-in first-out within one), which differs from OpenCV's order
-//! only among cells whose T differ by less than that, and is cheaper (see `Buckets`).
+//! only among cells whose T differ by less than that, and is cheaper (see `Buckets`). Its
+//! weights depend on T and the fill order only, so it marches first and then computes the
+//! weights in parallel, ahead of the (sequential) weighted sums (`March::fill_plain`).
 //!
 //! OpenCV's finish is not scale free: to the weighted mean it adds a "nudge", the component sum
 //! of a unit vector built from image gradients (between -√2 and √2 code values), and integer
@@ -111,8 +113,10 @@ impl OpenCvCompat {
 /// reads and writes the image in place. Allocates O(window pixels) working memory once per call
 /// (flags and distances over the window padded by the radius, the queue; with an integer
 /// `compat`, also the window as codes in an image-sized buffer whose other pages are never
-/// touched); nothing per pixel. Single-threaded: several images with the same mask are
-/// filled by one march with [`inpaint_telea_many`], other fills can run in parallel.
+/// touched); nothing per pixel. The plain mean computes its weights on rayon's threads, ahead
+/// of the weighted sums (same values on any number of threads); OpenCV's finishes run on the
+/// calling thread. Several images with the same mask are filled by one march with
+/// [`inpaint_telea_many`].
 pub fn inpaint_telea(img: &mut Image, mask: &[bool], opts: TeleaOptions) -> Result<usize> {
     inpaint_telea_many(&mut [img], mask, opts)
 }
@@ -219,7 +223,7 @@ fn fill_all(
     let mut m = March::new(mask, first.width, win, radius);
     m.outside_distances(radius);
     match compat {
-        None => m.fill::<PLAIN>(imgs, radius, max_distance, OpenCvCompat::f32()),
+        None => m.fill_plain(imgs, radius, max_distance, avx2_available()),
         Some(cv) if cv.max_code.is_none() => m.fill::<CV_FLOAT>(imgs, radius, max_distance, cv),
         Some(cv) => m.fill::<CV_INT>(imgs, radius, max_distance, cv),
     }
@@ -308,30 +312,6 @@ impl Buckets {
     }
 }
 
-/// The inward march's queue: OpenCV's exact order where its finish is reproduced, buckets for
-/// the plain mean.
-enum Order {
-    Exact(Queue),
-    Buckets(Buckets),
-}
-
-impl Order {
-    #[inline]
-    fn push(&mut self, t: f32, cell: usize) {
-        match self {
-            Order::Exact(q) => q.push(t, cell),
-            Order::Buckets(b) => b.push(t, cell),
-        }
-    }
-    #[inline]
-    fn pop(&mut self) -> Option<usize> {
-        match self {
-            Order::Exact(q) => q.pop(),
-            Order::Buckets(b) => b.pop(),
-        }
-    }
-}
-
 /// Working state on a window of the image, padded by `pad` cells on each side.
 struct March {
     /// The window's size.
@@ -408,18 +388,26 @@ impl Disc {
     }
 
     /// Every cell's weight for the pixel at grid cell `n` (T `tn`, ∇T `g`) into `out`: OpenCV's
-    /// `|dst · lev · dir|` for a known cell (KNOWN or BAND), `-0.0` for the others (unknown,
-    /// outside the image, the centre). A known weight is an absolute value, so its sign bit is
+    /// `|dst · lev · dir|` for a known cell (`keys[cell] < below`: KNOWN or BAND flags below
+    /// INSIDE, or reached before `n` in the plain march's order), `-0.0` for the others
+    /// (unknown, outside the image, the centre). A known weight is an absolute value, so its sign bit is
     /// clear: the sign marks the unknown cells, and `-0.0` adds nothing to any sum, bit for bit.
     /// The rows run without branches, so the compiler vectorizes them (OpenCV's ordering of the
     /// products is kept: the same bits as one tap at a time).
     #[inline(always)]
-    fn weights<const MODE: u8>(&self, dst: &[f32], (flags, t): (&[u8], &[f32]), n: usize, (gtx, gty): (f32, f32), out: &mut [f32]) {
+    fn weights<const MODE: u8, K: Copy + PartialOrd>(
+        &self,
+        dst: &[f32],
+        (keys, below, t): (&[K], K, &[f32]),
+        n: usize,
+        (gtx, gty): (f32, f32),
+        out: &mut [f32],
+    ) {
         let tn = t[n];
         let mut k = 0;
         for &(off, len) in &self.rows {
             let base = (n as isize + off) as usize;
-            let (fl, tt) = (&flags[base..base + len], &t[base..base + len]);
+            let (fl, tt) = (&keys[base..base + len], &t[base..base + len]);
             let (rx, ry, dst) = (&self.rx[k..k + len], &self.ry[k..k + len], &dst[k..k + len]);
             for (j, o) in out[k..k + len].iter_mut().enumerate() {
                 let dt = (tt[j] - tn).abs();
@@ -428,7 +416,7 @@ impl Disc {
                 let dir = rx[j] * gtx + ry[j] * gty;
                 let dir = if (dir.abs() as f64) <= 0.01 { 1.0e-6 } else { dir };
                 let wgt = (dst[j] * lev * dir).abs();
-                *o = if fl[j] < INSIDE { wgt } else { -0.0 };
+                *o = if fl[j] < below { wgt } else { -0.0 };
             }
             k += len;
         }
@@ -476,8 +464,8 @@ fn eikonal(flags: &[u8], t: &[f32], n: usize, gw: usize) -> f32 {
 
 /// One-sided or central difference of `v` along one axis, using only non-unknown neighbours.
 #[inline]
-fn known_diff(flags: &[u8], t: &[f32], n: usize, step: usize) -> f32 {
-    match (flags[n + step] != INSIDE, flags[n - step] != INSIDE) {
+fn known_diff(known: impl Fn(usize) -> bool, t: &[f32], n: usize, step: usize) -> f32 {
+    match (known(n + step), known(n - step)) {
         (true, true) => (t[n + step] - t[n - step]) * 0.5,
         (true, false) => t[n + step] - t[n],
         (false, true) => t[n] - t[n - step],
@@ -594,8 +582,93 @@ impl March {
         }
     }
 
-    /// The inward march that fills the hole of every image of `imgs` (the image the window
-    /// lies in; all of one size); returns the number of pixels filled (in each).
+    /// The plain mean's inward march over every image of `imgs` (the image the window lies in;
+    /// all of one size); returns the number of pixels filled (in each).
+    ///
+    /// A cell's weights depend on T and on which cells were reached before it, not on any
+    /// value; its value on the values of those cells. So the march runs first, alone (cheap:
+    /// T and the order), then the values in that order, a chunk of cells at a time, while the
+    /// next chunk's weights are computed on the other threads. Each value is the same, bit for
+    /// bit, as one computed at the moment the march reaches its cell, and does not depend on
+    /// the thread count.
+    fn fill_plain(&mut self, imgs: &mut [&mut Image], radius: usize, max_distance: f32, avx2: bool) -> usize {
+        use rayon::prelude::*;
+        /// Cells per chunk: a chunk's weights (8 bytes per disc cell) stay in cache.
+        const CHUNK: usize = 1024;
+        let (pad, gw) = (self.pad, self.gw);
+        let iw = imgs[0].width;
+        // When each cell was reached: 0 for the known cells, 1, 2, ... in march order, MAX for
+        // the padding and the cells never reached.
+        let mut reached: Vec<u32> = self.flags.iter().map(|&f| if f < INSIDE { 0 } else { u32::MAX }).collect();
+        let mut order: Vec<u32> = Vec::new();
+        let mut queue = Buckets::new();
+        for &n in &self.band {
+            queue.push(0.0, n as usize);
+        }
+        while let Some(p) = queue.pop() {
+            self.flags[p] = KNOWN;
+            for q in [p - gw, p - 1, p + gw, p + 1] {
+                if self.flags[q] != INSIDE {
+                    continue;
+                }
+                let d = eikonal(&self.flags, &self.t, q, gw);
+                if d > max_distance {
+                    // Left unknown; a later neighbour may still reach it within the limit.
+                    continue;
+                }
+                self.t[q] = d;
+                self.flags[q] = BAND;
+                order.push(q as u32);
+                reached[q] = order.len() as u32;
+                queue.push(d, q);
+            }
+        }
+        let disc = Disc::new(radius, gw, iw);
+        let taps = disc.len();
+        let (flags, t, reached) = (&self.flags, &self.t, &reached);
+        // A chunk's weights: per cell, its known taps' weights and numbers, and their count.
+        let ctx = PlainWeights { flags, t, reached, disc: &disc, gw };
+        let weigh = |cells: &[u32], (wts, nums, count): &mut (Vec<f32>, Vec<u32>, Vec<usize>)| {
+            const RUN: usize = 64;
+            wts.par_chunks_mut(RUN * taps)
+                .zip(nums.par_chunks_mut(RUN * taps))
+                .zip(count.par_chunks_mut(RUN))
+                .zip(cells.par_chunks(RUN))
+                .for_each_init(|| vec![0.0f32; taps], |all, (((wts, nums), count), cells)| ctx.weigh(avx2, cells, (wts, nums, count), all));
+        };
+        let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
+        let buffer = || (vec![0.0f32; CHUNK * taps], vec![0u32; CHUNK * taps], vec![0usize; CHUNK]);
+        let (mut cur, mut next) = (buffer(), buffer());
+        if let Some(first) = chunks.first() {
+            weigh(first, &mut cur);
+        }
+        for (k, cells) in chunks.iter().enumerate() {
+            let sums = |imgs: &mut [&mut Image], (wts, nums, count): &(Vec<f32>, Vec<u32>, Vec<usize>)| {
+                for (i, &n) in cells.iter().enumerate() {
+                    let n = n as usize;
+                    let centre = (n / gw - pad + self.y0) * iw + (n % gw - pad + self.x0);
+                    let known = (&wts[i * taps..][..count[i]], &nums[i * taps..][..count[i]]);
+                    for img in imgs.iter_mut() {
+                        mean(&disc, &mut img.data, img.channels, known, centre);
+                    }
+                }
+            };
+            rayon::join(
+                || sums(imgs, &cur),
+                || {
+                    if let Some(later) = chunks.get(k + 1) {
+                        weigh(later, &mut next);
+                    }
+                },
+            );
+            std::mem::swap(&mut cur, &mut next);
+        }
+        order.len()
+    }
+
+    /// OpenCV's inward march (`MODE` one of its finishes) that fills the hole of every image of
+    /// `imgs` (the image the window lies in; all of one size); returns the number of pixels
+    /// filled (in each).
     fn fill<const MODE: u8>(&mut self, imgs: &mut [&mut Image], radius: usize, max_distance: f32, cv: OpenCvCompat) -> usize {
         let (pad, gw, r) = (self.pad, self.gw, radius as isize);
         let (iw, ih) = (imgs[0].width, imgs[0].height);
@@ -603,18 +676,12 @@ impl March {
         // Per-pixel scratch, reused: every cell's weight for each path OpenCV takes (3 channels or
         // not, see `Disc::dst3`; computed only when some image needs it), the known cells.
         let need = |three: bool| imgs.iter().any(|im| (im.channels == 3) == three);
-        // The plain mean has no OpenCV path to follow: one table (the root in double) serves
-        // every channel count, so a march that fills colour and disparity weighs its disc once.
-        let (need3, need1) = if MODE == PLAIN { (true, false) } else { (need(true), need(false)) };
+        let (need3, need1) = (need(true), need(false));
         let mut weights3 = vec![0.0f32; if need3 { disc.len() } else { 0 }];
         let mut weights1 = vec![0.0f32; if need1 { disc.len() } else { 0 }];
         let mut known = vec![0u32; disc.len()];
-        let mut grads = Vec::with_capacity(if MODE == PLAIN { 0 } else { disc.len() });
-        let mut queue = if MODE == PLAIN {
-            Order::Buckets(Buckets::new())
-        } else {
-            Order::Exact(Queue::with_capacity(self.band.len() + self.flags.len() / 8))
-        };
+        let mut grads = Vec::with_capacity(disc.len());
+        let mut queue = Queue::with_capacity(self.band.len() + self.flags.len() / 8);
         for &n in &self.band {
             queue.push(0.0, n as usize);
         }
@@ -658,7 +725,7 @@ impl March {
                 for (i, img) in imgs.iter_mut().enumerate() {
                     let ch = img.channels;
                     let buf = if MODE == CV_INT { &mut codes[i][..] } else { &mut img.data[..] };
-                    let wts = if ch == 3 || MODE == PLAIN { &weights3[..] } else { &weights1[..] };
+                    let wts = if ch == 3 { &weights3[..] } else { &weights1[..] };
                     if interior {
                         ctx.pixel::<MODE, false>(buf, ch, (wts, &known[..m]), &mut grads, q, y, x);
                     } else {
@@ -677,6 +744,110 @@ impl March {
             }
         }
         filled
+    }
+}
+
+/// What [`March::fill_plain`] weighs a cell's disc with: the march's flags and T, when each
+/// cell was reached, the disc.
+struct PlainWeights<'a> {
+    flags: &'a [u8],
+    t: &'a [f32],
+    reached: &'a [u32],
+    disc: &'a Disc,
+    gw: usize,
+}
+
+impl PlainWeights<'_> {
+    /// Each cell's known taps (weights, disc cell numbers) into its slot of `taps` entries of
+    /// `wts` and `nums`, and their number into `count`; `all` is scratch of `taps` entries.
+    /// With `avx2` (the CPU has it), the same arithmetic on wider vectors: the same bits.
+    fn weigh(&self, avx2: bool, cells: &[u32], out: (&mut [f32], &mut [u32], &mut [usize]), all: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: `avx2` says the CPU supports AVX2.
+            return unsafe { self.weigh_avx2(cells, out, all) };
+        }
+        let _ = avx2;
+        self.weigh_cells(cells, out, all)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn weigh_avx2(&self, cells: &[u32], out: (&mut [f32], &mut [u32], &mut [usize]), all: &mut [f32]) {
+        self.weigh_cells(cells, out, all)
+    }
+
+    #[inline(always)]
+    fn weigh_cells(&self, cells: &[u32], (wts, nums, count): (&mut [f32], &mut [u32], &mut [usize]), all: &mut [f32]) {
+        let (flags, t, reached, disc) = (self.flags, self.t, self.reached, self.disc);
+        let taps = all.len();
+        for (((wts, nums), count), &n) in wts.chunks_exact_mut(taps).zip(nums.chunks_exact_mut(taps)).zip(count.iter_mut()).zip(cells) {
+            let n = n as usize;
+            let before = reached[n];
+            // Known when `n` was reached: the padding counts for T's differences (as OpenCV's
+            // border does), never as a source.
+            let settled = |q: usize| flags[q] == VOID || reached[q] < before;
+            let g = (known_diff(settled, t, n, 1), known_diff(settled, t, n, self.gw));
+            // One table (the root in double) serves every channel count: the disc is weighed
+            // once for all images.
+            disc.weights::<PLAIN, u32>(&disc.dst3, (reached, before, t), n, g, all);
+            let mut m = 0;
+            for (k, &wgt) in all.iter().enumerate() {
+                // Branchless compaction of the known taps.
+                wts[m] = wgt;
+                nums[m] = k as u32;
+                m += !wgt.is_sign_negative() as usize;
+            }
+            *count = m;
+        }
+    }
+}
+
+/// Whether the CPU has AVX2 (checked once per call site; false off x86-64).
+fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// The plain weighted mean of pixel `centre` of `data` (`ch` channels) from its `known` taps
+/// of `disc` (their weights and disc cell numbers), written into the pixel. The sums run over
+/// the taps in disc order, all channels and the weight total in one pass.
+#[inline(always)]
+fn mean(disc: &Disc, data: &mut [f32], ch: usize, (weights, known): (&[f32], &[u32]), centre: usize) {
+    let centre = centre * ch;
+    // A known tap lies inside the image, so its plain offset is always valid.
+    let src = |k: u32| (centre as isize + disc.pixel[k as usize] * ch as isize) as usize;
+    let mut s = 1.0e-20f32;
+    if ch == 3 {
+        let (mut r, mut g, mut b) = (0.0f32, 0.0f32, 0.0f32);
+        for (&wgt, &k) in weights.iter().zip(known) {
+            let i = src(k);
+            s += wgt;
+            r += wgt * data[i];
+            g += wgt * data[i + 1];
+            b += wgt * data[i + 2];
+        }
+        data[centre..centre + 3].copy_from_slice(&[r / s, g / s, b / s]);
+    } else if ch == 1 {
+        let mut v = 0.0f32;
+        for (&wgt, &k) in weights.iter().zip(known) {
+            s += wgt;
+            v += wgt * data[src(k)];
+        }
+        data[centre] = v / s;
+    } else {
+        for &wgt in weights {
+            s += wgt;
+        }
+        for c in 0..ch {
+            let mut v = 0.0f32;
+            for (&wgt, &k) in weights.iter().zip(known) {
+                v += wgt * data[src(k) + c];
+            }
+            data[centre + c] = v / s;
+        }
     }
 }
 
@@ -712,12 +883,13 @@ impl Ctx<'_> {
     #[inline(always)]
     fn known_weights<const MODE: u8>(&self, n: usize, (w3, w1): (&mut [f32], &mut [f32]), known: &mut [u32]) -> usize {
         let (flags, t, disc) = (self.flags, self.t, self.disc);
-        let g = (known_diff(flags, t, n, 1), known_diff(flags, t, n, self.gw));
+        let settled = |q: usize| flags[q] != INSIDE;
+        let g = (known_diff(settled, t, n, 1), known_diff(settled, t, n, self.gw));
         if !w3.is_empty() {
-            disc.weights::<MODE>(&disc.dst3, (flags, t), n, g, w3);
+            disc.weights::<MODE, u8>(&disc.dst3, (flags, INSIDE, t), n, g, w3);
         }
         if !w1.is_empty() {
-            disc.weights::<MODE>(&disc.dst1, (flags, t), n, g, w1);
+            disc.weights::<MODE, u8>(&disc.dst1, (flags, INSIDE, t), n, g, w1);
         }
         let wts: &[f32] = if w3.is_empty() { w1 } else { w3 };
         let mut m = 0;
@@ -754,40 +926,6 @@ impl Ctx<'_> {
         let centre = (y * wi + x) as usize * ch;
         // A known tap lies inside the image, so its plain offset is always valid.
         let src = |k: u32| (centre as isize + disc.pixel[k as usize] * ch as isize) as usize;
-        if MODE == PLAIN {
-            let mut s = 1.0e-20f32;
-            if ch == 3 {
-                let (mut r, mut g, mut b) = (0.0f32, 0.0f32, 0.0f32);
-                for &k in known {
-                    let (wgt, i) = (weights[k as usize], src(k));
-                    s += wgt;
-                    r += wgt * data[i];
-                    g += wgt * data[i + 1];
-                    b += wgt * data[i + 2];
-                }
-                data[centre..centre + 3].copy_from_slice(&[r / s, g / s, b / s]);
-            } else if ch == 1 {
-                let mut v = 0.0f32;
-                for &k in known {
-                    let wgt = weights[k as usize];
-                    s += wgt;
-                    v += wgt * data[src(k)];
-                }
-                data[centre] = v / s;
-            } else {
-                for &k in known {
-                    s += weights[k as usize];
-                }
-                for c in 0..ch {
-                    let mut v = 0.0f32;
-                    for &k in known {
-                        v += weights[k as usize] * data[src(k) + c];
-                    }
-                    data[centre + c] = v / s;
-                }
-            }
-            return;
-        }
         let at = |yy: isize, xx: isize| (yy.clamp(0, hi - 1) * wi + xx.clamp(0, wi - 1)) as usize * ch;
         let row = self.w * ch;
         grads.clear();
@@ -1148,6 +1286,43 @@ mod tests {
         let (a0, b0) = (a.clone(), b.clone());
         assert!(matches!(inpaint_telea_many(&mut [&mut a, &mut b], &masks[0], TeleaOptions::new(3.0)), Err(Error::Usage(_))));
         assert_eq!((a, b), (a0, b0));
+    }
+
+    /// The plain fill's values come out the same, bit for bit, on one thread and on several
+    /// (its weights are computed ahead of its sums, in parallel) and with and without AVX2.
+    #[test]
+    fn the_plain_fill_does_not_depend_on_threads_or_simd() {
+        let (w, h) = (230, 170);
+        // A hole of many chunks of cells, with an island of known pixels inside it.
+        let mask: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let d = (x - 110.0).powi(2) / 90.0f32.powi(2) + (y - 80.0).powi(2) / 60.0f32.powi(2);
+                d < 1.0 && (x - 100.0).abs() + (y - 70.0).abs() > 6.0
+            })
+            .collect();
+        let images = [noise_image(w, h, 3, 5), noise_image(w, h, 1, 6)];
+        let fill = |threads: usize, avx2: bool, md: f32| {
+            let mut out = images.clone();
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let n = pool.install(|| {
+                let [a, b] = &mut out;
+                let win = fill_window(&mask, w, h, 5, md).unwrap();
+                let mut m = March::new(&mask, w, win, 5);
+                m.outside_distances(5);
+                m.fill_plain(&mut [a, b], 5, md, avx2)
+            });
+            (n, out.iter().flat_map(|im| im.data.iter().map(|v| v.to_bits())).collect::<Vec<_>>())
+        };
+        for md in [f32::INFINITY, 12.0] {
+            let one = fill(1, false, md);
+            assert!(one.0 > 5000, "{} cells filled", one.0);
+            assert_eq!(one, fill(3, false, md), "threads, max distance {md}");
+            if avx2_available() {
+                assert_eq!(one, fill(1, true, md), "AVX2, max distance {md}");
+                assert_eq!(one, fill(2, true, md), "AVX2 on 2 threads, max distance {md}");
+            }
+        }
     }
 
     proptest::proptest! {
