@@ -8,7 +8,7 @@ use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
-use crate::stages::background::{ForegroundColour, inpaint_background};
+use crate::stages::background::{ForegroundColour, Reach, inpaint_background};
 use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
@@ -470,11 +470,7 @@ impl Pipeline {
                 // what is behind up to its visibility reach inside its outline, and a pixel
                 // behind scatters up to σ ≤ max CoC + 1 plus the soft step's tail (disparities
                 // stay in [0, 1], so max_coc bounds σ).
-                let reach = if whole {
-                    f32::INFINITY
-                } else {
-                    crate::stages::background::fill_reach(&alpha, &cfg.inpaint, fd.visible_reach + (max_coc + 1.0).ceil() + 4.0)
-                };
+                let reach = if whole { Reach::Whole } else { Reach::Seen(fd.visible_reach + (max_coc + 1.0).ceil() + 4.0) };
                 if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
                     let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
                         photo,
@@ -485,9 +481,9 @@ impl Pipeline {
                         edges.outside_px,
                         &cfg.onnx,
                     )?;
-                    Ok((bg, Some(r), reach))
+                    Ok((bg, Some(r)))
                 } else {
-                    Ok((inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None, reach))
+                    Ok((inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None))
                 }
             },
             || match cfg.inpaint.foreground {
@@ -495,7 +491,8 @@ impl Pipeline {
                 ForegroundColour::Photo => Ok(None),
             },
         );
-        let (mut bg, inpaint_model, reach): (_, Option<crate::onnx::OnnxReport>, f32) = filled?;
+        let (mut bg, inpaint_model): (_, Option<crate::onnx::OnnxReport>) = filled?;
+        let reach = bg.reach;
         if let Some(r) = &inpaint_model {
             report.warnings.extend(r.warnings.iter().cloned());
         }

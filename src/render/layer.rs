@@ -39,7 +39,10 @@ impl Layer {
         if image.is_empty() {
             return Err(Error::input(what, "layer is empty (0 pixels)"));
         }
-        if let Some(i) = image.data.iter().position(|v| !v.is_finite()) {
+        // In parallel and without an early exit per value (the loop vectorizes): at 12.2 MP a
+        // layer is 61 M values, and a first-hit search on one thread took tens of ms.
+        let finite = image.data.par_chunks(1 << 16).all(|c| c.iter().fold(true, |ok, v| ok & v.is_finite()));
+        if let Some(i) = (!finite).then(|| image.data.iter().position(|v| !v.is_finite())).flatten() {
             let px = i / CHANNELS;
             return Err(Error::input(
                 what,

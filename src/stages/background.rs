@@ -103,6 +103,8 @@ pub struct Background {
     pub band: (usize, usize),
     /// Visible highlights kept out of the fill's sources.
     pub highlights_kept: usize,
+    /// How deep (fast-marching pixels) the fill went; infinite for the whole region.
+    pub reach: f32,
 }
 
 impl Background {
@@ -110,7 +112,16 @@ impl Background {
     /// `skipped`), `band` = (edge band pixels, of which re-synthesized, highlights kept).
     pub fn new(rgb: Image, disparity: Image, mask: Vec<bool>, filled: usize, band: (usize, usize, usize)) -> Self {
         let total = mask.iter().filter(|&&m| m).count();
-        Background { rgb, disparity, mask, filled, skipped: total.saturating_sub(filled), band: (band.0, band.1), highlights_kept: band.2 }
+        Background {
+            rgb,
+            disparity,
+            mask,
+            filled,
+            skipped: total.saturating_sub(filled),
+            band: (band.0, band.1),
+            highlights_kept: band.2,
+            reach: f32::INFINITY,
+        }
     }
 }
 
@@ -122,6 +133,19 @@ pub fn inpaint_mask(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
 
 fn covered(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
     alpha.data.par_iter().map(|&a| a > opts.threshold).collect()
+}
+
+/// How deep under the foreground a background fill goes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Reach {
+    /// Everywhere (a fill that more layers are cut from must be complete).
+    Whole,
+    /// As deep as a value behind the foreground can be seen: within `see` pixels (visibility
+    /// box plus a background scatter radius) of a pixel whose alpha is below 1
+    /// ([`FillRegion::reach`]).
+    Seen(f32),
+    /// This many pixels (fast-marching distance) from the visible background.
+    Pixels(f32),
 }
 
 /// What a background fill replaces and what it must not spread.
@@ -141,9 +165,43 @@ pub struct FillRegion {
     pub band_replaced: usize,
     /// Highlights kept out of the fill's sources.
     pub highlights_kept: usize,
+    /// The covered pixels grown by `dilate` ([`inpaint_mask`]).
+    pub grown: Vec<bool>,
 }
 
 impl FillRegion {
+    /// The fast-marching distance `reach` means for this region and `alpha`. For
+    /// [`Reach::Seen`]: background values are seen through the foreground wherever its
+    /// visibility is below 1, i.e. within `see` pixels of a pixel whose alpha is below 1, so
+    /// translucent pixels deep inside the mask (fur, glass) push the reach inward accordingly.
+    /// Cost: one distance transform on the grown mask's box.
+    pub fn reach(&self, alpha: &Image, reach: Reach) -> f32 {
+        let see = match reach {
+            Reach::Whole => return f32::INFINITY,
+            Reach::Pixels(px) => return px,
+            Reach::Seen(see) => see,
+        };
+        let (w, h) = (alpha.width, alpha.height);
+        let mask = &self.grown;
+        // Every masked pixel's nearest outside pixel lies within the mask's box grown by 1.
+        let Some(bb) = super::mask::grown_bbox(mask, w, h, 1.0) else { return super::mask::marching_reach(see) };
+        let to_outside = super::mask::sq_distance_window(mask, w, bb, false);
+        let (x0, y0, x1, _) = bb;
+        // Rows in parallel: this scan is on the background fill's critical path.
+        let deep = to_outside
+            .par_chunks(x1 - x0)
+            .enumerate()
+            .map(|(y, row)| {
+                row.iter()
+                    .zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1])
+                    .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
+                    .map(|(&d, _)| super::mask::root(d))
+                    .fold(0.0, f32::max)
+            })
+            .reduce(|| 0.0, f32::max);
+        super::mask::marching_reach(deep + see)
+    }
+
     /// The holes a colour fill is given: the mask, and the kept highlights too, so that they
     /// feed nothing (put them back with [`FillRegion::restore_highlights`]).
     pub fn colour_holes(&self) -> Vec<bool> {
@@ -208,39 +266,20 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
         Some(g) => g.iter().zip(&mask).map(|(&g, &m)| g || m).collect(),
         None => mask.clone(),
     };
-    FillRegion { mask, depth_mask, highlights, band: band.len(), band_replaced: replaced.iter().filter(|&&r| r).count(), highlights_kept }
+    FillRegion {
+        mask,
+        depth_mask,
+        highlights,
+        band: band.len(),
+        band_replaced: replaced.iter().filter(|&&r| r).count(),
+        highlights_kept,
+        grown,
+    }
 }
 
-/// The region a background fill must cover, as a fast-marching reach from the visible
-/// background: background values are seen through the foreground wherever its visibility is
-/// below 1, i.e. within `see` pixels (visibility box plus a background scatter radius) of a
-/// pixel whose alpha is below 1. Translucent pixels deep inside the mask (fur, glass) push the
-/// reach inward accordingly. Computes the dilated mask and one distance transform, on the
-/// mask's box only.
-pub fn fill_reach(alpha: &Image, opts: &InpaintOptions, see: f32) -> f32 {
-    let (w, h) = (alpha.width, alpha.height);
-    let mask = inpaint_mask(alpha, opts);
-    // Every masked pixel's nearest outside pixel lies within the mask's box grown by 1.
-    let Some(bb) = super::mask::grown_bbox(&mask, w, h, 1.0) else { return super::mask::marching_reach(see) };
-    let to_outside = super::mask::sq_distance_window(&mask, w, bb, false);
-    let (x0, y0, x1, _) = bb;
-    // Rows in parallel: this scan is on the background fill's critical path.
-    let deep = to_outside
-        .par_chunks(x1 - x0)
-        .enumerate()
-        .map(|(y, row)| {
-            row.iter()
-                .zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1])
-                .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
-                .map(|(&d, _)| super::mask::root(d))
-                .fold(0.0, f32::max)
-        })
-        .reduce(|| 0.0, f32::max);
-    super::mask::marching_reach(deep + see)
-}
-
-/// Inpaints `rgb` and `disp` over [`fill_region`]'s masks, up to `reach` pixels from the
-/// visible background (deeper pixels cannot be seen through any blur and keep their input).
+/// Inpaints `rgb` and `disp` over [`fill_region`]'s masks, as deep as `reach` says
+/// ([`FillRegion::reach`]; deeper pixels cannot be seen through any blur and keep their input).
+/// The depth used is the answer's `reach`.
 /// With `opts.method` = PatchMatch, the colour within `reach` (Euclidean) is then re-filled by
 /// [`super::patchmatch::fill`] from Telea's start, with the filled disparity as its depth term.
 pub fn inpaint_background(
@@ -248,11 +287,12 @@ pub fn inpaint_background(
     disp: &Image,
     alpha: &Image,
     opts: &InpaintOptions,
-    reach: f32,
+    reach: Reach,
     ramp_outside: f32,
 ) -> Result<Background> {
     // The copies the fill starts from (page faults mostly) beside the region's tests.
     let (region, (mut rgb_out, mut disp_out)) = rayon::join(|| fill_region(rgb, alpha, opts, ramp_outside), || (rgb.clone(), disp.clone()));
+    let reach = region.reach(alpha, reach);
     let rgb_mask = region.colour_holes();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
     let filled = if rgb_mask == region.depth_mask {
@@ -272,5 +312,5 @@ pub fn inpaint_background(
     let filled = filled?.saturating_sub(region.highlights_kept);
     region.restore_highlights(&mut rgb_out, rgb);
     let stats = (region.band, region.band_replaced, region.highlights_kept);
-    Ok(Background::new(rgb_out, disp_out, region.mask, filled, stats))
+    Ok(Background { reach, ..Background::new(rgb_out, disp_out, region.mask, filled, stats) })
 }

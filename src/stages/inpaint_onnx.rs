@@ -98,12 +98,13 @@ pub fn inpaint_background(
     disp: &Image,
     alpha: &Image,
     opts: &InpaintOptions,
-    reach: f32,
+    reach: super::background::Reach,
     ramp_outside: f32,
     cfg: &OnnxConfig,
 ) -> Result<(Background, OnnxReport)> {
     let (w, h) = (rgb.width, rgb.height);
     let fill = super::background::fill_region(rgb, alpha, opts, ramp_outside);
+    let reach = fill.reach(alpha, reach);
     let stats = (fill.band, fill.band_replaced, fill.highlights_kept);
     // The model sees kept highlights as holes too (so it copies none into the hidden region);
     // they are put back after the paste.
@@ -114,7 +115,7 @@ pub fn inpaint_background(
     let total = mask.iter().filter(|&&m| m).count();
     let fixed = model.binding.fixed.is_some() || matches!(model.contract.size, SizeSpec::Fixed { .. });
     let Some((x0, y0, cw, ch)) = region(&mask, w, h, fixed, model.contract.context) else {
-        let bg = Background::new(rgb_out, disp_out, fill.mask, 0, stats);
+        let bg = Background { reach, ..Background::new(rgb_out, disp_out, fill.mask, 0, stats) };
         return Ok((bg, model.report));
     };
     let t = Instant::now();
@@ -156,7 +157,7 @@ pub fn inpaint_background(
         }
     }
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
-    Ok((Background::new(rgb_out, disp_out, mask, total, stats), model.report))
+    Ok((Background { reach, ..Background::new(rgb_out, disp_out, mask, total, stats) }, model.report))
 }
 
 /// Which implementation fills the background (`[inpaint] method`, `--inpaint`).
