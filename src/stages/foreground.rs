@@ -9,7 +9,7 @@
 //! nearest solid foreground, carried outwards by a Telea fill.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::grown_bbox;
+use rayon::prelude::*;
 use crate::error::Result;
 use crate::image::Image;
 
@@ -40,71 +40,106 @@ pub fn unmix(c: f32, b: f32, alpha: f32) -> f32 {
     ((c - (1.0 - alpha) * b) / alpha).max(0.0)
 }
 
-/// Carries the solid pixels' colour over the soft ones (Telea, up to [`CARRY_PX`]), on the
-/// bounding box of the visible (`α > 0`) pixels only: nothing outside it is read or changed,
-/// so a small subject in a 12 MP frame costs a small fill.
-fn carry_solid_colour(img: &mut Image, alpha: &Image, soft: &[bool], radius: f32) -> Result<()> {
-    let (w, h) = (img.width, img.height);
-    let visible: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
-    let Some((x0, y0, x1, y1)) = grown_bbox(&visible, w, h, 1.0) else { return Ok(()) };
-    let (cw, ch) = (x1 - x0, y1 - y0);
-    let mut crop = img.crop(x0, y0, cw, ch);
-    let crop_soft: Vec<bool> = (y0..y1).flat_map(|y| soft[y * w + x0..y * w + x1].iter().copied()).collect();
-    inpaint_telea(&mut crop, &crop_soft, TeleaOptions { max_distance: Some(CARRY_PX), ..TeleaOptions::new(radius) })?;
-    for (y, row) in crop.data.chunks_exact(cw * 3).enumerate() {
-        let i = ((y0 + y) * w + x0) * 3;
-        img.data[i..i + cw * 3].copy_from_slice(row);
+/// The foreground layer's colour on a window of the frame, where it differs from the photo:
+/// the box of the visible (`α > 0`) pixels grown by two. Outside it the foreground colour is
+/// the photo's (those pixels are transparent: only their alpha matters).
+pub struct EdgeColour {
+    /// The window's first column in the frame.
+    pub x0: usize,
+    /// The window's first row in the frame.
+    pub y0: usize,
+    /// The colour on the window (linear RGB, straight).
+    pub rgb: Image,
+}
+
+impl EdgeColour {
+    /// `frame` (a frame-sized image with at least 3 channels, colour first) with this window's
+    /// colour written over its first three channels.
+    pub fn paste_into(&self, frame: &mut Image) {
+        let (c, cw) = (frame.channels, self.rgb.width);
+        for (y, src) in self.rgb.data.chunks_exact(cw * 3).enumerate() {
+            let i = frame.index(self.x0, self.y0 + y);
+            for (dst, px) in frame.data[i..i + cw * c].chunks_exact_mut(c).zip(src.chunks_exact(3)) {
+                dst[..3].copy_from_slice(px);
+            }
+        }
     }
-    Ok(())
 }
 
 /// Separates the photo `rgb` at the soft pixels of `alpha` (0 < α < [`SOLID_ALPHA`]) into the
 /// foreground layer's colour (linear RGB, straight, not premultiplied; returned) and the
 /// background's (`bg`, the filled background layer, corrected in place) as the module doc
-/// says. Solid pixels keep the photo's colour; transparent pixels get the carried solid colour
-/// (their colour only matters through rounding). Returns the foreground colour and the number
-/// of soft pixels. Cost: [`carried_colour`] (which needs no background: run it beside the
-/// background fill) then [`unmix_edges`].
+/// says. Solid pixels keep the photo's colour; transparent pixels near the soft edge get the
+/// carried solid colour (their colour only matters through rounding). Returns the foreground
+/// colour and the number of soft pixels. Cost: [`carried_colour`] (which needs no background:
+/// run it beside the background fill) then [`unmix_edges`], and a copy of the photo.
 pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Result<(Image, usize)> {
-    Ok(unmix_edges(rgb, alpha, carried_colour(rgb, alpha, radius)?, bg))
+    let (edge, changed) = unmix_edges(rgb, alpha, carried_colour(rgb, alpha, radius)?, bg);
+    let mut out = rgb.clone();
+    if let Some(e) = edge {
+        e.paste_into(&mut out);
+    }
+    Ok((out, changed))
 }
 
-/// The first half of [`separate`]: the photo with the solid pixels' colour carried over the
-/// soft ones, or None when there is nothing to separate (no soft pixel with α > 0, or no solid
-/// colour to carry). Cost: one Telea fill over the soft pixels up to [`CARRY_PX`] from solid
-/// ones, on the visible pixels' box; allocates the image.
-pub fn carried_colour(rgb: &Image, alpha: &Image, radius: f32) -> Result<Option<Image>> {
-    let soft: Vec<bool> = alpha.data.iter().map(|&a| a < SOLID_ALPHA).collect();
-    if soft.iter().all(|&s| s) || !alpha.data.iter().any(|&a| a > 0.0 && a < SOLID_ALPHA) {
+/// The first half of [`separate`]: the photo's colour with the solid pixels' colour carried
+/// over the soft ones (Telea, up to [`CARRY_PX`]), on the visible pixels' box grown by one
+/// ([`EdgeColour`]); None when there is nothing to separate (no soft pixel with α > 0, or no
+/// solid colour to carry). Nothing outside the box is read but alpha. Cost: one Telea fill
+/// over the soft pixels of the box; allocates the box's colour and masks.
+pub fn carried_colour(rgb: &Image, alpha: &Image, radius: f32) -> Result<Option<EdgeColour>> {
+    let (w, h) = (alpha.width, alpha.height);
+    // The visible pixels' box, rows in parallel.
+    let rows: Vec<Option<(usize, usize)>> = alpha
+        .data
+        .par_chunks(w.max(1))
+        .map(|row| Some((row.iter().position(|&a| a > 0.0)?, row.iter().rposition(|&a| a > 0.0)? + 1)))
+        .collect();
+    let Some(y0) = rows.iter().position(Option::is_some) else { return Ok(None) };
+    let y1 = rows.iter().rposition(Option::is_some).expect("some row") + 1;
+    let x0 = rows.iter().flatten().map(|r| r.0).min().expect("some row");
+    let x1 = rows.iter().flatten().map(|r| r.1).max().expect("some row");
+    // Grown by two pixels: the box the carry has always used (its values depend on the box).
+    let (x0, y0, x1, y1) = (x0.saturating_sub(2), y0.saturating_sub(2), (x1 + 2).min(w), (y1 + 2).min(h));
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let a = alpha.crop(x0, y0, cw, ch);
+    let soft: Vec<bool> = a.data.iter().map(|&a| a < SOLID_ALPHA).collect();
+    // Outside the box every pixel is soft (α = 0): with no solid pixel in it, none anywhere.
+    if soft.iter().all(|&s| s) || !a.data.iter().any(|&a| a > 0.0 && a < SOLID_ALPHA) {
         return Ok(None);
     }
-    let mut out = rgb.clone();
-    carry_solid_colour(&mut out, alpha, &soft, radius)?;
-    Ok(Some(out))
+    let mut crop = rgb.crop(x0, y0, cw, ch);
+    inpaint_telea(&mut crop, &soft, TeleaOptions { max_distance: Some(CARRY_PX), ..TeleaOptions::new(radius) })?;
+    Ok(Some(EdgeColour { x0, y0, rgb: crop }))
 }
 
 /// The second half of [`separate`], given [`carried_colour`]'s answer: unmixes the soft pixels
-/// (one pass) and returns the foreground colour and the number of soft pixels; without a
-/// carried colour, the photo's colour as it is.
-pub fn unmix_edges(rgb: &Image, alpha: &Image, carried: Option<Image>, bg: &mut Image) -> (Image, usize) {
-    let Some(mut out) = carried else { return (rgb.clone(), 0) };
+/// (one pass over the window) and returns the foreground colour's window and the number of
+/// soft pixels; without a carried colour, None (the photo's colour as it is).
+pub fn unmix_edges(rgb: &Image, alpha: &Image, carried: Option<EdgeColour>, bg: &mut Image) -> (Option<EdgeColour>, usize) {
+    let Some(mut edge) = carried else { return (None, 0) };
+    let (w, cw) = (alpha.width, edge.rgb.width);
     let mut changed = 0;
-    for (i, &a) in alpha.data.iter().enumerate() {
-        if !(a > 0.0 && a < SOLID_ALPHA) {
-            continue;
+    for (y, out) in edge.rgb.data.chunks_exact_mut(cw * 3).enumerate() {
+        let row = (edge.y0 + y) * w + edge.x0;
+        for (x, &a) in alpha.data[row..row + cw].iter().enumerate() {
+            if !(a > 0.0 && a < SOLID_ALPHA) {
+                continue;
+            }
+            let w_bg = ((FILL_ALPHA - a) / (FILL_ALPHA - UNMIXED_BG_ALPHA)).clamp(0.0, 1.0);
+            let w_fg = ((a - UNTRUSTED_ALPHA) / (TRUST_ALPHA - UNTRUSTED_ALPHA)).clamp(0.0, 1.0);
+            for c in 0..3 {
+                let (k, o) = ((row + x) * 3 + c, x * 3 + c);
+                let carried = out[o];
+                // 1 - α ≥ 1 - SOLID_ALPHA here: the division is bounded.
+                let b_mix = ((rgb.data[k] - a * carried) / (1.0 - a)).max(0.0);
+                bg.data[k] = w_bg * b_mix + (1.0 - w_bg) * bg.data[k];
+                out[o] = w_fg * unmix(rgb.data[k], bg.data[k], a) + (1.0 - w_fg) * carried;
+            }
+            changed += 1;
         }
-        let w_bg = ((FILL_ALPHA - a) / (FILL_ALPHA - UNMIXED_BG_ALPHA)).clamp(0.0, 1.0);
-        let w_fg = ((a - UNTRUSTED_ALPHA) / (TRUST_ALPHA - UNTRUSTED_ALPHA)).clamp(0.0, 1.0);
-        for k in i * 3..i * 3 + 3 {
-            let carried = out.data[k];
-            // 1 - α ≥ 1 - SOLID_ALPHA here: the division is bounded.
-            let b_mix = ((rgb.data[k] - a * carried) / (1.0 - a)).max(0.0);
-            bg.data[k] = w_bg * b_mix + (1.0 - w_bg) * bg.data[k];
-            out.data[k] = w_fg * unmix(rgb.data[k], bg.data[k], a) + (1.0 - w_fg) * carried;
-        }
-        changed += 1;
     }
-    (out, changed)
+    (Some(edge), changed)
 }
 
 #[cfg(test)]
