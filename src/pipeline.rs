@@ -8,7 +8,7 @@ use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
-use crate::stages::background::{ForegroundColour, Reach, inpaint_background};
+use crate::stages::background::{ForegroundColour, Reach, fill_background, prepare_background};
 use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
@@ -452,8 +452,27 @@ impl Pipeline {
     ) -> Result<Peeled> {
         let cfg = &self.config;
         let t = Instant::now();
-        let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges)?;
-        let fill_ms = ms_since(t);
+        let classical = cfg.inpaint.method != crate::stages::inpaint_onnx::InpaintMethod::Onnx;
+        // Depth filling, the background fill's region tests and the foreground's carried
+        // colour need none of one another's results: they run side by side. (So the stages'
+        // times overlap: fill_depth reports its own, inpaint the rest of the peel's wall time.)
+        let ((fd, fill_ms), (prepared, carried)) = rayon::join(
+            || {
+                let t = Instant::now();
+                let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges);
+                (fd, ms_since(t))
+            },
+            || {
+                rayon::join(
+                    || classical.then(|| prepare_background(photo, disp, &alpha, &cfg.inpaint, edges.outside_px)),
+                    || match cfg.inpaint.foreground {
+                        ForegroundColour::Unmixed => carried_colour(photo, &alpha, cfg.inpaint.radius),
+                        ForegroundColour::Photo => Ok(None),
+                    },
+                )
+            },
+        );
+        let fd = fd?;
         let fill_detail = serde_json::json!({
             "filled_px": fd.filled,
             "skipped_unreachable_px": fd.skipped,
@@ -462,16 +481,17 @@ impl Pipeline {
             "ramp_model": fd.ramp_model,
             "depth_edge_ramp": edges
         });
-        let t = Instant::now();
-        // The foreground's carried colour needs no background: it runs beside the fill.
-        let (filled, carried) = rayon::join(
-            || {
-                // How deep under the layer a value behind it can still be seen: the layer shows
-                // what is behind up to its visibility reach inside its outline, and a pixel
-                // behind scatters up to σ ≤ max CoC + 1 plus the soft step's tail (disparities
-                // stay in [0, 1], so max_coc bounds σ).
-                let reach = if whole { Reach::Whole } else { Reach::Seen(fd.visible_reach + (max_coc + 1.0).ceil() + 4.0) };
-                if cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Onnx {
+        // How deep under the layer a value behind it can still be seen: the layer shows what is
+        // behind up to its visibility reach inside its outline, and a pixel behind scatters up
+        // to σ ≤ max CoC + 1 plus the soft step's tail (disparities stay in [0, 1], so max_coc
+        // bounds σ).
+        let reach = if whole { Reach::Whole } else { Reach::Seen(fd.visible_reach + (max_coc + 1.0).ceil() + 4.0) };
+        // The layer's frame-sized parts are stacked beside the fill (all three are the frame's
+        // size by construction).
+        let (filled, mut parts) = rayon::join(
+            || match prepared {
+                Some(p) => Ok((fill_background(p, photo, &alpha, &cfg.inpaint, reach)?, None)),
+                None => {
                     let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
                         photo,
                         disp,
@@ -481,17 +501,12 @@ impl Pipeline {
                         edges.outside_px,
                         &cfg.onnx,
                     )?;
-                    Ok((bg, Some(r)))
-                } else {
-                    Ok((inpaint_background(photo, disp, &alpha, &cfg.inpaint, reach, edges.outside_px)?, None))
+                    Ok::<_, Error>((bg, Some(r)))
                 }
             },
-            || match cfg.inpaint.foreground {
-                ForegroundColour::Unmixed => carried_colour(photo, &alpha, cfg.inpaint.radius),
-                ForegroundColour::Photo => Ok(None),
-            },
+            || Image::stack(&[photo, &alpha, &fd.disparity]),
         );
-        let (mut bg, inpaint_model): (_, Option<crate::onnx::OnnxReport>) = filled?;
+        let (mut bg, inpaint_model) = filled?;
         let reach = bg.reach;
         if let Some(r) = &inpaint_model {
             report.warnings.extend(r.warnings.iter().cloned());
@@ -503,15 +518,13 @@ impl Pipeline {
         };
         let (edge, unmixed) = unmix_edges(photo, &alpha, carried?, &mut bg.rgb);
         // The photo's colour, the separated one on the edge's window: no frame-sized copy.
-        // (All three are the frame's size by construction.)
-        let mut parts = Image::stack(&[photo, &alpha, &fd.disparity]);
         if let Some(e) = &edge {
             e.paste_into(&mut parts);
         }
         let layer = Layer::new(parts, what)?;
         // Stacking the layer is part of the stage (at 12.2 MP it was 0.2-0.3 s that no stage
         // counted).
-        let inpaint_ms = ms_since(t);
+        let inpaint_ms = ms_since(t) - fill_ms;
         let inpaint_detail = serde_json::json!({
             "method": method,
             "filled_px": bg.filled,

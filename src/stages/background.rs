@@ -279,9 +279,10 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
 
 /// Inpaints `rgb` and `disp` over [`fill_region`]'s masks, as deep as `reach` says
 /// ([`FillRegion::reach`]; deeper pixels cannot be seen through any blur and keep their input).
-/// The depth used is the answer's `reach`.
-/// With `opts.method` = PatchMatch, the colour within `reach` (Euclidean) is then re-filled by
-/// [`super::patchmatch::fill`] from Telea's start, with the filled disparity as its depth term.
+/// The depth used is the answer's `reach`. With `opts.method` = PatchMatch, the colour within
+/// that depth (Euclidean) is then re-filled by [`super::patchmatch::fill`] from Telea's start,
+/// with the filled disparity as its depth term. [`prepare_background`] then
+/// [`fill_background`]: a caller that learns `reach` late can run the first half earlier.
 pub fn inpaint_background(
     rgb: &Image,
     disp: &Image,
@@ -290,8 +291,28 @@ pub fn inpaint_background(
     reach: Reach,
     ramp_outside: f32,
 ) -> Result<Background> {
-    // The copies the fill starts from (page faults mostly) beside the region's tests.
-    let (region, (mut rgb_out, mut disp_out)) = rayon::join(|| fill_region(rgb, alpha, opts, ramp_outside), || (rgb.clone(), disp.clone()));
+    fill_background(prepare_background(rgb, disp, alpha, opts, ramp_outside), rgb, alpha, opts, reach)
+}
+
+/// The first half of [`inpaint_background`], which needs no reach: the fill region and the
+/// copies of the colour and disparity the fill starts from.
+pub struct PreparedFill {
+    region: FillRegion,
+    rgb: Image,
+    disp: Image,
+}
+
+/// [`inpaint_background`]'s first half: [`fill_region`] beside the copies of `rgb` and `disp`
+/// (page faults mostly).
+pub fn prepare_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outside: f32) -> PreparedFill {
+    let (region, (rgb, disp)) = rayon::join(|| fill_region(rgb, alpha, opts, ramp_outside), || (rgb.clone(), disp.clone()));
+    PreparedFill { region, rgb, disp }
+}
+
+/// [`inpaint_background`]'s second half, on [`prepare_background`]'s answer for the same
+/// `photo` (linear RGB), `alpha` and `opts`.
+pub fn fill_background(prepared: PreparedFill, photo: &Image, alpha: &Image, opts: &InpaintOptions, reach: Reach) -> Result<Background> {
+    let PreparedFill { region, rgb: mut rgb_out, disp: mut disp_out } = prepared;
     let reach = region.reach(alpha, reach);
     let rgb_mask = region.colour_holes();
     let topts = TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) };
@@ -310,7 +331,7 @@ pub fn inpaint_background(
     }
     // Kept highlights sit next to known pixels: the fill always reached them.
     let filled = filled?.saturating_sub(region.highlights_kept);
-    region.restore_highlights(&mut rgb_out, rgb);
+    region.restore_highlights(&mut rgb_out, photo);
     let stats = (region.band, region.band_replaced, region.highlights_kept);
     Ok(Background { reach, ..Background::new(rgb_out, disp_out, region.mask, filled, stats) })
 }
