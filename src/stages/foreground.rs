@@ -9,9 +9,9 @@
 //! nearest solid foreground, carried outwards by a Telea fill.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use rayon::prelude::*;
 use crate::error::Result;
 use crate::image::Image;
+use rayon::prelude::*;
 
 /// Alpha from which a pixel's colour is the foreground's own.
 pub const SOLID_ALPHA: f32 = 0.98;

@@ -606,22 +606,11 @@ impl March {
             queue.push(0.0, n as usize);
         }
         while let Some(p) = queue.pop() {
-            self.flags[p] = KNOWN;
-            for q in [p - gw, p - 1, p + gw, p + 1] {
-                if self.flags[q] != INSIDE {
-                    continue;
-                }
-                let d = eikonal(&self.flags, &self.t, q, gw);
-                if d > max_distance {
-                    // Left unknown; a later neighbour may still reach it within the limit.
-                    continue;
-                }
-                self.t[q] = d;
-                self.flags[q] = BAND;
+            reach_from(&mut self.flags, &mut self.t, gw, p, max_distance, |_, _, q, d| {
                 order.push(q as u32);
                 reached[q] = order.len() as u32;
                 queue.push(d, q);
-            }
+            });
         }
         let disc = Disc::new(radius, gw, iw);
         let taps = disc.len();
@@ -704,21 +693,12 @@ impl March {
             }
         }
         let mut filled = 0;
+        let (x0, y0) = (self.x0, self.y0);
         while let Some(p) = queue.pop() {
-            self.flags[p] = KNOWN;
-            for q in [p - gw, p - 1, p + gw, p + 1] {
-                if self.flags[q] != INSIDE {
-                    continue;
-                }
-                let d = eikonal(&self.flags, &self.t, q, gw);
-                if d > max_distance {
-                    // Left unknown; a later neighbour may still reach it within the limit.
-                    continue;
-                }
-                self.t[q] = d;
+            reach_from(&mut self.flags, &mut self.t, gw, p, max_distance, |flags, t, q, d| {
                 // Image coordinates of the cell.
-                let (y, x) = ((q / gw - pad + self.y0) as isize, (q % gw - pad + self.x0) as isize);
-                let ctx = Ctx { flags: &self.flags, t: &self.t, disc: &disc, gw, w: iw, h: ih, cv };
+                let (y, x) = ((q / gw - pad + y0) as isize, (q % gw - pad + x0) as isize);
+                let ctx = Ctx { flags, t, disc: &disc, gw, w: iw, h: ih, cv };
                 let m = ctx.known_weights::<MODE>(q, (&mut weights3, &mut weights1), &mut known);
                 // Sources on the image's outer rows/columns need OpenCV's edge handling.
                 let interior = y > r && y + r + 1 < ih as isize && x > r && x + r + 1 < iw as isize;
@@ -739,11 +719,31 @@ impl March {
                     }
                 }
                 filled += 1;
-                self.flags[q] = BAND;
                 queue.push(d, q);
-            }
+            });
         }
         filled
+    }
+}
+
+/// One step of the inward march: popped cell `p` becomes known, and each of its unknown
+/// 4-neighbours within `max_distance` gets its T (OpenCV's eikonal solve) and is handed to
+/// `reached` (flags, T, cell, its T) before it joins the band; a neighbour beyond the limit is
+/// left unknown (a later neighbour may still reach it within the limit).
+#[inline(always)]
+fn reach_from(flags: &mut [u8], t: &mut [f32], gw: usize, p: usize, max_distance: f32, mut reached: impl FnMut(&[u8], &[f32], usize, f32)) {
+    flags[p] = KNOWN;
+    for q in [p - gw, p - 1, p + gw, p + 1] {
+        if flags[q] != INSIDE {
+            continue;
+        }
+        let d = eikonal(flags, t, q, gw);
+        if d > max_distance {
+            continue;
+        }
+        t[q] = d;
+        reached(flags, t, q, d);
+        flags[q] = BAND;
     }
 }
 
