@@ -109,8 +109,9 @@ pub struct Background {
 
 impl Background {
     /// Assembles a background: `filled` of the `mask` pixels were computed (the rest are
-    /// `skipped`), `band` = (edge band pixels, of which re-synthesized, highlights kept).
-    pub fn new(rgb: Image, disparity: Image, mask: Vec<bool>, filled: usize, band: (usize, usize, usize)) -> Self {
+    /// `skipped`), `band` = (edge band pixels, of which re-synthesized, highlights kept), as
+    /// deep as `reach` (fast-marching pixels).
+    pub fn new(rgb: Image, disparity: Image, mask: Vec<bool>, filled: usize, band: (usize, usize, usize), reach: f32) -> Self {
         let total = mask.iter().filter(|&&m| m).count();
         Background {
             rgb,
@@ -120,7 +121,7 @@ impl Background {
             skipped: total.saturating_sub(filled),
             band: (band.0, band.1),
             highlights_kept: band.2,
-            reach: f32::INFINITY,
+            reach,
         }
     }
 }
@@ -333,5 +334,5 @@ pub fn fill_background(prepared: PreparedFill, photo: &Image, alpha: &Image, opt
     let filled = filled?.saturating_sub(region.highlights_kept);
     region.restore_highlights(&mut rgb_out, photo);
     let stats = (region.band, region.band_replaced, region.highlights_kept);
-    Ok(Background { reach, ..Background::new(rgb_out, disp_out, region.mask, filled, stats) })
+    Ok(Background::new(rgb_out, disp_out, region.mask, filled, stats, reach))
 }

@@ -89,18 +89,10 @@ pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Resu
 /// over the soft pixels of the box; allocates the box's colour and masks.
 pub fn carried_colour(rgb: &Image, alpha: &Image, radius: f32) -> Result<Option<EdgeColour>> {
     let (w, h) = (alpha.width, alpha.height);
-    // The visible pixels' box, rows in parallel.
-    let rows: Vec<Option<(usize, usize)>> = alpha
-        .data
-        .par_chunks(w.max(1))
-        .map(|row| Some((row.iter().position(|&a| a > 0.0)?, row.iter().rposition(|&a| a > 0.0)? + 1)))
-        .collect();
-    let Some(y0) = rows.iter().position(Option::is_some) else { return Ok(None) };
-    let y1 = rows.iter().rposition(Option::is_some).expect("some row") + 1;
-    let x0 = rows.iter().flatten().map(|r| r.0).min().expect("some row");
-    let x1 = rows.iter().flatten().map(|r| r.1).max().expect("some row");
-    // Grown by two pixels: the box the carry has always used (its values depend on the box).
-    let (x0, y0, x1, y1) = (x0.saturating_sub(2), y0.saturating_sub(2), (x1 + 2).min(w), (y1 + 2).min(h));
+    let visible: Vec<bool> = alpha.data.par_iter().map(|&a| a > 0.0).collect();
+    // (A margin of 1 grows the box by two pixels: the carry's values depend on the box.)
+    let Some((x0, y0, x1, y1)) = super::mask::grown_bbox(&visible, w, h, 1.0) else { return Ok(None) };
+    drop(visible);
     let (cw, ch) = (x1 - x0, y1 - y0);
     let a = alpha.crop(x0, y0, cw, ch);
     let soft: Vec<bool> = a.data.iter().map(|&a| a < SOLID_ALPHA).collect();

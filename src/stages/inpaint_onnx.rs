@@ -115,7 +115,7 @@ pub fn inpaint_background(
     let total = mask.iter().filter(|&&m| m).count();
     let fixed = model.binding.fixed.is_some() || matches!(model.contract.size, SizeSpec::Fixed { .. });
     let Some((x0, y0, cw, ch)) = region(&mask, w, h, fixed, model.contract.context) else {
-        let bg = Background { reach, ..Background::new(rgb_out, disp_out, fill.mask, 0, stats) };
+        let bg = Background::new(rgb_out, disp_out, fill.mask, 0, stats, reach);
         return Ok((bg, model.report));
     };
     let t = Instant::now();
@@ -157,7 +157,7 @@ pub fn inpaint_background(
         }
     }
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
-    Ok((Background { reach, ..Background::new(rgb_out, disp_out, mask, total, stats) }, model.report))
+    Ok((Background::new(rgb_out, disp_out, mask, total, stats, reach), model.report))
 }
 
 /// Which implementation fills the background (`[inpaint] method`, `--inpaint`).
