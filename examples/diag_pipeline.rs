@@ -5,7 +5,10 @@
 //! `cargo run --release --example diag_pipeline -- SEED SCENES SIZE` (defaults 3 20 128).
 //! Environment: `REAL=1` feeds the realistic depth map, `FGSWAP=1` also swaps the foreground's
 //! colour or disparity alone and prints its disparity error, `REGION=1` prints the fill
-//! region's counts, `WORST=1` the largest errors, `DILATE=R` sets `[inpaint] dilate`,
+//! region's counts, `WORST=1` the largest errors, `FGERR=1` the foreground colour's largest
+//! errors (α·|F - F_true|) with the pixel's photo and background values, `BGPART=1` the render
+//! with the estimated background swapped for the true one on its soft, hidden or uncovered
+//! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`,
 //! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders.
 use drbokeh::bench::run::score;
 use drbokeh::bench::scenes::generate;
@@ -41,6 +44,9 @@ fn main() -> drbokeh::Result<()> {
         let mut cfg = Config::default();
         cfg.render.blur = Some(blur);
         cfg.render.kernel = KernelChoice::Fast;
+        if let Ok(r) = std::env::var("RADIUS") {
+            cfg.inpaint.radius = r.parse().unwrap();
+        }
         if let Ok(d) = std::env::var("DILATE") {
             cfg.inpaint.dilate = d.parse().unwrap();
         }
@@ -143,6 +149,53 @@ fn main() -> drbokeh::Result<()> {
                 err_raw / c,
                 err_in / c
             );
+        }
+        if std::env::var("BGPART").is_ok() && est.len() == 2 {
+            let mix = |pick: &dyn Fn(f32) -> bool| -> drbokeh::Result<f64> {
+                let (t, e) = (inp.two_layers[1].image(), est[1].image());
+                let mut d = e.clone();
+                for i in 0..size * size {
+                    if pick(inp.matte.data[i]) {
+                        d.data[i * 5..i * 5 + 5].copy_from_slice(&t.data[i * 5..i * 5 + 5]);
+                    }
+                }
+                let l = Layer::new(d, "x")?;
+                Ok(p(&rend(&[inp.two_layers[0].clone(), l], true)?))
+            };
+            let soft = mix(&|a| a > 0.0 && a < 0.98)?;
+            let hidden = mix(&|a| a >= 0.98)?;
+            let outside = mix(&|a| a <= 0.0)?;
+            eprintln!("{} bgpart: true soft {soft:.2} true hidden {hidden:.2} true outside {outside:.2}", sc.name);
+        }
+        if std::env::var("FGERR").is_ok() && est.len() == 2 {
+            let (t, e) = (inp.two_layers[0].image(), est[0].image());
+            let mut v: Vec<(f32, usize)> = (0..size * size)
+                .map(|i| {
+                    let a = inp.matte.data[i];
+                    ((0..3).map(|k| (a * (e.data[i * 5 + k] - t.data[i * 5 + k])).powi(2)).sum::<f32>(), i)
+                })
+                .collect();
+            let tot: f32 = v.iter().map(|x| x.0).sum();
+            v.sort_by(|a, b| b.0.total_cmp(&a.0));
+            let top: Vec<String> = v[..5]
+                .iter()
+                .map(|&(er, i)| {
+                    format!(
+                        "({},{}) e{:.3} a{:.2} est{:.2} true{:.2} aif{:.2} ea{:.2} bg{:.2} ebg{:.2}",
+                        i % size,
+                        i / size,
+                        er,
+                        inp.matte.data[i],
+                        e.data[i * 5],
+                        t.data[i * 5],
+                        inp.aif.data[i * 3],
+                        e.data[i * 5 + 3],
+                        inp.two_layers[1].image().data[i * 5],
+                        est[1].image().data[i * 5]
+                    )
+                })
+                .collect();
+            eprintln!("{} fgerr sum {tot:.2}: {}", sc.name, top.join(" "));
         }
         if let Ok(dir) = std::env::var("DUMP") {
             let save = |img: &Image, name: &str| {

@@ -80,7 +80,8 @@ impl Default for InpaintOptions {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ForegroundColour {
-    /// Solved from the photo's mix and the filled background ([`super::foreground`]).
+    /// The photo's mix split between the carried foreground colour and the filled background
+    /// ([`super::foreground::split`]).
     #[default]
     Unmixed,
     /// The photo's colour as it is (edges carry background colour: a halo when blurred).
