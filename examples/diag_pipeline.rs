@@ -9,7 +9,7 @@
 //! errors (α·|F - F_true|) with the pixel's photo and background values, `BGPART=1` the render
 //! with the estimated background swapped for the true one on its soft, hidden or uncovered
 //! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`,
-//! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders.
+//! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
 use drbokeh::bench::run::score;
 use drbokeh::bench::scenes::generate;
 use drbokeh::bench::trace::{TraceSettings, trace_split};
@@ -25,7 +25,8 @@ fn main() -> drbokeh::Result<()> {
     let size: usize = args.get(3).map(|s| s.parse().unwrap()).unwrap_or(128);
     let mut sums = [0f64; 6];
     println!("case            kind   gather  pipe   tFG+eBG eFG+tBG exact  scatter");
-    for i in 0..n {
+    let first: usize = std::env::var("FIRST").ok().map(|s| s.parse().unwrap()).unwrap_or(0);
+    for i in first..n {
         let sc = generate(seed, i, size, size, &[]);
         let planes = sc.trace_planes();
         let ts = TraceSettings::new(sc.blur, sc.focus, 256, seed ^ (i as u64) << 20);
@@ -133,7 +134,8 @@ fn main() -> drbokeh::Result<()> {
             let a = p(&rend(&[true_rgb, inp.two_layers[1].clone()], true)?);
             let b = p(&rend(&[true_d, inp.two_layers[1].clone()], true)?);
             let (mut err, mut cnt, mut err_in, mut err_raw) = (0f64, 0usize, 0f64, 0f64);
-            for i in 0..n {
+            let first: usize = std::env::var("FIRST").ok().map(|s| s.parse().unwrap()).unwrap_or(0);
+            for i in first..n {
                 if inp.matte.data[i] >= 0.5 {
                     err += (e.image().data[i * 5 + 4] - t.image().data[i * 5 + 4]).abs() as f64;
                     err_in += (inp.disparity.data[i] - t.image().data[i * 5 + 4]).abs() as f64;
@@ -168,34 +170,36 @@ fn main() -> drbokeh::Result<()> {
             eprintln!("{} bgpart: true soft {soft:.2} true hidden {hidden:.2} true outside {outside:.2}", sc.name);
         }
         if std::env::var("FGERR").is_ok() && est.len() == 2 {
-            let (t, e) = (inp.two_layers[0].image(), est[0].image());
-            let mut v: Vec<(f32, usize)> = (0..size * size)
-                .map(|i| {
-                    let a = inp.matte.data[i];
-                    ((0..3).map(|k| (a * (e.data[i * 5 + k] - t.data[i * 5 + k])).powi(2)).sum::<f32>(), i)
-                })
-                .collect();
-            let tot: f32 = v.iter().map(|x| x.0).sum();
-            v.sort_by(|a, b| b.0.total_cmp(&a.0));
-            let top: Vec<String> = v[..5]
-                .iter()
-                .map(|&(er, i)| {
-                    format!(
-                        "({},{}) e{:.3} a{:.2} est{:.2} true{:.2} aif{:.2} ea{:.2} bg{:.2} ebg{:.2}",
-                        i % size,
-                        i / size,
-                        er,
-                        inp.matte.data[i],
-                        e.data[i * 5],
-                        t.data[i * 5],
-                        inp.aif.data[i * 3],
-                        e.data[i * 5 + 3],
-                        inp.two_layers[1].image().data[i * 5],
-                        est[1].image().data[i * 5]
-                    )
-                })
-                .collect();
-            eprintln!("{} fgerr sum {tot:.2}: {}", sc.name, top.join(" "));
+            let (tf, ef) = (inp.two_layers[0].image(), est[0].image());
+            let (tb, eb) = (inp.two_layers[1].image(), est[1].image());
+            // The five largest of (squared error, pixel), with the pixel's values (red channel).
+            let worst = |what: &str, mut v: Vec<(f32, usize)>| {
+                let tot: f32 = v.iter().map(|x| x.0).sum();
+                v.sort_by(|a, b| b.0.total_cmp(&a.0));
+                let top: Vec<String> = v[..5.min(v.len())]
+                    .iter()
+                    .map(|&(er, i)| {
+                        let r = |img: &Image| img.data[i * img.channels];
+                        format!(
+                            "({},{}) e{er:.3} a{:.2} aif{:.2} fg {:.2}/{:.2} bg {:.2}/{:.2}",
+                            i % size,
+                            i / size,
+                            inp.matte.data[i],
+                            r(&inp.aif),
+                            r(ef),
+                            r(tf),
+                            r(eb),
+                            r(tb)
+                        )
+                    })
+                    .collect();
+                eprintln!("{} {what} sum {tot:.2} (estimated/true): {}", sc.name, top.join(" "));
+            };
+            let sq =
+                |e: &Image, t: &Image, i: usize, s: f32| (0..3).map(|k| (s * (e.data[i * 5 + k] - t.data[i * 5 + k])).powi(2)).sum::<f32>();
+            worst("fg colour α·err", (0..size * size).map(|i| (sq(ef, tf, i, inp.matte.data[i]), i)).collect());
+            let soft = (0..size * size).filter(|&i| inp.matte.data[i] > 0.0 && inp.matte.data[i] < 0.98);
+            worst("bg at soft pixels err", soft.map(|i| (sq(eb, tb, i, 1.0), i)).collect());
         }
         if let Ok(dir) = std::env::var("DUMP") {
             let save = |img: &Image, name: &str| {
@@ -239,7 +243,7 @@ fn main() -> drbokeh::Result<()> {
             if sc.highlights { "hl" } else { "" }
         );
     }
-    let m: Vec<String> = sums.iter().map(|s| format!("{:6.2}", s / n as f64)).collect();
+    let m: Vec<String> = sums.iter().map(|s| format!("{:6.2}", s / (n - first) as f64)).collect();
     println!("mean                   {}", m.join(" "));
     Ok(())
 }

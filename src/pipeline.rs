@@ -16,6 +16,7 @@ use crate::stages::foreground::{carried_colour, unmix_edges};
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::stages::slices::{self, LayerCount};
 use crate::timing::ms_since;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
@@ -283,7 +284,7 @@ impl Pipeline {
         }
         let focus = Self::resolve_focus(focus, |x, y| scene.disparity.disparity_at(x, y), Some(&scene.disparity), &mut report)?;
         let blur = self.blur_for(w, h);
-        let max_coc = disp.data.iter().map(|&d| lens::coc_radius(d - focus, blur)).fold(0.0, f32::max);
+        let max_coc = disp.data.par_iter().map(|&d| lens::coc_radius(d - focus, blur)).reduce(|| 0.0, f32::max);
 
         // Nothing is out of focus: the photo is its own answer (unless a kernel is asked for).
         let sharp = nothing_out_of_focus(cfg.render.kernel, max_coc);

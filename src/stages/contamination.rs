@@ -74,12 +74,12 @@ pub fn is_mix(c: [f32; 3], f: [f32; 3], bg: &[[f32; 3]]) -> bool {
 
 /// Tests the `band` pixels (indices into `rgb`, linear RGB 3 channels): true where the pixel is
 /// contaminated by the foreground. `F` is the median colour of the pixels with alpha at least
-/// [`SOLID_ALPHA`] within `band_width + 3` px, the background colours those of the `clean`
-/// pixels within `2·band_width + 3` px (square windows). A pixel with no such `F` or background
+/// [`SOLID_ALPHA`] within `band_width + 3` px, the background colours those of the pixels
+/// `clean(index)` accepts within `2·band_width + 3` px (square windows). A pixel with no such `F` or background
 /// nearby cannot be judged and counts as contaminated (the conservative answer: it is
 /// re-synthesized). Cost: per band pixel one window median and one pass over up to
 /// (4·band_width + 7)² background samples, in parallel; allocates the answer.
-pub fn contaminated(rgb: &Image, alpha: &Image, clean: &[bool], band: &[usize], band_width: f32) -> Vec<bool> {
+pub fn contaminated(rgb: &Image, alpha: &Image, clean: impl Fn(usize) -> bool + Sync, band: &[usize], band_width: f32) -> Vec<bool> {
     let w = rgb.width;
     let rf = band_width.max(0.0).ceil() as usize + 3;
     let rb = 2 * band_width.max(0.0).ceil() as usize + 3;
@@ -91,7 +91,7 @@ pub fn contaminated(rgb: &Image, alpha: &Image, clean: &[bool], band: &[usize], 
                 let xy = (i % w, i / w);
                 let Some(f) = window_median(rgb, xy, rf, |j| alpha.data[j] >= SOLID_ALPHA, scratch) else { return true };
                 bg.clear();
-                bg.extend(window(rgb, xy, rb).filter(|&j| clean[j]).map(colour));
+                bg.extend(window(rgb, xy, rb).filter(|&j| clean(j)).map(colour));
                 if bg.is_empty() {
                     return true;
                 }
@@ -137,7 +137,7 @@ mod tests {
         rgb.pixel_mut(6, 4).copy_from_slice(&[30.0, 30.0, 30.0]);
         let clean: Vec<bool> = (0..w * h).map(|i| i % w >= 8).collect();
         let band: Vec<usize> = (0..h).flat_map(|y| [y * w + 6, y * w + 7]).collect();
-        let got = contaminated(&rgb, &alpha, &clean, &band, 2.0);
+        let got = contaminated(&rgb, &alpha, |j| clean[j], &band, 2.0);
         for (k, &i) in band.iter().enumerate() {
             let (x, y) = (i % w, i / w);
             let want = x == 6 && y != 4;

@@ -10,7 +10,7 @@
 //! map whose edges are on the photo's, both widths come out at about a pixel and nothing
 //! changes.
 
-use super::mask::{grown_bbox, median, root, sq_distance_window};
+use super::mask::{grown_bbox, median, root, sq_distance_upto};
 use crate::image::Image;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -45,7 +45,7 @@ pub struct EdgeWidths {
 /// Measures the ramp of `disp` across the outline of `inside` (the matte's hard mask, e.g.
 /// `alpha ≥ 0.5`): the median normalized profile of the disparity against the signed distance
 /// to the outline, each sample normalized by the median plateaus on both sides within a
-/// window around it. Cost: two distance transforms on the outline's box (in parallel; the
+/// window around it. Cost: two distance transforms (exact up to the plateau) on the outline's box (in parallel; the
 /// signed distance is kept on that box only, 4 bytes per pixel of it) and one window median
 /// per sample (at most [`MAX_SAMPLES`]), in parallel.
 pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths {
@@ -57,7 +57,8 @@ pub fn measure(disp: &Image, inside: &[bool], w: usize, h: usize) -> EdgeWidths 
     // < 0 outside; outside the box it is infinite, which no test below accepts.
     let (x0, y0, x1, y1) = bb;
     let bw = x1 - x0;
-    let (to_out, to_in) = rayon::join(|| sq_distance_window(inside, w, bb, false), || sq_distance_window(inside, w, bb, true));
+    // Every test below reads distances up to PLATEAU.1 < reach: exact up to `reach` is enough.
+    let (to_out, to_in) = rayon::join(|| sq_distance_upto(inside, w, bb, false, reach), || sq_distance_upto(inside, w, bb, true, reach));
     let mut signed_box = vec![0.0f32; to_out.len()];
     signed_box.par_chunks_mut(bw).enumerate().for_each(|(y, row)| {
         let (inside, i0) = (&inside[(y0 + y) * w + x0..][..bw], y * bw);

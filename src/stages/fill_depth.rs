@@ -69,7 +69,7 @@ pub struct FilledDepth {
 
 /// The foreground's hard mask: `alpha > threshold`.
 pub fn hard_mask(alpha: &Image, opts: &FillDepthOptions) -> Vec<bool> {
-    alpha.data.iter().map(|&a| a > opts.threshold).collect()
+    alpha.data.par_iter().map(|&a| a > opts.threshold).collect()
 }
 
 /// The pixels whose disparity is trusted: `hard` shrunk by `erode` pixels (its edge pixels mix
@@ -144,7 +144,7 @@ pub fn foreground_disparity(
     let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the
     // core lies inside it): exact wherever the fill can matter.
-    let visible: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
+    let visible: Vec<bool> = alpha.data.par_iter().map(|&a| a > 0.0).collect();
     let to_core = BoxDistance::new(&core, w, grown_bbox(&visible, w, h, visible_reach + 2.0).unwrap_or((0, 0, w, h)));
     drop(visible);
     // The farthest visible pixel from the core.
@@ -161,7 +161,7 @@ pub fn foreground_disparity(
         )
         .reduce(|| 0.0, f32::max);
     let reach = super::mask::marching_reach(edge + visible_reach);
-    let unknown: Vec<bool> = core.iter().map(|&m| !m).collect();
+    let unknown: Vec<bool> = core.par_iter().map(|&m| !m).collect();
     drop(core);
     let filled = inpaint_telea(&mut out, &unknown, TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) })?;
     let quiet = focus.clamp(lo, hi);
