@@ -46,11 +46,12 @@ pub const HELD_SPREAD: f64 = 0.1;
 /// background's. A foreground brighter than the bound is split again around the bound with
 /// the tight spread [`HELD_SPREAD`], so most of the excess goes to `B`: the light of a
 /// highlight half hidden behind the edge (which the fill cannot know) stays in the background
-/// instead of making the subject's rim glow (issue 12). A hard clamp was measured worse: a
-/// nearly solid pixel (α 0.94) whose texture exceeds its neighbours moved 16x the excess into
-/// `B`, and so did a lower bound (tuning seeds 3-6, 20 scenes at 128x128 each). Both results
-/// are clamped at 0 (light is never negative) and to the largest finite f32: finite for every
-/// finite input with `0 < α < 1`.
+/// instead of making the subject's rim glow (issue 12). A hard clamp (to the neighbours' range,
+/// or their maximum) moves α/(1 - α) times the excess into `B`: 16x for a nearly solid pixel
+/// (α 0.94) whose texture exceeds its neighbours, -3.4 dB on one bench scene; the soft bound
+/// scored best of the four forms on the tuning seeds 3-6 (20 scenes at 128x128 each). Both
+/// results are clamped at 0 (light is never negative) and to the largest finite f32: finite
+/// for every finite input with `0 < α < 1`.
 pub fn split(c: f32, alpha: f32, f0: f32, b0: f32, bound: Option<f32>) -> (f32, f32) {
     let (c, a, f0, b0) = (c as f64, alpha as f64, f0 as f64, b0 as f64);
     // In f64: the variances of HDR values near f32's limit stay finite.
