@@ -127,12 +127,6 @@ impl Background {
     }
 }
 
-/// The pixels the foreground may cover or contaminate: covered (`alpha > threshold`), grown by
-/// `dilate`. The fill replaces a subset of it ([`fill_region`]).
-pub fn inpaint_mask(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
-    dilate(&covered(alpha, opts), alpha.width, alpha.height, opts.dilate)
-}
-
 fn covered(alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
     alpha.data.par_iter().map(|&a| a > opts.threshold).collect()
 }
@@ -167,7 +161,8 @@ pub struct FillRegion {
     pub band_replaced: usize,
     /// Highlights kept out of the fill's sources.
     pub highlights_kept: usize,
-    /// The covered pixels grown by `dilate` ([`inpaint_mask`]).
+    /// The pixels the foreground may cover or contaminate: covered (`alpha > threshold`), grown
+    /// by `dilate`; `mask` is a subset of it.
     pub grown: Vec<bool>,
 }
 
