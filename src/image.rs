@@ -117,15 +117,35 @@ impl Image {
         out
     }
 
+    /// Writes `src` (same channel count) over the rectangle whose top-left corner is (x0, y0);
+    /// rows in parallel. Panics if it does not fit.
+    pub fn paste(&mut self, src: &Image, x0: usize, y0: usize) {
+        use rayon::prelude::*;
+        assert!(src.channels == self.channels && x0 + src.width <= self.width && y0 + src.height <= self.height, "paste outside the image");
+        let (c, w, sw) = (self.channels, self.width, src.width);
+        if sw == 0 || c == 0 {
+            return;
+        }
+        self.data[y0 * w * c..(y0 + src.height) * w * c]
+            .par_chunks_exact_mut(w * c)
+            .zip(src.data.par_chunks_exact(sw * c))
+            .for_each(|(row, s)| row[x0 * c..(x0 + sw) * c].copy_from_slice(s));
+    }
+
     /// Copies the rectangle of `w × h` pixels whose top-left corner is (x0, y0).
     pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Image {
+        use rayon::prelude::*;
         assert!(x0 + w <= self.width && y0 + h <= self.height, "crop outside the image");
         let c = self.channels;
         let mut out = Image::new(w, h, c);
-        for y in 0..h {
-            let s = self.index(x0, y0 + y);
-            out.data[y * w * c..(y + 1) * w * c].copy_from_slice(&self.data[s..s + w * c]);
+        if w == 0 || c == 0 {
+            return out;
         }
+        // Rows in parallel: the pipeline crops frame-sized planes (a 5 MP window of a 12 MP photo).
+        out.data.par_chunks_exact_mut(w * c).enumerate().for_each(|(y, row)| {
+            let s = self.index(x0, y0 + y);
+            row.copy_from_slice(&self.data[s..s + w * c]);
+        });
         out
     }
 

@@ -15,6 +15,7 @@ use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
 use crate::stages::foreground::{carried_colour, unmix_edges};
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::stages::slices::{self, LayerCount};
+use crate::stages::work_box;
 use crate::timing::ms_since;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -153,13 +154,51 @@ const NO_OCCLUSION_ONE_LAYER: &str = "render.occlusion = false renders the scene
 /// One peel of [`Pipeline::peel`]: a layer, the opaque scene behind it, and what was done.
 struct Peeled {
     layer: Layer,
-    /// The scene behind the layer: its colour (linear RGB) and disparity, inpainted.
-    behind_rgb: Image,
-    behind_disparity: Image,
+    /// The disparity the depth fill gave pixels no blur can show (see `FilledDepth::quiet`).
+    quiet: Option<f32>,
+    /// The scene behind the layer.
+    behind: Behind,
     fill_ms: f64,
     fill_detail: serde_json::Value,
     inpaint_ms: f64,
     inpaint_detail: serde_json::Value,
+}
+
+/// The opaque scene behind a peeled layer: its colour (linear RGB) and disparity, inpainted,
+/// on `window` of the frame (the peel's work box, or the whole frame); outside the window the
+/// scene is the peel's input as it was.
+struct Behind {
+    rgb: Image,
+    disparity: Image,
+    window: work_box::Window,
+}
+
+impl Behind {
+    /// The frame-sized scene, from the peel's input `photo` and `disp`.
+    fn into_frame(self, photo: &Image, disp: &Image) -> (Image, Image) {
+        if (self.rgb.width, self.rgb.height) == (photo.width, photo.height) {
+            return (self.rgb, self.disparity);
+        }
+        let (x0, y0, ..) = self.window;
+        rayon::join(
+            || {
+                let mut rgb = photo.clone();
+                rgb.paste(&self.rgb, x0, y0);
+                rgb
+            },
+            || {
+                let mut d = disp.clone();
+                d.paste(&self.disparity, x0, y0);
+                d
+            },
+        )
+    }
+
+    /// The opaque layer of the scene, from the peel's input `photo` and `disp`, without a
+    /// frame-sized copy of either on the way.
+    fn into_layer(self, photo: &Image, disp: &Image, what: &str) -> Result<Layer> {
+        Layer::new(work_box::opaque_layer(&self.rgb, &self.disparity, photo, disp, self.window), what)
+    }
 }
 
 /// The configured pipeline.
@@ -393,7 +432,9 @@ impl Pipeline {
         report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
         let mut layers = vec![first.layer];
-        let (mut rgb, mut disp) = (first.behind_rgb, first.behind_disparity);
+        // The scene behind the last peel and the frame its window sits in.
+        let mut behind = first.behind;
+        let mut frame = (std::borrow::Cow::Borrowed(&scene.rgb), std::borrow::Cow::Borrowed(&scene.disparity.map));
         if cuts.thresholds.is_empty() {
             let why = cuts.limit.clone().unwrap_or_else(|| format!("segment.layers = {}", cfg.segment.layers));
             report.skipped("slice", why);
@@ -401,13 +442,15 @@ impl Pipeline {
             let t = Instant::now();
             let mut peeled = Vec::new();
             for (k, &cut) in cuts.thresholds.iter().enumerate() {
+                let (rgb, disp) = behind.into_frame(&frame.0, &frame.1);
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
                 let edges = self.edge_widths(&disp, &alpha);
                 let whole = k + 1 < cuts.thresholds.len();
                 let p = self.peel(&rgb, &disp, alpha, edges, (focus, blur, max_coc), whole, "background slice", report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
-                (rgb, disp) = (p.behind_rgb, p.behind_disparity);
+                behind = p.behind;
+                frame = (std::borrow::Cow::Owned(rgb), std::borrow::Cow::Owned(disp));
             }
             report.stages.push(StageReport::ran(
                 "slice",
@@ -416,8 +459,7 @@ impl Pipeline {
             ));
         }
         let t = Instant::now();
-        let opaque = Image::filled(rgb.width, rgb.height, 1, 1.0);
-        layers.push(Layer::from_parts(&rgb, &opaque, &disp, "background layer")?);
+        layers.push(behind.into_layer(&frame.0, &frame.1, "background layer")?);
         // The last layer is the inpainting's output: its stacking counts there.
         if let Some(stage) = report.stages.iter_mut().find(|st| st.name == "inpaint") {
             stage.ms += ms_since(t);
@@ -438,9 +480,58 @@ impl Pipeline {
     /// One peel: the layer of `alpha` in the opaque scene (`photo`, `disp`) and the scene behind
     /// it. Fills the layer's disparity beyond its outline (fill_depth, with the depth map's
     /// ramp `edges` across that outline), inpaints what it hides (as deep as a blur can show
-    /// it, or `whole`), and separates colours at its soft edge.
+    /// it, or `whole`), and separates colours at its soft edge. With the Telea fill, on the
+    /// part of the frame the stages can touch ([`work_box`]) when that is small enough, and
+    /// widened to the frame after; PatchMatch and a model see the whole frame.
     #[allow(clippy::too_many_arguments)]
     fn peel(
+        &self,
+        photo: &Image,
+        disp: &Image,
+        alpha: Image,
+        edges: depth_edges::EdgeWidths,
+        (focus, blur, max_coc): (f32, f32, f32),
+        whole: bool,
+        what: &str,
+        report: &mut Report,
+    ) -> Result<Peeled> {
+        let cfg = &self.config;
+        let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
+        let window = local.then(|| work_box::work_box(&alpha, work_box::margin(max_coc, &edges, &cfg.fill_depth, &cfg.inpaint))).flatten();
+        let Some(b @ (x0, y0, x1, y1)) = window else {
+            return self.peel_frame(photo, disp, alpha, edges, (focus, blur, max_coc), whole, what, report);
+        };
+        let t = Instant::now();
+        let (bw, bh) = (x1 - x0, y1 - y0);
+        let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
+        drop(alpha);
+        let crop_ms = ms_since(t);
+        let inner = self.peel_frame(&p, &d, a, edges, (focus, blur, max_coc), whole, what, report)?;
+        drop((p, d));
+        let t = Instant::now();
+        let Peeled { layer, quiet, behind, fill_ms, mut fill_detail, inpaint_ms, mut inpaint_detail } = inner;
+        let layer = Layer::new(work_box::widen_layer(layer.image(), photo, disp, b, quiet), what);
+        // Outside the box no blur can show the layer: its pixels took the quiet disparity.
+        if quiet.is_some() {
+            let outside = (photo.width * photo.height - bw * bh) as u64;
+            fill_detail["skipped_unreachable_px"] =
+                serde_json::json!(fill_detail["skipped_unreachable_px"].as_u64().unwrap_or(0) + outside);
+        }
+        inpaint_detail["work_box"] = serde_json::json!([x0, y0, x1, y1]);
+        Ok(Peeled {
+            layer: layer?,
+            quiet,
+            behind: Behind { window: b, ..behind },
+            fill_ms,
+            fill_detail,
+            inpaint_ms: inpaint_ms + crop_ms + ms_since(t),
+            inpaint_detail,
+        })
+    }
+
+    /// [`Pipeline::peel`] on the frame it is given.
+    #[allow(clippy::too_many_arguments)]
+    fn peel_frame(
         &self,
         photo: &Image,
         disp: &Image,
@@ -539,8 +630,11 @@ impl Pipeline {
         });
         // The layer's parts and the fill's mask go before the caller stacks the next layer
         // (12.2 MP: 21 bytes per pixel less at the stage's peak).
+        let quiet = fd.quiet;
         drop((edge, fd, alpha, bg.mask));
-        Ok(Peeled { layer, behind_rgb: bg.rgb, behind_disparity: bg.disparity, fill_ms, fill_detail, inpaint_ms, inpaint_detail })
+        let window = (0, 0, photo.width, photo.height);
+        let behind = Behind { rgb: bg.rgb, disparity: bg.disparity, window };
+        Ok(Peeled { layer, quiet, behind, fill_ms, fill_detail, inpaint_ms, inpaint_detail })
     }
 
     /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
@@ -738,5 +832,76 @@ impl Refocuser {
     /// Gives the layers back.
     pub fn into_layers(self) -> Vec<Layer> {
         self.layers
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::render;
+
+    /// A 256×192 textured scene with a small subject (a disk and a 2 px bar at disparity 0.85,
+    /// a soft matte edge and a half-transparent patch inside) over a slanted background with
+    /// HDR highlights next to the subject and far from it; the depth map sharp or smoothed (so
+    /// that the depth-edge ramp model runs).
+    fn small_subject(smoothed: bool) -> (Image, Image, Image) {
+        let (w, h) = (256usize, 192usize);
+        let mut seed = 21u64;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut rgb = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| 0.2 + 0.4 * rnd()).collect()).unwrap();
+        let (mut alpha, mut disp) = (Image::new(w, h, 1), Image::new(w, h, 1));
+        for y in 0..h {
+            for x in 0..w {
+                let r = ((x as f32 - 64.0).powi(2) + (y as f32 - 70.0).powi(2)).sqrt();
+                let disk = (18.5 - r).clamp(0.0, 1.0);
+                let bar = if (70..73).contains(&y) && (64..100).contains(&x) { 1.0 } else { 0.0 };
+                let mut a = f32::max(disk, bar);
+                if (60..64).contains(&x) && (66..70).contains(&y) {
+                    a = 0.5;
+                }
+                alpha.data[y * w + x] = a;
+                disp.data[y * w + x] = if a > 0.5 { 0.85 } else { 0.2 + 0.1 * x as f32 / w as f32 };
+            }
+        }
+        for &(x, y) in &[(84usize, 60usize), (45, 88), (200, 150)] {
+            rgb.data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&[30.0, 25.0, 20.0]);
+        }
+        if smoothed {
+            disp = crate::stages::mask::gaussian_blur(&disp, 2.0);
+        }
+        (rgb, alpha, disp)
+    }
+
+    /// The peel on its work box gives the same layers' render, bit for bit, as the peel on the
+    /// whole frame (exact and fast kernels, subject in focus and far out of focus, sharp and
+    /// smoothed depth), the same background layer and the same counts.
+    #[test]
+    fn peeling_on_the_work_box_matches_the_whole_frame() {
+        let p = Pipeline::from_config(Config::default()).unwrap();
+        for smoothed in [false, true] {
+            let (rgb, alpha, disp) = small_subject(smoothed);
+            for (focus, blur) in [(0.85f32, 12.0f32), (0.2, 24.0)] {
+                let edges = p.edge_widths(&disp, &alpha);
+                let args = (focus, blur, blur);
+                let mut report = Report::default();
+                let boxed = p.peel(&rgb, &disp, alpha.clone(), edges, args, false, "fg", &mut report).unwrap();
+                let whole = p.peel_frame(&rgb, &disp, alpha.clone(), edges, args, false, "fg", &mut report).unwrap();
+                let case = format!("smoothed {smoothed}, focus {focus}, blur {blur}");
+                assert!(boxed.inpaint_detail.get("work_box").is_some(), "{case}: the work box was not used");
+                assert_eq!(boxed.fill_detail, whole.fill_detail, "{case}");
+                let (bg_box, bg_whole) =
+                    (boxed.behind.into_layer(&rgb, &disp, "bg").unwrap(), whole.behind.into_layer(&rgb, &disp, "bg").unwrap());
+                assert!(bg_box.image().data == bg_whole.image().data, "{case}: background layers differ");
+                let s = RenderSettings { blur, focus, lens: 2 * blur as usize + 5, occlusion: true, profile: lens::Profile::Physical };
+                for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }] {
+                    let a = render(&[boxed.layer.clone(), bg_box.clone()], &s, kernel).unwrap();
+                    let b = render(&[whole.layer.clone(), bg_whole.clone()], &s, kernel).unwrap();
+                    assert!(a.data == b.data, "{case}, {kernel:?}: renders differ");
+                }
+            }
+        }
     }
 }

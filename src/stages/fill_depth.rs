@@ -65,6 +65,9 @@ pub struct FilledDepth {
     /// True when the core is where the ramp model solved the foreground's disparity
     /// ([`super::depth_edges::foreground_estimate`]) instead of the shrunk mask.
     pub ramp_model: bool,
+    /// The value given to the pixels that no blur can show (`skipped`): the core's disparity
+    /// nearest the focus; None when there is no core (the map is kept as given).
+    pub quiet: Option<f32>,
 }
 
 /// The foreground's hard mask: `alpha > threshold`.
@@ -132,7 +135,7 @@ pub fn foreground_disparity(
     drop(hard);
     let mut out = disp.into_owned();
     if !core.iter().any(|&m| m) {
-        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode, ramp_model });
+        return Ok(FilledDepth { disparity: out, filled: 0, skipped: 0, reach: 0.0, visible_reach: 0.0, erode, ramp_model, quiet: None });
     }
     let (lo, hi) = core
         .par_iter()
@@ -190,5 +193,5 @@ pub fn foreground_disparity(
             },
         )
         .sum();
-    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach, erode, ramp_model })
+    Ok(FilledDepth { disparity: out, filled, skipped, reach, visible_reach, erode, ramp_model, quiet: Some(quiet) })
 }

@@ -3,6 +3,7 @@
 //! past the matte's) → `fill_depth` → `background` (inpaint, with the `contamination` and
 //! `highlights` rules) → `foreground` (colour at soft edges) → layers; with `--layers`, `slices`
 //! cuts the background at gaps of its depth and the same stages peel each slice in turn.
+//! `work_box` is the part of the frame one peel can touch (the pipeline runs the peel there).
 //! `inpaint` is the Telea algorithm the fills use (`patchmatch` the optional exemplar fill of
 //! the colour); `mask` holds shared mask helpers.
 //! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
@@ -22,3 +23,4 @@ pub mod patchmatch;
 pub mod segment;
 pub mod segment_onnx;
 pub mod slices;
+pub mod work_box;
