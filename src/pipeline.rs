@@ -499,18 +499,15 @@ impl Pipeline {
         let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
         let window = local.then(|| work_box::work_box(&alpha, work_box::margin(max_coc, &edges, &cfg.fill_depth, &cfg.inpaint))).flatten();
         let Some(b @ (x0, y0, x1, y1)) = window else {
-            return self.peel_frame(photo, disp, alpha, edges, (focus, blur, max_coc), whole, what, report);
+            return self.peel_frame(photo, disp, alpha, edges, (focus, blur, max_coc), whole, what, None, report);
         };
         let t = Instant::now();
         let (bw, bh) = (x1 - x0, y1 - y0);
         let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
         drop(alpha);
         let crop_ms = ms_since(t);
-        let inner = self.peel_frame(&p, &d, a, edges, (focus, blur, max_coc), whole, what, report)?;
-        drop((p, d));
-        let t = Instant::now();
+        let inner = self.peel_frame(&p, &d, a, edges, (focus, blur, max_coc), whole, what, Some((photo, disp, b)), report)?;
         let Peeled { layer, quiet, behind, fill_ms, mut fill_detail, inpaint_ms, mut inpaint_detail } = inner;
-        let layer = Layer::new(work_box::widen_layer(layer.image(), photo, disp, b, quiet), what);
         // Outside the box no blur can show the layer: its pixels took the quiet disparity.
         if quiet.is_some() {
             let outside = (photo.width * photo.height - bw * bh) as u64;
@@ -519,17 +516,20 @@ impl Pipeline {
         }
         inpaint_detail["work_box"] = serde_json::json!([x0, y0, x1, y1]);
         Ok(Peeled {
-            layer: layer?,
+            layer,
             quiet,
             behind: Behind { window: b, ..behind },
             fill_ms,
             fill_detail,
-            inpaint_ms: inpaint_ms + crop_ms + ms_since(t),
+            inpaint_ms: inpaint_ms + crop_ms,
             inpaint_detail,
         })
     }
 
-    /// [`Pipeline::peel`] on the frame it is given.
+    /// [`Pipeline::peel`] on the frame it is given, or on a window of a larger frame: with
+    /// `within` = (the frame's photo, its disparity, the window), the layer is built frame-sized
+    /// (outside the window transparent, see [`work_box::widen_layer`]); the scene behind stays
+    /// window-sized.
     #[allow(clippy::too_many_arguments)]
     fn peel_frame(
         &self,
@@ -540,6 +540,7 @@ impl Pipeline {
         (focus, blur, max_coc): (f32, f32, f32),
         whole: bool,
         what: &str,
+        within: Option<(&Image, &Image, work_box::Window)>,
         report: &mut Report,
     ) -> Result<Peeled> {
         let cfg = &self.config;
@@ -596,7 +597,10 @@ impl Pipeline {
                     Ok::<_, Error>((bg, Some(r)))
                 }
             },
-            || Image::stack(&[photo, &alpha, &fd.disparity]),
+            || match within {
+                None => Image::stack(&[photo, &alpha, &fd.disparity]),
+                Some((frame, frame_disp, b)) => work_box::widen_layer(frame, frame_disp, &alpha, &fd.disparity, b, fd.quiet),
+            },
         );
         let (mut bg, inpaint_model) = filled?;
         let reach = bg.reach;
@@ -608,9 +612,12 @@ impl Pipeline {
             crate::stages::inpaint_onnx::InpaintMethod::PatchMatch => "patchmatch",
             crate::stages::inpaint_onnx::InpaintMethod::Onnx => "onnx",
         };
-        let (edge, unmixed) = unmix_edges(photo, &alpha, carried?, &mut bg.rgb);
+        let (mut edge, unmixed) = unmix_edges(photo, &alpha, carried?, &mut bg.rgb);
         // The photo's colour, the separated one on the edge's window: no frame-sized copy.
-        if let Some(e) = &edge {
+        if let Some(e) = &mut edge {
+            if let Some((_, _, (x0, y0, ..))) = within {
+                (e.x0, e.y0) = (e.x0 + x0, e.y0 + y0);
+            }
             e.paste_into(&mut parts);
         }
         let layer = Layer::new(parts, what)?;
@@ -888,7 +895,7 @@ mod tests {
                 let args = (focus, blur, blur);
                 let mut report = Report::default();
                 let boxed = p.peel(&rgb, &disp, alpha.clone(), edges, args, false, "fg", &mut report).unwrap();
-                let whole = p.peel_frame(&rgb, &disp, alpha.clone(), edges, args, false, "fg", &mut report).unwrap();
+                let whole = p.peel_frame(&rgb, &disp, alpha.clone(), edges, args, false, "fg", None, &mut report).unwrap();
                 let case = format!("smoothed {smoothed}, focus {focus}, blur {blur}");
                 assert!(boxed.inpaint_detail.get("work_box").is_some(), "{case}: the work box was not used");
                 assert_eq!(boxed.fill_detail, whole.fill_detail, "{case}");

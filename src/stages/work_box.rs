@@ -52,14 +52,14 @@ pub fn work_box(alpha: &Image, margin: f32) -> Option<Window> {
     (share <= MAX_SHARE).then_some(b)
 }
 
-/// The frame-sized RGBAD layer of a peel run on window `b`: `inner` (the window's layer)
-/// inside it; outside, the photo's colour with alpha 0 and disparity `quiet` (the value the
-/// depth fill gives pixels no blur can show), or the map's own value `disp` without one.
-/// `photo` is linear RGB and `disp` one channel, both frame-sized. Rows in parallel;
-/// allocates the frame.
-pub fn widen_layer(inner: &Image, photo: &Image, disp: &Image, b: Window, quiet: Option<f32>) -> Image {
-    let iw = b.2 - b.0;
-    debug_assert_eq!((inner.width, inner.height, inner.channels), (iw, b.3 - b.1, CHANNELS));
+/// The frame-sized RGBAD layer of a peel run on window `b`: the photo's colour everywhere
+/// (`photo`, linear RGB, frame-sized), the window's `alpha` and `disparity` (one channel each,
+/// window-sized) inside it; outside, alpha 0 and disparity `quiet` (the value the depth fill
+/// gives pixels no blur can show), or the frame's own `disp` without one. Rows in parallel;
+/// allocates the frame (the soft edge's colour is pasted over it after).
+pub fn widen_layer(photo: &Image, disp: &Image, alpha: &Image, disparity: &Image, b: Window, quiet: Option<f32>) -> Image {
+    let (x0, iw) = (b.0, b.2 - b.0);
+    debug_assert_eq!((alpha.width, alpha.height, disparity.width, disparity.height), (iw, b.3 - b.1, iw, b.3 - b.1));
     frame_layer(
         photo,
         b,
@@ -68,7 +68,15 @@ pub fn widen_layer(inner: &Image, photo: &Image, disp: &Image, b: Window, quiet:
             px[A] = 0.0;
             px[D] = quiet.unwrap_or(disp.data[i]);
         },
-        |y, row| row.copy_from_slice(&inner.data[y * iw * CHANNELS..][..iw * CHANNELS]),
+        |y, row| {
+            let i0 = (b.1 + y) * photo.width + x0;
+            for (x, px) in row.chunks_exact_mut(CHANNELS).enumerate() {
+                let (i, j) = (i0 + x, y * iw + x);
+                px[..3].copy_from_slice(&photo.data[i * 3..i * 3 + 3]);
+                px[A] = alpha.data[j];
+                px[D] = disparity.data[j];
+            }
+        },
     )
 }
 
@@ -151,19 +159,19 @@ mod tests {
         let photo = Image::from_vec(w, h, 3, (0..w * h * 3).map(|v| v as f32).collect()).unwrap();
         let disp = Image::from_vec(w, h, 1, (0..w * h).map(|v| v as f32 / 100.0).collect()).unwrap();
         let b = (2, 1, 5, 4);
-        let inner = Image::from_vec(3, 3, CHANNELS, (0..9 * CHANNELS).map(|v| 1000.0 + v as f32).collect()).unwrap();
+        let alpha = Image::from_vec(3, 3, 1, (0..9).map(|v| v as f32 / 8.0).collect()).unwrap();
+        let disparity = Image::from_vec(3, 3, 1, (0..9).map(|v| 0.5 + v as f32 / 100.0).collect()).unwrap();
         for quiet in [Some(0.25), None] {
-            let out = widen_layer(&inner, &photo, &disp, b, quiet);
+            let out = widen_layer(&photo, &disp, &alpha, &disparity, b, quiet);
             for y in 0..h {
                 for x in 0..w {
-                    let px = &out.data[(y * w + x) * CHANNELS..][..CHANNELS];
+                    let (px, i) = (&out.data[(y * w + x) * CHANNELS..][..CHANNELS], y * w + x);
+                    assert_eq!(&px[..3], &photo.data[i * 3..i * 3 + 3]);
                     if (2..5).contains(&x) && (1..4).contains(&y) {
-                        assert_eq!(px, &inner.data[((y - 1) * 3 + x - 2) * CHANNELS..][..CHANNELS]);
+                        let j = (y - 1) * 3 + x - 2;
+                        assert_eq!((px[A], px[D]), (alpha.data[j], disparity.data[j]));
                     } else {
-                        let i = y * w + x;
-                        assert_eq!(&px[..3], &photo.data[i * 3..i * 3 + 3]);
-                        assert_eq!(px[A], 0.0);
-                        assert_eq!(px[D], quiet.unwrap_or(disp.data[i]));
+                        assert_eq!((px[A], px[D]), (0.0, quiet.unwrap_or(disp.data[i])));
                     }
                 }
             }
