@@ -239,8 +239,9 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
         };
         let mut ls = *s;
         ls.blur = s.blur * lw as f32 / w as f32;
-        let reach = (ls.blur * s.focus.max(1.0 - s.focus).max(0.0)).ceil() as usize + 3;
-        ls.lens = (2 * reach + 1).min(max_lens(lw, lh) | 1);
+        // Saturating: a huge K (legal, finite) must give the widest window, not a wrapped one.
+        let reach = ((ls.blur * s.focus.max(1.0 - s.focus).max(0.0)).ceil() as usize).saturating_add(3);
+        ls.lens = reach.saturating_mul(2).saturating_add(1).min(max_lens(lw, lh) | 1);
         disparity = Some(optimise_level(&a, &b, d, &ls, opts, level, &mut step)?);
     }
     Ok(disparity.expect("at least one level"))

@@ -28,8 +28,10 @@ pub fn distance_within(mask: &[bool], width: usize, height: usize, limit: f32) -
 /// and clipped to the image; None for an empty mask. One pass over the mask ([`bbox`]).
 pub fn grown_bbox(mask: &[bool], width: usize, height: usize, margin: f32) -> Option<(usize, usize, usize, usize)> {
     let (x0, y0, x1, y1) = bbox(mask, width, true)?;
-    let m = if margin.is_finite() { margin.max(0.0).ceil() as usize + 1 } else { width.max(height) };
-    Some((x0.saturating_sub(m), y0.saturating_sub(m), (x1 + m).min(width), (y1 + m).min(height)))
+    // `as` saturates a huge margin to usize::MAX: the additions must saturate too (a blur of
+    // 1e30 gives such margins; a wrapped sum shrank the box to the mask's own).
+    let m = if margin.is_finite() { (margin.max(0.0).ceil() as usize).saturating_add(1) } else { width.max(height) };
+    Some((x0.saturating_sub(m), y0.saturating_sub(m), x1.saturating_add(m).min(width), y1.saturating_add(m).min(height)))
 }
 
 /// Bounding box `(x0, y0, x1, y1)` (exclusive ends) of the pixels of `mask` (rows of `width`)
@@ -419,6 +421,20 @@ mod tests {
 
     /// The integer transform against imageproc's f64 one (the oracle it replaced) and a brute
     /// force, on seeded random masks of several densities, windows included.
+    /// A huge margin (a blur of 1e30 makes them) grows the box to the whole frame; a small one
+    /// by its ceiling plus one; an empty mask has no box.
+    #[test]
+    fn grown_box_saturates() {
+        let (w, h) = (20, 10);
+        let mut mask = vec![false; w * h];
+        assert_eq!(grown_bbox(&mask, w, h, 1.0), None);
+        mask[5 * w + 8] = true;
+        assert_eq!(grown_bbox(&mask, w, h, 1.5), Some((5, 2, 12, 9)));
+        for m in [1e30, f32::MAX, f32::INFINITY, 1e9] {
+            assert_eq!(grown_bbox(&mask, w, h, m), Some((0, 0, w, h)), "margin {m}");
+        }
+    }
+
     /// The column pass cut into blocks of rows gives each pixel the rows to the nearest mask
     /// pixel of its column, however many blocks away (or NONE): single pixels at the top and
     /// the bottom of tall columns, an empty column, a full one, and a window.
