@@ -164,6 +164,20 @@ struct Peeled {
     inpaint_detail: serde_json::Value,
 }
 
+/// What one peel is asked for, besides the scene and the layer's alpha: the depth map's ramp
+/// across the layer's outline, the render's focus, blur and largest CoC radius (pixels),
+/// whether the fill behind must be complete (`whole`: more slices are cut from it), and the
+/// layer's name for messages.
+#[derive(Clone, Copy)]
+struct PeelSpec<'a> {
+    edges: depth_edges::EdgeWidths,
+    focus: f32,
+    blur: f32,
+    max_coc: f32,
+    whole: bool,
+    what: &'a str,
+}
+
 /// The opaque scene behind a peeled layer: its colour (linear RGB) and disparity, inpainted,
 /// on `window` of the frame (the peel's work box, or the whole frame); outside the window the
 /// scene is the peel's input as it was.
@@ -428,7 +442,8 @@ impl Pipeline {
         // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
         // a layer keeps that layer's depth and would be taken for a nearer slice.
         let whole = !cuts.thresholds.is_empty();
-        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, edges, (focus, blur, max_coc), whole, "foreground layer", report)?;
+        let spec = PeelSpec { edges, focus, blur, max_coc, whole, what: "foreground layer" };
+        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, spec, report)?;
         report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
         let mut layers = vec![first.layer];
@@ -446,7 +461,8 @@ impl Pipeline {
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
                 let edges = self.edge_widths(&disp, &alpha);
                 let whole = k + 1 < cuts.thresholds.len();
-                let p = self.peel(&rgb, &disp, alpha, edges, (focus, blur, max_coc), whole, "background slice", report)?;
+                let spec = PeelSpec { edges, focus, blur, max_coc, whole, what: "background slice" };
+                let p = self.peel(&rgb, &disp, alpha, spec, report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
                 behind = p.behind;
@@ -483,30 +499,19 @@ impl Pipeline {
     /// it, or `whole`), and separates colours at its soft edge. With the Telea fill, on the
     /// part of the frame the stages can touch ([`work_box`]) when that is small enough, and
     /// widened to the frame after; PatchMatch and a model see the whole frame.
-    #[allow(clippy::too_many_arguments)]
-    fn peel(
-        &self,
-        photo: &Image,
-        disp: &Image,
-        alpha: Image,
-        edges: depth_edges::EdgeWidths,
-        (focus, blur, max_coc): (f32, f32, f32),
-        whole: bool,
-        what: &str,
-        report: &mut Report,
-    ) -> Result<Peeled> {
+    fn peel(&self, photo: &Image, disp: &Image, alpha: Image, spec: PeelSpec, report: &mut Report) -> Result<Peeled> {
         let cfg = &self.config;
         let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
-        let window = local.then(|| work_box::work_box(&alpha, work_box::margin(max_coc, &edges, &cfg.fill_depth, &cfg.inpaint))).flatten();
-        let Some(b @ (x0, y0, x1, y1)) = window else {
-            return self.peel_frame(photo, disp, alpha, edges, (focus, blur, max_coc), whole, what, None, report);
+        let margin = work_box::margin(spec.max_coc, &spec.edges, &cfg.fill_depth, &cfg.inpaint);
+        let Some(b @ (x0, y0, x1, y1)) = local.then(|| work_box::work_box(&alpha, margin)).flatten() else {
+            return self.peel_frame(photo, disp, alpha, spec, None, report);
         };
         let t = Instant::now();
         let (bw, bh) = (x1 - x0, y1 - y0);
         let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
         drop(alpha);
         let crop_ms = ms_since(t);
-        let inner = self.peel_frame(&p, &d, a, edges, (focus, blur, max_coc), whole, what, Some((photo, disp, b)), report)?;
+        let inner = self.peel_frame(&p, &d, a, spec, Some((photo, disp, b)), report)?;
         let Peeled { layer, quiet, behind, fill_ms, mut fill_detail, inpaint_ms, mut inpaint_detail } = inner;
         // Outside the box no blur can show the layer: its pixels took the quiet disparity.
         if quiet.is_some() {
@@ -530,19 +535,16 @@ impl Pipeline {
     /// `within` = (the frame's photo, its disparity, the window), the layer is built frame-sized
     /// (outside the window transparent, see [`work_box::widen_layer`]); the scene behind stays
     /// window-sized.
-    #[allow(clippy::too_many_arguments)]
     fn peel_frame(
         &self,
         photo: &Image,
         disp: &Image,
         alpha: Image,
-        edges: depth_edges::EdgeWidths,
-        (focus, blur, max_coc): (f32, f32, f32),
-        whole: bool,
-        what: &str,
+        spec: PeelSpec,
         within: Option<(&Image, &Image, work_box::Window)>,
         report: &mut Report,
     ) -> Result<Peeled> {
+        let PeelSpec { edges, focus, blur, max_coc, whole, what } = spec;
         let cfg = &self.config;
         let t = Instant::now();
         let classical = cfg.inpaint.method != crate::stages::inpaint_onnx::InpaintMethod::Onnx;
@@ -892,10 +894,10 @@ mod tests {
             let (rgb, alpha, disp) = small_subject(smoothed);
             for (focus, blur) in [(0.85f32, 12.0f32), (0.2, 24.0)] {
                 let edges = p.edge_widths(&disp, &alpha);
-                let args = (focus, blur, blur);
                 let mut report = Report::default();
-                let boxed = p.peel(&rgb, &disp, alpha.clone(), edges, args, false, "fg", &mut report).unwrap();
-                let whole = p.peel_frame(&rgb, &disp, alpha.clone(), edges, args, false, "fg", None, &mut report).unwrap();
+                let spec = PeelSpec { edges, focus, blur, max_coc: blur, whole: false, what: "fg" };
+                let boxed = p.peel(&rgb, &disp, alpha.clone(), spec, &mut report).unwrap();
+                let whole = p.peel_frame(&rgb, &disp, alpha.clone(), spec, None, &mut report).unwrap();
                 let case = format!("smoothed {smoothed}, focus {focus}, blur {blur}");
                 assert!(boxed.inpaint_detail.get("work_box").is_some(), "{case}: the work box was not used");
                 assert_eq!(boxed.fill_detail, whole.fill_detail, "{case}");

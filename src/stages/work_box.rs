@@ -63,18 +63,12 @@ pub fn widen_layer(photo: &Image, disp: &Image, alpha: &Image, disparity: &Image
     frame_layer(
         photo,
         b,
-        |i, px| {
-            px[..3].copy_from_slice(&photo.data[i * 3..i * 3 + 3]);
-            px[A] = 0.0;
-            px[D] = quiet.unwrap_or(disp.data[i]);
-        },
+        |i, px| put(px, &photo.data[i * 3..i * 3 + 3], 0.0, quiet.unwrap_or(disp.data[i])),
         |y, row| {
             let i0 = (b.1 + y) * photo.width + x0;
             for (x, px) in row.chunks_exact_mut(CHANNELS).enumerate() {
                 let (i, j) = (i0 + x, y * iw + x);
-                px[..3].copy_from_slice(&photo.data[i * 3..i * 3 + 3]);
-                px[A] = alpha.data[j];
-                px[D] = disparity.data[j];
+                put(px, &photo.data[i * 3..i * 3 + 3], alpha.data[j], disparity.data[j]);
             }
         },
     )
@@ -90,20 +84,22 @@ pub fn opaque_layer(rgb: &Image, disparity: &Image, photo: &Image, disp: &Image,
     frame_layer(
         photo,
         b,
-        |i, px| {
-            px[..3].copy_from_slice(&photo.data[i * 3..i * 3 + 3]);
-            px[A] = 1.0;
-            px[D] = disp.data[i];
-        },
+        |i, px| put(px, &photo.data[i * 3..i * 3 + 3], 1.0, disp.data[i]),
         |y, row| {
             for (x, px) in row.chunks_exact_mut(CHANNELS).enumerate() {
                 let j = y * iw + x;
-                px[..3].copy_from_slice(&rgb.data[j * 3..j * 3 + 3]);
-                px[A] = 1.0;
-                px[D] = disparity.data[j];
+                put(px, &rgb.data[j * 3..j * 3 + 3], 1.0, disparity.data[j]);
             }
         },
     )
+}
+
+/// Writes one RGBAD pixel.
+#[inline(always)]
+fn put(px: &mut [f32], rgb: &[f32], alpha: f32, disparity: f32) {
+    px[..3].copy_from_slice(rgb);
+    px[A] = alpha;
+    px[D] = disparity;
 }
 
 /// A frame-sized RGBAD image (the size of `photo`) written row by row in parallel: each pixel
