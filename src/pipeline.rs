@@ -12,7 +12,7 @@ use crate::stages::background::{ForegroundColour, Reach, fill_background, prepar
 use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
-use crate::stages::foreground::{carried_colour, unmix_edges};
+use crate::stages::foreground::{EdgeColour, carried_colour, unmix_edges};
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::stages::slices::{self, LayerCount};
 use crate::stages::work_box;
@@ -165,12 +165,12 @@ struct Peeled {
 }
 
 /// What one peel is asked for, besides the scene and the layer's alpha: the depth map's ramp
-/// across the layer's outline, the render's focus, blur and largest CoC radius (pixels),
-/// whether the fill behind must be complete (`whole`: more slices are cut from it), and the
-/// layer's name for messages.
+/// across the layer's outline (None: the peel measures it, beside the colour carry), the
+/// render's focus, blur and largest CoC radius (pixels), whether the fill behind must be
+/// complete (`whole`: more slices are cut from it), and the layer's name for messages.
 #[derive(Clone, Copy)]
 struct PeelSpec<'a> {
-    edges: depth_edges::EdgeWidths,
+    edges: Option<depth_edges::EdgeWidths>,
     focus: f32,
     blur: f32,
     max_coc: f32,
@@ -424,11 +424,12 @@ impl Pipeline {
     fn peel_layers(&self, scene: &Scene, alpha: Image, (focus, blur, max_coc): (f32, f32, f32), report: &mut Report) -> Result<Vec<Layer>> {
         let cfg = &self.config;
         let t = Instant::now();
-        // The foreground's depth-edge ramp: the first peel's, and what the cuts leave out.
-        let edges = self.edge_widths(&scene.disparity.map, &alpha);
+        // The foreground's depth-edge ramp, when the cuts need it first (what they leave out);
+        // else the peel measures it beside its colour carry.
+        let edges = (cfg.segment.layers.most() > 2).then(|| self.edge_widths(&scene.disparity.map, &alpha));
         let edges_ms = ms_since(t);
         let t = Instant::now();
-        let cuts = if cfg.segment.layers.most() > 2 {
+        let cuts = if let Some(edges) = edges {
             // The visible background, less the band where a soft depth map still ramps towards
             // the foreground's depth (its values belong to neither population).
             let hard = hard_mask(&alpha, &cfg.fill_depth);
@@ -459,9 +460,8 @@ impl Pipeline {
             for (k, &cut) in cuts.thresholds.iter().enumerate() {
                 let (rgb, disp) = behind.into_frame(&frame.0, &frame.1);
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
-                let edges = self.edge_widths(&disp, &alpha);
                 let whole = k + 1 < cuts.thresholds.len();
-                let spec = PeelSpec { edges, focus, blur, max_coc, whole, what: "background slice" };
+                let spec = PeelSpec { edges: None, focus, blur, max_coc, whole, what: "background slice" };
                 let p = self.peel(&rgb, &disp, alpha, spec, report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
@@ -501,18 +501,31 @@ impl Pipeline {
     /// widened to the frame after; PatchMatch and a model see the whole frame.
     fn peel(&self, photo: &Image, disp: &Image, alpha: Image, spec: PeelSpec, report: &mut Report) -> Result<Peeled> {
         let cfg = &self.config;
-        let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
-        let margin = work_box::margin(spec.max_coc, &spec.edges, &cfg.fill_depth, &cfg.inpaint);
-        let Some(b @ (x0, y0, x1, y1)) = local.then(|| work_box::work_box(&alpha, margin)).flatten() else {
-            return self.peel_frame(photo, disp, alpha, spec, None, report);
-        };
         let t = Instant::now();
+        // The depth-edge measure and the foreground's colour carry need nothing of each other
+        // (nor of the work box): side by side, before the rest. The measure counts in fill_depth.
+        let ((edges, edges_ms), carried) = rayon::join(
+            || {
+                let t = Instant::now();
+                (spec.edges.unwrap_or_else(|| self.edge_widths(disp, &alpha)), ms_since(t))
+            },
+            || self.carry(photo, &alpha),
+        );
+        let (spec, carried) = (PeelSpec { edges: Some(edges), ..spec }, carried?);
+        let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
+        let margin = work_box::margin(spec.max_coc, &edges, &cfg.fill_depth, &cfg.inpaint);
+        let Some(b @ (x0, y0, x1, y1)) = local.then(|| work_box::work_box(&alpha, margin)).flatten() else {
+            let inner = self.peel_frame(photo, disp, (alpha, carried), spec, None, report)?;
+            return Ok(Peeled { fill_ms: inner.fill_ms + edges_ms, inpaint_ms: ms_since(t) - inner.fill_ms - edges_ms, ..inner });
+        };
         let (bw, bh) = (x1 - x0, y1 - y0);
         let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
         drop(alpha);
-        let crop_ms = ms_since(t);
-        let inner = self.peel_frame(&p, &d, a, spec, Some((photo, disp, b)), report)?;
-        let Peeled { layer, quiet, behind, fill_ms, mut fill_detail, inpaint_ms, mut inpaint_detail } = inner;
+        // The carried colour's window lies in the work box (it is the visible box grown by two).
+        let carried = carried.map(|c| EdgeColour { x0: c.x0 - x0, y0: c.y0 - y0, ..c });
+        let inner = self.peel_frame(&p, &d, (a, carried), spec, Some((photo, disp, b)), report)?;
+        let Peeled { layer, quiet, behind, fill_ms, mut fill_detail, mut inpaint_detail, .. } = inner;
+        let fill_ms = fill_ms + edges_ms;
         // Outside the box no blur can show the layer: its pixels took the quiet disparity.
         if quiet.is_some() {
             let outside = (photo.width * photo.height - bw * bh) as u64;
@@ -526,12 +539,22 @@ impl Pipeline {
             behind: Behind { window: b, ..behind },
             fill_ms,
             fill_detail,
-            inpaint_ms: inpaint_ms + crop_ms,
+            inpaint_ms: ms_since(t) - fill_ms,
             inpaint_detail,
         })
     }
 
-    /// [`Pipeline::peel`] on the frame it is given, or on a window of a larger frame: with
+    /// The foreground's colour carried over its soft edge ([`carried_colour`], frame
+    /// coordinates), or None with `[inpaint] foreground = "photo"`.
+    fn carry(&self, photo: &Image, alpha: &Image) -> Result<Option<EdgeColour>> {
+        match self.config.inpaint.foreground {
+            ForegroundColour::Unmixed => carried_colour(photo, alpha, self.config.inpaint.radius),
+            ForegroundColour::Photo => Ok(None),
+        }
+    }
+
+    /// [`Pipeline::peel`] on the frame it is given (the layer's alpha with its carried edge
+    /// colour, [`Pipeline::carry`], in this frame's coordinates), or on a window of a larger frame: with
     /// `within` = (the frame's photo, its disparity, the window), the layer is built frame-sized
     /// (outside the window transparent, see [`work_box::widen_layer`]); the scene behind stays
     /// window-sized.
@@ -539,33 +562,26 @@ impl Pipeline {
         &self,
         photo: &Image,
         disp: &Image,
-        alpha: Image,
+        (alpha, carried): (Image, Option<EdgeColour>),
         spec: PeelSpec,
         within: Option<(&Image, &Image, work_box::Window)>,
         report: &mut Report,
     ) -> Result<Peeled> {
         let PeelSpec { edges, focus, blur, max_coc, whole, what } = spec;
+        let edges = edges.unwrap_or_else(|| self.edge_widths(disp, &alpha));
         let cfg = &self.config;
         let t = Instant::now();
         let classical = cfg.inpaint.method != crate::stages::inpaint_onnx::InpaintMethod::Onnx;
-        // Depth filling, the background fill's region tests and the foreground's carried
-        // colour need none of one another's results: they run side by side. (So the stages'
-        // times overlap: fill_depth reports its own, inpaint the rest of the peel's wall time.)
-        let ((fd, fill_ms), (prepared, carried)) = rayon::join(
+        // Depth filling and the background fill's region tests need none of each other's
+        // results: they run side by side. (So the stages' times overlap: fill_depth reports its
+        // own, inpaint the rest of the peel's wall time.)
+        let ((fd, fill_ms), prepared) = rayon::join(
             || {
                 let t = Instant::now();
                 let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges);
                 (fd, ms_since(t))
             },
-            || {
-                rayon::join(
-                    || classical.then(|| prepare_background(photo, disp, &alpha, &cfg.inpaint, edges.outside_px)),
-                    || match cfg.inpaint.foreground {
-                        ForegroundColour::Unmixed => carried_colour(photo, &alpha, cfg.inpaint.radius),
-                        ForegroundColour::Photo => Ok(None),
-                    },
-                )
-            },
+            || classical.then(|| prepare_background(photo, disp, &alpha, &cfg.inpaint, edges.outside_px)),
         );
         let fd = fd?;
         let fill_detail = serde_json::json!({
@@ -614,7 +630,7 @@ impl Pipeline {
             crate::stages::inpaint_onnx::InpaintMethod::PatchMatch => "patchmatch",
             crate::stages::inpaint_onnx::InpaintMethod::Onnx => "onnx",
         };
-        let (mut edge, unmixed) = unmix_edges(photo, &alpha, carried?, &mut bg.rgb);
+        let (mut edge, unmixed) = unmix_edges(photo, &alpha, carried, &mut bg.rgb);
         // The photo's colour, the separated one on the edge's window: no frame-sized copy.
         if let Some(e) = &mut edge {
             if let Some((_, _, (x0, y0, ..))) = within {
@@ -895,9 +911,10 @@ mod tests {
             for (focus, blur) in [(0.85f32, 12.0f32), (0.2, 24.0)] {
                 let edges = p.edge_widths(&disp, &alpha);
                 let mut report = Report::default();
-                let spec = PeelSpec { edges, focus, blur, max_coc: blur, whole: false, what: "fg" };
-                let boxed = p.peel(&rgb, &disp, alpha.clone(), spec, &mut report).unwrap();
-                let whole = p.peel_frame(&rgb, &disp, alpha.clone(), spec, None, &mut report).unwrap();
+                let spec = PeelSpec { edges: Some(edges), focus, blur, max_coc: blur, whole: false, what: "fg" };
+                let boxed = p.peel(&rgb, &disp, alpha.clone(), PeelSpec { edges: None, ..spec }, &mut report).unwrap();
+                let carried = p.carry(&rgb, &alpha).unwrap();
+                let whole = p.peel_frame(&rgb, &disp, (alpha.clone(), carried), spec, None, &mut report).unwrap();
                 let case = format!("smoothed {smoothed}, focus {focus}, blur {blur}");
                 assert!(boxed.inpaint_detail.get("work_box").is_some(), "{case}: the work box was not used");
                 assert_eq!(boxed.fill_detail, whole.fill_detail, "{case}");
