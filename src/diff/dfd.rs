@@ -238,7 +238,8 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
             None => Image::filled(lw, lh, 1, opts.init),
         };
         let mut ls = *s;
-        ls.blur = s.blur * lw as f32 / w as f32;
+        // The ratio first: K near f32::MAX times the width would overflow to inf.
+        ls.blur = s.blur * (lw as f32 / w as f32);
         // Saturating: a huge K (legal, finite) must give the widest window, not a wrapped one.
         let reach = ((ls.blur * s.focus.max(1.0 - s.focus).max(0.0)).ceil() as usize).saturating_add(3);
         ls.lens = reach.saturating_mul(2).saturating_add(1).min(max_lens(lw, lh) | 1);
@@ -357,6 +358,20 @@ mod tests {
         // Mismatched photos are a usage error naming both sizes.
         let e = estimate(&aif, &Image::new(8, 8, 3), &s, &opts, |_| {}).unwrap_err().to_string();
         assert!(e.contains("32x32") && e.contains("8x8"), "{e}");
+    }
+
+    /// A K near f32::MAX is legal (finite): every level's window and blur stay finite and the
+    /// estimate is a disparity in [0, 1] (the coarse levels' K once overflowed to inf, a usage
+    /// error that named a --blur the user never gave).
+    #[test]
+    fn huge_blur_is_accepted_at_every_level() {
+        let aif = Image::from_vec(8, 6, 3, (0..8 * 6 * 3).map(|v| (v % 7) as f32 / 7.0).collect()).unwrap();
+        for blur in [3e38f32, 1e30, 1e-30] {
+            let s = RenderSettings { blur, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
+            let opts = DfdOptions { iters: 2, levels: 2, ..DfdOptions::default() };
+            let d = estimate(&aif, &aif, &s, &opts, |_| {}).unwrap_or_else(|e| panic!("K {blur}: {e}"));
+            assert!(d.data.iter().all(|v| (0.0..=1.0).contains(v)), "K {blur}");
+        }
     }
 
     /// The Gaussian-PSF renderer plugged into the same optimiser inverts its own renders: a
