@@ -154,8 +154,6 @@ const NO_OCCLUSION_ONE_LAYER: &str = "render.occlusion = false renders the scene
 /// One peel of [`Pipeline::peel`]: a layer, the opaque scene behind it, and what was done.
 struct Peeled {
     layer: Layer,
-    /// The disparity the depth fill gave pixels no blur can show (see `FilledDepth::quiet`).
-    quiet: Option<f32>,
     /// The scene behind the layer.
     behind: Behind,
     fill_ms: f64,
@@ -514,34 +512,19 @@ impl Pipeline {
         let (spec, carried) = (PeelSpec { edges: Some(edges), ..spec }, carried?);
         let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
         let margin = work_box::margin(spec.max_coc, &edges, &cfg.fill_depth, &cfg.inpaint);
-        let Some(b @ (x0, y0, x1, y1)) = local.then(|| work_box::work_box(&alpha, margin)).flatten() else {
-            let inner = self.peel_frame(photo, disp, (alpha, carried), spec, None, report)?;
-            return Ok(Peeled { fill_ms: inner.fill_ms + edges_ms, inpaint_ms: ms_since(t) - inner.fill_ms - edges_ms, ..inner });
+        let inner = match local.then(|| work_box::work_box(&alpha, margin)).flatten() {
+            None => self.peel_frame(photo, disp, (alpha, carried), spec, None, report)?,
+            Some(b @ (x0, y0, x1, y1)) => {
+                let (bw, bh) = (x1 - x0, y1 - y0);
+                let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
+                drop(alpha);
+                // The carried colour's window lies in the work box (the visible box grown by two).
+                let carried = carried.map(|c| EdgeColour { x0: c.x0 - x0, y0: c.y0 - y0, ..c });
+                self.peel_frame(&p, &d, (a, carried), spec, Some((photo, disp, b)), report)?
+            }
         };
-        let (bw, bh) = (x1 - x0, y1 - y0);
-        let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
-        drop(alpha);
-        // The carried colour's window lies in the work box (it is the visible box grown by two).
-        let carried = carried.map(|c| EdgeColour { x0: c.x0 - x0, y0: c.y0 - y0, ..c });
-        let inner = self.peel_frame(&p, &d, (a, carried), spec, Some((photo, disp, b)), report)?;
-        let Peeled { layer, quiet, behind, fill_ms, mut fill_detail, mut inpaint_detail, .. } = inner;
-        let fill_ms = fill_ms + edges_ms;
-        // Outside the box no blur can show the layer: its pixels took the quiet disparity.
-        if quiet.is_some() {
-            let outside = (photo.width * photo.height - bw * bh) as u64;
-            fill_detail["skipped_unreachable_px"] =
-                serde_json::json!(fill_detail["skipped_unreachable_px"].as_u64().unwrap_or(0) + outside);
-        }
-        inpaint_detail["work_box"] = serde_json::json!([x0, y0, x1, y1]);
-        Ok(Peeled {
-            layer,
-            quiet,
-            behind: Behind { window: b, ..behind },
-            fill_ms,
-            fill_detail,
-            inpaint_ms: ms_since(t) - fill_ms,
-            inpaint_detail,
-        })
+        let fill_ms = inner.fill_ms + edges_ms;
+        Ok(Peeled { fill_ms, inpaint_ms: ms_since(t) - fill_ms, ..inner })
     }
 
     /// The foreground's colour carried over its soft edge ([`carried_colour`], frame
@@ -584,9 +567,14 @@ impl Pipeline {
             || classical.then(|| prepare_background(photo, disp, &alpha, &cfg.inpaint, edges.outside_px)),
         );
         let fd = fd?;
+        // On a window, the pixels outside it took the quiet disparity: no blur can show them.
+        let outside = match (within, fd.quiet) {
+            (Some((frame, ..)), Some(_)) => frame.width * frame.height - photo.width * photo.height,
+            _ => 0,
+        };
         let fill_detail = serde_json::json!({
             "filled_px": fd.filled,
-            "skipped_unreachable_px": fd.skipped,
+            "skipped_unreachable_px": fd.skipped + outside,
             "reach_px": fd.reach,
             "erode_px": fd.erode,
             "ramp_model": fd.ramp_model,
@@ -642,7 +630,7 @@ impl Pipeline {
         // Stacking the layer is part of the stage (at 12.2 MP it was 0.2-0.3 s that no stage
         // counted).
         let inpaint_ms = ms_since(t) - fill_ms;
-        let inpaint_detail = serde_json::json!({
+        let mut inpaint_detail = serde_json::json!({
             "method": method,
             "filled_px": bg.filled,
             "skipped_unreachable_px": bg.skipped,
@@ -655,11 +643,16 @@ impl Pipeline {
         });
         // The layer's parts and the fill's mask go before the caller stacks the next layer
         // (12.2 MP: 21 bytes per pixel less at the stage's peak).
-        let quiet = fd.quiet;
+        let window = match within {
+            Some((.., b @ (x0, y0, x1, y1))) => {
+                inpaint_detail["work_box"] = serde_json::json!([x0, y0, x1, y1]);
+                b
+            }
+            None => (0, 0, photo.width, photo.height),
+        };
         drop((edge, fd, alpha, bg.mask));
-        let window = (0, 0, photo.width, photo.height);
         let behind = Behind { rgb: bg.rgb, disparity: bg.disparity, window };
-        Ok(Peeled { layer, quiet, behind, fill_ms, fill_detail, inpaint_ms, inpaint_detail })
+        Ok(Peeled { layer, behind, fill_ms, fill_detail, inpaint_ms, inpaint_detail })
     }
 
     /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
