@@ -47,28 +47,31 @@ fn window(img: &Image, (x, y): (usize, usize), r: usize) -> impl Iterator<Item =
     (y.saturating_sub(r)..(y + r + 1).min(h)).flat_map(move |yy| (x.saturating_sub(r)..(x + r + 1).min(w)).map(move |xx| yy * w + xx))
 }
 
-fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
-    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt()
+/// Squared distance between two colours.
+fn sq_dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>()
 }
 
-/// Distance from `c` to the mixes `b + t·(f - b)`, `t` in [`MIN_MIX`, 1].
-fn dist_to_mix(c: [f32; 3], b: [f32; 3], f: [f32; 3]) -> f32 {
+/// Squared distance from `c` to the mixes `b + t·(f - b)`, `t` in [`MIN_MIX`, 1].
+fn sq_dist_to_mix(c: [f32; 3], b: [f32; 3], f: [f32; 3]) -> f32 {
     let v: [f32; 3] = std::array::from_fn(|k| f[k] - b[k]);
     let vv: f32 = v.iter().map(|x| x * x).sum();
     let t = if vv > 0.0 { ((0..3).map(|k| (c[k] - b[k]) * v[k]).sum::<f32>() / vv).clamp(MIN_MIX, 1.0) } else { MIN_MIX };
-    dist(c, std::array::from_fn(|k| b[k] + t * v[k]))
+    sq_dist(c, std::array::from_fn(|k| b[k] + t * v[k]))
 }
 
 /// Whether colour `c` is a visible mix of foreground colour `f` into one of the background
 /// colours `bg`: its distance to the nearest such mix is below [`BETTER`] times its distance to
-/// the nearest background colour. A colour within 1% of a background colour is clean.
+/// the nearest background colour. A colour within 1% of a background colour is clean. (The
+/// nearest distance is the root of the least squared one: the root is monotonic and correctly
+/// rounded, so one root per minimum gives the bits of a root per colour.)
 pub fn is_mix(c: [f32; 3], f: [f32; 3], bg: &[[f32; 3]]) -> bool {
-    let d_bg = bg.iter().map(|&b| dist(c, b)).fold(f32::INFINITY, f32::min);
+    let d_bg = bg.iter().map(|&b| sq_dist(c, b)).fold(f32::INFINITY, f32::min).sqrt();
     let scale = c.iter().map(|x| x.abs()).sum::<f32>() / 3.0;
     if d_bg <= 0.01 * scale + 1e-5 {
         return false;
     }
-    let d_mix = bg.iter().map(|&b| dist_to_mix(c, b, f)).fold(f32::INFINITY, f32::min);
+    let d_mix = bg.iter().map(|&b| sq_dist_to_mix(c, b, f)).fold(f32::INFINITY, f32::min).sqrt();
     d_mix < BETTER * d_bg
 }
 

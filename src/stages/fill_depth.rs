@@ -6,7 +6,7 @@
 //! shrunk hard mask is kept and everything outside it is Telea-inpainted from it.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::{BoxDistance, erode, grown_bbox};
+use super::mask::{BoxDistance, erode, grown_bbox, visible_box};
 use crate::error::Result;
 use crate::image::Image;
 use crate::render::lens::coc_radius;
@@ -147,9 +147,7 @@ pub fn foreground_disparity(
     let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the
     // core lies inside it): exact wherever the fill can matter.
-    let visible: Vec<bool> = alpha.data.par_iter().map(|&a| a > 0.0).collect();
-    let to_core = BoxDistance::new(&core, w, grown_bbox(&visible, w, h, visible_reach + 2.0).unwrap_or((0, 0, w, h)));
-    drop(visible);
+    let to_core = BoxDistance::new(&core, w, visible_box(alpha, visible_reach + 2.0).unwrap_or((0, 0, w, h)));
     // The farthest visible pixel from the core.
     let edge = alpha
         .data

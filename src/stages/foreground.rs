@@ -139,11 +139,8 @@ pub fn separate(rgb: &Image, alpha: &Image, bg: &mut Image, radius: f32) -> Resu
 /// solid colour to carry). Nothing outside the box is read but alpha. Cost: one Telea fill
 /// over the soft pixels of the box; allocates the box's colour and masks.
 pub fn carried_colour(rgb: &Image, alpha: &Image, radius: f32) -> Result<Option<EdgeColour>> {
-    let (w, h) = (alpha.width, alpha.height);
-    let visible: Vec<bool> = alpha.data.par_iter().map(|&a| a > 0.0).collect();
     // (A margin of 1 grows the box by two pixels: the carry's values depend on the box.)
-    let Some((x0, y0, x1, y1)) = super::mask::grown_bbox(&visible, w, h, 1.0) else { return Ok(None) };
-    drop(visible);
+    let Some((x0, y0, x1, y1)) = super::mask::visible_box(alpha, 1.0) else { return Ok(None) };
     let (cw, ch) = (x1 - x0, y1 - y0);
     let a = alpha.crop(x0, y0, cw, ch);
     let soft: Vec<bool> = a.data.iter().map(|&a| a < SOLID_ALPHA).collect();

@@ -46,8 +46,7 @@ pub fn work_box(alpha: &Image, margin: f32) -> Option<Window> {
     if !margin.is_finite() {
         return None;
     }
-    let visible: Vec<bool> = alpha.data.par_iter().map(|&a| a > 0.0).collect();
-    let b @ (x0, y0, x1, y1) = super::mask::grown_bbox(&visible, alpha.width, alpha.height, margin)?;
+    let b @ (x0, y0, x1, y1) = super::mask::visible_box(alpha, margin)?;
     let share = ((x1 - x0) * (y1 - y0)) as f64 / (alpha.width * alpha.height).max(1) as f64;
     (share <= MAX_SHARE).then_some(b)
 }
