@@ -390,10 +390,19 @@ fn window_map(
 }
 
 /// The distance (pixels) of a squared distance from [`sq_distance_window`]; `INFINITY` for
-/// [`NONE`]. The root in f64, rounded to f32 (what the f64 transform before gave).
+/// [`NONE`]. The root in f64, rounded to f32 (what the f64 transform before gave). Below 2²⁴,
+/// where the square converts to f32 exactly, the f32 root gives those bits (a root rounded to
+/// f64 then to f32 is rounded once: 53 ≥ 2·24 + 2; `root_in_f32_is_the_f64_root` checks every
+/// value), at twice the f64 root's throughput.
 #[inline]
 pub fn root(d2: u32) -> f32 {
-    if d2 == NONE { f32::INFINITY } else { (d2 as f64).sqrt() as f32 }
+    if d2 == NONE {
+        f32::INFINITY
+    } else if d2 < 1 << 24 {
+        (d2 as f32).sqrt()
+    } else {
+        (d2 as f64).sqrt() as f32
+    }
 }
 
 /// Pixels farther than `radius` from the mask's complement (disk structuring element).
@@ -434,6 +443,16 @@ pub fn gaussian_blur(plane: &Image, sigma: f32) -> Image {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn root_in_f32_is_the_f64_root() {
+        let bad = (0u32..1 << 24).into_par_iter().filter(|&d| root(d).to_bits() != ((d as f64).sqrt() as f32).to_bits()).count();
+        assert_eq!(bad, 0);
+        for d in [1 << 24, (1 << 24) + 1, u32::MAX - 1] {
+            assert_eq!(root(d), (d as f64).sqrt() as f32);
+        }
+        assert_eq!(root(NONE), f32::INFINITY);
+    }
 
     /// The integer transform against imageproc's f64 one (the oracle it replaced) and a brute
     /// force, on seeded random masks of several densities, windows included.
