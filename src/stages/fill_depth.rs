@@ -6,7 +6,7 @@
 //! shrunk hard mask is kept and everything outside it is Telea-inpainted from it.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::{BoxDistance, erode, grown_bbox, visible_box};
+use super::mask::{BoxDistance, dilate, erode, visible_box};
 use crate::error::Result;
 use crate::image::Image;
 use crate::render::lens::coc_radius;
@@ -84,22 +84,8 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
     if erode_px <= 0.0 {
         return core;
     }
-    let limit = erode_px + 1.0;
-    // Distances to the shrunk mask on its box grown by `limit`: exact up to `limit`, all the
-    // test needs.
-    let near = match grown_bbox(&core, w, h, limit) {
-        Some(bb) => BoxDistance::upto(&core, w, bb, limit),
-        None => BoxDistance::none(w),
-    };
-    core.par_chunks_mut(w).zip(hard.par_chunks(w)).enumerate().for_each_init(
-        || vec![0.0; w],
-        |dist, (y, (core, hard))| {
-            near.row_into(y, dist);
-            for ((c, &hd), &d) in core.iter_mut().zip(hard).zip(dist.iter()) {
-                *c = *c || (hd && d > limit);
-            }
-        },
-    );
+    let near = dilate(&core, w, h, erode_px + 1.0);
+    core.par_iter_mut().zip(hard).zip(&near).for_each(|((c, &hd), &n)| *c = *c || (hd && !n));
     core
 }
 
