@@ -166,6 +166,10 @@ pub struct FillRegion {
     pub grown: Vec<bool>,
 }
 
+/// How deep (pixels) translucent pixels may lie in the mask for [`FillRegion::reach`] to find
+/// the deepest with capped distances; deeper ones take the exact transform.
+const SHALLOW_PX: usize = 6;
+
 impl FillRegion {
     /// The fast-marching distance `reach` means for this region and `alpha`. For
     /// [`Reach::Seen`]: background values are seen through the foreground wherever its
@@ -182,21 +186,29 @@ impl FillRegion {
         let mask = &self.grown;
         // Every masked pixel's nearest outside pixel lies within the mask's box grown by 1.
         let Some(bb) = super::mask::grown_bbox(mask, w, h, 1.0) else { return super::mask::marching_reach(see) };
-        let to_outside = super::mask::sq_distance_window(mask, w, bb, false);
         let (x0, y0, x1, _) = bb;
-        // Rows in parallel: this scan is on the background fill's critical path.
-        let deep = to_outside
-            .par_chunks(x1 - x0)
-            .enumerate()
-            .map(|(y, row)| {
-                row.iter()
-                    .zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1])
-                    .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
-                    .map(|(&d, _)| super::mask::root(d))
-                    .fold(0.0, f32::max)
-            })
-            .reduce(|| 0.0, f32::max);
-        super::mask::marching_reach(deep + see)
+        // The deepest translucent pixel's squared distance to the outside, from `d2` on the
+        // box (None: one lies beyond `exact_to`, up to which `d2` is exact). Rows in parallel:
+        // this scan is on the background fill's critical path.
+        let deepest = |d2: &[u32], exact_to: u32| -> Option<u32> {
+            d2.par_chunks(x1 - x0)
+                .enumerate()
+                .map(|(y, row)| {
+                    row.iter()
+                        .zip(&alpha.data[(y0 + y) * w + x0..(y0 + y) * w + x1])
+                        .filter(|(d, a)| **d != super::mask::NONE && **a < 1.0)
+                        .try_fold(0, |m: u32, (&d, _)| (d <= exact_to).then_some(m.max(d)))
+                })
+                .try_reduce(|| 0, |a, b| Some(a.max(b)))
+        };
+        // Translucent pixels sit at the outline in most mattes: distances capped a few pixels
+        // deep answer then (about half the exact transform's cost), the exact ones otherwise.
+        let near = super::mask::sq_distance_capped(mask, w, bb, false, SHALLOW_PX);
+        let deep = deepest(&near, (SHALLOW_PX * SHALLOW_PX) as u32).unwrap_or_else(|| {
+            drop(near);
+            deepest(&super::mask::sq_distance_window(mask, w, bb, false), u32::MAX).expect("exact distances")
+        });
+        super::mask::marching_reach(super::mask::root(deep) + see)
     }
 
     /// The holes a colour fill is given: the mask, and the kept highlights too, so that they
@@ -241,21 +253,11 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
     let mut highlights = vec![false; w * h];
     let mut highlights_kept = 0;
     if opts.highlights == HighlightSources::Excluded {
-        // Every pixel that close to the mask lies in its box grown by that much.
-        let limit = opts.radius + 1.0;
-        let candidates: Vec<usize> = match super::mask::grown_bbox(&mask, w, h, limit) {
-            Some(bb @ (x0, y0, x1, y1)) => {
-                let near = super::mask::BoxDistance::upto(&mask, w, bb, limit);
-                let mut dist = vec![0.0; w];
-                let mut candidates = Vec::new();
-                for y in y0..y1 {
-                    near.row_into(y, &mut dist);
-                    candidates.extend((x0..x1).filter(|&x| !mask[y * w + x] && dist[x] <= limit).map(|x| y * w + x));
-                }
-                candidates
-            }
-            None => Vec::new(),
-        };
+        // The known pixels within `radius + 1` of the mask, in raster order (rows in parallel).
+        let near = dilate(&mask, w, h, opts.radius + 1.0);
+        let candidates: Vec<usize> =
+            (0..h).into_par_iter().flat_map_iter(|y| (y * w..(y + 1) * w).filter(|&i| near[i] && !mask[i])).collect();
+        drop(near);
         for (&i, hl) in candidates.iter().zip(super::highlights::point_highlights(rgb, &candidates)) {
             highlights[i] = hl;
             highlights_kept += usize::from(hl);
@@ -333,4 +335,52 @@ pub fn fill_background(prepared: PreparedFill, photo: &Image, alpha: &Image, opt
     region.restore_highlights(&mut rgb_out, photo);
     let stats = (region.band, region.band_replaced, region.highlights_kept);
     Ok(Background::new(rgb_out, disp_out, region.mask, filled, stats, reach))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `FillRegion::reach` against the brute-force deepest translucent pixel: translucent
+    /// pixels at the outline (the capped route) and deep inside (the exact route), and a mask
+    /// with no outside in its box.
+    #[test]
+    fn reach_finds_the_deepest_translucent_pixel() {
+        let (w, h) = (40, 30);
+        let region = |grown: Vec<bool>| FillRegion {
+            mask: grown.clone(),
+            depth_mask: grown.clone(),
+            highlights: vec![false; grown.len()],
+            band: 0,
+            band_replaced: 0,
+            highlights_kept: 0,
+            grown,
+        };
+        let rect: Vec<bool> = (0..w * h).map(|i| (5..35).contains(&(i % w)) && (3..27).contains(&(i / w))).collect();
+        let brute = |mask: &[bool], alpha: &Image| -> f32 {
+            let mut deep = 0.0f32;
+            for i in (0..w * h).filter(|&i| alpha.data[i] < 1.0) {
+                let d2 = (0..w * h)
+                    .filter(|&j| !mask[j])
+                    .map(|j| ((i % w).abs_diff(j % w).pow(2) + (i / w).abs_diff(j / w).pow(2)) as u32)
+                    .min()
+                    .unwrap_or(super::super::mask::NONE);
+                if d2 != super::super::mask::NONE {
+                    deep = deep.max(super::super::mask::root(d2));
+                }
+            }
+            deep
+        };
+        for depth in [0usize, 1, 4, 6, 7, 10] {
+            let mut alpha = Image::from_vec(w, h, 1, rect.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect()).unwrap();
+            // A translucent pixel `depth` pixels inside the rectangle's left edge, and a soft rim.
+            alpha.data[15 * w + 5 + depth] = 0.5;
+            alpha.data[3 * w + 20] = 0.8;
+            let want = super::super::mask::marching_reach(brute(&rect, &alpha) + 2.0);
+            assert_eq!(region(rect.clone()).reach(&alpha, Reach::Seen(2.0)), want, "depth {depth}");
+        }
+        let full = vec![true; w * h];
+        let alpha = Image::from_vec(w, h, 1, vec![0.5; w * h]).unwrap();
+        assert_eq!(region(full).reach(&alpha, Reach::Seen(2.0)), super::super::mask::marching_reach(2.0));
+    }
 }
