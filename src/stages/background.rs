@@ -167,8 +167,9 @@ pub struct FillRegion {
 }
 
 /// How deep (pixels) translucent pixels may lie in the mask for [`FillRegion::reach`] to find
-/// the deepest with capped distances; deeper ones take the exact transform.
-const SHALLOW_PX: usize = 6;
+/// the deepest with capped distances; deeper ones take the exact transform. (An 8-bit matte's
+/// 254s reach 12 px into the 12.2 MP end-to-end scene's subject.)
+const SHALLOW_PX: usize = super::mask::CAPPED_MAX as usize;
 
 impl FillRegion {
     /// The fast-marching distance `reach` means for this region and `alpha`. For
@@ -201,8 +202,8 @@ impl FillRegion {
                 })
                 .try_reduce(|| 0, |a, b| Some(a.max(b)))
         };
-        // Translucent pixels sit at the outline in most mattes: distances capped a few pixels
-        // deep answer then (about half the exact transform's cost), the exact ones otherwise.
+        // Translucent pixels sit near the outline in most mattes: distances capped a few pixels
+        // deep answer then (cheaper than the exact transform), the exact ones otherwise.
         let near = super::mask::sq_distance_capped(mask, w, bb, false, SHALLOW_PX);
         let deep = deepest(&near, (SHALLOW_PX * SHALLOW_PX) as u32).unwrap_or_else(|| {
             drop(near);
@@ -346,7 +347,7 @@ mod tests {
     /// with no outside in its box.
     #[test]
     fn reach_finds_the_deepest_translucent_pixel() {
-        let (w, h) = (40, 30);
+        let (w, h) = (60, 50);
         let region = |grown: Vec<bool>| FillRegion {
             mask: grown.clone(),
             depth_mask: grown.clone(),
@@ -356,7 +357,7 @@ mod tests {
             highlights_kept: 0,
             grown,
         };
-        let rect: Vec<bool> = (0..w * h).map(|i| (5..35).contains(&(i % w)) && (3..27).contains(&(i / w))).collect();
+        let rect: Vec<bool> = (0..w * h).map(|i| (5..55).contains(&(i % w)) && (3..47).contains(&(i / w))).collect();
         let brute = |mask: &[bool], alpha: &Image| -> f32 {
             let mut deep = 0.0f32;
             for i in (0..w * h).filter(|&i| alpha.data[i] < 1.0) {
@@ -371,10 +372,10 @@ mod tests {
             }
             deep
         };
-        for depth in [0usize, 1, 4, 6, 7, 10] {
+        for depth in [0usize, 1, 4, 14, 15, 16, 20] {
             let mut alpha = Image::from_vec(w, h, 1, rect.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect()).unwrap();
             // A translucent pixel `depth` pixels inside the rectangle's left edge, and a soft rim.
-            alpha.data[15 * w + 5 + depth] = 0.5;
+            alpha.data[25 * w + 5 + depth] = 0.5;
             alpha.data[3 * w + 20] = 0.8;
             let want = super::super::mask::marching_reach(brute(&rect, &alpha) + 2.0);
             assert_eq!(region(rect.clone()).reach(&alpha, Reach::Seen(2.0)), want, "depth {depth}");
