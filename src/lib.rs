@@ -13,6 +13,7 @@ pub mod batch;
 pub mod bench;
 pub mod color;
 pub mod config;
+pub mod cpu;
 pub mod diff;
 pub mod error;
 pub mod image;

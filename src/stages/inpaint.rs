@@ -223,7 +223,7 @@ fn fill_all(
     let mut m = March::new(mask, first.width, win, radius);
     m.outside_distances(radius);
     match compat {
-        None => m.fill_plain(imgs, radius, max_distance, avx2_available()),
+        None => m.fill_plain(imgs, radius, max_distance, crate::cpu::has_avx2()),
         Some(cv) if cv.max_code.is_none() => m.fill::<CV_FLOAT>(imgs, radius, max_distance, cv),
         Some(cv) => m.fill::<CV_INT>(imgs, radius, max_distance, cv),
     }
@@ -805,14 +805,6 @@ impl PlainWeights<'_> {
     }
 }
 
-/// Whether the CPU has AVX2 (checked once per call site; false off x86-64).
-fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    return std::arch::is_x86_feature_detected!("avx2");
-    #[cfg(not(target_arch = "x86_64"))]
-    false
-}
-
 /// The plain weighted mean of pixel `centre` of `data` (`ch` channels) from its `known` taps
 /// of `disc` (their weights and disc cell numbers), written into the pixel. The sums run over
 /// the taps in disc order, all channels and the weight total in one pass.
@@ -1340,7 +1332,7 @@ mod tests {
             let one = fill(1, false, md);
             assert!(one.0 > 5000, "{} cells filled", one.0);
             assert_eq!(one, fill(3, false, md), "threads, max distance {md}");
-            if avx2_available() {
+            if crate::cpu::has_avx2() {
                 assert_eq!(one, fill(1, true, md), "AVX2, max distance {md}");
                 assert_eq!(one, fill(2, true, md), "AVX2 on 2 threads, max distance {md}");
             }
