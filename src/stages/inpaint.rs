@@ -764,19 +764,7 @@ impl PlainWeights<'_> {
     /// `wts` and `nums`, and their number into `count`; `all` is scratch of `taps` entries.
     /// With `avx2` (the CPU has it), the same arithmetic on wider vectors: the same bits.
     fn weigh(&self, avx2: bool, cells: &[u32], out: (&mut [f32], &mut [u32], &mut [usize]), all: &mut [f32]) {
-        #[cfg(target_arch = "x86_64")]
-        if avx2 {
-            // SAFETY: `avx2` says the CPU supports AVX2.
-            return unsafe { self.weigh_avx2(cells, out, all) };
-        }
-        let _ = avx2;
-        self.weigh_cells(cells, out, all)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn weigh_avx2(&self, cells: &[u32], out: (&mut [f32], &mut [u32], &mut [usize]), all: &mut [f32]) {
-        self.weigh_cells(cells, out, all)
+        crate::cpu::with_avx2(avx2, || self.weigh_cells(cells, out, all))
     }
 
     #[inline(always)]

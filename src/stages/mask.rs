@@ -276,19 +276,7 @@ pub fn sq_distance_capped(
 /// on each side. With `avx2` (the CPU has it), the same integer arithmetic on wider vectors
 /// (the baseline build has no unsigned 32-bit minimum: SSE2).
 fn capped_row(avx2: bool, padded: &mut [u32], row: &mut [u32], limit: usize) {
-    #[cfg(target_arch = "x86_64")]
-    if avx2 {
-        // SAFETY: `avx2` says the CPU supports AVX2.
-        return unsafe { capped_row_avx2(padded, row, limit) };
-    }
-    let _ = avx2;
-    capped_row_body(padded, row, limit)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn capped_row_avx2(padded: &mut [u32], row: &mut [u32], limit: usize) {
-    capped_row_body(padded, row, limit)
+    crate::cpu::with_avx2(avx2, || capped_row_body(padded, row, limit))
 }
 
 #[inline(always)]
