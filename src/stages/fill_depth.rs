@@ -6,7 +6,7 @@
 //! shrunk hard mask is kept and everything outside it is Telea-inpainted from it.
 
 use super::inpaint::{TeleaOptions, inpaint_telea};
-use super::mask::{BoxDistance, dilate, erode, visible_box};
+use super::mask::{BoxDistance, CAPPED_MAX, dilate, erode, visible_box};
 use crate::error::Result;
 use crate::image::Image;
 use crate::render::lens::coc_radius;
@@ -133,20 +133,34 @@ pub fn foreground_disparity(
     let visible_reach = ((coc + 1.0) / 2.0).trunc() + 1.0;
     // Distances from the core, on the visible pixels' box grown by the visibility reach (the
     // core lies inside it): exact wherever the fill can matter.
-    let to_core = BoxDistance::new(&core, w, visible_box(alpha, visible_reach + 2.0).unwrap_or((0, 0, w, h)));
+    let bb = visible_box(alpha, visible_reach + 2.0).unwrap_or((0, 0, w, h));
     // The farthest visible pixel from the core.
-    let edge = alpha
-        .data
-        .par_chunks(w)
-        .enumerate()
-        .map_init(
-            || vec![0.0; w],
-            |dist, (y, alpha)| {
-                to_core.row_into(y, dist);
-                alpha.iter().zip(dist.iter()).filter(|(a, _)| **a > 0.0).map(|(_, &d)| d).fold(0.0, f32::max)
-            },
-        )
-        .reduce(|| 0.0, f32::max);
+    let farthest = |to_core: &BoxDistance| {
+        alpha
+            .data
+            .par_chunks(w)
+            .enumerate()
+            .map_init(
+                || vec![0.0; w],
+                |dist, (y, alpha)| {
+                    to_core.row_into(y, dist);
+                    alpha.iter().zip(dist.iter()).filter(|(a, _)| **a > 0.0).map(|(_, &d)| d).fold(0.0, f32::max)
+                },
+            )
+            .reduce(|| 0.0, f32::max)
+    };
+    // Every test below reads distances up to `edge + visible_reach`: distances exact up to
+    // CAPPED_MAX answer when that is within it (about half the exact transform's cost).
+    let capped = BoxDistance::upto(&core, w, bb, CAPPED_MAX);
+    let (to_core, edge) = match farthest(&capped) {
+        edge if edge + visible_reach <= CAPPED_MAX => (capped, edge),
+        _ => {
+            drop(capped);
+            let exact = BoxDistance::new(&core, w, bb);
+            let edge = farthest(&exact);
+            (exact, edge)
+        }
+    };
     let reach = super::mask::marching_reach(edge + visible_reach);
     let unknown: Vec<bool> = core.par_iter().map(|&m| !m).collect();
     drop(core);
