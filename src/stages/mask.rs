@@ -420,26 +420,29 @@ fn stencil_any(
     if x1 <= x0 {
         return;
     }
+    let avx2 = crate::cpu::has_avx2();
     out[y0 * width..y1 * width].par_chunks_exact_mut(width).enumerate().for_each(|(y, row)| {
-        let y = y0 + y;
-        let acc = &mut row[x0..x1];
-        acc.fill(false);
-        for &(dy, hw) in rows {
-            let Some(yy) = y.checked_add_signed(dy).filter(|&yy| yy < height) else { continue };
-            let src = &mask[yy * width..(yy + 1) * width];
-            for dx in -(hw as isize)..=hw as isize {
-                // Window columns x with x + dx on the plane.
-                let lo = x0.max(dx.min(0).unsigned_abs());
-                let hi = x1.min(width.saturating_sub(dx.max(0) as usize));
-                if lo >= hi {
-                    continue;
-                }
-                let from = lo.checked_add_signed(dx).expect("lo + dx is on the plane");
-                for (a, &m) in acc[lo - x0..hi - x0].iter_mut().zip(&src[from..from + (hi - lo)]) {
-                    *a |= m == value;
+        crate::cpu::with_avx2(avx2, || {
+            let y = y0 + y;
+            let acc = &mut row[x0..x1];
+            acc.fill(false);
+            for &(dy, hw) in rows {
+                let Some(yy) = y.checked_add_signed(dy).filter(|&yy| yy < height) else { continue };
+                let src = &mask[yy * width..(yy + 1) * width];
+                for dx in -(hw as isize)..=hw as isize {
+                    // Window columns x with x + dx on the plane.
+                    let lo = x0.max(dx.min(0).unsigned_abs());
+                    let hi = x1.min(width.saturating_sub(dx.max(0) as usize));
+                    if lo >= hi {
+                        continue;
+                    }
+                    let from = lo.checked_add_signed(dx).expect("lo + dx is on the plane");
+                    for (a, &m) in acc[lo - x0..hi - x0].iter_mut().zip(&src[from..from + (hi - lo)]) {
+                        *a |= m == value;
+                    }
                 }
             }
-        }
+        })
     });
 }
 
