@@ -162,13 +162,12 @@ struct Peeled {
     inpaint_detail: serde_json::Value,
 }
 
-/// What one peel is asked for, besides the scene and the layer's alpha: the depth map's ramp
-/// across the layer's outline (None: the peel measures it, beside the colour carry), the
-/// render's focus, blur and largest CoC radius (pixels), whether the fill behind must be
-/// complete (`whole`: more slices are cut from it), and the layer's name for messages.
+/// What one peel is asked for, besides the scene, the layer's alpha and the depth map's ramp
+/// across its outline: the render's focus, blur and largest CoC radius (pixels), whether the
+/// fill behind must be complete (`whole`: more slices are cut from it), and the layer's name
+/// for messages.
 #[derive(Clone, Copy)]
 struct PeelSpec<'a> {
-    edges: Option<depth_edges::EdgeWidths>,
     focus: f32,
     blur: f32,
     max_coc: f32,
@@ -441,8 +440,8 @@ impl Pipeline {
         // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
         // a layer keeps that layer's depth and would be taken for a nearer slice.
         let whole = !cuts.thresholds.is_empty();
-        let spec = PeelSpec { edges, focus, blur, max_coc, whole, what: "foreground layer" };
-        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, spec, report)?;
+        let spec = PeelSpec { focus, blur, max_coc, whole, what: "foreground layer" };
+        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, edges, spec, report)?;
         report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
         let mut layers = vec![first.layer];
@@ -459,8 +458,8 @@ impl Pipeline {
                 let (rgb, disp) = behind.into_frame(&frame.0, &frame.1);
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
                 let whole = k + 1 < cuts.thresholds.len();
-                let spec = PeelSpec { edges: None, focus, blur, max_coc, whole, what: "background slice" };
-                let p = self.peel(&rgb, &disp, alpha, spec, report)?;
+                let spec = PeelSpec { focus, blur, max_coc, whole, what: "background slice" };
+                let p = self.peel(&rgb, &disp, alpha, None, spec, report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
                 behind = p.behind;
@@ -497,7 +496,16 @@ impl Pipeline {
     /// it, or `whole`), and separates colours at its soft edge. With the Telea fill, on the
     /// part of the frame the stages can touch ([`work_box`]) when that is small enough, and
     /// widened to the frame after; PatchMatch and a model see the whole frame.
-    fn peel(&self, photo: &Image, disp: &Image, alpha: Image, spec: PeelSpec, report: &mut Report) -> Result<Peeled> {
+    /// `edges`: the ramp when the caller measured it already; None: the peel measures it.
+    fn peel(
+        &self,
+        photo: &Image,
+        disp: &Image,
+        alpha: Image,
+        edges: Option<depth_edges::EdgeWidths>,
+        spec: PeelSpec,
+        report: &mut Report,
+    ) -> Result<Peeled> {
         let cfg = &self.config;
         let t = Instant::now();
         // The depth-edge measure and the foreground's colour carry need nothing of each other
@@ -505,22 +513,22 @@ impl Pipeline {
         let ((edges, edges_ms), carried) = rayon::join(
             || {
                 let t = Instant::now();
-                (spec.edges.unwrap_or_else(|| self.edge_widths(disp, &alpha)), ms_since(t))
+                (edges.unwrap_or_else(|| self.edge_widths(disp, &alpha)), ms_since(t))
             },
             || self.carry(photo, &alpha),
         );
-        let (spec, carried) = (PeelSpec { edges: Some(edges), ..spec }, carried?);
+        let carried = carried?;
         let local = cfg.inpaint.method == crate::stages::inpaint_onnx::InpaintMethod::Telea;
         let margin = work_box::margin(spec.max_coc, &edges, &cfg.fill_depth, &cfg.inpaint);
         let inner = match local.then(|| work_box::work_box(&alpha, margin)).flatten() {
-            None => self.peel_frame(photo, disp, (alpha, carried), spec, None, report)?,
+            None => self.peel_frame(photo, disp, (alpha, carried, edges), spec, None, report)?,
             Some(b @ (x0, y0, x1, y1)) => {
                 let (bw, bh) = (x1 - x0, y1 - y0);
                 let (p, d, a) = (photo.crop(x0, y0, bw, bh), disp.crop(x0, y0, bw, bh), alpha.crop(x0, y0, bw, bh));
                 drop(alpha);
                 // The carried colour's window lies in the work box (the visible box grown by two).
                 let carried = carried.map(|c| EdgeColour { x0: c.x0 - x0, y0: c.y0 - y0, ..c });
-                self.peel_frame(&p, &d, (a, carried), spec, Some((photo, disp, b)), report)?
+                self.peel_frame(&p, &d, (a, carried, edges), spec, Some((photo, disp, b)), report)?
             }
         };
         let fill_ms = inner.fill_ms + edges_ms;
@@ -537,7 +545,8 @@ impl Pipeline {
     }
 
     /// [`Pipeline::peel`] on the frame it is given (the layer's alpha with its carried edge
-    /// colour, [`Pipeline::carry`], in this frame's coordinates), or on a window of a larger frame: with
+    /// colour, [`Pipeline::carry`], in this frame's coordinates, and the depth map's ramp across
+    /// its outline), or on a window of a larger frame: with
     /// `within` = (the frame's photo, its disparity, the window), the layer is built frame-sized
     /// (outside the window transparent, see [`work_box::widen_layer`]); the scene behind stays
     /// window-sized.
@@ -545,13 +554,12 @@ impl Pipeline {
         &self,
         photo: &Image,
         disp: &Image,
-        (alpha, carried): (Image, Option<EdgeColour>),
+        (alpha, carried, edges): (Image, Option<EdgeColour>, depth_edges::EdgeWidths),
         spec: PeelSpec,
         within: Option<(&Image, &Image, work_box::Window)>,
         report: &mut Report,
     ) -> Result<Peeled> {
-        let PeelSpec { edges, focus, blur, max_coc, whole, what } = spec;
-        let edges = edges.unwrap_or_else(|| self.edge_widths(disp, &alpha));
+        let PeelSpec { focus, blur, max_coc, whole, what } = spec;
         let cfg = &self.config;
         let t = Instant::now();
         let classical = cfg.inpaint.method != crate::stages::inpaint_onnx::InpaintMethod::Onnx;
@@ -904,10 +912,10 @@ mod tests {
             for (focus, blur) in [(0.85f32, 12.0f32), (0.2, 24.0)] {
                 let edges = p.edge_widths(&disp, &alpha);
                 let mut report = Report::default();
-                let spec = PeelSpec { edges: Some(edges), focus, blur, max_coc: blur, whole: false, what: "fg" };
-                let boxed = p.peel(&rgb, &disp, alpha.clone(), PeelSpec { edges: None, ..spec }, &mut report).unwrap();
+                let spec = PeelSpec { focus, blur, max_coc: blur, whole: false, what: "fg" };
+                let boxed = p.peel(&rgb, &disp, alpha.clone(), None, spec, &mut report).unwrap();
                 let carried = p.carry(&rgb, &alpha).unwrap();
-                let whole = p.peel_frame(&rgb, &disp, (alpha.clone(), carried), spec, None, &mut report).unwrap();
+                let whole = p.peel_frame(&rgb, &disp, (alpha.clone(), carried, edges), spec, None, &mut report).unwrap();
                 let case = format!("smoothed {smoothed}, focus {focus}, blur {blur}");
                 assert!(boxed.inpaint_detail.get("work_box").is_some(), "{case}: the work box was not used");
                 assert_eq!(boxed.fill_detail, whole.fill_detail, "{case}");

@@ -370,14 +370,23 @@ pub fn dilate(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<bo
     if radius <= 0.0 {
         return mask.to_vec();
     }
+    if !by_stencil(radius) {
+        return dilate_by_distance(mask, width, height, radius);
+    }
     let mut out = vec![false; mask.len()];
     // Every pixel within `radius` of the mask lies in its box grown by `radius`.
     if let Some(bb) = grown_bbox(mask, width, height, radius) {
-        if radius <= STENCIL_MAX {
-            stencil_any(mask, width, height, bb, &disc_rows(radius), true, &mut out);
-        } else {
-            window_map(&mut out, width, bb, &sq_distance_upto(mask, width, bb, true, radius), |_, d| d <= radius);
-        }
+        stencil_any(mask, width, height, bb, &disc_rows(radius), true, &mut out);
+    }
+    out
+}
+
+/// [`dilate`] through distances capped at `radius` (any radius; [`dilate`] takes it above
+/// [`STENCIL_MAX`]).
+fn dilate_by_distance(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<bool> {
+    let mut out = vec![false; mask.len()];
+    if let Some(bb) = grown_bbox(mask, width, height, radius) {
+        window_map(&mut out, width, bb, &sq_distance_upto(mask, width, bb, true, radius), |_, d| d <= radius);
     }
     out
 }
@@ -389,6 +398,12 @@ pub fn dilate(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<bo
 /// a 2-3 px dilation or erosion took ~20 ms through the capped distances (see
 /// [`sq_distance_capped`]), the disc's 13-29 row passes a few ms; at 6 px, 113 passes.
 const STENCIL_MAX: f32 = 6.0;
+
+/// Whether [`dilate`] and [`erode`] take the disc's pixels for `radius` (not for a NaN one,
+/// which the distance route answers).
+fn by_stencil(radius: f32) -> bool {
+    radius <= STENCIL_MAX
+}
 
 /// The disc of offsets whose distance ([`root`] of `dx² + dy²`) is at most `radius`, as one
 /// `(dy, half-width)` per row: `|dx| ≤ half-width`.
@@ -489,17 +504,24 @@ pub fn erode(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<boo
     if radius <= 0.0 {
         return mask.to_vec();
     }
+    if !by_stencil(radius) {
+        return erode_by_distance(mask, width, height, radius);
+    }
+    // Only the mask's own box can stay; there, a pixel stays unless the outside is near.
+    let Some(own) = bbox(mask, width, true) else { return mask.to_vec() };
+    let mut out = vec![false; mask.len()];
+    stencil_any(mask, width, height, own, &disc_rows(radius), false, &mut out);
+    out.par_iter_mut().zip(mask).for_each(|(o, &m)| *o = m & !*o);
+    out
+}
+
+/// [`erode`] through distances capped at `radius` (any radius; [`erode`] takes it above
+/// [`STENCIL_MAX`]).
+fn erode_by_distance(mask: &[bool], width: usize, height: usize, radius: f32) -> Vec<bool> {
     // Only mask pixels can stay; the complement pixels that decide them are within `radius`.
     let Some(bb) = grown_bbox(mask, width, height, radius) else { return mask.to_vec() };
     let mut out = vec![false; mask.len()];
-    if radius <= STENCIL_MAX {
-        // Only the mask's own box can stay; there, a pixel stays unless the outside is near.
-        let own = bbox(mask, width, true).expect("the mask has a pixel");
-        stencil_any(mask, width, height, own, &disc_rows(radius), false, &mut out);
-        out.par_iter_mut().zip(mask).for_each(|(o, &m)| *o = m & !*o);
-    } else {
-        window_map(&mut out, width, bb, &sq_distance_upto(mask, width, bb, false, radius), |i, d| mask[i] && d > radius);
-    }
+    window_map(&mut out, width, bb, &sq_distance_upto(mask, width, bb, false, radius), |i, d| mask[i] && d > radius);
     out
 }
 
@@ -529,6 +551,7 @@ pub fn gaussian_blur(plane: &Image, sigma: f32) -> Image {
 mod tests {
     use super::*;
 
+    /// The f32 root below 2^24 against the f64 root rounded to f32, every value; above, NONE.
     #[test]
     fn root_in_f32_is_the_f64_root() {
         let bad = (0u32..1 << 24).into_par_iter().filter(|&d| root(d).to_bits() != ((d as f64).sqrt() as f32).to_bits()).count();
@@ -539,8 +562,6 @@ mod tests {
         assert_eq!(root(NONE), f32::INFINITY);
     }
 
-    /// The integer transform against imageproc's f64 one (the oracle it replaced) and a brute
-    /// force, on seeded random masks of several densities, windows included.
     /// A huge margin (a blur of 1e30 makes them) grows the box to the whole frame; a small one
     /// by its ceiling plus one; an empty mask has no box.
     #[test]
@@ -579,6 +600,8 @@ mod tests {
         }
     }
 
+    /// The integer transform against imageproc's f64 one (the oracle it replaced) and a brute
+    /// force, on seeded random masks of several densities, windows included.
     #[test]
     fn distances_match_imageproc_and_brute_force() {
         let mut s = 7u64;
@@ -689,16 +712,6 @@ mod tests {
     /// thin and one-pixel planes, radii with and without a root exactly on a pixel.
     #[test]
     fn stencil_morphology_is_the_distance_route() {
-        let by_distance = |mask: &[bool], w: usize, h: usize, r: f32, dilation: bool| -> Vec<bool> {
-            let mut out = vec![false; mask.len()];
-            match (grown_bbox(mask, w, h, r), dilation) {
-                (None, true) => {}
-                (None, false) => return mask.to_vec(),
-                (Some(bb), true) => window_map(&mut out, w, bb, &sq_distance_upto(mask, w, bb, true, r), |_, d| d <= r),
-                (Some(bb), false) => window_map(&mut out, w, bb, &sq_distance_upto(mask, w, bb, false, r), |i, d| mask[i] && d > r),
-            }
-            out
-        };
         let mut s = 11u64;
         for (w, h) in [(1, 1), (1, 17), (23, 1), (37, 29), (80, 13)] {
             for per_mille in [0, 5, 60, 500, 950, 1000] {
@@ -715,11 +728,15 @@ mod tests {
                     }
                 }
                 for r in [0.5, 1.0, 1.5, 2.0, 2.5, 5.0_f32.sqrt(), 3.0, 4.2, 5.9, STENCIL_MAX] {
-                    assert_eq!(dilate(&mask, w, h, r), by_distance(&mask, w, h, r, true), "dilate {w}x{h} {per_mille} {r}");
-                    assert_eq!(erode(&mask, w, h, r), by_distance(&mask, w, h, r, false), "erode {w}x{h} {per_mille} {r}");
+                    assert_eq!(dilate(&mask, w, h, r), dilate_by_distance(&mask, w, h, r), "dilate {w}x{h} {per_mille} {r}");
+                    assert_eq!(erode(&mask, w, h, r), erode_by_distance(&mask, w, h, r), "erode {w}x{h} {per_mille} {r}");
                 }
             }
         }
+        // A NaN radius takes the distance route (the disc has no rows for it).
+        let mask = vec![true; 12];
+        assert_eq!(dilate(&mask, 4, 3, f32::NAN), dilate_by_distance(&mask, 4, 3, f32::NAN));
+        assert_eq!(erode(&mask, 4, 3, f32::NAN), erode_by_distance(&mask, 4, 3, f32::NAN));
         assert_eq!(disc_rows(1.0), vec![(-1, 0), (0, 1), (1, 0)]);
         assert_eq!(disc_rows(2.0f32.sqrt()), vec![(-1, 1), (0, 1), (1, 1)]);
     }
