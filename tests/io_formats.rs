@@ -212,6 +212,120 @@ fn png_16_bit_precision_is_kept() {
     assert_eq!(depth.image.data[5], 30005.0 / 65535.0);
 }
 
+/// `read_photo`'s row-by-row PNG route (decoded bands converted while the next decode) against
+/// the whole-image route (`read_decoded`: the `image` crate, then the transfer per value), bit
+/// for bit: every colour type at every bit depth, with and without `tRNS`, three transfers, on a
+/// frame of several bands (32 rows each) with a partial last band.
+#[test]
+fn png_photo_rows_equal_the_whole_image_route() {
+    use png::{BitDepth as B, ColorType as C};
+    let dir = tmp();
+    let (w, h) = (37u32, 75u32);
+    let mut rng = common::Rng::new(11);
+    let cases: &[(C, B, Option<&[u8]>)] = &[
+        (C::Grayscale, B::One, None),
+        (C::Grayscale, B::Two, None),
+        (C::Grayscale, B::Four, Some(&[0, 3])),
+        (C::Grayscale, B::Eight, None),
+        (C::Grayscale, B::Eight, Some(&[0, 40])),
+        (C::Grayscale, B::Sixteen, None),
+        (C::GrayscaleAlpha, B::Eight, None),
+        (C::GrayscaleAlpha, B::Sixteen, None),
+        (C::Rgb, B::Eight, None),
+        (C::Rgb, B::Eight, Some(&[0, 9, 0, 9, 0, 9])),
+        (C::Rgb, B::Sixteen, None),
+        (C::Rgba, B::Eight, None),
+        (C::Rgba, B::Sixteen, None),
+        (C::Indexed, B::One, None),
+        (C::Indexed, B::Four, Some(&[0, 128, 255])),
+        (C::Indexed, B::Eight, None),
+    ];
+    for (k, &(colour, depth, trns)) in cases.iter().enumerate() {
+        let bits = depth as usize;
+        let row_bytes = (w as usize * colour.samples() * bits).div_ceil(8);
+        let data: Vec<u8> = (0..row_bytes * h as usize).map(|_| (rng.next_f32() * 256.0) as u8).collect();
+        let p = dir.path().join(format!("v{k}.png"));
+        {
+            let mut enc = png::Encoder::new(std::io::BufWriter::new(std::fs::File::create(&p).unwrap()), w, h);
+            enc.set_color(colour);
+            enc.set_depth(depth);
+            if colour == C::Indexed {
+                enc.set_palette((0..768).map(|i| (i * 7 % 256) as u8).collect::<Vec<u8>>());
+            }
+            if let Some(t) = trns {
+                enc.set_trns(t.to_vec());
+            }
+            enc.write_header().unwrap().write_image_data(&data).unwrap();
+        }
+        let whole = read_decoded(&p, &lim()).unwrap();
+        let c = whole.image.channels;
+        let which: &[usize] = if c < 3 { &[0, 0, 0] } else { &[0, 1, 2] };
+        for transfer in [Transfer::Srgb, Transfer::Gamma(2.2), Transfer::Linear] {
+            let expect: Vec<f32> = whole.image.data.chunks(c).flat_map(|px| which.iter().map(|&i| transfer.decode(px[i]))).collect();
+            let rows = read_photo(&p, transfer, &lim()).unwrap();
+            assert_eq!((rows.width, rows.height, rows.channels), (w as usize, h as usize, 3));
+            assert!(rows.data == expect, "{colour:?} {depth:?} tRNS {trns:?} {transfer:?}: the two routes differ");
+        }
+    }
+}
+
+/// An interlaced (Adam7) PNG is read whole, not row by row: the same pixels as the same image
+/// stored plainly. The file is built by hand (the `png` encoder writes no Adam7): each pass's
+/// rows with filter byte 0, in one stored (uncompressed) deflate block.
+#[test]
+fn interlaced_png_photo_reads_as_the_plain_one() {
+    let dir = tmp();
+    let (w, h) = (13usize, 11usize);
+    let px = |x: usize, y: usize| [(x * 19) as u8, (y * 23) as u8, (x * y) as u8];
+    let mut raw = Vec::new();
+    for (x0, y0, dx, dy) in [(0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2)] {
+        if x0 >= w {
+            continue;
+        }
+        for y in (y0..h).step_by(dy) {
+            raw.push(0);
+            for x in (x0..w).step_by(dx) {
+                raw.extend_from_slice(&px(x, y));
+            }
+        }
+    }
+    let adler = {
+        let (mut a, mut b) = (1u32, 0u32);
+        for &v in &raw {
+            a = (a + v as u32) % 65521;
+            b = (b + a) % 65521;
+        }
+        (b << 16) | a
+    };
+    let mut z = vec![0x78, 0x01, 0x01];
+    z.extend_from_slice(&(raw.len() as u16).to_le_bytes());
+    z.extend_from_slice(&(!(raw.len() as u16)).to_le_bytes());
+    z.extend_from_slice(&raw);
+    z.extend_from_slice(&adler.to_be_bytes());
+    let mut file = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend_from_slice(&(w as u32).to_be_bytes());
+    ihdr.extend_from_slice(&(h as u32).to_be_bytes());
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 1]);
+    png_chunk(&mut file, b"IHDR", &ihdr);
+    png_chunk(&mut file, b"IDAT", &z);
+    png_chunk(&mut file, b"IEND", &[]);
+    let interlaced = dir.path().join("adam7.png");
+    std::fs::write(&interlaced, &file).unwrap();
+    let plain = dir.path().join("plain.png");
+    let rgb: Vec<u8> = (0..h).flat_map(|y| (0..w).flat_map(move |x| px(x, y))).collect();
+    image::RgbImage::from_raw(w as u32, h as u32, rgb).unwrap().save(&plain).unwrap();
+    let a = read_photo(&interlaced, Transfer::Srgb, &lim()).unwrap();
+    let b = read_photo(&plain, Transfer::Srgb, &lim()).unwrap();
+    assert_eq!((a.width, a.height), (w, h));
+    assert!(a.data == b.data, "the interlaced file reads differently");
+    // Cut inside its pixel data, it is corrupt, whichever route reads it.
+    let cut = dir.path().join("adam7_cut.png");
+    std::fs::write(&cut, &file[..file.len() - 120]).unwrap();
+    let e = err_of(read_photo(&cut, Transfer::Srgb, &lim()));
+    assert!(e.contains("adam7_cut.png") && e.contains("corrupt or truncated PNG"), "{e}");
+}
+
 #[test]
 fn eight_bit_depth_exposes_its_bit_depth() {
     let dir = tmp();

@@ -20,6 +20,7 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use image::{DynamicImage, ImageDecoder, ImageError, ImageFormat, ImageReader};
 use std::io::{BufRead, Seek};
+use std::mem::MaybeUninit;
 use std::path::Path;
 
 /// How the decoded values relate to light.
@@ -121,21 +122,9 @@ fn convert<T: Copy + Sync>(src: &[T], src_channels: usize, which: &[usize], f: i
     let n = which.len();
     let mut out = Vec::<f32>::with_capacity(src.len() / src_channels.max(1) * n);
     let dst = &mut out.spare_capacity_mut()[..src.len() / src_channels.max(1) * n];
-    let same_layout = n == src_channels && which.iter().enumerate().all(|(k, &c)| k == c);
-    dst.par_chunks_mut(PIXELS_PER_TASK * n).zip(src.par_chunks(PIXELS_PER_TASK * src_channels)).for_each(|(d, s)| {
-        if same_layout {
-            // A flat map the compiler vectorizes (the common 3-channel case).
-            d.iter_mut().zip(s).for_each(|(d, &q)| {
-                d.write(f(q));
-            });
-        } else {
-            for (d, s) in d.chunks_exact_mut(n).zip(s.chunks_exact(src_channels)) {
-                for (d, &c) in d.iter_mut().zip(which) {
-                    d.write(f(s[c]));
-                }
-            }
-        }
-    });
+    dst.par_chunks_mut(PIXELS_PER_TASK * n)
+        .zip(src.par_chunks(PIXELS_PER_TASK * src_channels))
+        .for_each(|(d, s)| convert_into(d, s, src_channels, which, &f));
     let len = dst.len();
     // SAFETY: the zip above wrote every element of `dst` (both sides hold the same number of
     // pixels), which is the first `len` elements of `out`'s capacity.
@@ -143,9 +132,33 @@ fn convert<T: Copy + Sync>(src: &[T], src_channels: usize, which: &[usize], f: i
     out
 }
 
+/// [`convert`] of one block, on the calling thread: writes every element of `dst` (as many
+/// pixels as `src` holds).
+fn convert_into<T: Copy>(dst: &mut [MaybeUninit<f32>], src: &[T], src_channels: usize, which: &[usize], f: impl Fn(T) -> f32) {
+    let n = which.len();
+    debug_assert_eq!(dst.len() / n.max(1), src.len() / src_channels.max(1));
+    if n == src_channels && which.iter().enumerate().all(|(k, &c)| k == c) {
+        // A flat map the compiler vectorizes (the common 3-channel case).
+        dst.iter_mut().zip(src).for_each(|(d, &q)| {
+            d.write(f(q));
+        });
+    } else {
+        for (d, s) in dst.chunks_exact_mut(n).zip(src.chunks_exact(src_channels)) {
+            for (d, &c) in d.iter_mut().zip(which) {
+                d.write(f(s[c]));
+            }
+        }
+    }
+}
+
 /// Reads any supported image file into its decoder's sample type (see [`Stored`]).
 pub(crate) fn read_stored(path: &Path, limits: &ReadLimits) -> Result<Stored> {
-    match detect_format(path)? {
+    read_stored_as(path, detect_format(path)?, limits)
+}
+
+/// [`read_stored`] of a file whose format is known.
+fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Result<Stored> {
+    match format {
         FileFormat::Png => decode_with_image_crate(path, FileFormat::Png, open(path)?, limits, || Ok(())),
         FileFormat::Jpeg => {
             // In memory for the marker walk (one pass over the file's bytes); a JPEG file is
@@ -185,15 +198,33 @@ pub(crate) fn read_stored(path: &Path, limits: &ReadLimits) -> Result<Stored> {
 /// kept as stored. Grey images are expanded to RGB and alpha is dropped. NaN or infinite values
 /// are an error (naming the first offending pixel).
 pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Result<Image> {
-    let d = read_stored(path, limits)?;
-    let which: &[usize] = match d.channels {
-        1 | 2 => &[0, 0, 0],
-        _ => &[0, 1, 2],
-    };
-    let c = d.channels;
+    let format = detect_format(path)?;
     // Integer samples go through a table of `transfer.decode(q / max)` straight to linear RGB
     // (bit-identical to scaling first, then decoding: `decode_table`); a table with only finite
     // entries makes the finiteness scan below unnecessary.
+    let which = |channels: usize| -> &'static [usize] {
+        match channels {
+            1 | 2 => &[0, 0, 0],
+            _ => &[0, 1, 2],
+        }
+    };
+    if format == FileFormat::Png {
+        let (lut8, lut16) = (decode_table(transfer, 8), std::sync::OnceLock::new());
+        let band = |raw: &[u8], c: usize, bits: u8, dst: &mut [MaybeUninit<f32>]| match bits {
+            8 => convert_into(dst, raw, c, which(c), |q| lut8[q as usize]),
+            _ => {
+                let lut: &Vec<f32> = lut16.get_or_init(|| decode_table(transfer, 16));
+                convert_into(dst, raw.as_chunks::<2>().0, c, which(c), |q| lut[u16::from_be_bytes(q) as usize])
+            }
+        };
+        if let Some(img) = super::png_rows::read_photo_rows(path, limits, band)? {
+            let finite = lut8.iter().chain(lut16.get().into_iter().flatten()).all(|v| v.is_finite());
+            return finish_photo(path, img, finite);
+        }
+    }
+    let d = read_stored_as(path, format, limits)?;
+    let c = d.channels;
+    let which = which(c);
     let (data, checked) = match d.samples {
         Samples::U8(v) => {
             let lut = decode_table(transfer, 8);
@@ -211,8 +242,13 @@ pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Resul
             (data, false)
         }
     };
-    let img = Image::from_vec(d.width, d.height, 3, data).expect("three channels per pixel");
-    if let Some(i) = if checked { None } else { first_non_finite(&img.data) } {
+    finish_photo(path, Image::from_vec(d.width, d.height, 3, data).expect("three channels per pixel"), checked)
+}
+
+/// The photo `img` of `path`, or the error naming its first NaN or infinite value; `finite`:
+/// every value is known to be finite (no scan).
+fn finish_photo(path: &Path, img: Image, finite: bool) -> Result<Image> {
+    if let Some(i) = if finite { None } else { first_non_finite(&img.data) } {
         let (x, y) = pixel_of(&img, i);
         return Err(Error::input(path, format!("photo contains a non-finite value ({}) at pixel ({x}, {y})", img.data[i])));
     }
