@@ -83,17 +83,29 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         out
     } else {
         let image_path = job.image.as_ref().ok_or_else(|| Error::usage("a job needs an image (or layers)"))?;
-        let rgb = io::read_photo(image_path, transfer, &limits)?;
+        // The three files side by side: each decoder is sequential in part (a PNG's inflate),
+        // so one file's decode overlaps another's. Errors are reported in the order the files
+        // are used (photo, depth, matte), as one after the other would.
+        let (rgb, (depth_file, matte_file)) = rayon::join(
+            || io::read_photo(image_path, transfer, &limits),
+            || {
+                rayon::join(
+                    || job.depth.as_ref().map(|p| io::read_depth_map(p, &limits)),
+                    || job.matte.as_ref().map(|p| io::read_matte(p, &limits)),
+                )
+            },
+        );
+        let rgb = rgb?;
         let mut depth_stage = None;
-        let disparity = match &job.depth {
-            Some(depth_path) => {
-                let map = io::read_depth_map(depth_path, &limits)?;
+        let disparity = match (&job.depth, depth_file) {
+            (Some(depth_path), Some(map)) => {
+                let map = map?;
                 read_warnings.extend(map.warnings);
                 let raw_depth = map.image;
                 let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
                 depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?
             }
-            None => {
+            _ => {
                 // No depth map: the configured depth model predicts relative disparity.
                 let t = Instant::now();
                 let (d, r) = crate::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx)?;
@@ -103,9 +115,9 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 d
             }
         };
-        let matte = match &job.matte {
-            Some(p) => Some(fit_to(io::read_matte(p, &limits)?, &rgb, p, image_path, &mut read_warnings)?),
-            None => None,
+        let matte = match (&job.matte, matte_file) {
+            (Some(p), Some(m)) => Some(fit_to(m?, &rgb, p, image_path, &mut read_warnings)?),
+            _ => None,
         };
         let read_ms = ms_since(t_read);
         let build = if job.save_layers.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
