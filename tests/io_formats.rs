@@ -212,12 +212,12 @@ fn png_16_bit_precision_is_kept() {
     assert_eq!(depth.image.data[5], 30005.0 / 65535.0);
 }
 
-/// `read_photo`'s row-by-row PNG route (decoded bands converted while the next decode) against
-/// the whole-image route (`read_decoded`: the `image` crate, then the transfer per value), bit
-/// for bit: every colour type at every bit depth, with and without `tRNS`, three transfers, on a
-/// frame of several bands (32 rows each) with a partial last band.
+/// The row-by-row PNG route of `read_photo` and `read_decoded` (decoded bands converted while
+/// the next is decoded) against the whole-image route (the `image` crate's samples, scaled, then
+/// the transfer per value), bit for bit: every colour type at every bit depth, with and without
+/// `tRNS`, three transfers, on a frame of several bands (32 rows each) with a partial last band.
 #[test]
-fn png_photo_rows_equal_the_whole_image_route() {
+fn png_rows_equal_the_whole_image_route() {
     use png::{BitDepth as B, ColorType as C};
     let dir = tmp();
     let (w, h) = (37u32, 75u32);
@@ -257,14 +257,22 @@ fn png_photo_rows_equal_the_whole_image_route() {
             }
             enc.write_header().unwrap().write_image_data(&data).unwrap();
         }
-        let whole = read_decoded(&p, &lim()).unwrap();
-        let c = whole.image.channels;
+        // The whole-image route: the `image` crate's samples, scaled to [0, 1].
+        let whole = image::open(&p).unwrap();
+        let c = whole.color().channel_count() as usize;
+        let (scaled, bits): (Vec<f32>, u8) = match whole.color().bytes_per_pixel() as usize / c {
+            1 => (whole.as_bytes().iter().map(|&q| q as f32 / 255.0).collect(), 8),
+            _ => (whole.as_bytes().as_chunks::<2>().0.iter().map(|&q| u16::from_ne_bytes(q) as f32 / 65535.0).collect(), 16),
+        };
+        let decoded = read_decoded(&p, &lim()).unwrap();
+        assert_eq!((decoded.image.channels, decoded.bit_depth, decoded.has_alpha), (c, bits, matches!(c, 2 | 4)));
+        assert!(decoded.image.data == scaled, "{colour:?} {depth:?} tRNS {trns:?}: read_decoded differs");
         let which: &[usize] = if c < 3 { &[0, 0, 0] } else { &[0, 1, 2] };
         for transfer in [Transfer::Srgb, Transfer::Gamma(2.2), Transfer::Linear] {
-            let expect: Vec<f32> = whole.image.data.chunks(c).flat_map(|px| which.iter().map(|&i| transfer.decode(px[i]))).collect();
+            let expect: Vec<f32> = scaled.chunks(c).flat_map(|px| which.iter().map(|&i| transfer.decode(px[i]))).collect();
             let rows = read_photo(&p, transfer, &lim()).unwrap();
             assert_eq!((rows.width, rows.height, rows.channels), (w as usize, h as usize, 3));
-            assert!(rows.data == expect, "{colour:?} {depth:?} tRNS {trns:?} {transfer:?}: the two routes differ");
+            assert!(rows.data == expect, "{colour:?} {depth:?} tRNS {trns:?} {transfer:?}: read_photo differs");
         }
     }
 }

@@ -83,8 +83,9 @@ fn read_depth_map_raw(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
         }
         _ => {
             let d = read_decoded(path, limits)?;
-            let image = single_grey_channel(path, &d.image, "depth map")?;
-            Ok(DepthMap { image, bit_depth: d.bit_depth, format: d.format, warnings })
+            let (bit_depth, format) = (d.bit_depth, d.format);
+            let image = single_grey_channel(path, d.image, "depth map")?;
+            Ok(DepthMap { image, bit_depth, format, warnings })
         }
     }
 }
@@ -95,11 +96,13 @@ pub fn read_depth(path: &Path, limits: &ReadLimits) -> Result<Image> {
     read_depth_map(path, limits).map(|d| d.image)
 }
 
-/// The grey channel of a 1/2-channel image, or of an RGB(A) image whose R, G, B are equal.
-pub(crate) fn single_grey_channel(path: &Path, img: &Image, what: &str) -> Result<Image> {
+/// The grey channel of a 1/2-channel image, or of an RGB(A) image whose R, G, B are equal
+/// (a one-channel image is returned as it is, no copy).
+pub(crate) fn single_grey_channel(path: &Path, img: Image, what: &str) -> Result<Image> {
     match img.channels {
-        1 | 2 => Ok(img.channel(0)),
-        3 | 4 if is_grey(img) => Ok(img.channel(0)),
+        1 => Ok(img),
+        2 => Ok(img.channel(0)),
+        3 | 4 if is_grey(&img) => Ok(img.channel(0)),
         c => Err(Error::input(
             path,
             format!("{what} is a colour image ({c} channels with different R, G, B); expected a single-channel (greyscale) image"),

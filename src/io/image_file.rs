@@ -159,7 +159,20 @@ pub(crate) fn read_stored(path: &Path, limits: &ReadLimits) -> Result<Stored> {
 /// [`read_stored`] of a file whose format is known.
 fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Result<Stored> {
     match format {
-        FileFormat::Png => decode_with_image_crate(path, FileFormat::Png, open(path)?, limits, || Ok(())),
+        FileFormat::Png => {
+            // Row by row, each sample scaled as `into_decoded` scales the whole-image route's.
+            let band = |raw: &[u8], c: usize, bits: u8, dst: &mut [MaybeUninit<f32>]| {
+                let all: Vec<usize> = (0..c).collect();
+                match bits {
+                    8 => convert_into(dst, raw, c, &all, |q| q as f32 / 255.0),
+                    _ => convert_into(dst, raw.as_chunks::<2>().0, c, &all, |q| u16::from_be_bytes(q) as f32 / 65535.0),
+                }
+            };
+            match super::png_rows::read_png_rows(path, limits, |c| c, band)? {
+                Some(png) => Ok(Stored::from_image(png.image, Encoding::Display, png.bits, FileFormat::Png)),
+                None => decode_with_image_crate(path, FileFormat::Png, open(path)?, limits, || Ok(())),
+            }
+        }
         FileFormat::Jpeg => {
             // In memory for the marker walk (one pass over the file's bytes); a JPEG file is
             // far smaller than its decoded pixels.
@@ -217,9 +230,9 @@ pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Resul
                 convert_into(dst, raw.as_chunks::<2>().0, c, which(c), |q| lut[u16::from_be_bytes(q) as usize])
             }
         };
-        if let Some(img) = super::png_rows::read_photo_rows(path, limits, band)? {
+        if let Some(png) = super::png_rows::read_png_rows(path, limits, |_| 3, band)? {
             let finite = lut8.iter().chain(lut16.get().into_iter().flatten()).all(|v| v.is_finite());
-            return finish_photo(path, img, finite);
+            return finish_photo(path, png.image, finite);
         }
     }
     let d = read_stored_as(path, format, limits)?;

@@ -17,7 +17,7 @@
 use super::depth::{is_grey, single_grey_channel};
 use super::exr_file::read_exr_channels;
 use super::format::{FileFormat, detect_format};
-use super::image_file::{pixel_of, read_decoded};
+use super::image_file::{first_non_finite, pixel_of, read_decoded};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -54,7 +54,7 @@ pub fn read_matte(path: &Path, limits: &ReadLimits) -> Result<Image> {
                     let varies = d.data.iter().step_by(d.channels).any(|&v| v != first);
                     if opaque && grey && varies { d.channel(0) } else { alpha }
                 }
-                _ => single_grey_channel(path, &d, "matte")?,
+                _ => single_grey_channel(path, d, "matte")?,
             }
         }
     };
@@ -65,17 +65,24 @@ pub fn read_matte(path: &Path, limits: &ReadLimits) -> Result<Image> {
 /// Checks that every value is finite and within [0, 1] up to [`MATTE_TOLERANCE`], then clamps
 /// to [0, 1]. `what` names the data in messages ("matte", "layer alpha").
 pub(crate) fn validate_unit_range(path: &Path, img: &mut Image, what: &str) -> Result<()> {
-    if let Some(i) = img.data.iter().position(|v| !v.is_finite()) {
+    use rayon::prelude::*;
+    if let Some(i) = first_non_finite(&img.data) {
         let (x, y) = pixel_of(img, i);
         return Err(Error::input(path, format!("{what} contains a non-finite value ({}) at pixel ({x}, {y})", img.data[i])));
     }
-    let (lo, hi) = img.data.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    let (lo, hi) = img
+        .data
+        .par_chunks(1 << 16)
+        .map(|c| c.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v))))
+        .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)));
     if lo < -MATTE_TOLERANCE || hi > 1.0 + MATTE_TOLERANCE {
         return Err(Error::input(
             path,
             format!("{what} values must be in [0, 1]; found the range [{lo}, {hi}] (an 8-bit array saved as NPY must be divided by 255)"),
         ));
     }
-    img.map_inplace(|v| v.clamp(0.0, 1.0));
+    if lo < 0.0 || hi > 1.0 {
+        img.data.par_iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+    }
     Ok(())
 }
