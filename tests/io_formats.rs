@@ -527,8 +527,11 @@ fn exr_parallel_reader_matches_the_crate_reader() {
     for (n, compression) in compressions.into_iter().enumerate() {
         for blocks in [Blocks::ScanLines, Blocks::Tiles(Vec2(16, 8))] {
             for line_order in [LineOrder::Increasing, LineOrder::Decreasing] {
+                // Half's special values among the samples (the reader converts halves by blocks).
+                let specials = [f16::NAN, f16::INFINITY, f16::NEG_INFINITY, f16::MIN_POSITIVE_SUBNORMAL, f16::NEG_ZERO, f16::MAX];
+                let half = |i: usize| if i % 53 < specials.len() { specials[i % 53] } else { f16::from_f32(f(i, 0)) };
                 let channels = vec![
-                    AnyChannel::new("B", FlatSamples::F16((0..w * h).map(|i| f16::from_f32(f(i, 0))).collect())),
+                    AnyChannel::new("B", FlatSamples::F16((0..w * h).map(half).collect())),
                     AnyChannel::new("G", FlatSamples::F32((0..w * h).map(|i| f(i, 1)).collect())),
                     AnyChannel::new("Z", FlatSamples::U32((0..w * h).map(|i| (i * 31 % 1000) as u32).collect())),
                 ];
@@ -556,8 +559,48 @@ fn exr_parallel_reader_matches_the_crate_reader() {
                     let same = g.data.iter().zip(&samples).all(|(a, b)| a.to_bits() == b.to_bits());
                     assert!(same, "{compression:?} {blocks:?} {line_order:?} channel {}", g.name);
                 }
+                // Picked channels interleaved (one skipped, the others reordered).
+                for pick in [vec![2, 0], vec![1, 2, 0], vec![1]] {
+                    let (img, bits) = io::read_exr_image(&p, &lim(), |_| Ok(pick.clone())).unwrap();
+                    assert_eq!((img.width, img.height, img.channels), (w, h, pick.len()));
+                    assert_eq!(bits, pick.iter().map(|&c| got.channels[c].bits).max().unwrap());
+                    for (k, &c) in pick.iter().enumerate() {
+                        let want = &got.channels[c].data;
+                        let same = img.data.iter().skip(k).step_by(pick.len()).zip(want).all(|(a, b)| a.to_bits() == b.to_bits());
+                        assert!(same, "{compression:?} {blocks:?} {line_order:?} pick {pick:?} channel {c}");
+                    }
+                }
             }
         }
+    }
+}
+
+/// A file of several groups of chunks (each group is read while the one before is decompressed)
+/// reads as the crate's reader reads it, as planes and interleaved, and a pick that names a
+/// channel twice or one the file lacks is refused.
+#[test]
+fn exr_reader_across_groups_of_chunks() {
+    use exr::prelude::*;
+    let dir = tmp();
+    let (w, h) = (1500usize, 1000usize);
+    let val = |i: usize, k: usize| ((i * 2_654_435_761 + k * 97) % 100_003) as f32 / 7.0;
+    let channels = (0..3).map(|k| AnyChannel::new(["B", "G", "R"][k], FlatSamples::F32((0..w * h).map(|i| val(i, k)).collect())));
+    let encoding = Encoding { compression: Compression::Uncompressed, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+    let layer = Layer::new((w, h), LayerAttributes::default(), encoding, AnyChannels::sort(channels.collect()));
+    let p = dir.path().join("big.exr");
+    exr::prelude::Image::from_layer(layer).write().to_file(&p).unwrap();
+    assert!(std::fs::metadata(&p).unwrap().len() > 2 * (8 << 20), "the file must span several groups");
+    let planes = io::read_exr_channels(&p, &lim()).unwrap();
+    for (k, c) in planes.channels.iter().enumerate() {
+        assert!(c.data.iter().enumerate().all(|(i, &v)| v == val(i, k)), "plane {}", c.name);
+    }
+    let (rgb, bits) =
+        io::read_exr_image(&p, &lim(), |l| Ok(vec![l.find("R").unwrap(), l.find("G").unwrap(), l.find("B").unwrap()])).unwrap();
+    assert_eq!((rgb.channels, bits), (3, 32));
+    assert!(rgb.data.chunks(3).enumerate().all(|(i, px)| px == [val(i, 2), val(i, 1), val(i, 0)]));
+    for bad in [vec![0, 0], vec![3]] {
+        let e = err_of(io::read_exr_image(&p, &lim(), |_| Ok(bad.clone())));
+        assert!(e.contains("asked for twice or out of range"), "{e}");
     }
 }
 

@@ -14,7 +14,7 @@
 //! Grey+alpha images use the grey channel; RGB(A) images are accepted only when R = G = B
 //! everywhere (a grey map saved as colour).
 
-use super::exr_file::read_exr_channels;
+use super::exr_file::read_exr_image;
 use super::format::{FileFormat, detect_format};
 use super::image_file::read_decoded;
 use super::limits::ReadLimits;
@@ -64,12 +64,14 @@ fn read_depth_map_raw(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
     let warnings = Vec::new();
     match detect_format(path)? {
         FileFormat::Exr => {
-            let exr = read_exr_channels(path, limits)?;
-            let i = if exr.channels.len() == 1 { Some(0) } else { exr.find_first(&["Z", "Y", "R"]) };
-            let i = i.ok_or_else(|| {
-                Error::input(path, format!("EXR depth map needs a single channel or a channel named Z, Y or R; found: {}", exr.names()))
+            let (image, bit_depth) = read_exr_image(path, limits, |exr| {
+                let i = if exr.names.len() == 1 { Some(0) } else { exr.find_first(&["Z", "Y", "R"]) };
+                let i = i.ok_or_else(|| {
+                    Error::input(path, format!("EXR depth map needs a single channel or a channel named Z, Y or R; found: {}", exr.names()))
+                })?;
+                Ok(vec![i])
             })?;
-            Ok(DepthMap { image: exr.to_image(&[i]), bit_depth: exr.channels[i].bits, format: FileFormat::Exr, warnings })
+            Ok(DepthMap { image, bit_depth, format: FileFormat::Exr, warnings })
         }
         FileFormat::Npy => {
             let image = super::format::read_npy_guarded(path, limits)?;

@@ -41,7 +41,7 @@ pub struct ExrChannels {
 impl ExrChannels {
     /// Index of the channel called `name`: an exact match first, then case-insensitive.
     pub fn find(&self, name: &str) -> Option<usize> {
-        self.channels.iter().position(|c| c.name == name).or_else(|| self.channels.iter().position(|c| c.name.eq_ignore_ascii_case(name)))
+        find_name(self.channels.iter().map(|c| c.name.as_str()), name)
     }
 
     /// The first of `names` (in priority order) that exists.
@@ -51,8 +51,7 @@ impl ExrChannels {
 
     /// "R, G, B" — for error messages.
     pub fn names(&self) -> String {
-        let v: Vec<&str> = self.channels.iter().map(|c| c.name.as_str()).collect();
-        v.join(", ")
+        self.channels.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
     }
 
     /// Interleaves the channels at `indices` into one image. Parallel over rows (rayon);
@@ -82,6 +81,42 @@ impl ExrChannels {
     }
 }
 
+/// The channels of an EXR file's first flat part as its header lists them (alphabetical order),
+/// before any pixel is decoded: what [`read_exr_image`] picks from.
+#[derive(Clone, Debug)]
+pub struct ExrLayout {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// The channels' names, in the file's order.
+    pub names: Vec<String>,
+    /// Bits per sample of each channel: 16 (half) or 32 (float, uint).
+    pub bits: Vec<u8>,
+}
+
+impl ExrLayout {
+    /// Index of the channel called `name`: an exact match first, then case-insensitive.
+    pub fn find(&self, name: &str) -> Option<usize> {
+        find_name(self.names.iter().map(String::as_str), name)
+    }
+
+    /// The first of `names` (in priority order) that exists.
+    pub fn find_first(&self, names: &[&str]) -> Option<usize> {
+        names.iter().find_map(|n| self.find(n))
+    }
+
+    /// "R, G, B" — for error messages.
+    pub fn names(&self) -> String {
+        self.names.join(", ")
+    }
+}
+
+/// Position of `name` among `names`: an exact match first, then case-insensitive.
+fn find_name<'a>(names: impl Iterator<Item = &'a str> + Clone, name: &str) -> Option<usize> {
+    names.clone().position(|n| n == name).or_else(|| names.clone().position(|n| n.eq_ignore_ascii_case(name)))
+}
+
 fn exr_error(path: &Path, e: x::Error) -> Error {
     match e {
         x::Error::NotSupported(m) => Error::input(path, format!("unsupported EXR feature: {m}")),
@@ -91,13 +126,43 @@ fn exr_error(path: &Path, e: x::Error) -> Error {
 }
 
 /// Reads every channel of the first flat (non-deep) part of an EXR file, its largest
-/// resolution level.
+/// resolution level, each into its own plane.
+pub fn read_exr_channels(path: &Path, limits: &ReadLimits) -> Result<ExrChannels> {
+    let (layout, planes) = read_exr_outputs(path, limits, |l| Ok((0..l.names.len()).map(|c| vec![c]).collect()))?;
+    let ExrLayout { width, height, names, bits } = layout;
+    let channels = names.into_iter().zip(planes).zip(bits).map(|((name, data), bits)| ExrChannel { name, data, bits }).collect();
+    Ok(ExrChannels { width, height, channels })
+}
+
+/// Reads the channels of the first flat part that `pick` chooses from its layout (distinct
+/// indices, in output order; or an error naming what is missing), interleaved into one image,
+/// and their largest bit depth. Channels not picked are decompressed but never converted or
+/// stored: no plane per channel, no interleaving pass after.
+pub fn read_exr_image(path: &Path, limits: &ReadLimits, pick: impl FnOnce(&ExrLayout) -> Result<Vec<usize>>) -> Result<(Image, u8)> {
+    let mut picked = Vec::new();
+    let (layout, mut out) = read_exr_outputs(path, limits, |l| {
+        picked = pick(l)?;
+        Ok(vec![picked.clone()])
+    })?;
+    let bits = picked.iter().map(|&i| layout.bits[i]).max().unwrap_or(32);
+    let data = out.pop().unwrap_or_default();
+    let image = Image::from_vec(layout.width, layout.height, picked.len(), data).expect("the picked channels per pixel");
+    Ok((image, bits))
+}
+
+/// The first flat (non-deep) part of an EXR file, its largest resolution level, decoded into the
+/// outputs that `pick` asks for once it has seen the layout: each output interleaves the file
+/// channels it lists (a channel goes to one output at most; one listed twice is an error).
 ///
 /// The chunks are read from the file in order and decompressed in parallel (rayon, in groups
 /// of about [`GROUP_BYTES`] compressed bytes, so memory stays the image plus one group): ZIP
 /// and PIZ decompression was the whole cost of an EXR read on one thread. A rayon job's panic
 /// reaches this thread, so the panic guard still covers all decoder code.
-pub fn read_exr_channels(path: &Path, limits: &ReadLimits) -> Result<ExrChannels> {
+fn read_exr_outputs(
+    path: &Path,
+    limits: &ReadLimits,
+    pick: impl FnOnce(&ExrLayout) -> Result<Vec<Vec<usize>>>,
+) -> Result<(ExrLayout, Vec<Vec<f32>>)> {
     use exr::block::chunk::Chunk;
     use exr::block::reader::ChunksReader;
     use rayon::prelude::*;
@@ -127,38 +192,53 @@ pub fn read_exr_channels(path: &Path, limits: &ReadLimits) -> Result<ExrChannels
             ));
         }
         let kinds: Vec<x::SampleType> = list.iter().map(|c| c.sample_type).collect();
-        let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
-        let mut planes: Vec<Vec<f32>> = kinds.iter().map(|_| vec![0f32; n]).collect();
+        let layout = ExrLayout {
+            width,
+            height,
+            names: list.iter().map(|c| c.name.to_string()).collect(),
+            bits: kinds.iter().map(|k| if *k == x::SampleType::F16 { 16 } else { 32 }).collect(),
+        };
+        let wanted = pick(&layout)?;
+        // Where each file channel goes: (output, position within its pixel).
+        let mut targets: Vec<Option<(usize, usize)>> = vec![None; kinds.len()];
+        for (o, chans) in wanted.iter().enumerate() {
+            for (k, &c) in chans.iter().enumerate() {
+                match targets.get_mut(c) {
+                    Some(t @ None) => *t = Some((o, k)),
+                    _ => return Err(Error::usage(format!("EXR reader: channel {c} asked for twice or out of range"))),
+                }
+            }
+        }
+        let strides: Vec<usize> = wanted.iter().map(Vec::len).collect();
+        let mut outputs: Vec<Vec<f32>> = strides.iter().map(|&m| vec![0f32; n * m]).collect();
         let mut chunks =
             file.filter_chunks(false, |_, _, block| block.layer == part && block.level == x::Vec2(0, 0)).map_err(|e| exr_error(path, e))?;
         let meta = chunks.meta_data().clone();
-        let (mut group, mut bytes): (Vec<Chunk>, usize) = (Vec::new(), 0);
-        loop {
-            let next = chunks.next().transpose().map_err(|e| exr_error(path, e))?;
-            let end = next.is_none();
-            if let Some(chunk) = next {
+        let dest = Destination { width, kinds: &kinds, targets: &targets, strides: &strides };
+        // The next group of chunks, read from the file in order (empty at the end).
+        let mut read_group = || -> Result<Vec<Chunk>> {
+            let (mut group, mut bytes) = (Vec::new(), 0);
+            while bytes < GROUP_BYTES {
+                let Some(chunk) = chunks.next().transpose().map_err(|e| exr_error(path, e))? else { break };
                 bytes += chunk_bytes(&chunk);
                 group.push(chunk);
             }
-            if !group.is_empty() && (end || bytes >= GROUP_BYTES) {
+            Ok(group)
+        };
+        // One group is read from the file while the one before is decompressed and placed.
+        let mut group = read_group()?;
+        while !group.is_empty() {
+            let (next, placed) = rayon::join(&mut read_group, || -> Result<()> {
                 let blocks: Vec<exr::block::UncompressedBlock> = std::mem::take(&mut group)
                     .into_par_iter()
                     .map(|chunk| exr::block::UncompressedBlock::decompress_chunk(chunk, &meta, false).map_err(|e| exr_error(path, e)))
                     .collect::<Result<_>>()?;
-                place(&mut planes, width, &kinds, blocks).map_err(|m| Error::input(path, format!("corrupt EXR: {m}")))?;
-                bytes = 0;
-            }
-            if end {
-                break;
-            }
+                dest.place(&mut outputs, blocks).map_err(|m| Error::input(path, format!("corrupt EXR: {m}")))
+            });
+            placed?;
+            group = next?;
         }
-        let channels = names
-            .into_iter()
-            .zip(planes)
-            .zip(&kinds)
-            .map(|((name, data), kind)| ExrChannel { name, data, bits: if *kind == x::SampleType::F16 { 16 } else { 32 } })
-            .collect();
-        Ok(ExrChannels { width, height, channels })
+        Ok((layout, outputs))
     })
 }
 
@@ -176,86 +256,123 @@ fn chunk_bytes(chunk: &exr::block::chunk::Chunk) -> usize {
     }
 }
 
-/// Converts decompressed blocks into the channel planes (`width` samples per row), in
-/// parallel over bands of rows: blocks that start on the same row and have the same height
-/// (one scan-line block, or one row of tiles) share a band, and bands never overlap (an
-/// error otherwise, as for a block outside the planes or of the wrong byte count).
-fn place(
-    planes: &mut [Vec<f32>],
+/// Where [`read_exr_outputs`] puts the samples of decompressed blocks.
+struct Destination<'a> {
+    /// Pixels per row.
     width: usize,
-    kinds: &[x::SampleType],
-    mut blocks: Vec<exr::block::UncompressedBlock>,
-) -> std::result::Result<(), String> {
-    use rayon::prelude::*;
-    let height = planes.first().map_or(0, |p| p.len() / width.max(1));
-    // Bytes of one line of a block `bw` pixels wide: every channel's samples.
-    let line_bytes = |bw: usize| kinds.iter().map(|k| k.bytes_per_sample() * bw).sum::<usize>();
-    blocks.sort_by_key(|b| (b.index.pixel_position.1, b.index.pixel_position.0));
-    // Bands: (first row, rows, blocks), checked.
-    let mut bands: Vec<(usize, usize, Vec<exr::block::UncompressedBlock>)> = Vec::new();
-    for b in blocks {
-        let (x::Vec2(bx, by), x::Vec2(bw, bh)) = (b.index.pixel_position, b.index.pixel_size);
-        if bx + bw > width || by + bh > height {
-            return Err("a block lies outside the data window".into());
-        }
-        if line_bytes(bw) * bh != b.data.len() {
-            return Err("a block's size does not match its channels".into());
-        }
-        match bands.last_mut() {
-            Some((y, h, list)) if *y == by && *h == bh => {
-                let prev = &list[list.len() - 1].index;
-                if bx < prev.pixel_position.0 + prev.pixel_size.0 {
-                    return Err("two blocks overlap".into());
-                }
-                list.push(b);
+    /// Each file channel's sample type.
+    kinds: &'a [x::SampleType],
+    /// Each file channel's output and position within the output's pixel (None: skipped).
+    targets: &'a [Option<(usize, usize)>],
+    /// Values per pixel of each output.
+    strides: &'a [usize],
+}
+
+impl Destination<'_> {
+    /// Converts decompressed blocks into the outputs, in parallel over bands of rows: blocks
+    /// that start on the same row and have the same height (one scan-line block, or one row of
+    /// tiles) share a band, and bands never overlap (an error otherwise, as for a block outside
+    /// the data window or of the wrong byte count).
+    fn place(&self, outputs: &mut [Vec<f32>], mut blocks: Vec<exr::block::UncompressedBlock>) -> std::result::Result<(), String> {
+        use rayon::prelude::*;
+        let (width, kinds) = (self.width, self.kinds);
+        let height = match (outputs.first(), self.strides.first()) {
+            (Some(o), Some(&m)) if m > 0 && width > 0 => o.len() / (width * m),
+            _ => 0,
+        };
+        // Bytes of one line of a block `bw` pixels wide: every channel's samples.
+        let line_bytes = |bw: usize| kinds.iter().map(|k| k.bytes_per_sample() * bw).sum::<usize>();
+        blocks.sort_by_key(|b| (b.index.pixel_position.1, b.index.pixel_position.0));
+        // Bands: (first row, rows, blocks), checked.
+        let mut bands: Vec<(usize, usize, Vec<exr::block::UncompressedBlock>)> = Vec::new();
+        for b in blocks {
+            let (x::Vec2(bx, by), x::Vec2(bw, bh)) = (b.index.pixel_position, b.index.pixel_size);
+            if bx + bw > width || by + bh > height {
+                return Err("a block lies outside the data window".into());
             }
-            Some((y, h, _)) if by < *y + *h => return Err("two blocks overlap".into()),
-            _ => bands.push((by, bh, vec![b])),
+            if line_bytes(bw) * bh != b.data.len() {
+                return Err("a block's size does not match its channels".into());
+            }
+            match bands.last_mut() {
+                Some((y, h, list)) if *y == by && *h == bh => {
+                    let prev = &list[list.len() - 1].index;
+                    if bx < prev.pixel_position.0 + prev.pixel_size.0 {
+                        return Err("two blocks overlap".into());
+                    }
+                    list.push(b);
+                }
+                Some((y, h, _)) if by < *y + *h => return Err("two blocks overlap".into()),
+                _ => bands.push((by, bh, vec![b])),
+            }
         }
-    }
-    // Each band's rows of every plane, split off in order.
-    let mut rest: Vec<&mut [f32]> = planes.iter_mut().map(|p| &mut p[..]).collect();
-    let mut consumed = 0;
-    let mut jobs = Vec::with_capacity(bands.len());
-    for (y, h, list) in bands {
-        let mut rows = Vec::with_capacity(rest.len());
-        for r in rest.iter_mut() {
-            let (_, tail) = std::mem::take(r).split_at_mut((y - consumed) * width);
-            let (mine, tail) = tail.split_at_mut(h * width);
-            rows.push(mine);
-            *r = tail;
+        // Each band's rows of every output, split off in order.
+        let mut rest: Vec<&mut [f32]> = outputs.iter_mut().map(|p| &mut p[..]).collect();
+        let mut consumed = 0;
+        let mut jobs = Vec::with_capacity(bands.len());
+        for (y, h, list) in bands {
+            let mut rows = Vec::with_capacity(rest.len());
+            for (r, &m) in rest.iter_mut().zip(self.strides) {
+                let (_, tail) = std::mem::take(r).split_at_mut((y - consumed) * width * m);
+                let (mine, tail) = tail.split_at_mut(h * width * m);
+                rows.push(mine);
+                *r = tail;
+            }
+            consumed = y + h;
+            jobs.push((rows, list));
         }
-        consumed = y + h;
-        jobs.push((rows, list));
-    }
-    jobs.into_par_iter().for_each(|(mut rows, list)| {
-        for b in list {
-            let (x0, bw) = (b.index.pixel_position.0, b.index.pixel_size.0);
-            let line = line_bytes(bw);
-            // The block's bytes: line by line, each line channel by channel (native endian).
-            for (l, bytes) in b.data.chunks_exact(line.max(1)).enumerate() {
-                let mut src = bytes;
-                for (kind, plane) in kinds.iter().zip(rows.iter_mut()) {
-                    let (s, tail) = src.split_at(kind.bytes_per_sample() * bw);
-                    src = tail;
-                    let dst = &mut plane[l * width + x0..][..bw];
-                    match kind {
-                        x::SampleType::F16 => {
-                            dst.iter_mut().zip(s.chunks_exact(2)).for_each(|(d, b)| *d = x::f16::from_ne_bytes([b[0], b[1]]).to_f32())
-                        }
-                        x::SampleType::F32 => {
-                            dst.iter_mut().zip(s.chunks_exact(4)).for_each(|(d, b)| *d = f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
-                        }
-                        x::SampleType::U32 => dst
-                            .iter_mut()
-                            .zip(s.chunks_exact(4))
-                            .for_each(|(d, b)| *d = u32::from_ne_bytes([b[0], b[1], b[2], b[3]]) as f32),
+        jobs.into_par_iter().for_each(|(mut rows, list)| {
+            for b in list {
+                let (x0, bw) = (b.index.pixel_position.0, b.index.pixel_size.0);
+                let line = line_bytes(bw);
+                // The block's bytes: line by line, each line channel by channel (native endian).
+                for (l, bytes) in b.data.chunks_exact(line.max(1)).enumerate() {
+                    let mut src = bytes;
+                    for (kind, target) in kinds.iter().zip(self.targets) {
+                        let (s, tail) = src.split_at(kind.bytes_per_sample() * bw);
+                        src = tail;
+                        let Some((o, k)) = *target else { continue };
+                        let m = self.strides[o];
+                        let dst = &mut rows[o][(l * width + x0) * m..][..bw * m];
+                        convert_samples(*kind, s, dst, m, k);
                     }
                 }
             }
+        });
+        Ok(())
+    }
+}
+
+/// Writes the samples `s` (native-endian bytes of `kind`) as `f32` to every `m`-th value of
+/// `dst` from position `k`. Halves are converted by blocks with the CPU's vector conversion
+/// (`half`'s slice conversion: F16C where the CPU has it), not one call per value.
+fn convert_samples(kind: x::SampleType, s: &[u8], dst: &mut [f32], m: usize, k: usize) {
+    use half::slice::HalfFloatSliceExt;
+    match kind {
+        x::SampleType::F16 => {
+            const BLOCK: usize = 64;
+            let (mut h, mut f) = ([x::f16::ZERO; BLOCK], [0f32; BLOCK]);
+            for (i, bytes) in s.chunks(2 * BLOCK).enumerate() {
+                let c = bytes.len() / 2;
+                for (h, b) in h.iter_mut().zip(bytes.as_chunks::<2>().0) {
+                    *h = x::f16::from_ne_bytes(*b);
+                }
+                h[..c].convert_to_f32_slice(&mut f[..c]);
+                put(&mut dst[i * BLOCK * m..], m, k, f[..c].iter().copied());
+            }
         }
-    });
-    Ok(())
+        x::SampleType::F32 => put(dst, m, k, s.as_chunks::<4>().0.iter().map(|b| f32::from_ne_bytes(*b))),
+        x::SampleType::U32 => put(dst, m, k, s.as_chunks::<4>().0.iter().map(|b| u32::from_ne_bytes(*b) as f32)),
+    }
+}
+
+/// Writes `vals` to every `m`-th value of `dst` from position `k` (a plain zip when `m` is 1,
+/// which the compiler vectorizes).
+fn put(dst: &mut [f32], m: usize, k: usize, vals: impl Iterator<Item = f32>) {
+    if m == 1 {
+        dst.iter_mut().zip(vals).for_each(|(d, v)| *d = v);
+    } else {
+        dst.iter_mut().skip(k).step_by(m).zip(vals).for_each(|(d, v)| *d = v);
+    }
 }
 
 /// How [`write_exr`] stores pixels: RLE-compressed scan lines, in increasing order (lossless,

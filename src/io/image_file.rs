@@ -12,7 +12,7 @@
 //! memory and their marker structure is walked up to the end-of-image marker first
 //! ([`jpeg_eoi_end`]).
 
-use super::exr_file::read_exr_channels;
+use super::exr_file::read_exr_image;
 use super::format::{FileFormat, detect_format, guarded, open, read_input};
 use super::limits::ReadLimits;
 use crate::color::Transfer;
@@ -387,22 +387,23 @@ fn decode_with_image_crate<R: BufRead + Seek>(
 }
 
 fn decode_exr(path: &Path, limits: &ReadLimits) -> Result<Stored> {
-    let exr = read_exr_channels(path, limits)?;
-    let rgb = [exr.find("R"), exr.find("G"), exr.find("B")];
-    let alpha = exr.find("A");
-    let mut which: Vec<usize> = if let [Some(r), Some(g), Some(b)] = rgb {
-        vec![r, g, b]
-    } else if let Some(y) = exr.find("Y") {
-        vec![y]
-    } else if exr.channels.len() == 1 {
-        vec![0]
-    } else {
-        return Err(Error::input(path, format!("EXR image needs channels R,G,B, or Y, or a single channel; found: {}", exr.names())));
-    };
-    if let Some(a) = alpha.filter(|a| !which.contains(a)) {
-        which.push(a);
-    }
-    Ok(Stored::from_image(exr.to_image(&which), Encoding::Linear, exr.bits(&which), FileFormat::Exr))
+    let (image, bits) = read_exr_image(path, limits, |exr| {
+        let rgb = [exr.find("R"), exr.find("G"), exr.find("B")];
+        let mut which: Vec<usize> = if let [Some(r), Some(g), Some(b)] = rgb {
+            vec![r, g, b]
+        } else if let Some(y) = exr.find("Y") {
+            vec![y]
+        } else if exr.names.len() == 1 {
+            vec![0]
+        } else {
+            return Err(Error::input(path, format!("EXR image needs channels R,G,B, or Y, or a single channel; found: {}", exr.names())));
+        };
+        if let Some(a) = exr.find("A").filter(|a| !which.contains(a)) {
+            which.push(a);
+        }
+        Ok(which)
+    })?;
+    Ok(Stored::from_image(image, Encoding::Linear, bits, FileFormat::Exr))
 }
 
 /// Offset just past the end-of-image (EOI) marker of the JPEG stream `b`, or `None` when the

@@ -6,7 +6,7 @@
 //! [0, 1] (beyond [`MATTE_TOLERANCE`] of float round-off) is kept but earns a warning in
 //! [`LayerFile::warnings`]: the renderer assumes coverage in [0, 1].
 
-use super::exr_file::read_exr_channels;
+use super::exr_file::read_exr_image;
 use super::format::{FileFormat, detect_format};
 use super::image_file::pixel_of;
 use super::limits::ReadLimits;
@@ -52,17 +52,18 @@ pub fn read_layer_file(path: &Path, limits: &ReadLimits) -> Result<LayerFile> {
 fn read_layer_image(path: &Path, limits: &ReadLimits) -> Result<Image> {
     let img = match detect_format(path)? {
         FileFormat::Exr => {
-            let exr = read_exr_channels(path, limits)?;
-            let found: Vec<Option<usize>> = LAYER_CHANNELS.iter().map(|n| exr.find(n)).collect();
-            let missing: Vec<&str> = LAYER_CHANNELS.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| *n).collect();
-            if !missing.is_empty() {
-                return Err(Error::input(
-                    path,
-                    format!("EXR layer needs channels R, G, B, A, D; missing {} (found: {})", missing.join(", "), exr.names()),
-                ));
-            }
-            let idx: Vec<usize> = found.into_iter().flatten().collect();
-            exr.to_image(&idx)
+            read_exr_image(path, limits, |exr| {
+                let found: Vec<Option<usize>> = LAYER_CHANNELS.iter().map(|n| exr.find(n)).collect();
+                let missing: Vec<&str> = LAYER_CHANNELS.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| *n).collect();
+                if !missing.is_empty() {
+                    return Err(Error::input(
+                        path,
+                        format!("EXR layer needs channels R, G, B, A, D; missing {} (found: {})", missing.join(", "), exr.names()),
+                    ));
+                }
+                Ok(found.into_iter().flatten().collect())
+            })?
+            .0
         }
         FileFormat::Npy => {
             let image = super::format::read_npy_guarded(path, limits)?;

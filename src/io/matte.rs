@@ -15,7 +15,7 @@
 //! range found.
 
 use super::depth::{is_grey, single_grey_channel};
-use super::exr_file::read_exr_channels;
+use super::exr_file::read_exr_image;
 use super::format::{FileFormat, detect_format};
 use super::image_file::{first_non_finite, pixel_of, read_decoded};
 use super::limits::ReadLimits;
@@ -30,11 +30,13 @@ pub const MATTE_TOLERANCE: f32 = 1e-3;
 pub fn read_matte(path: &Path, limits: &ReadLimits) -> Result<Image> {
     let mut img = match detect_format(path)? {
         FileFormat::Exr => {
-            let exr = read_exr_channels(path, limits)?;
-            let i = exr.find_first(&["A", "Y", "R"]).or((exr.channels.len() == 1).then_some(0)).ok_or_else(|| {
-                Error::input(path, format!("EXR matte needs a channel named A, Y or R, or a single channel; found: {}", exr.names()))
-            })?;
-            exr.to_image(&[i])
+            read_exr_image(path, limits, |exr| {
+                let i = exr.find_first(&["A", "Y", "R"]).or((exr.names.len() == 1).then_some(0)).ok_or_else(|| {
+                    Error::input(path, format!("EXR matte needs a channel named A, Y or R, or a single channel; found: {}", exr.names()))
+                })?;
+                Ok(vec![i])
+            })?
+            .0
         }
         FileFormat::Npy => {
             let image = super::format::read_npy_guarded(path, limits)?;

@@ -29,7 +29,7 @@ pub mod tiff_file;
 pub mod write;
 
 pub use depth::{DepthMap, read_depth, read_depth_map};
-pub use exr_file::{ExrChannel, ExrChannels, read_exr_channels, write_exr};
+pub use exr_file::{ExrChannel, ExrChannels, ExrLayout, read_exr_channels, read_exr_image, write_exr};
 pub use format::{FileFormat, SUPPORTED_INPUT_EXTENSIONS, check_regular_file, detect_format, read_input, read_input_text};
 pub use guard::InputFiles;
 pub use image_file::{Decoded, Encoding, read_decoded, read_photo};
