@@ -11,6 +11,7 @@ use crate::pipeline::{BuildLayers, Focus, Outcome, Pipeline, Report, Scene, Stag
 use crate::render::Layer;
 use crate::stages::depth;
 use crate::timing::ms_since;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -63,11 +64,15 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     let t_read = Instant::now();
     let mut read_warnings = Vec::new();
     let outcome: Outcome = if !job.layers.is_empty() {
+        // The files side by side (each EXR read is sequential in part: its chunks come from the
+        // file in order); the first error in the layers' order is the one reported.
+        let read: Vec<Result<io::LayerFile>> = job.layers.par_iter().map(|p| io::read_layer_file(p, &limits)).collect();
         let layers = job
             .layers
             .iter()
-            .map(|p| {
-                let file = io::read_layer_file(p, &limits)?;
+            .zip(read)
+            .map(|(p, file)| {
+                let file = file?;
                 read_warnings.extend(file.warnings);
                 let mut l = Layer::new(file.image, &p.display().to_string())?;
                 if let Some(g) = cfg.render.gamma {

@@ -599,6 +599,24 @@ fn writes_never_hit_an_input() {
     );
 }
 
+/// The inputs are read side by side, but a run with several bad inputs reports the first in
+/// the order they are used: the photo before the depth map and the matte, the first layer
+/// before the second.
+#[test]
+fn the_first_bad_input_in_order_is_reported() {
+    let s = Scene::new();
+    for name in ["bad1.exr", "bad2.exr", "bad.png", "bad_matte.png"] {
+        std::fs::write(s.path(name), b"not an image at all, just some bytes").unwrap();
+    }
+    let e = s.bad(&["--layer", "bad1.exr", "--layer", "bad2.exr", "--focus", "0", "--blur", "4", "-o", "o.png"], &["bad1.exr"]);
+    assert!(!e.contains("bad2.exr"), "{e}");
+    let e = s.bad(&["bad.png", "--depth", "bad1.exr", "--matte", "bad_matte.png", "--focus", "0", "-o", "o.png"], &["bad.png"]);
+    assert!(!e.contains("bad1.exr") && !e.contains("bad_matte.png"), "{e}");
+    let e = s.bad(&["image.png", "--depth", "bad1.exr", "--matte", "bad_matte.png", "--focus", "0", "-o", "o.png"], &["bad1.exr"]);
+    assert!(!e.contains("bad_matte.png"), "{e}");
+    s.bad(&["image.png", "--depth", "depth.exr", "--matte", "bad_matte.png", "--focus", "0", "-o", "o.png"], &["bad_matte.png"]);
+}
+
 #[test]
 fn verbose_prints_stage_timings() {
     let s = Scene::new();

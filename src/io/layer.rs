@@ -14,6 +14,7 @@ use super::matte::MATTE_TOLERANCE;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::layer::A;
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Channel names of a layer, in [`read_layer`]'s output order.
@@ -38,8 +39,13 @@ pub fn read_layer(path: &Path, limits: &ReadLimits) -> Result<Image> {
 pub fn read_layer_file(path: &Path, limits: &ReadLimits) -> Result<LayerFile> {
     let image = read_layer_image(path, limits)?;
     let mut warnings = Vec::new();
-    let alpha = image.data.iter().skip(A).step_by(LAYER_CHANNELS.len());
-    let (lo, hi) = alpha.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    // Parallel over blocks of pixels (a sequential pass took ~40 ms of a 12.2 MP layer's read).
+    let n = LAYER_CHANNELS.len();
+    let (lo, hi) = image
+        .data
+        .par_chunks(n << 14)
+        .map(|c| c.chunks_exact(n).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), px| (lo.min(px[A]), hi.max(px[A]))))
+        .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)));
     if lo < -MATTE_TOLERANCE || hi > 1.0 + MATTE_TOLERANCE {
         warnings.push(format!(
             "{} has layer alpha in [{lo}, {hi}], outside [0, 1]; used as stored, but the renderer expects coverage in [0, 1]",
