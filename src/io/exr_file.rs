@@ -366,8 +366,7 @@ fn convert_samples(kind: x::SampleType, s: &[u8], dst: &mut [f32], m: usize, k: 
 }
 
 /// Writes `vals` to every `m`-th value of `dst` from position `k` (`k < m`): a plain zip when
-/// `m` is 1, which the compiler vectorizes, else pixel by pixel (`skip().step_by()` measured
-/// slower).
+/// `m` is 1, which the compiler vectorizes, else pixel by pixel.
 fn put(dst: &mut [f32], m: usize, k: usize, vals: impl Iterator<Item = f32>) {
     if m == 1 {
         dst.iter_mut().zip(vals).for_each(|(d, v)| *d = v);
