@@ -347,12 +347,11 @@ impl Pipeline {
             return Ok(Outcome { image: scene.rgb.clone(), layers: Vec::new(), report });
         }
 
-        let opaque = Image::filled(w, h, 1, 1.0);
         let single = |report: &mut Report, why: &str| -> Result<Vec<Layer>> {
             for name in ["fill_depth", "inpaint", "slice"] {
                 report.skipped(name, why.to_string());
             }
-            Ok(vec![Layer::from_parts(&scene.rgb, &opaque, disp, "scene")?])
+            Ok(vec![Layer::from_parts(&scene.rgb, &Image::filled(w, h, 1, 1.0), disp, "scene")?])
         };
 
         let layers = if !cfg.render.occlusion {
@@ -400,8 +399,6 @@ impl Pipeline {
                 }
             }
         };
-        // The layers hold their alpha now: no full-size plane of ones while rendering.
-        drop(opaque);
         if let Some(why) = sharp {
             report.skipped("render", why);
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
