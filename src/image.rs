@@ -149,9 +149,10 @@ impl Image {
         out
     }
 
-    /// Applies `f` to every value in place.
+    /// Applies `f` to every value in place; blocks of 64 K values in parallel (rayon).
     pub fn map_inplace(&mut self, f: impl Fn(f32) -> f32 + Sync) {
-        self.data.iter_mut().for_each(|v| *v = f(*v));
+        use rayon::prelude::*;
+        self.data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v = f(*v)));
     }
 
     /// True if every value is finite.
