@@ -602,6 +602,7 @@ fn exr_reader_across_groups_of_chunks() {
         let e = err_of(io::read_exr_image(&p, &lim(), |_| Ok(bad.clone())));
         assert!(e.contains("asked for twice or out of range"), "{e}");
     }
+    assert!(err_of(io::read_exr_image(&p, &lim(), |_| Ok(vec![]))).contains("no channel picked"));
 }
 
 /// A multi-part file reads its first part, as the crate's reader does, whatever the later

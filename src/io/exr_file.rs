@@ -142,6 +142,9 @@ pub fn read_exr_image(path: &Path, limits: &ReadLimits, pick: impl FnOnce(&ExrLa
     let mut picked = Vec::new();
     let (layout, mut out) = read_exr_outputs(path, limits, |l| {
         picked = pick(l)?;
+        if picked.is_empty() {
+            return Err(Error::usage("EXR reader: no channel picked"));
+        }
         Ok(vec![picked.clone()])
     })?;
     let bits = picked.iter().map(|&i| layout.bits[i]).max().unwrap_or(32);
