@@ -277,6 +277,30 @@ fn png_rows_equal_the_whole_image_route() {
     }
 }
 
+/// A PNG cut at any byte reads (or fails) as the whole-image route through the `image` crate
+/// decides: the row-by-row route neither accepts a stream the other refuses (cut inside the
+/// compressed data's checksum, say) nor refuses one it accepts, and it never panics.
+#[test]
+fn png_cut_anywhere_reads_as_the_image_crate_decides() {
+    let dir = tmp();
+    let src = dir.path().join("whole.png");
+    write_png(&src, &pattern(9, 40, 3), 16, Transfer::Srgb).unwrap();
+    let bytes = std::fs::read(&src).unwrap();
+    let p = dir.path().join("cut.png");
+    for cut in 8..=bytes.len() {
+        std::fs::write(&p, &bytes[..cut]).unwrap();
+        let whole = image::open(&p).is_ok();
+        match read_photo(&p, Transfer::Srgb, &lim()) {
+            Ok(_) => assert!(whole, "cut at {cut} of {}: read, the image crate refuses it", bytes.len()),
+            Err(e) => {
+                let e = e.to_string();
+                assert!(!whole, "cut at {cut} of {}: refused ({e}), the image crate reads it", bytes.len());
+                assert!(e.contains("cut.png") && !e.contains("panicked"), "{e}");
+            }
+        }
+    }
+}
+
 /// An interlaced (Adam7) PNG is read whole, not row by row: the same pixels as the same image
 /// stored plainly. The file is built by hand (the `png` encoder writes no Adam7): each pass's
 /// rows with filter byte 0, in one stored (uncompressed) deflate block.

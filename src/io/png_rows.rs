@@ -92,7 +92,12 @@ pub(crate) fn read_png_rows(
                     }
                 });
             }
-            Ok(())
+            // The end of the image data (the zlib stream's checksum), which the whole-image
+            // route reads too: a stream cut after its last pixel is as corrupt here as there.
+            match reader.next_row().map_err(pe)? {
+                None => Ok(()),
+                Some(_) => Err(Error::input(path, "corrupt PNG: more rows than its header says")),
+            }
         })?;
         let len = dst.len();
         // SAFETY: every band of `dst` went to one job, which wrote all of it (`convert`'s
