@@ -299,6 +299,43 @@ fn png_cut_anywhere_reads_as_the_image_crate_decides() {
             }
         }
     }
+    // Bytes changed at random (chunk CRCs left stale, or fixed so the corruption reaches the
+    // decoder): the same answer as the image crate, and the same pixels when both read.
+    let mut rng = common::Rng::new(5);
+    let (mut read, mut refused) = (0, 0);
+    for k in 0..400 {
+        let mut b = bytes.clone();
+        let i = 8 + (rng.next_f32() * (b.len() - 8) as f32) as usize % (b.len() - 8);
+        b[i] ^= 1 << (k % 8);
+        if k % 2 == 1 {
+            // Recompute every chunk's CRC so the change is judged by the decoder, not the CRC.
+            let mut at = 8;
+            while at + 12 <= b.len() {
+                let len = u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]) as usize;
+                if at + 12 + len > b.len() {
+                    break;
+                }
+                let crc = crc32(&b[at + 4..at + 8 + len]);
+                b[at + 8 + len..at + 12 + len].copy_from_slice(&crc.to_be_bytes());
+                at += 12 + len;
+            }
+        }
+        std::fs::write(&p, &b).unwrap();
+        let whole = image::open(&p).ok();
+        match (read_photo(&p, Transfer::Linear, &lim()), whole) {
+            (Ok(rows), Some(w)) => {
+                let want: Vec<f32> = w.to_rgb16().into_raw().iter().map(|&q| q as f32 / 65535.0).collect();
+                assert!(rows.data == want, "flip {k} at byte {i}: the two routes read different pixels");
+                read += 1;
+            }
+            (Err(e), None) => {
+                assert!(!e.to_string().contains("panicked"), "{e}");
+                refused += 1;
+            }
+            (r, w) => panic!("flip {k} at byte {i}: read_photo {:?}, image crate {}", r.map(|_| ()), w.is_some()),
+        }
+    }
+    assert!(read > 20 && refused > 20, "both outcomes must be exercised: {read} read, {refused} refused");
 }
 
 /// An interlaced (Adam7) PNG is read whole, not row by row: the same pixels as the same image
