@@ -225,6 +225,25 @@ impl EncodeTable {
         if self.ramp.is_empty() { self.level_by::<false>(v) } else { self.level_by::<true>(v) }
     }
 
+    /// [`EncodeTable::level_by`] for a table whose ranges hold at most one threshold each (`steps`
+    /// of length 0 or 1: the 8-bit tables): the range's first level, plus one if `v` reaches
+    /// the next threshold. NaN and every value with the sign bit (-0 included) give 0, like
+    /// `v <= 0`; +inf and every value from 1 up give `max`. One table read and one compare,
+    /// no branch the data decides but the range test.
+    #[inline]
+    fn level_one_step(&self, v: f32) -> u16 {
+        debug_assert!(self.ramp.is_empty() && self.steps.len() <= 1);
+        let b = v.to_bits();
+        if b < 1.0f32.to_bits() {
+            let q = self.start[(b >> self.shift) as usize];
+            q + (v >= self.thresholds[q as usize]) as u16
+        } else if b <= f32::INFINITY.to_bits() {
+            self.max
+        } else {
+            0
+        }
+    }
+
     /// [`EncodeTable::level`] by the search `INTERPOLATED` names (the `ramp`'s if true, the
     /// `steps`' otherwise), chosen once per image rather than per sample.
     #[inline]
@@ -269,6 +288,10 @@ impl EncodeTable {
 fn quantize(img: &Image, bit_depth: u8, transfer: Transfer) -> Vec<u8> {
     let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
     match EncodeTable::get(transfer, bit_depth) {
+        Some(t) if t.ramp.is_empty() && t.steps.len() <= 1 => {
+            let t: &EncodeTable = &t;
+            quantize_with(img, bit_depth, |v| t.level_one_step(v))
+        }
         Some(t) if t.ramp.is_empty() => quantize_with(img, bit_depth, |v| t.level_by::<false>(v)),
         Some(t) => quantize_with(img, bit_depth, |v| t.level_by::<true>(v)),
         None => quantize_with(img, bit_depth, |v| quantize_value(v, transfer, max) as u16),
@@ -287,6 +310,11 @@ fn quantize_with(img: &Image, bit_depth: u8, colour: impl Fn(f32) -> u16 + Sync)
     let bytes = if bit_depth == 16 { 2 } else { 1 };
     let mut out = vec![0u8; img.data.len() * bytes];
     out.par_chunks_mut(PIXELS_PER_TASK * c * bytes).zip(img.data.par_chunks(PIXELS_PER_TASK * c)).for_each(|(dst, src)| {
+        if bytes == 1 && colours == c {
+            // Every sample a colour byte (8-bit grey or RGB): one flat loop.
+            dst.iter_mut().zip(src).for_each(|(d, &v)| *d = colour(v) as u8);
+            return;
+        }
         for (d, px) in dst.chunks_exact_mut(c * bytes).zip(src.chunks_exact(c)) {
             for (k, &v) in px.iter().enumerate() {
                 let q = level(k, v);
@@ -385,13 +413,22 @@ mod tests {
     }
 
     /// The table quantizer equals the formula: on both sides of every threshold (64 floats
-    /// each way), on a million seeded random values in [0, 1.1], and on the special values.
+    /// each way), on a million seeded random values in [0, 1.1], and on the special values (NaN
+    /// of either sign and payload, signed zeros, infinities, subnormals); the 8-bit tables'
+    /// one-step search ([`EncodeTable::level_one_step`], what the quantizer runs) too.
     #[test]
     fn encode_table_equals_the_formula() {
         for (transfer, bits) in [(Transfer::Srgb, 8), (Transfer::Gamma(2.2), 8), (Transfer::Gamma(0.7), 8), (Transfer::Srgb, 16)] {
             let t = EncodeTable::new(transfer, bits).unwrap();
             let max = t.max as f32;
-            let check = |v: f32| assert_eq!(t.level(v) as f32, quantize_value(v, transfer, max), "{transfer:?} {bits} bits at {v:e}");
+            let one_step = t.ramp.is_empty() && t.steps.len() <= 1;
+            let check = |v: f32| {
+                let want = quantize_value(v, transfer, max);
+                assert_eq!(t.level(v) as f32, want, "{transfer:?} {bits} bits at {v:e}");
+                if one_step {
+                    assert_eq!(t.level_one_step(v) as f32, want, "{transfer:?} {bits} bits at {v:e}, one step");
+                }
+            };
             if !t.ramp.is_empty() {
                 // The guess is within a small fraction of a level of the formula's unrounded
                 // level across every range (so the one-step corrections suffice).
@@ -415,10 +452,12 @@ mod tests {
                 x ^= x << 17;
                 check((x >> 40) as f32 / (1u64 << 24) as f32 * 1.1);
             }
-            [f32::NAN, -0.0, 0.0, -1.0, 1.0, 1.0001, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, 1e-40]
+            [f32::NAN, -f32::NAN, -0.0, 0.0, -1.0, 1.0, 1.0001, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, 1e-40, -1e-40]
                 .into_iter()
+                .chain([f32::MAX, 1.0 - f32::EPSILON / 2.0, f32::from_bits(0x7f80_0001), f32::from_bits(0xffff_ffff)])
                 .for_each(check);
         }
+        assert!(EncodeTable::new(Transfer::Srgb, 8).is_some_and(|t| t.steps.len() <= 1), "8-bit sRGB takes the one-step search");
         assert!(EncodeTable::new(Transfer::Linear, 8).is_none() && EncodeTable::new(Transfer::Gamma(-1.0), 8).is_none());
         assert!(EncodeTable::new(Transfer::Gamma(2.2), 16).is_none(), "16-bit gamma keeps the formula");
     }
