@@ -287,11 +287,10 @@ impl EncodeTable {
 /// parallel over blocks of 64 K pixels (rayon). Allocates the output bytes only.
 fn quantize(img: &Image, bit_depth: u8, transfer: Transfer) -> Vec<u8> {
     let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
-    match EncodeTable::get(transfer, bit_depth) {
-        Some(t) if t.ramp.is_empty() && t.steps.len() <= 1 => {
-            let t: &EncodeTable = &t;
-            quantize_with(img, bit_depth, |v| t.level_one_step(v))
-        }
+    let table = EncodeTable::get(transfer, bit_depth);
+    // A plain reference in the closures (not the `Cow`, whose variant each call would test).
+    match table.as_deref() {
+        Some(t) if t.ramp.is_empty() && t.steps.len() <= 1 => quantize_with(img, bit_depth, |v| t.level_one_step(v)),
         Some(t) if t.ramp.is_empty() => quantize_with(img, bit_depth, |v| t.level_by::<false>(v)),
         Some(t) => quantize_with(img, bit_depth, |v| t.level_by::<true>(v)),
         None => quantize_with(img, bit_depth, |v| quantize_value(v, transfer, max) as u16),
@@ -310,9 +309,13 @@ fn quantize_with(img: &Image, bit_depth: u8, colour: impl Fn(f32) -> u16 + Sync)
     let bytes = if bit_depth == 16 { 2 } else { 1 };
     let mut out = vec![0u8; img.data.len() * bytes];
     out.par_chunks_mut(PIXELS_PER_TASK * c * bytes).zip(img.data.par_chunks(PIXELS_PER_TASK * c)).for_each(|(dst, src)| {
-        if bytes == 1 && colours == c {
-            // Every sample a colour byte (8-bit grey or RGB): one flat loop.
-            dst.iter_mut().zip(src).for_each(|(d, &v)| *d = colour(v) as u8);
+        if colours == c {
+            // Every sample a colour (grey or RGB): one flat loop.
+            if bytes == 1 {
+                dst.iter_mut().zip(src).for_each(|(d, &v)| *d = colour(v) as u8);
+            } else {
+                dst.chunks_exact_mut(2).zip(src).for_each(|(d, &v)| d.copy_from_slice(&colour(v).to_be_bytes()));
+            }
             return;
         }
         for (d, px) in dst.chunks_exact_mut(c * bytes).zip(src.chunks_exact(c)) {
