@@ -27,7 +27,9 @@ pub struct ExrChannel {
     pub bits: u8,
 }
 
-/// All channels of the first layer of an EXR file, in the file's (alphabetical) order.
+/// All channels of the first layer of an EXR file, in the file's (alphabetical) order, each
+/// in its own plane ([`read_exr_channels`]; to pick channels by name into one image, use
+/// [`read_exr_image`] and [`ExrLayout::find`]).
 #[derive(Clone, Debug)]
 pub struct ExrChannels {
     /// Pixels per row.
@@ -36,49 +38,6 @@ pub struct ExrChannels {
     pub height: usize,
     /// The channels, in the file's (alphabetical) order.
     pub channels: Vec<ExrChannel>,
-}
-
-impl ExrChannels {
-    /// Index of the channel called `name`: an exact match first, then case-insensitive.
-    pub fn find(&self, name: &str) -> Option<usize> {
-        find_name(self.channels.iter().map(|c| c.name.as_str()), name)
-    }
-
-    /// The first of `names` (in priority order) that exists.
-    pub fn find_first(&self, names: &[&str]) -> Option<usize> {
-        names.iter().find_map(|n| self.find(n))
-    }
-
-    /// "R, G, B" — for error messages.
-    pub fn names(&self) -> String {
-        self.channels.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
-    }
-
-    /// Interleaves the channels at `indices` into one image. Parallel over rows (rayon);
-    /// allocates the image.
-    pub fn to_image(&self, indices: &[usize]) -> Image {
-        use rayon::prelude::*;
-        let n = indices.len();
-        let w = self.width;
-        let mut out = Image::new(w, self.height, n);
-        if w == 0 {
-            return out;
-        }
-        out.data.par_chunks_mut(w * n).enumerate().for_each(|(y, row)| {
-            for (k, &i) in indices.iter().enumerate() {
-                let src = &self.channels[i].data[y * w..(y + 1) * w];
-                for (dst, &v) in row.iter_mut().skip(k).step_by(n).zip(src) {
-                    *dst = v;
-                }
-            }
-        });
-        out
-    }
-
-    /// Largest bit depth among `indices`.
-    pub fn bits(&self, indices: &[usize]) -> u8 {
-        indices.iter().map(|&i| self.channels[i].bits).max().unwrap_or(32)
-    }
 }
 
 /// The channels of an EXR file's first flat part as its header lists them (alphabetical order),
@@ -98,7 +57,7 @@ pub struct ExrLayout {
 impl ExrLayout {
     /// Index of the channel called `name`: an exact match first, then case-insensitive.
     pub fn find(&self, name: &str) -> Option<usize> {
-        find_name(self.names.iter().map(String::as_str), name)
+        self.names.iter().position(|n| n == name).or_else(|| self.names.iter().position(|n| n.eq_ignore_ascii_case(name)))
     }
 
     /// The first of `names` (in priority order) that exists.
@@ -110,11 +69,6 @@ impl ExrLayout {
     pub fn names(&self) -> String {
         self.names.join(", ")
     }
-}
-
-/// Position of `name` among `names`: an exact match first, then case-insensitive.
-fn find_name<'a>(names: impl Iterator<Item = &'a str> + Clone, name: &str) -> Option<usize> {
-    names.clone().position(|n| n == name).or_else(|| names.clone().position(|n| n.eq_ignore_ascii_case(name)))
 }
 
 fn exr_error(path: &Path, e: x::Error) -> Error {

@@ -151,6 +151,23 @@ fn convert_into<T: Copy>(dst: &mut [MaybeUninit<f32>], src: &[T], src_channels: 
     }
 }
 
+/// [`convert_into`] of one band of a PNG's decoded rows (`bits` 8 or 16; 16-bit samples
+/// big-endian, as stored): 8-bit samples through `f8`, 16-bit ones through `f16`.
+fn png_band_into(
+    dst: &mut [MaybeUninit<f32>],
+    raw: &[u8],
+    channels: usize,
+    which: &[usize],
+    bits: u8,
+    f8: impl Fn(u8) -> f32,
+    f16: impl Fn(u16) -> f32,
+) {
+    match bits {
+        8 => convert_into(dst, raw, channels, which, f8),
+        _ => convert_into(dst, raw.as_chunks::<2>().0, channels, which, |q| f16(u16::from_be_bytes(q))),
+    }
+}
+
 /// Reads any supported image file into its decoder's sample type (see [`Stored`]).
 pub(crate) fn read_stored(path: &Path, limits: &ReadLimits) -> Result<Stored> {
     read_stored_as(path, detect_format(path)?, limits)
@@ -163,10 +180,7 @@ fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Resul
             // Row by row, each sample scaled as `into_decoded` scales the whole-image route's.
             let band = |raw: &[u8], c: usize, bits: u8, dst: &mut [MaybeUninit<f32>]| {
                 let all: Vec<usize> = (0..c).collect();
-                match bits {
-                    8 => convert_into(dst, raw, c, &all, |q| q as f32 / 255.0),
-                    _ => convert_into(dst, raw.as_chunks::<2>().0, c, &all, |q| u16::from_be_bytes(q) as f32 / 65535.0),
-                }
+                png_band_into(dst, raw, c, &all, bits, |q| q as f32 / 255.0, |q| q as f32 / 65535.0)
             };
             match super::png_rows::read_png_rows(path, limits, |c| c, band)? {
                 Some(png) => Ok(Stored::from_image(png.image, Encoding::Display, png.bits, FileFormat::Png)),
@@ -223,19 +237,21 @@ pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Resul
     };
     if format == FileFormat::Png {
         let (lut8, lut16) = (decode_table(transfer, 8), std::sync::OnceLock::new());
-        let band = |raw: &[u8], c: usize, bits: u8, dst: &mut [MaybeUninit<f32>]| match bits {
-            8 => convert_into(dst, raw, c, which(c), |q| lut8[q as usize]),
-            _ => {
-                let lut: &Vec<f32> = lut16.get_or_init(|| decode_table(transfer, 16));
-                convert_into(dst, raw.as_chunks::<2>().0, c, which(c), |q| lut[u16::from_be_bytes(q) as usize])
-            }
+        let band = |raw: &[u8], c: usize, bits: u8, dst: &mut [MaybeUninit<f32>]| {
+            // The 16-bit table only for a 16-bit file (built once, by the first band).
+            let lut16: &[f32] = if bits == 16 { lut16.get_or_init(|| decode_table(transfer, 16)) } else { &[] };
+            png_band_into(dst, raw, c, which(c), bits, |q| lut8[q as usize], |q| lut16[q as usize])
         };
         if let Some(png) = super::png_rows::read_png_rows(path, limits, |_| 3, band)? {
             let finite = lut8.iter().chain(lut16.get().into_iter().flatten()).all(|v| v.is_finite());
             return finish_photo(path, png.image, finite);
         }
     }
-    let d = read_stored_as(path, format, limits)?;
+    // An interlaced PNG (the row route declined it) goes to the whole-image decoder directly.
+    let d = match format {
+        FileFormat::Png => decode_with_image_crate(path, FileFormat::Png, open(path)?, limits, || Ok(()))?,
+        _ => read_stored_as(path, format, limits)?,
+    };
     let c = d.channels;
     let which = which(c);
     let (data, checked) = match d.samples {
