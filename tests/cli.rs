@@ -617,6 +617,41 @@ fn the_first_bad_input_in_order_is_reported() {
     s.bad(&["image.png", "--depth", "depth.exr", "--matte", "bad_matte.png", "--focus", "0", "-o", "o.png"], &["bad_matte.png"]);
 }
 
+/// A run that succeeds leaves every input byte for byte as it was (photo, depth map, matte,
+/// and the saved layers when they are read back with `--layer`): only the outputs are new.
+#[test]
+fn a_successful_run_leaves_its_inputs_as_they_were() {
+    let s = Scene::new();
+    let before = common::snapshot(s.dir.path());
+    s.ok(&[
+        "image.png",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "4",
+        "--save-layers",
+        "L",
+        "-o",
+        "a.png",
+    ]);
+    let after = common::snapshot(s.dir.path());
+    for (name, bytes) in &before {
+        let now = after.iter().find(|(n, _)| n == name).map(|(_, b)| b);
+        assert!(now == Some(bytes), "{name} changed or vanished");
+    }
+    let layers = common::snapshot(s.dir.path());
+    s.ok(&["--layer", "L/0_fg.exr", "--layer", "L/1_bg.exr", "--focus", "0", "--blur", "4", "-o", "b.png"]);
+    let again = common::snapshot(s.dir.path());
+    for (name, bytes) in &layers {
+        assert!(again.iter().any(|(n, b)| n == name && b == bytes), "{name} changed or vanished");
+    }
+    assert!(again.iter().any(|(n, _)| n == "b.png"), "the second run wrote its output");
+}
+
 #[test]
 fn verbose_prints_stage_timings() {
     let s = Scene::new();
