@@ -143,6 +143,14 @@ struct EncodeTable {
     ramp: Vec<(f32, f32)>,
 }
 
+/// [`quantize_value`] for sRGB below [`RAMP_START`], out of line: rare in a photo, and kept
+/// out of the per-sample loop that [`EncodeTable::level_by`] inlines into.
+#[cold]
+#[inline(never)]
+fn linear_segment(v: f32, max: u16) -> u16 {
+    quantize_value(v, Transfer::Srgb, max as f32) as u16
+}
+
 /// First float bits of [`EncodeTable::ramp`]'s ranges: `2^-9` (below it, sRGB is linear).
 const RAMP_START: u32 = 0x3B00_0000;
 /// Float bits per range of [`EncodeTable::ramp`].
@@ -246,7 +254,7 @@ impl EncodeTable {
 
     /// [`EncodeTable::level`] by the search `INTERPOLATED` names (the `ramp`'s if true, the
     /// `steps`' otherwise), chosen once per image rather than per sample.
-    #[inline]
+    #[inline(always)]
     fn level_by<const INTERPOLATED: bool>(&self, v: f32) -> u16 {
         if v.is_nan() || v <= 0.0 {
             return 0;
@@ -267,7 +275,7 @@ impl EncodeTable {
         if b < RAMP_START {
             // sRGB's linear segment: the formula itself, which takes no `powf` there (the ramp
             // exists for sRGB only).
-            return quantize_value(v, Transfer::Srgb, self.max as f32) as u16;
+            return linear_segment(v, self.max);
         }
         let (c, dc) = self.ramp[((b - RAMP_START) >> RAMP_SHIFT) as usize];
         let guess = ((c + dc * (b & ((1 << RAMP_SHIFT) - 1)) as f32 + 0.5) as usize).min(self.max as usize);
@@ -284,52 +292,94 @@ impl EncodeTable {
 /// (alpha, the last channel of 2/4-channel images, is written linearly), then are clipped to
 /// [0, 1] (NaN becomes 0) and rounded to nearest ([`quantize_value`]). 16-bit samples are
 /// big-endian, as PNG stores them. Colour goes through an [`EncodeTable`] where one applies;
-/// parallel over blocks of 64 K pixels (rayon). Allocates the output bytes only.
+/// parallel over blocks of 64 K pixels (rayon). Allocates the output bytes only. (The PNG
+/// writer quantizes band by band instead, [`encode_png`].)
+#[cfg(test)]
 fn quantize(img: &Image, bit_depth: u8, transfer: Transfer) -> Vec<u8> {
-    let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
+    use rayon::prelude::*;
+    const PIXELS_PER_TASK: usize = 1 << 16;
     let table = EncodeTable::get(transfer, bit_depth);
-    // A plain reference in the closures (not the `Cow`, whose variant each call would test).
-    match table.as_deref() {
-        Some(t) if t.ramp.is_empty() && t.steps.len() <= 1 => quantize_with(img, bit_depth, |v| t.level_one_step(v)),
-        Some(t) if t.ramp.is_empty() => quantize_with(img, bit_depth, |v| t.level_by::<false>(v)),
-        Some(t) => quantize_with(img, bit_depth, |v| t.level_by::<true>(v)),
-        None => quantize_with(img, bit_depth, |v| quantize_value(v, transfer, max) as u16),
+    let q = Quantizer::new(table.as_deref(), transfer, bit_depth, img.channels);
+    let mut out = vec![0u8; img.data.len() * q.bytes];
+    let c = q.channels;
+    out.par_chunks_mut(PIXELS_PER_TASK * c * q.bytes)
+        .zip(img.data.par_chunks(PIXELS_PER_TASK * c))
+        .for_each(|(dst, src)| q.block(src, dst));
+    out
+}
+
+/// The quantizer of one image: its colour search chosen once (the table's, or the formula
+/// where no table applies), so that the per-sample call inlines in [`quantize_block`].
+struct Quantizer<'a> {
+    colour: Colour<'a>,
+    /// Channels per pixel and bytes per sample (1 or 2).
+    channels: usize,
+    bytes: usize,
+}
+
+/// [`Quantizer`]'s colour search.
+#[derive(Clone, Copy)]
+enum Colour<'a> {
+    /// [`EncodeTable::level_one_step`] (the 8-bit tables).
+    OneStep(&'a EncodeTable),
+    /// [`EncodeTable::level_by`], by steps (`false`) or by the ramp (`true`).
+    Steps(&'a EncodeTable),
+    Ramp(&'a EncodeTable),
+    /// [`quantize_value`].
+    Formula(Transfer),
+}
+
+impl<'a> Quantizer<'a> {
+    fn new(table: Option<&'a EncodeTable>, transfer: Transfer, bit_depth: u8, channels: usize) -> Self {
+        let colour = match table {
+            Some(t) if t.ramp.is_empty() && t.steps.len() <= 1 => Colour::OneStep(t),
+            Some(t) if t.ramp.is_empty() => Colour::Steps(t),
+            Some(t) => Colour::Ramp(t),
+            None => Colour::Formula(transfer),
+        };
+        Quantizer { colour, channels: channels.max(1), bytes: if bit_depth == 16 { 2 } else { 1 } }
+    }
+
+    /// Quantizes whole pixels `src` into `dst` (`bytes` per sample).
+    fn block(&self, src: &[f32], dst: &mut [u8]) {
+        let (c, bytes) = (self.channels, self.bytes);
+        match self.colour {
+            Colour::OneStep(t) => quantize_block(src, dst, c, bytes, |v| t.level_one_step(v)),
+            Colour::Steps(t) => quantize_block(src, dst, c, bytes, |v| t.level_by::<false>(v)),
+            Colour::Ramp(t) => quantize_block(src, dst, c, bytes, |v| t.level_by::<true>(v)),
+            Colour::Formula(transfer) => {
+                let max = if bytes == 2 { 65535.0 } else { 255.0 };
+                quantize_block(src, dst, c, bytes, |v| quantize_value(v, transfer, max) as u16)
+            }
+        }
     }
 }
 
-/// [`quantize`] with the colour quantizer `colour` (alpha: [`quantize_value`], linear).
-/// Monomorphized per quantizer so that the per-value call inlines.
-fn quantize_with(img: &Image, bit_depth: u8, colour: impl Fn(f32) -> u16 + Sync) -> Vec<u8> {
-    use rayon::prelude::*;
-    const PIXELS_PER_TASK: usize = 1 << 16;
-    let c = img.channels.max(1);
+/// [`Quantizer::block`] with the colour quantizer `colour` (alpha: [`quantize_value`],
+/// linear). Monomorphized per quantizer so that the per-value call inlines.
+#[inline]
+fn quantize_block(src: &[f32], dst: &mut [u8], c: usize, bytes: usize, colour: impl Fn(f32) -> u16) {
     let colours = if c == 2 || c == 4 { c - 1 } else { c };
-    let max = if bit_depth == 16 { 65535.0 } else { 255.0 };
-    let level = |k: usize, v: f32| if k < colours { colour(v) } else { quantize_value(v, Transfer::Linear, max) as u16 };
-    let bytes = if bit_depth == 16 { 2 } else { 1 };
-    let mut out = vec![0u8; img.data.len() * bytes];
-    out.par_chunks_mut(PIXELS_PER_TASK * c * bytes).zip(img.data.par_chunks(PIXELS_PER_TASK * c)).for_each(|(dst, src)| {
-        if colours == c {
-            // Every sample a colour (grey or RGB): one flat loop.
-            if bytes == 1 {
-                dst.iter_mut().zip(src).for_each(|(d, &v)| *d = colour(v) as u8);
+    if colours == c {
+        // Every sample a colour (grey or RGB): one flat loop.
+        if bytes == 1 {
+            dst.iter_mut().zip(src).for_each(|(d, &v)| *d = colour(v) as u8);
+        } else {
+            dst.chunks_exact_mut(2).zip(src).for_each(|(d, &v)| d.copy_from_slice(&colour(v).to_be_bytes()));
+        }
+        return;
+    }
+    let max = if bytes == 2 { 65535.0 } else { 255.0 };
+    for (d, px) in dst.chunks_exact_mut(c * bytes).zip(src.chunks_exact(c)) {
+        for (k, &v) in px.iter().enumerate() {
+            let q = if k < colours { colour(v) } else { quantize_value(v, Transfer::Linear, max) as u16 };
+            if bytes == 2 {
+                d[2 * k..2 * k + 2].copy_from_slice(&q.to_be_bytes());
             } else {
-                dst.chunks_exact_mut(2).zip(src).for_each(|(d, &v)| d.copy_from_slice(&colour(v).to_be_bytes()));
-            }
-            return;
-        }
-        for (d, px) in dst.chunks_exact_mut(c * bytes).zip(src.chunks_exact(c)) {
-            for (k, &v) in px.iter().enumerate() {
-                let q = level(k, v);
-                if bytes == 2 {
-                    d[2 * k..2 * k + 2].copy_from_slice(&q.to_be_bytes());
-                } else {
-                    d[k] = q as u8;
-                }
+                d[k] = q as u8;
             }
         }
-    });
-    out
+    }
 }
 
 /// Encodes `img` (1, 2, 3 or 4 channels) as PNG into `w`; see [`write_png`].
@@ -350,7 +400,6 @@ pub fn encode_png<W: Write>(w: W, img: &Image, bit_depth: u8, transfer: Transfer
     if img.is_empty() || img.width > u32::MAX as usize || img.height > u32::MAX as usize {
         return Err(format!("cannot write a {}x{} image as PNG", img.width, img.height));
     }
-    let bytes = quantize(img, bit_depth, transfer);
     let failed = |e: png::EncodingError| format!("PNG encoder failed: {e}");
     // The `png` crate directly (what the `image` crate's encoder wraps, with the same default
     // settings): the quantizer writes big-endian 16-bit samples, so no byte-swapped copy.
@@ -361,9 +410,44 @@ pub fn encode_png<W: Write>(w: W, img: &Image, bit_depth: u8, transfer: Transfer
     enc.set_compression(png::Compression::Fast);
     enc.set_filter(png::Filter::Adaptive);
     let mut writer = enc.write_header().map_err(failed)?;
-    writer.write_image_data(&bytes).map_err(failed)?;
-    writer.finish().map_err(failed)
+    let table = EncodeTable::get(transfer, bit_depth);
+    let q = Quantizer::new(table.as_deref(), transfer, bit_depth, img.channels);
+    // Filtering and deflate are one stream on one thread: the next band of rows is quantized
+    // on the other core meanwhile (no image-sized byte buffer, and the quantizer's time hidden
+    // behind the encoder's).
+    let row = img.width * img.channels;
+    let band = (BAND_SAMPLES / row).max(1) * row;
+    let mut stream = writer.stream_writer_with_size(IDAT_BYTES).map_err(failed)?;
+    let quantized = |k: usize| {
+        let src = &img.data[k * band..((k + 1) * band).min(img.data.len())];
+        let mut dst = vec![0u8; src.len() * q.bytes];
+        q.block(src, &mut dst);
+        dst
+    };
+    let bands = img.data.len().div_ceil(band);
+    let mut current = quantized(0);
+    for k in 0..bands {
+        // The writer stays on this thread (`W` need not be `Send`); the next band goes to rayon.
+        let mut next = None;
+        let written = rayon::in_place_scope(|s| {
+            if k + 1 < bands {
+                s.spawn(|_| next = Some(quantized(k + 1)));
+            }
+            stream.write_all(&current)
+        });
+        written.map_err(|e| format!("PNG encoder failed: {e}"))?;
+        current = next.unwrap_or_default();
+    }
+    stream.finish().map_err(failed)
 }
+
+/// Samples per band of [`encode_png`]'s quantizer (whole rows, at least one): ~1 MB of floats,
+/// a few ms of work, so the two threads swap often and the last band's wait is short.
+const BAND_SAMPLES: usize = 1 << 18;
+
+/// Bytes per IDAT chunk that [`encode_png`] writes (the `png` crate's whole-image writer used
+/// chunks of up to 2 GB; decoders take any split).
+const IDAT_BYTES: usize = 1 << 20;
 
 /// Writes `img` (1 = grey, 2 = grey+alpha, 3 = RGB, 4 = RGBA channels) as an 8 or 16-bit PNG,
 /// atomically. Colour values are encoded with `transfer` (`Transfer::Linear` writes the values
@@ -463,6 +547,27 @@ mod tests {
         assert!(EncodeTable::new(Transfer::Srgb, 8).is_some_and(|t| t.steps.len() <= 1), "8-bit sRGB takes the one-step search");
         assert!(EncodeTable::new(Transfer::Linear, 8).is_none() && EncodeTable::new(Transfer::Gamma(-1.0), 8).is_none());
         assert!(EncodeTable::new(Transfer::Gamma(2.2), 16).is_none(), "16-bit gamma keeps the formula");
+    }
+
+    /// The PNG writer's bands (the next one quantized while the encoder takes the last) give
+    /// the image [`quantize`] gives in one piece: every channel count and both depths, bands
+    /// that do not divide the height, one band, and a row longer than a band.
+    #[test]
+    fn png_bands_decode_to_the_whole_image_quantized() {
+        for (w, h) in [(300, 1000), (7, 3), (100_000, 2)] {
+            for c in 1..=4 {
+                for bits in [8u8, 16] {
+                    let data = (0..w * h * c).map(|i| ((i * 7919) % 1013) as f32 / 1000.0 - 0.005).collect();
+                    let img = Image::from_vec(w, h, c, data).unwrap();
+                    let mut file = Vec::new();
+                    encode_png(&mut file, &img, bits, Transfer::Srgb).unwrap();
+                    let mut reader = png::Decoder::new(std::io::Cursor::new(file)).read_info().unwrap();
+                    let mut out = vec![0u8; reader.output_buffer_size().unwrap()];
+                    reader.next_frame(&mut out).unwrap();
+                    assert!(out == quantize(&img, bits, Transfer::Srgb), "{w}x{h}x{c} at {bits} bits");
+                }
+            }
+        }
     }
 
     #[test]
