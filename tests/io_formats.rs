@@ -666,6 +666,60 @@ fn exr_reader_across_groups_of_chunks() {
     assert!(err_of(io::read_exr_image(&p, &lim(), |_| Ok(vec![]))).contains("no channel picked"));
 }
 
+/// ZIP chunks (drbokeh inflates them itself) read as the crate's reader reads them, those that
+/// compression could not shrink (stored raw) included; a damaged one is refused with the file's
+/// name, never read as other pixels.
+#[test]
+fn exr_zip_chunks_read_as_the_crate_reads_them() {
+    use exr::prelude::*;
+    let dir = tmp();
+    let (w, h) = (203usize, 61usize);
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let mut noise = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        f32::from_bits((state >> 32) as u32 & 0x3fff_ffff)
+    };
+    // Rows 0-29 random bits (incompressible), the rest smooth.
+    let g: Vec<f32> = (0..w * h).map(|i| if i < 30 * w { noise() } else { (i % w) as f32 * 0.25 }).collect();
+    let b: Vec<f16> = (0..w * h)
+        .map(|i| if i < 30 * w { f16::from_bits(noise().to_bits() as u16 & 0x7bff) } else { f16::from_f32((i % 977) as f32 * 0.01) })
+        .collect();
+    for compression in [Compression::ZIP1, Compression::ZIP16] {
+        for blocks in [Blocks::ScanLines, Blocks::Tiles(Vec2(32, 16))] {
+            let channels = vec![AnyChannel::new("B", FlatSamples::F16(b.clone())), AnyChannel::new("G", FlatSamples::F32(g.clone()))];
+            let encoding = Encoding { compression, blocks, line_order: LineOrder::Increasing };
+            let layer = Layer::new((w, h), LayerAttributes::default(), encoding, AnyChannels::sort(SmallVec::from_vec(channels)));
+            let p = dir.path().join("zip.exr");
+            exr::prelude::Image::from_layer(layer).write().to_file(&p).unwrap();
+            let got = io::read_exr_channels(&p, &lim()).unwrap();
+            assert!(got.channels[0].data.iter().zip(&b).all(|(a, b)| a.to_bits() == b.to_f32().to_bits()), "{compression:?} {blocks:?} B");
+            assert!(got.channels[1].data.iter().zip(&g).all(|(a, b)| a.to_bits() == b.to_bits()), "{compression:?} {blocks:?} G");
+            // A flipped byte in the middle of the file (compressed pixels): refused or read as the
+            // crate reads it, never a panic.
+            let mut bytes = std::fs::read(&p).unwrap();
+            let len = bytes.len();
+            for at in [len / 2, len - 40, len * 3 / 4] {
+                bytes[at] ^= 0x5a;
+                let bad = dir.path().join("bad.exr");
+                std::fs::write(&bad, &bytes).unwrap();
+                let crate_read =
+                    read().no_deep_data().largest_resolution_level().all_channels().first_valid_layer().all_attributes().from_file(&bad);
+                match io::read_exr_channels(&bad, &lim()) {
+                    Ok(ours) => {
+                        let theirs = crate_read.expect("we read a file the crate refuses");
+                        for (o, t) in ours.channels.iter().zip(&theirs.layer_data.channel_data.list) {
+                            assert!(o.data.iter().zip(t.sample_data.values_as_f32()).all(|(a, b)| a.to_bits() == b.to_bits()));
+                        }
+                    }
+                    Err(e) => assert!(e.to_string().contains("bad.exr"), "{e}"),
+                }
+            }
+        }
+    }
+}
+
 /// A multi-part file reads its first part, as the crate's reader does, whatever the later
 /// parts' sizes and compressions.
 #[test]
