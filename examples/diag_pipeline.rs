@@ -8,7 +8,8 @@
 //! region's counts, `WORST=1` the largest errors, `FGERR=1` the foreground colour's largest
 //! errors (α·|F - F_true|) with the pixel's photo and background values, `BGPART=1` the render
 //! with the estimated background swapped for the true one on its soft, hidden or uncovered
-//! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`,
+//! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`, `PM=1` the
+//! exemplar fill (`[inpaint] method = "patchmatch"`),
 //! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
 use drbokeh::bench::run::score;
 use drbokeh::bench::scenes::generate;
@@ -47,6 +48,9 @@ fn main() -> drbokeh::Result<()> {
         cfg.render.kernel = KernelChoice::Fast;
         if let Ok(r) = std::env::var("RADIUS") {
             cfg.inpaint.radius = r.parse().unwrap();
+        }
+        if std::env::var("PM").is_ok() {
+            cfg.inpaint.method = drbokeh::stages::inpaint_onnx::InpaintMethod::PatchMatch;
         }
         if let Ok(d) = std::env::var("DILATE") {
             cfg.inpaint.dilate = d.parse().unwrap();
