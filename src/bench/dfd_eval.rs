@@ -500,6 +500,19 @@ fn evaluate(case: &DfdCase, opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -
     Ok((rows, panels))
 }
 
+/// Case `index` of a bench: the generated scenes first (`opts.scenes` of them), then the
+/// ground-truth folders `dirs` ([`super::groundtruth::scene_dirs`] of `opts.groundtruth`).
+pub fn load_case(opts: &DfdBenchOptions, dirs: &[PathBuf], index: usize, log: &mut dyn FnMut(&str)) -> Result<DfdCase> {
+    if index < opts.scenes {
+        log(&format!("scene {index}: generating and tracing ({} spp)", opts.spp));
+        generated_case(opts, index)
+    } else {
+        let dir = dirs.get(index - opts.scenes).ok_or_else(|| Error::usage(format!("bench: no case {index}")))?;
+        log(&format!("loading {}", dir.display()));
+        groundtruth_case(dir, opts.width)
+    }
+}
+
 /// Runs the evaluation and writes report.csv, report.md and figures/ into `opts.out`. `log`
 /// receives a line per case and per estimate.
 pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBenchResult> {
@@ -522,13 +535,7 @@ pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBench
     std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
     let mut res = DfdBenchResult { rows: Vec::new(), cases: 0, figures: Vec::new() };
     for i in 0..opts.scenes + dirs.len() {
-        let case = if i < opts.scenes {
-            log(&format!("scene {i}: generating and tracing ({} spp)", opts.spp));
-            generated_case(opts, i)?
-        } else {
-            log(&format!("loading {}", dirs[i - opts.scenes].display()));
-            groundtruth_case(&dirs[i - opts.scenes], opts.width)?
-        };
+        let case = load_case(opts, &dirs, i, log)?;
         let (rows, panels) = evaluate(&case, opts, log)?;
         res.rows.extend(rows);
         res.figures.push((case.scene.clone(), panels));
