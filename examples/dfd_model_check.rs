@@ -178,20 +178,63 @@ impl Gather<'_> {
 }
 
 /// With `PROBE=ITERS`: fits the map to the target through [`Gather`] with the ray test (soft
-/// group tests of width 0.03), by Adam from the constant start 0.5 at full size, the loss of
+/// group tests of width 0.03), by Adam from the constant start 0.5, at full size or coarse to
+/// fine over `PROBE_LEVELS` levels (box-averaged by 2 each, K halved; ITERS steps each), the loss of
 /// `dfd` (L1 + 0.01 · gradient smoothness + hierarchical SSIM), each pixel's gradient by
 /// central differences of the pixels it can reach (the model is local): a probe of whether
 /// the geometric model can be optimised, not a method.
 fn probe(case: &drbokeh::bench::dfd_eval::DfdCase, iters: usize) -> Image {
+    let levels: u32 = std::env::var("PROBE_LEVELS").ok().and_then(|v| v.parse().ok()).unwrap_or(1);
+    let mut d: Option<Image> = None;
+    for l in (0..levels).rev() {
+        let f = 1usize << l;
+        let (aif, target) = (box_down(&case.aif, f), box_down(&case.target, f));
+        let init = match d.take() {
+            None => Image::filled(aif.width, aif.height, 1, 0.5),
+            Some(c) => Image::from_vec(
+                aif.width,
+                aif.height,
+                1,
+                (0..aif.width * aif.height)
+                    .map(|i| c.data[((i / aif.width) / 2).min(c.height - 1) * c.width + ((i % aif.width) / 2).min(c.width - 1)])
+                    .collect(),
+            )
+            .expect("level size"),
+        };
+        d = Some(fit(&case.scene, &aif, &target, case.blur / f as f32, case.focus, init, iters));
+    }
+    d.expect("at least one level")
+}
+
+/// Box average over `f x f` blocks (the remainder cropped).
+fn box_down(img: &Image, f: usize) -> Image {
+    let (w, h, c) = (img.width / f, img.height / f, img.channels);
+    let data = (0..w * h * c)
+        .map(|k| {
+            let (i, ch) = (k / c, k % c);
+            let (x, y) = (i % w, i / w);
+            let mut s = 0f32;
+            for yy in y * f..(y + 1) * f {
+                for xx in x * f..(x + 1) * f {
+                    s += img.data[(yy * img.width + xx) * c + ch];
+                }
+            }
+            s / (f * f) as f32
+        })
+        .collect();
+    Image::from_vec(w, h, c, data).expect("box size")
+}
+
+/// One level of [`probe`]: Adam on `d` against `target` through the gather with the ray test.
+fn fit(scene: &str, aif: &Image, target: &Image, blur: f32, focus: f32, mut d: Image, iters: usize) -> Image {
     use drbokeh::diff::loss::{HSSIM_WINDOWS, gradient_smoothness, hssim, l1 as l1_loss};
-    let g = Gather { aif: &case.aif, blur: case.blur, focus: case.focus, geometric: true, soft: 0.03 };
-    let (w, h) = (case.aif.width, case.aif.height);
-    let mut d = Image::filled(w, h, 1, 0.5);
+    let g = Gather { aif, blur, focus, geometric: true, soft: 0.03 };
+    let (w, h) = (aif.width, aif.height);
     let (mut m, mut v) = (vec![0f64; w * h], vec![0f64; w * h]);
     let (lr, b1, b2, eps, fd) = (0.02f64, 0.9f64, 0.999f64, 1e-8f64, 1e-3f32);
     for it in 0..iters {
         let img = g.render(&d);
-        let (a, b, c) = (l1_loss(&img, &case.target), hssim(&img, &case.target, &HSSIM_WINDOWS), gradient_smoothness(&d));
+        let (a, b, c) = (l1_loss(&img, target), hssim(&img, target, &HSSIM_WINDOWS), gradient_smoothness(&d));
         let gi: Vec<f32> = a.grad.data.iter().zip(&b.grad.data).map(|(x, y)| x + y).collect();
         let reach = g.reach(&d);
         let norm = g.norms(&d, reach);
@@ -224,7 +267,7 @@ fn probe(case: &drbokeh::bench::dfd_eval::DfdCase, iters: usize) -> Image {
             d.data[i] = (d.data[i] as f64 - lr * mh / (vh.sqrt() + eps)).clamp(0.0, 1.0) as f32;
         }
         if it % 50 == 0 {
-            eprintln!("{} probe step {it}: loss {:.5}", case.scene, a.value + b.value + 0.01 * c.value);
+            eprintln!("{scene} probe {w}x{h} step {it}: loss {:.5}", a.value + b.value + 0.01 * c.value);
         }
     }
     d
