@@ -24,7 +24,7 @@
 //! `cargo run --release --example dfd_model_check -- [SCENES] [GROUNDTRUTH_DIR] [BINS] [SPP]`
 //! (defaults 8 generated scenes at 64x64 seed 1, no ground-truth folder, 64 bins, 256 spp).
 
-use drbokeh::bench::dfd_eval::{DfdBenchOptions, DfdMethod, load_case, rerender};
+use drbokeh::bench::dfd_eval::{DfdBenchOptions, DfdMethod, box_down, load_case, mae, rerender};
 use drbokeh::bench::run::score;
 use drbokeh::bench::trace::{Plane, TraceSettings, Window, trace};
 use drbokeh::diff::dfd::{self, DfdOptions};
@@ -206,25 +206,6 @@ fn probe(case: &drbokeh::bench::dfd_eval::DfdCase, iters: usize) -> Image {
     d.expect("at least one level")
 }
 
-/// Box average over `f x f` blocks (the remainder cropped).
-fn box_down(img: &Image, f: usize) -> Image {
-    let (w, h, c) = (img.width / f, img.height / f, img.channels);
-    let data = (0..w * h * c)
-        .map(|k| {
-            let (i, ch) = (k / c, k % c);
-            let (x, y) = (i % w, i / w);
-            let mut s = 0f32;
-            for yy in y * f..(y + 1) * f {
-                for xx in x * f..(x + 1) * f {
-                    s += img.data[(yy * img.width + xx) * c + ch];
-                }
-            }
-            s / (f * f) as f32
-        })
-        .collect();
-    Image::from_vec(w, h, c, data).expect("box size")
-}
-
 /// One level of [`probe`]: Adam on `d` against `target` through the gather with the ray test.
 fn fit(scene: &str, aif: &Image, target: &Image, blur: f32, focus: f32, mut d: Image, iters: usize) -> Image {
     use drbokeh::diff::loss::{HSSIM_WINDOWS, gradient_smoothness, hssim, l1 as l1_loss};
@@ -307,17 +288,7 @@ fn main() -> Result<()> {
         let est = dfd::estimate(&case.aif, &case.target, &s, &o, |_| {})?;
         if let Some(iters) = std::env::var("PROBE").ok().and_then(|v| v.parse().ok()) {
             let fit = probe(&case, iters);
-            let mae = |a: &Image| {
-                let (w, h, b) = (a.width, a.height, case.border);
-                let (mut e, mut n) = (0f64, 0usize);
-                for y in b..h - b {
-                    for x in b..w - b {
-                        e += (a.data[y * w + x] - case.truth.data[y * w + x]).abs() as f64;
-                        n += 1;
-                    }
-                }
-                e / n.max(1) as f64
-            };
+            let mae = |a: &Image| mae(a, &case.truth, case.border, |_| true);
             for (name, map) in [("truth", &case.truth), ("estimate", &est), ("probe", &fit)] {
                 let r = score(&rerender(&case.aif, map, case.blur, case.other_focus)?, &case.other, case.border);
                 println!(

@@ -333,7 +333,7 @@ pub fn rerender(aif: &Image, disparity: &Image, blur: f32, focus: f32) -> Result
 
 /// Mean |a − b| over the pixels of a one-channel pair at least `border` from every side
 /// where `keep` holds; NaN when there are none.
-fn mae(a: &Image, b: &Image, border: usize, keep: impl Fn(usize) -> bool) -> f64 {
+pub fn mae(a: &Image, b: &Image, border: usize, keep: impl Fn(usize) -> bool) -> f64 {
     let (w, h) = (a.width, a.height);
     let (mut s, mut n) = (0f64, 0usize);
     for y in border..h.saturating_sub(border) {
@@ -381,7 +381,7 @@ fn generated_case(opts: &DfdBenchOptions, index: usize) -> Result<DfdCase> {
 }
 
 /// Box-average of `f × f` blocks (the frame cropped to a multiple of `f`).
-fn box_down(img: &Image, f: usize) -> Image {
+pub fn box_down(img: &Image, f: usize) -> Image {
     let (w, h, c) = (img.width / f, img.height / f, img.channels);
     let mut o = Image::new(w, h, c);
     for y in 0..h {
