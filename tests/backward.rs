@@ -25,6 +25,8 @@ struct Scene {
     occlusion: bool,
     profile: Profile,
     smooth: Smoothing,
+    /// The physical profile's ray test ([`Tape::record_with`]).
+    ray: bool,
 }
 
 fn soft_step(a: f64, b: f64) -> f64 {
@@ -126,7 +128,8 @@ impl Scene {
                                 [0.0, 1.0, 0.0]
                             } else {
                                 let (f, b) = (in_front(ds, dx), in_front(dx, ds));
-                                [f, 1.0 - f - b, b]
+                                let clear = if self.ray { self.ray_clear(l, (x, y), (t.dj, t.di), dx, ds) } else { 1.0 };
+                                [f, 1.0 - f - b, b * clear]
                             };
                             for g in 0..3 {
                                 for c in 0..3 {
@@ -156,6 +159,30 @@ impl Scene {
             }
         }
         out
+    }
+
+    /// The ray test from target `(x, y)` (relative disparity `ep`) to the source at offset `off`
+    /// (`es`): the ray crosses the target's depth at `t = ep/es` of the offset, clamped to
+    /// `lens/2 - 1` pixels per axis and to the image; clear where the layer's relative
+    /// disparity there (bilinear) is below `ep - 0.1`, a smoothstep 0.05 wide.
+    fn ray_clear(&self, l: usize, (x, y): (i64, i64), off: (i32, i32), ep: f64, es: f64) -> f64 {
+        let t = ep / es;
+        if !t.is_finite() || t.abs() > 1e6 {
+            return 1.0;
+        }
+        let reach = (self.lens / 2) as i64 - 1;
+        let coord = |p: i64, o: i32, n: usize| {
+            let (lo, hi) = ((p - reach).max(0) as f64, ((p + reach).min(n as i64 - 1) as f64).max((p - reach).max(0) as f64));
+            (p as f64 + t * o as f64).clamp(lo, hi)
+        };
+        let (qx, qy) = (coord(x, off.0, self.w), coord(y, off.1, self.h));
+        let (x0, y0) = (qx.floor(), qy.floor());
+        let (fx, fy) = (qx - x0, qy - y0);
+        let d = |xx: f64, yy: f64| self.px(l, xx as i64, yy as i64)[4] - self.focus;
+        let dq =
+            (d(x0, y0) * (1.0 - fx) + d(x0 + 1.0, y0) * fx) * (1.0 - fy) + (d(x0, y0 + 1.0) * (1.0 - fx) + d(x0 + 1.0, y0 + 1.0) * fx) * fy;
+        let u = ((ep - 0.1 - dq) / 0.05 + 0.5).clamp(0.0, 1.0);
+        u * u * (3.0 - 2.0 * u)
     }
 
     /// The composited linear RGB (eq. 2), unclamped colours.
@@ -226,7 +253,7 @@ fn random_scene(seed: u64, profile: Profile, w: usize, h: usize) -> Scene {
     let pick = (r() * (w * h) as f64) as usize % (w * h);
     let l = if r() < 0.5 { 0 } else { 1 };
     let focus = layers[l][pick * 5 + 4] + 0.02 / blur;
-    Scene { w, h, layers, focus, blur, lens, occlusion: true, profile, smooth: Smoothing { edge_width: 1.0, fill_width: 0.1 } }
+    Scene { w, h, layers, focus, blur, lens, occlusion: true, profile, smooth: Smoothing { edge_width: 1.0, fill_width: 0.1 }, ray: false }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -303,7 +330,7 @@ fn check_scene(sc: &Scene, seed: u64) -> Report {
     let mut rng = Rng::new(seed ^ 0xC07);
     let cot: Vec<f64> = (0..sc.w * sc.h * 3).map(|_| rng.next_f32() as f64 * 2.0 - 1.0).collect();
     let layers = sc.library_layers();
-    let tape = Tape::record(&layers, &sc.settings(), sc.smooth).unwrap();
+    let tape = Tape::record_with(&layers, &sc.settings(), sc.smooth, sc.ray).unwrap();
     // The reference is the library's function: same image to f32 precision.
     let want = sc.render();
     let worst = tape.image().data.iter().zip(&want).map(|(&a, &b)| (a as f64 - b).abs() / b.abs().max(1.0)).fold(0.0, f64::max);
@@ -431,6 +458,39 @@ fn variants_match_finite_differences() {
             |s| s.blur = 25.0,
         ],
     );
+}
+
+/// The physical profile with the ray test ([`Tape::record_with`]): both layers of the random
+/// scene; the backdrop alone (one surface with a depth step, as depth from defocus renders
+/// it); the backdrop alone with a larger blur, so that rays cross the step far from their
+/// targets.
+#[test]
+fn ray_test_matches_finite_differences() {
+    check_variants(
+        Profile::Physical,
+        &[
+            |s| s.ray = true,
+            |s| {
+                s.ray = true;
+                s.layers.remove(0);
+            },
+            |s| {
+                s.ray = true;
+                s.layers.remove(0);
+                s.blur = 25.0;
+            },
+        ],
+    );
+    // The test is not vacuous: it changes the backdrop's render (rays stopped at the step).
+    let mut sc = random_scene(3, Profile::Physical, 12, 12);
+    sc.layers.remove(0);
+    sc.blur = 25.0;
+    let layers = sc.library_layers();
+    let with = |ray| Tape::record_with(&layers, &sc.settings(), sc.smooth, ray).unwrap().image().clone();
+    let (plain, ray) = (with(false), with(true));
+    let changed = plain.data.iter().zip(&ray.data).filter(|(a, b)| (*a - *b).abs() > 1e-3).count();
+    eprintln!("ray test changes {changed} of {} values", plain.data.len());
+    assert!(changed * 10 >= plain.data.len(), "the ray test changed only {changed} values");
 }
 
 /// `<cotangent, J·v>` for random directions `v` over every parameter at once (all layers'

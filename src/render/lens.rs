@@ -579,6 +579,39 @@ pub fn over_groups_smooth_vjp(groups: &[[f64; 4]; 3], width: f64, g: &[f64; 4]) 
     out
 }
 
+// ---------------------------------------------------------------------------------------------
+// Geometric visibility on one opaque surface: the ray test (depth from defocus).
+// ---------------------------------------------------------------------------------------------
+
+/// Width, in relative disparity, of the ray test's smooth edge ([`ray_clear`]).
+pub const RAY_EDGE: f32 = 0.05;
+
+/// Where the ray that reaches target `p` from a source `s` behind it crosses the target's
+/// depth, as a fraction `t` of the offset `s - p` (pixels: the crossing is at
+/// `p + t·(s - p)`), with `(∂t/∂e_p, ∂t/∂e_s)`. Thin lens: a ray through pixel `p` is offset
+/// at relative disparity `e` in proportion to the circle of confusion there, so the ray that
+/// meets `s` (offset `s - p` at `e_s`) is at `t = e_p / e_s` of that offset at `e_p`. `None`
+/// where `t` is not a finite number of moderate size (`|t| > 1e6`: a source on the focal
+/// plane, whose ray no lateral window holds).
+#[inline]
+pub fn ray_crossing(e_target: f32, e_source: f32) -> Option<(f64, f64, f64)> {
+    let (ep, es) = (e_target as f64, e_source as f64);
+    let t = ep / es;
+    (t.is_finite() && t.abs() <= 1e6).then(|| (t, 1.0 / es, -t / es))
+}
+
+/// Whether the ray crossing the target's depth `d_target` at a point where the surface has
+/// disparity `d_at_crossing` passes (1) or is stopped (0): clear where the surface there lies
+/// behind the target by more than [`IN_FRONT_MARGIN`] (the margin of one slanted surface, as
+/// in [`depth_groups`]), a smoothstep [`RAY_EDGE`] wide around it. Returns the value and its
+/// derivative in `d_target` (`= -∂/∂d_at_crossing`). Any pair of relative or absolute
+/// disparities (only their difference counts).
+#[inline]
+pub fn ray_clear(d_at_crossing: f32, d_target: f32) -> (f32, f32) {
+    let x = ((d_target - IN_FRONT_MARGIN - d_at_crossing) / RAY_EDGE + 0.5).clamp(0.0, 1.0);
+    (x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x) / RAY_EDGE)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

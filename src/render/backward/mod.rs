@@ -153,6 +153,7 @@ pub struct Tape<'a> {
     layers: &'a [Layer],
     settings: RenderSettings,
     smoothing: Smoothing,
+    ray_test: bool,
     taps: Vec<Tap>,
     records: Vec<Record>,
     image: Image,
@@ -162,8 +163,24 @@ impl<'a> Tape<'a> {
     /// Renders `layers` with the exact kernel (the physical profile with `smoothing`'s edges)
     /// and keeps what [`Tape::vjp`] needs. Same checks and errors as [`crate::render::render`].
     pub fn record(layers: &'a [Layer], s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
+        Self::record_with(layers, s, smoothing, false)
+    }
+
+    /// [`Tape::record`] with, where `ray_test` is set, the geometric ray test of depth from
+    /// defocus in the physical profile's depth groups: a source in a target's "behind" group
+    /// counts only as far as the ray from the target to it passes the layer's own surface
+    /// where it crosses the target's depth ([`lens::ray_crossing`], [`lens::ray_clear`]; the
+    /// surface read bilinearly from the layer's disparity). That is the visibility of a 2.5D
+    /// surface, which the groups' coverage fill alone only approximates: meant for opaque
+    /// layers (a transparent pixel's disparity stops rays as an opaque one would). The VJP
+    /// differentiates it (the crossing's position and the surface there included). Errors as
+    /// [`Tape::record`]; a usage error if `ray_test` is asked of the official profile.
+    pub fn record_with(layers: &'a [Layer], s: &RenderSettings, smoothing: Smoothing, ray_test: bool) -> Result<Self> {
         validate(layers, s)?;
         smoothing.validate()?;
+        if ray_test && s.profile != Profile::Physical {
+            return Err(Error::usage("the ray test is a term of the physical profile's depth groups: use the physical profile"));
+        }
         let taps = aperture::disk_taps(s.lens);
         let n = layers.len();
         let records: Vec<Record> = layers
@@ -171,7 +188,7 @@ impl<'a> Tape<'a> {
             .enumerate()
             .map(|(k, l)| match s.profile {
                 Profile::Official => Record::Official(exact::scatter_layer(l, s, &taps, Role::of(k, n))),
-                Profile::Physical => Record::Physical(physical::record(l, s, &smoothing, &taps, Role::of(k, n))),
+                Profile::Physical => Record::Physical(physical::record(l, s, &smoothing, &taps, Role::of(k, n), ray_test)),
             })
             .collect();
         let (w, h) = (layers[0].width(), layers[0].height());
@@ -188,7 +205,7 @@ impl<'a> Tape<'a> {
                 s.blur, s.focus, s.lens
             )));
         }
-        Ok(Tape { layers, settings: *s, smoothing, taps, records, image })
+        Ok(Tape { layers, settings: *s, smoothing, ray_test, taps, records, image })
     }
 
     /// The rendered linear RGB image.
@@ -211,7 +228,7 @@ impl<'a> Tape<'a> {
             let mut grads = match rec {
                 Record::Official(_) => official::backward(l, s, &self.taps, cot),
                 Record::Physical(r) => {
-                    let mut g = physical::backward(l, s, &self.smoothing, &self.taps, r, cot);
+                    let mut g = physical::backward(l, s, &self.smoothing, &self.taps, r, cot, self.ray_test);
                     // The backdrop's visibility max(A, α) where α wins: its own alpha's share.
                     g.iter_mut().zip(cot).for_each(|(g, c)| g.alpha += c[4]);
                     g

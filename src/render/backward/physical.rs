@@ -46,10 +46,11 @@ pub(super) struct Record {
 /// The smooth physical forward of one layer, tap by tap (as [`crate::render::exact`]'s
 /// physical kernel, with the smooth coverage, norm and fill). Rows in parallel; allocates the
 /// raw output, the groups and three planes of per-pixel terms.
-pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[Tap], role: Role) -> Record {
+pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[Tap], role: Role, ray: bool) -> Record {
     let img = layer.image();
     let (w, h) = (img.width, img.height);
     let src = Sources::new(layer, s, sm);
+    let reach = ray_reach(s);
     let mut out = vec![0f32; w * h * raw::CHANNELS];
     let mut groups = vec![[[0f64; 4]; 3]; w * h];
     out.par_chunks_mut(w * raw::CHANNELS).zip(groups.par_chunks_mut(w)).enumerate().for_each(|(y, (row, grow))| {
@@ -64,7 +65,10 @@ pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[
                     continue;
                 }
                 let wt = (px[A] * (cov / src.norm[j].0)) as f64;
-                let split = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(src.d[j], dx) };
+                let mut split = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(src.d[j], dx) };
+                if ray && split[2] > 0.0 {
+                    split[2] *= RayTest::new(&src.d, w, h, (x, y), t, reach).map_or(1.0, |r| r.clear);
+                }
                 lens::add_to_groups(g, wt, split, px);
             }
             let p = lens::over_groups_smooth(g, sm.fill_width as f64);
@@ -98,10 +102,12 @@ pub(super) fn backward(
     taps: &[Tap],
     rec: &Record,
     cot: &[super::RawCot],
+    ray: bool,
 ) -> Vec<PixelGrad> {
     let img = layer.image();
     let (w, h) = (img.width, img.height);
     let src = Sources::new(layer, s, sm);
+    let reach = ray_reach(s);
     accum::scatter_rows(w, h, s.lens / 2, |y, band| {
         for x in 0..w {
             let i = y * w + x;
@@ -123,7 +129,13 @@ pub(super) fn backward(
                 let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
                 // The centre tap and a render without occlusion use one group.
                 let grouped = s.occlusion && !(t.di == 0 && t.dj == 0);
-                let (split, dsplit) = if grouped { depth_groups_with_grad(src.d[j], dx) } else { ([0.0, 1.0, 0.0], [0.0; 3]) };
+                let (mut split, dsplit) = if grouped { depth_groups_with_grad(src.d[j], dx) } else { ([0.0, 1.0, 0.0], [0.0; 3]) };
+                // The behind group's unblocked share, and the ray test that scales it.
+                let behind = split[2];
+                let test = if ray && grouped && behind > 0.0 { RayTest::new(&src.d, w, h, (x, y), t, reach) } else { None };
+                if let Some(r) = &test {
+                    split[2] *= r.clear;
+                }
                 // h_g: the cotangent of a unit of weight in group g carrying this source's colour.
                 let hg: [f64; 3] =
                     std::array::from_fn(|k| gg[k][0] * px[0] as f64 + gg[k][1] * px[1] as f64 + gg[k][2] * px[2] as f64 + gg[k][3]);
@@ -143,12 +155,83 @@ pub(super) fn backward(
                 // ∂u/∂R = cov'/N - (cov/N)·N'/N, finite also where N overflowed to inf.
                 sg.radius += g_wt * a * (dcov as f64 / norm - u * (dnorm / norm));
                 if grouped {
-                    let g_d = wt * (0..3).map(|k| dsplit[k] as f64 * hg[k]).sum::<f64>();
+                    // The groups' own tests read d_source - d_target; the ray test scales the
+                    // behind share and reads both disparities and the surface at the crossing.
+                    let clear = test.as_ref().map_or(1.0, |r| r.clear as f64);
+                    let g_d = wt * (dsplit[0] as f64 * hg[0] + dsplit[1] as f64 * hg[1] + dsplit[2] as f64 * clear * hg[2]);
                     sg.disparity += g_d;
                     g_dx -= g_d;
+                    if let Some(r) = &test {
+                        let hb = wt * hg[2] * behind as f64;
+                        band.at(j).disparity += hb * r.d_source;
+                        g_dx += hb * r.d_target;
+                        for &(k, dk) in &r.corners {
+                            band.at(k).disparity += hb * dk;
+                        }
+                    }
                 }
             }
             band.at(i).disparity += g_dx;
         }
     })
+}
+
+/// How far (pixels, per axis) from its target the ray test may sample the surface: one less
+/// than the window's half-size, so the crossing's bilinear corners stay in the rows a target's
+/// backward may write (see [`accum::scatter_rows`]). A ray through a pixel is offset at most
+/// by the CoC at the target's depth, which the window holds; only the disk's soft edge reaches
+/// beyond.
+fn ray_reach(s: &RenderSettings) -> i64 {
+    (s.lens / 2) as i64 - 1
+}
+
+/// The ray test of one (target, tap) pair: whether the ray from the target to the tap's
+/// source, behind it, passes the surface where it crosses the target's depth
+/// ([`lens::ray_crossing`], [`lens::ray_clear`]), the layer's disparity there read
+/// bilinearly (replicate-padded, the crossing kept within `reach` of the target per axis),
+/// and the derivatives of the result in the target's, the source's and the four corners'
+/// relative disparities.
+struct RayTest {
+    clear: f32,
+    d_target: f64,
+    d_source: f64,
+    corners: [(usize, f64); 4],
+}
+
+impl RayTest {
+    fn new(d: &[f32], w: usize, h: usize, (x, y): (usize, usize), t: &Tap, reach: i64) -> Option<RayTest> {
+        let j = clamped(x, y, t, w, h);
+        let (ep, es) = (d[y * w + x], d[j]);
+        let (frac, dt_dp, dt_ds) = lens::ray_crossing(ep, es)?;
+        // One axis: the crossing's coordinate and its derivative in `frac` (0 where clamped).
+        let axis = |p: usize, off: i32, n: usize| {
+            let raw = p as f64 + frac * off as f64;
+            let lo = (p as i64 - reach).max(0) as f64;
+            let hi = ((p as i64 + reach).min(n as i64 - 1) as f64).max(lo);
+            let q = raw.clamp(lo, hi);
+            let i0 = (q.floor() as usize).min(n.saturating_sub(2));
+            let f = if n > 1 { q - i0 as f64 } else { 0.0 };
+            (i0, (i0 + 1).min(n - 1), f, if q == raw { off as f64 } else { 0.0 })
+        };
+        let (x0, x1, fx, dqx) = axis(x, t.dj, w);
+        let (y0, y1, fy, dqy) = axis(y, t.di, h);
+        let corners = [
+            (y0 * w + x0, (1.0 - fx) * (1.0 - fy)),
+            (y0 * w + x1, fx * (1.0 - fy)),
+            (y1 * w + x0, (1.0 - fx) * fy),
+            (y1 * w + x1, fx * fy),
+        ];
+        let v = |k: usize| d[corners[k].0] as f64;
+        let dq: f64 = corners.iter().map(|&(i, wt)| d[i] as f64 * wt).sum();
+        // ∂d_q/∂frac through the crossing's position.
+        let slope = ((1.0 - fy) * (v(1) - v(0)) + fy * (v(3) - v(2))) * dqx + ((1.0 - fx) * (v(2) - v(0)) + fx * (v(3) - v(1))) * dqy;
+        let (clear, g) = lens::ray_clear(dq as f32, ep);
+        let g = g as f64;
+        Some(RayTest {
+            clear,
+            d_target: g * (1.0 - slope * dt_dp),
+            d_source: -g * slope * dt_ds,
+            corners: corners.map(|(i, wt)| (i, -g * wt)),
+        })
+    }
 }
