@@ -284,8 +284,56 @@ fn main() -> Result<()> {
     for i in 0..scenes + dirs.len() {
         let case = load_case(&opts, &dirs, i, &mut |_| {})?;
         let (s, loss, renderer) = DfdMethod::Physical.setup(case.blur, case.focus);
-        let o = DfdOptions { weights: loss.weights(), renderer, ..DfdOptions::default() };
+        // The span render: the layered model this check was written to test (the default
+        // kernel is now the ray test at these sizes; `RAY=1` compares the two).
+        let o = DfdOptions { weights: loss.weights(), renderer, kernel: dfd::DfdKernel::Fast, ..DfdOptions::default() };
         let est = dfd::estimate(&case.aif, &case.target, &s, &o, |_| {})?;
+        if std::env::var_os("RAY").is_some() {
+            let t = std::time::Instant::now();
+            let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f32>().ok());
+            let mut ro = DfdOptions { kernel: dfd::DfdKernel::Ray, ..o };
+            if let Some(v) = env("ITERS") {
+                ro.iters = v as usize;
+            }
+            if let Some(v) = env("LR") {
+                ro.learning_rate = v;
+            }
+            if let Some(v) = env("LEVELS") {
+                ro.levels = v as usize;
+            }
+            if let Some(v) = env("SMOOTH") {
+                ro.weights.smoothness = v;
+            }
+            let ray = dfd::estimate(&case.aif, &case.target, &s, &ro, |_| {})?;
+            if let Ok(dir) = std::env::var("DUMP") {
+                drbokeh::io::write_output(
+                    &PathBuf::from(format!("{dir}/{}_ray.npy", case.scene)),
+                    &ray,
+                    8,
+                    drbokeh::color::Transfer::Linear,
+                )?;
+                drbokeh::io::write_output(
+                    &PathBuf::from(format!("{dir}/{}_truth.npy", case.scene)),
+                    &case.truth,
+                    8,
+                    drbokeh::color::Transfer::Linear,
+                )?;
+            }
+            let secs = t.elapsed().as_secs_f64();
+            let mae = |a: &Image| mae(a, &case.truth, case.border, |_| true);
+            for (name, map) in [("truth", &case.truth), ("span", &est), ("ray", &ray)] {
+                let r = score(&rerender(&case.aif, map, case.blur, case.other_focus)?, &case.other, case.border);
+                println!(
+                    "{:15} {:8} disparity MAE {:.4}  re-render at the other focus: {:6.2} dB linear {:6.2} dB sRGB  ({secs:.1} s)",
+                    case.scene,
+                    name,
+                    mae(map),
+                    r.psnr,
+                    r.psnr_srgb
+                );
+            }
+            continue;
+        }
         if let Some(iters) = std::env::var("PROBE").ok().and_then(|v| v.parse().ok()) {
             let fit = probe(&case, iters);
             let mae = |a: &Image| mae(a, &case.truth, case.border, |_| true);

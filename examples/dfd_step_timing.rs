@@ -3,7 +3,7 @@
 //! given (`RAYON_NUM_THREADS`): the minimum and the median of `--reps` runs (the minimum is the
 //! least disturbed by other load on a shared machine).
 //!
-//! `cargo run --release --example dfd_step_timing -- SIZE K [occlusion|no-occlusion] [span|exact] [REPS] [physical|official]`
+//! `cargo run --release --example dfd_step_timing -- SIZE K [occlusion|no-occlusion] [span|exact|ray] [REPS] [physical|official]`
 
 use drbokeh::bench::stress::{dfd_scene, dfd_settings};
 use drbokeh::diff::loss::{self, HSSIM_WINDOWS};
@@ -15,7 +15,9 @@ fn main() {
     let n: usize = args.get(1).map_or(512, |v| v.parse().expect("SIZE"));
     let k: f32 = args.get(2).map_or(30.0, |v| v.parse().expect("K"));
     let occlusion = args.get(3).is_none_or(|v| v != "no-occlusion");
-    let exact = args.get(4).is_some_and(|v| v == "exact");
+    // `ray`: the exact tape with the ray test (physical profile).
+    let ray = args.get(4).is_some_and(|v| v == "ray");
+    let exact = ray || args.get(4).is_some_and(|v| v == "exact");
     let reps: usize = args.get(5).map_or(5, |v| v.parse().expect("REPS"));
     let official = args.get(6).is_some_and(|v| v == "official");
     let (layer, target) = dfd_scene(n);
@@ -28,7 +30,7 @@ fn main() {
     for _ in 0..reps {
         let t0 = Instant::now();
         let (image, grad) = if exact {
-            let tape = Tape::record(std::slice::from_ref(&layer), &s, sm).unwrap();
+            let tape = Tape::record_with(std::slice::from_ref(&layer), &s, sm, ray).unwrap();
             fwd.push(t0.elapsed().as_secs_f64());
             let l1 = loss::l1(tape.image(), &target);
             let hs = loss::hssim(tape.image(), &target, &HSSIM_WINDOWS);
@@ -56,7 +58,13 @@ fn main() {
         "{n}x{n} K {k} {:?} {} {}, {} threads: forward min {:.3} s median {:.3} s; step min {:.3} s median {:.3} s",
         s.profile,
         if occlusion { "occlusion" } else { "no-occlusion" },
-        if exact { "exact" } else { "span" },
+        if ray {
+            "ray"
+        } else if exact {
+            "exact"
+        } else {
+            "span"
+        },
         rayon::current_num_threads(),
         fmin,
         fmed,

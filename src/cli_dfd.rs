@@ -36,17 +36,25 @@ impl From<LossArg> for LossVariant {
 /// `--kernel`: which differentiable render is inverted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum DfdKernelArg {
+    /// `ray` where it applies (physical profile, occlusion) and fits about two minutes of
+    /// work; `fast` otherwise.
+    Auto,
     /// Spans, depth groups interpolated between depth bins (either profile).
     Fast,
     /// The exact kernel, tap by tap (O(pixels·lens²) per step).
     Exact,
+    /// The exact kernel with the ray test for sources behind a target (physical profile only;
+    /// O(pixels·lens²) per step).
+    Ray,
 }
 
 impl From<DfdKernelArg> for DfdKernel {
     fn from(k: DfdKernelArg) -> DfdKernel {
         match k {
+            DfdKernelArg::Auto => DfdKernel::Auto,
             DfdKernelArg::Fast => DfdKernel::Fast,
             DfdKernelArg::Exact => DfdKernel::Exact,
+            DfdKernelArg::Ray => DfdKernel::Ray,
         }
     }
 }
@@ -88,8 +96,9 @@ pub struct DfdArgs {
     /// Invert the classical scatter without occlusion terms (the ablation).
     #[arg(long)]
     no_occlusion: bool,
-    /// The differentiable render: fast (spans; physical profile) or exact (tap by tap).
-    #[arg(long, value_enum, default_value = "fast")]
+    /// The differentiable render: auto, fast (spans), exact (tap by tap) or ray (exact with
+    /// the ray test, physical profile).
+    #[arg(long, value_enum, default_value = "auto")]
     kernel: DfdKernelArg,
     /// Write the loss terms of every step to this CSV (level, size, iteration, terms).
     #[arg(long, value_name = "CSV")]

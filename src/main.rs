@@ -326,7 +326,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 30] = [
+const FLAGS: [(&str, &str); 31] = [
     ("segment.layers", "--layers"),
     ("render.occlusion = false", "--no-occlusion"),
     ("render.profile", "--profile"),
@@ -352,6 +352,7 @@ const FLAGS: [(&str, &str); 30] = [
     ("bench.scenes", "--scenes"),
     ("bench.blur", "--blur"),
     ("dfd.iters", "--iters"),
+    ("dfd.kernel", "--kernel"),
     ("dfd.levels", "--levels"),
     ("dfd.learning_rate", "--learning-rate"),
     ("dfd.init", "--init"),

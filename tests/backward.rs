@@ -600,7 +600,8 @@ fn gradients_are_finite_on_the_extreme_grid() {
     let layers = extreme_layers(w, h);
     let mut rng = Rng::new(5);
     let mut cases = 0;
-    for profile in [Profile::Official, Profile::Physical] {
+    // The physical profile twice: without and with the ray test.
+    for (profile, ray) in [(Profile::Official, false), (Profile::Physical, false), (Profile::Physical, true)] {
         for (lens, blurs) in [(9usize, &[0.0f32, 1.0, 1e4][..]), (71, &[0.0, 30.0, 1e4][..])] {
             for &blur in blurs {
                 for (focus, occlusion, fill) in [(1.0f32, true, 0.0f32), (0.0, false, 0.5), (0.5, true, 0.1), (-3.0, true, 0.0)] {
@@ -608,7 +609,7 @@ fn gradients_are_finite_on_the_extreme_grid() {
                     let sm = Smoothing { edge_width: 1.0, fill_width: fill };
                     let scale = if cases % 3 == 0 { 1e20 } else { 1.0 };
                     let cot = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| (rng.next_f32() * 2.0 - 1.0) * scale).collect()).unwrap();
-                    let tape = Tape::record(&layers, &s, sm).unwrap();
+                    let tape = Tape::record_with(&layers, &s, sm, ray).unwrap();
                     assert!(tape.image().all_finite(), "{s:?}");
                     let g = tape.vjp(&cot).unwrap();
                     for (l, img) in g.layers.iter().enumerate() {
@@ -622,7 +623,7 @@ fn gradients_are_finite_on_the_extreme_grid() {
             }
         }
     }
-    assert_eq!(cases, 48);
+    assert_eq!(cases, 72);
 }
 
 /// The API's errors name what is wrong.

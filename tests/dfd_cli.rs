@@ -124,4 +124,9 @@ fn usage_errors() {
     bad("negative blur", &["--blur"], &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "-1", "-o", "d.npy"]);
     bad("zero iterations", &["--iters"], &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "0", "-o", "d.npy"]);
     bad("init outside [0, 1]", &["--init"], &with(&["--init", "1.5", "-o", "d.npy"]));
+    bad(
+        "ray test, official profile",
+        &["--kernel ray", "--profile physical"],
+        &with(&["--kernel", "ray", "--profile", "official", "-o", "d.npy"]),
+    );
 }

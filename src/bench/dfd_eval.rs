@@ -27,7 +27,7 @@ use super::run::{Scores, score, srgb};
 use super::scenes::generate;
 use super::trace::{TraceSettings, trace};
 use crate::config::Config;
-use crate::diff::dfd::{self, DfdOptions, DfdRenderer, LossVariant};
+use crate::diff::dfd::{self, DfdKernel, DfdOptions, DfdRenderer, LossVariant};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::pipeline::{Focus, Pipeline};
@@ -39,8 +39,11 @@ use std::time::Instant;
 /// A depth-from-defocus method of the evaluation: a renderer, profile, occlusion and loss.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum DfdMethod {
-    /// Dr.Bokeh, physical profile, L1 + gradient + HSSIM (the tool's defaults, Eqn. 7).
+    /// Dr.Bokeh, physical profile, L1 + gradient + HSSIM (the tool's defaults, Eqn. 7; the
+    /// automatic kernel: the ray test at the bench's sizes).
     Physical,
+    /// The same with the span render (`--kernel fast`): the layered model without the ray test.
+    PhysicalSpan,
     /// Dr.Bokeh, official profile, L1 + gradient + HSSIM.
     Official,
     /// Dr.Bokeh without occlusion (physical profile, HSSIM loss): the paper's ablation.
@@ -55,13 +58,21 @@ pub enum DfdMethod {
 
 impl DfdMethod {
     /// Every method, in report order.
-    pub const ALL: [DfdMethod; 6] =
-        [DfdMethod::Physical, DfdMethod::Official, DfdMethod::NoOcclusion, DfdMethod::GaussPsf, DfdMethod::L1Grad, DfdMethod::L1GradSsim];
+    pub const ALL: [DfdMethod; 7] = [
+        DfdMethod::Physical,
+        DfdMethod::PhysicalSpan,
+        DfdMethod::Official,
+        DfdMethod::NoOcclusion,
+        DfdMethod::GaussPsf,
+        DfdMethod::L1Grad,
+        DfdMethod::L1GradSsim,
+    ];
 
     /// The name in report.csv and report.md.
     pub fn name(self) -> &'static str {
         match self {
             DfdMethod::Physical => "drbokeh-physical",
+            DfdMethod::PhysicalSpan => "drbokeh-physical-span",
             DfdMethod::Official => "drbokeh-official",
             DfdMethod::NoOcclusion => "drbokeh-no-occlusion",
             DfdMethod::GaussPsf => "gauss-psf",
@@ -73,7 +84,8 @@ impl DfdMethod {
     /// What the method is, for the report.
     pub fn label(self) -> &'static str {
         match self {
-            DfdMethod::Physical => "Dr.Bokeh, physical profile, L1 + grad + HSSIM (default)",
+            DfdMethod::Physical => "Dr.Bokeh, physical profile, L1 + grad + HSSIM (default: ray test)",
+            DfdMethod::PhysicalSpan => "Dr.Bokeh, physical profile, span render without the ray test",
             DfdMethod::Official => "Dr.Bokeh, official profile, L1 + grad + HSSIM",
             DfdMethod::NoOcclusion => "Dr.Bokeh without occlusion (physical), L1 + grad + HSSIM",
             DfdMethod::GaussPsf => "Gaussian PSF (GaussPSF-style), L1 + grad + HSSIM",
@@ -86,6 +98,7 @@ impl DfdMethod {
     pub fn short(self) -> &'static str {
         match self {
             DfdMethod::Physical => "Dr.Bokeh",
+            DfdMethod::PhysicalSpan => "no ray test",
             DfdMethod::Official => "official",
             DfdMethod::NoOcclusion => "no occlusion",
             DfdMethod::GaussPsf => "Gaussian PSF",
@@ -94,11 +107,17 @@ impl DfdMethod {
         }
     }
 
+    /// The differentiable render the method asks for: the span render for
+    /// [`DfdMethod::PhysicalSpan`], the automatic choice ([`DfdKernel::Auto`]) for the others.
+    pub fn kernel(self) -> DfdKernel {
+        if self == DfdMethod::PhysicalSpan { DfdKernel::Fast } else { DfdKernel::Auto }
+    }
+
     /// The render settings (at `blur`, `focus`), loss and renderer that the method inverts.
     pub fn setup(self, blur: f32, focus: f32) -> (RenderSettings, LossVariant, DfdRenderer) {
         let s = RenderSettings { blur, focus, lens: 0, occlusion: true, profile: Profile::Physical };
         match self {
-            DfdMethod::Physical => (s, LossVariant::L1GradHssim, DfdRenderer::DrBokeh),
+            DfdMethod::Physical | DfdMethod::PhysicalSpan => (s, LossVariant::L1GradHssim, DfdRenderer::DrBokeh),
             DfdMethod::Official => (RenderSettings { profile: Profile::Official, ..s }, LossVariant::L1GradHssim, DfdRenderer::DrBokeh),
             DfdMethod::NoOcclusion => (RenderSettings { occlusion: false, ..s }, LossVariant::L1GradHssim, DfdRenderer::DrBokeh),
             DfdMethod::GaussPsf => (s, LossVariant::L1GradHssim, DfdRenderer::GaussPsf),
@@ -478,7 +497,7 @@ fn evaluate(case: &DfdCase, opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -
     let mut panels = vec![("AIF".to_string(), case.aif.clone()), (format!("target f={:.2}", case.focus), case.target.clone())];
     for &m in &opts.methods {
         let (s, loss, renderer) = m.setup(case.blur, case.focus);
-        let o = DfdOptions { weights: loss.weights(), renderer, ..base };
+        let o = DfdOptions { weights: loss.weights(), renderer, kernel: m.kernel(), ..base };
         let t = Instant::now();
         let d = dfd::estimate(&case.aif, &case.target, &s, &o, |_| {})?;
         let ms = ms_since(t);
@@ -492,7 +511,7 @@ fn evaluate(case: &DfdCase, opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -
             ms / 1e3
         ));
         rows.push(row);
-        if matches!(m, DfdMethod::Physical | DfdMethod::NoOcclusion | DfdMethod::GaussPsf) {
+        if matches!(m, DfdMethod::Physical | DfdMethod::PhysicalSpan | DfdMethod::NoOcclusion | DfdMethod::GaussPsf) {
             panels.push((m.short().to_string(), disparity_panel(&d)));
         }
     }

@@ -79,8 +79,10 @@ pub struct DfdReport {
     pub profile: Profile,
     /// False for the no-occlusion ablation.
     pub occlusion: bool,
-    /// The optimisation's options.
+    /// The optimisation's options (`kernel` as given: `auto` by default).
     pub options: DfdOptions,
+    /// The differentiable render used (`auto` resolved, see [`dfd::resolve_kernel`]).
+    pub kernel_used: dfd::DfdKernel,
     /// Adam steps run, all levels together.
     pub steps: usize,
     /// The first full-size step's losses.
@@ -153,6 +155,7 @@ pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
         profile: job.settings.profile,
         occlusion: job.settings.occlusion,
         options: job.options,
+        kernel_used: dfd::resolve_kernel(w, h, &job.settings, &job.options),
         steps: steps.len(),
         first,
         last,
