@@ -3,7 +3,7 @@
 into README.md between their anchors, and computes the pipeline tables (issue 12: the tool's
 defaults from photo + depth + matte against the baselines fed the same inputs, exact and
 realistic depth, per category, seeds 1 and 2) from docs/bench*/report.csv, and copies the depth-from-defocus means and acceptance checks of
-docs/dfd-bench*/report.md and docs/dfd-heldout/report.md (`drbokeh bench --dfd`), so the README's bench tables are never
+docs/dfd-bench*/report.md and docs/dfd-heldout*/report.md (`drbokeh bench --dfd`), so the README's bench tables are never
 typed by hand."""
 import collections, csv, pathlib, sys
 
@@ -108,6 +108,7 @@ DFD_REPORTS = [
     ("seed1", "Seed 1", "docs/dfd-bench"),
     ("seed2", "Seed 2", "docs/dfd-bench-seed2"),
     ("heldout", "Held-out Mitsuba scenes", "docs/dfd-heldout"),
+    ("heldout13", "Fresh held-out Mitsuba scenes (generator seed 13)", "docs/dfd-heldout13"),
 ]
 for key, _, folder in DFD_REPORTS:
     md = (root / folder / "report.md").read_text()
