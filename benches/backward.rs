@@ -4,7 +4,8 @@
 //! `render(.., Kernel::Exact)`; `record` is [`Tape::record`] (the differentiable forward,
 //! keeping the per-pixel sums); `vjp` is [`Tape::vjp`] on a recorded tape; `record+vjp` is one
 //! optimisation step's render and gradient. The ratio reported in README is
-//! `record+vjp / forward` (medians).
+//! `record+vjp / forward` (medians). The ray test (physical, [`Tape::record_with`]) is timed
+//! against its own recording, the only forward it has.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use drbokeh::Image;
@@ -63,6 +64,29 @@ fn ratio(_: &mut Criterion) {
             ratios[8]
         );
     }
+    // The ray test has no render of its own outside the tape: its forward is the recording.
+    let (layers, mut s) = two_layer_scene(128, 128, 15.0, true);
+    s.lens = 31;
+    s.profile = Profile::Physical;
+    let mut seed = Image::new(128, 128, 3);
+    seed.data.iter_mut().enumerate().for_each(|(i, v)| *v = ((i * 7919 % 1000) as f32 / 500.0) - 1.0);
+    let sm = Smoothing::default();
+    let mut ratios: Vec<f64> = (0..9)
+        .map(|_| {
+            pool.install(|| {
+                let t0 = Instant::now();
+                let tape = Tape::record_with(&layers, &s, sm, true).unwrap();
+                let t1 = Instant::now();
+                tape.vjp(&seed).unwrap();
+                t0.elapsed().as_secs_f64() / (t1 - t0).as_secs_f64()
+            })
+        })
+        .collect();
+    ratios.sort_by(f64::total_cmp);
+    println!(
+        "backward_ratio_physical_ray: (record+vjp)/record, 1 thread: median {:.2} (min {:.2}, max {:.2})",
+        ratios[4], ratios[0], ratios[8]
+    );
 }
 
 criterion_group!(benches, ratio, backward);
