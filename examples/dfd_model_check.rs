@@ -275,7 +275,8 @@ fn main() -> Result<()> {
     let gt = args.get(1).filter(|v| *v != "-").map(PathBuf::from);
     let bins: usize = args.get(2).map_or(64, |v| v.parse().expect("BINS"));
     let spp: u32 = args.get(3).map_or(256, |v| v.parse().expect("SPP"));
-    let opts = DfdBenchOptions { scenes, groundtruth: gt.clone(), spp, ..DfdBenchOptions::default() };
+    let side: usize = std::env::var("SIDE").ok().and_then(|v| v.parse().ok()).unwrap_or(64);
+    let opts = DfdBenchOptions { scenes, groundtruth: gt.clone(), spp, width: side, height: side, ..DfdBenchOptions::default() };
     let dirs = match &gt {
         Some(d) => drbokeh::bench::groundtruth::scene_dirs(d)?,
         None => Vec::new(),
@@ -287,11 +288,17 @@ fn main() -> Result<()> {
         // The span render: the layered model this check was written to test (the default
         // kernel is now the ray test at these sizes; `RAY=1` compares the two).
         let o = DfdOptions { weights: loss.weights(), renderer, kernel: dfd::DfdKernel::Fast, ..DfdOptions::default() };
-        let est = dfd::estimate(&case.aif, &case.target, &s, &o, |_| {})?;
+        let est = if std::env::var_os("NOSPAN").is_some() {
+            Image::filled(case.aif.width, case.aif.height, 1, o.init)
+        } else {
+            dfd::estimate(&case.aif, &case.target, &s, &o, |_| {})?
+        };
         if std::env::var_os("RAY").is_some() {
             let t = std::time::Instant::now();
             let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f32>().ok());
-            let mut ro = DfdOptions { kernel: dfd::DfdKernel::Ray, ..o };
+            // `AUTO=1`: the default plan (the ray test at the finest level that fits).
+            let kernel = if std::env::var_os("AUTO").is_some() { dfd::DfdKernel::Auto } else { dfd::DfdKernel::Ray };
+            let mut ro = DfdOptions { kernel, ..o };
             if let Some(v) = env("ITERS") {
                 ro.iters = v as usize;
             }
@@ -304,7 +311,18 @@ fn main() -> Result<()> {
             if let Some(v) = env("SMOOTH") {
                 ro.weights.smoothness = v;
             }
-            let ray = dfd::estimate(&case.aif, &case.target, &s, &ro, |_| {})?;
+            let mut last = 0.0;
+            let finest: u32 = std::env::var("FINEST").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+            let ray = if finest == 0 {
+                dfd::estimate(&case.aif, &case.target, &s, &ro, |st| last = st.loss)?
+            } else {
+                let f = 1usize << finest;
+                let (a, b) = (box_down(&case.aif, f), box_down(&case.target, f));
+                let mut sd = s;
+                sd.blur = s.blur * a.width as f32 / case.aif.width as f32;
+                dfd::estimate(&a, &b, &sd, &ro, |st| last = st.loss)?.resized(case.aif.width, case.aif.height)
+            };
+            println!("{:15} ray final loss {last:.5}", case.scene);
             if let Ok(dir) = std::env::var("DUMP") {
                 drbokeh::io::write_output(
                     &PathBuf::from(format!("{dir}/{}_ray.npy", case.scene)),

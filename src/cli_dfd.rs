@@ -159,10 +159,12 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
     } else {
         let (a, b, d) = (&report.first, &report.last, &report.disparity);
         eprintln!(
-            "{}x{}, kernel {}: loss {:.5} -> {:.5} (L1 {:.5} -> {:.5}) at full size; disparity {:.3} .. {:.3}, mean {:.3}; {:.1} s ({} threads)",
+            "{}x{}, kernel {} at {}x{}: loss {:.5} -> {:.5} (L1 {:.5} -> {:.5}) at that size; disparity {:.3} .. {:.3}, mean {:.3}; {:.1} s ({} threads)",
             report.width,
             report.height,
-            report.kernel_used.name(),
+            report.plan.kernel.name(),
+            report.plan.width,
+            report.plan.height,
             a.loss,
             b.loss,
             a.l1,

@@ -90,9 +90,18 @@ fn no_occlusion_runs_and_writes_exr() {
     assert_eq!(report["occlusion"], false);
     assert_eq!(report["steps"], 5);
     assert_eq!(report["options"]["weights"]["ssim"], 0.0);
+    // Without occlusion the ray test has nothing to test: `auto` is the span render.
+    assert_eq!(report["options"]["kernel"], "auto");
+    assert_eq!((report["plan"]["kernel"].as_str(), report["plan"]["finest_level"].as_u64()), (Some("fast"), Some(0)));
     let d = io::read_depth(&dir.join("disp.exr"), &ReadLimits::default()).unwrap();
     assert_eq!((d.width, d.height, d.channels), (W, H, 1));
     assert!(d.data.iter().all(|v| (0.0..=1.0).contains(v)));
+    // With occlusion, this small view gets the ray test at full size.
+    let out = run(dfd(dir, &["--iters", "2", "--levels", "1", "-o", "disp2.exr", "--json"]));
+    assert!(out.status.success(), "dfd failed: {}", stderr(&out));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["plan"]["kernel"], "ray");
+    assert_eq!((report["plan"]["width"].as_u64(), report["plan"]["height"].as_u64()), (Some(W as u64), Some(H as u64)));
 }
 
 #[test]

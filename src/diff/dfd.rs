@@ -100,7 +100,7 @@ impl DfdRenderer {
 pub enum DfdKernel {
     /// [`DfdKernel::Ray`] where it applies (physical profile, occlusion on) and its estimated
     /// cost over all levels stays within [`AUTO_RAY_BUDGET`]; [`DfdKernel::Fast`] otherwise
-    /// (see [`resolve_kernel`]).
+    /// (see [`plan`]).
     #[default]
     Auto,
     /// [`SpanTape`]: spans instead of taps, the in-layer depth groups interpolated between
@@ -118,30 +118,65 @@ pub enum DfdKernel {
     Ray,
 }
 
-/// The most tap evaluations (Σ over levels of steps × pixels × window taps) for which
-/// [`DfdKernel::Auto`] chooses the ray test: about two minutes of optimisation on 2 cores
+/// The most tap evaluations (Σ over levels of steps × pixels × window taps) that
+/// [`DfdKernel::Auto`] spends on the ray test: about two minutes of optimisation on 2 cores
 /// (a 128×128 step at K 15, 17.6 M taps, takes 0.47 s there). A 64×64 view at K 6.4 needs
-/// 2e8, 128×128 at K 15 2.3e9, 256×256 at K 30 3.6e10 (the span render then).
+/// 2e8, 128×128 at K 15 2.3e9, 256×256 at K 30 3.6e10 (that one is then optimised at 128×128).
 pub const AUTO_RAY_BUDGET: f64 = 4e9;
 
-/// The kernel [`estimate`] uses for a `w × h` photo with settings `s` and `opts`: `opts.kernel`
-/// unless it is [`DfdKernel::Auto`] (see there). The ray test needs the physical profile and
-/// occlusion; without occlusion the span render is the exact tape's function, and cheaper.
-pub fn resolve_kernel(w: usize, h: usize, s: &RenderSettings, opts: &DfdOptions) -> DfdKernel {
+/// The smallest side, pixels, of the finest level [`DfdKernel::Auto`] may optimise at instead of
+/// the full size.
+pub const AUTO_MIN_SIDE: usize = 16;
+
+/// How [`estimate`] runs: the differentiable render, and the finest resolution level it
+/// optimises at (0: full size; above 0 the map is optimised at that level's size, the
+/// pyramid's `levels` levels ending there, and resized to the photo's size at the end).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct DfdPlan {
+    /// The render ([`DfdKernel::Auto`] resolved).
+    pub kernel: DfdKernel,
+    /// The finest level (see [`level_size`]).
+    pub finest_level: usize,
+    /// Width of the map optimised at the finest level, pixels.
+    pub width: usize,
+    /// Its height.
+    pub height: usize,
+}
+
+/// The plan of [`estimate`] for a `w × h` photo with settings `s` and `opts`. An explicit
+/// kernel runs at full size. [`DfdKernel::Auto`] takes the ray test where it applies (physical
+/// profile, occlusion on, the Dr.Bokeh renderer), at the finest level whose pyramid costs at
+/// most `opts.ray_budget` (not below [`AUTO_MIN_SIDE`] pixels a side), and the span render at
+/// full size where none does or the test does not apply (without occlusion the span render is
+/// the exact tape's function, and cheaper). On the bench's scenes at 128 and 256 px the ray
+/// test at a reduced size, resized, beat the span render at full size (README "The ray test").
+pub fn plan(w: usize, h: usize, s: &RenderSettings, opts: &DfdOptions) -> DfdPlan {
+    let at = |kernel, finest_level| {
+        let (width, height) = level_size(w, h, finest_level);
+        DfdPlan { kernel, finest_level, width, height }
+    };
     if opts.kernel != DfdKernel::Auto {
-        return opts.kernel;
+        return at(opts.kernel, 0);
     }
     if opts.renderer != DfdRenderer::DrBokeh || s.profile != Profile::Physical || !s.occlusion {
-        return DfdKernel::Fast;
+        return at(DfdKernel::Fast, 0);
     }
-    let cost: f64 = (0..opts.levels.min(64))
-        .map(|level| {
-            let (lw, lh) = level_size(w, h, level);
-            let (_, lens) = level_blur_lens(s, w, lw, lh);
-            opts.iters as f64 * (lw * lh) as f64 * (lens * lens) as f64 * std::f64::consts::FRAC_PI_4
+    let cost = |finest: usize| -> f64 {
+        (finest..finest + opts.levels.min(64))
+            .map(|level| {
+                let (lw, lh) = level_size(w, h, level);
+                let (_, lens) = level_blur_lens(s, w, lw, lh);
+                opts.iters as f64 * (lw * lh) as f64 * (lens * lens) as f64 * std::f64::consts::FRAC_PI_4
+            })
+            .sum()
+    };
+    (0..64usize)
+        .take_while(|&l| {
+            let (lw, lh) = level_size(w, h, l);
+            l == 0 || lw.min(lh) >= AUTO_MIN_SIDE
         })
-        .sum();
-    if cost <= AUTO_RAY_BUDGET { DfdKernel::Ray } else { DfdKernel::Fast }
+        .find(|&l| cost(l) <= opts.ray_budget)
+        .map_or_else(|| at(DfdKernel::Fast, 0), |l| at(DfdKernel::Ray, l))
 }
 
 /// A level's K (scaled with its width) and lens window (what the disparity range [0, 1] needs
@@ -198,7 +233,8 @@ impl Recording<'_> {
 pub struct DfdOptions {
     /// Adam steps per resolution level.
     pub iters: usize,
-    /// Resolution levels, coarsest first (each half the size of the next); 1 = full size only.
+    /// Resolution levels, coarsest first (each half the size of the next), ending at the plan's
+    /// finest level ([`plan`]: full size unless `auto` chose a smaller one); 1 = that level only.
     pub levels: usize,
     /// Adam's step size, in units of normalized disparity.
     pub learning_rate: f32,
@@ -211,8 +247,11 @@ pub struct DfdOptions {
     pub init: f32,
     /// The renderer inverted.
     pub renderer: DfdRenderer,
-    /// The Dr.Bokeh render differentiated (span or exact).
+    /// The Dr.Bokeh render differentiated (see [`DfdKernel`]).
     pub kernel: DfdKernel,
+    /// The most tap evaluations [`DfdKernel::Auto`] spends on the ray test ([`plan`];
+    /// default [`AUTO_RAY_BUDGET`]).
+    pub ray_budget: f64,
 }
 
 impl Default for DfdOptions {
@@ -226,6 +265,7 @@ impl Default for DfdOptions {
             init: 0.5,
             renderer: DfdRenderer::DrBokeh,
             kernel: DfdKernel::Auto,
+            ray_budget: AUTO_RAY_BUDGET,
         }
     }
 }
@@ -233,7 +273,7 @@ impl Default for DfdOptions {
 /// One logged step: level (0 = full size), iteration, and the loss terms.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Step {
-    /// Resolution level, counting down to 0 (full size).
+    /// Resolution level ([`level_size`]), counting down to the plan's finest level (0: full size).
     pub level: usize,
     /// Iteration within the level.
     pub iter: usize,
@@ -256,7 +296,7 @@ pub struct Step {
 /// (`render.blur`), no iterations (`dfd.iters`) or levels (`dfd.levels`), a learning rate
 /// that is not a finite number > 0 (`dfd.learning_rate`), a start outside [0, 1] (`dfd.init`),
 /// [`DfdKernel::Ray`] with the official profile (`dfd.kernel`). `opts.kernel`'s
-/// [`DfdKernel::Auto`] is resolved once for all levels ([`resolve_kernel`]).
+/// [`DfdKernel::Auto`] is resolved once for all levels, with the finest level ([`plan`]).
 pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptions, mut step: impl FnMut(Step)) -> Result<Image> {
     if (aif.width, aif.height) != (bokeh.width, bokeh.height) || aif.channels != 3 || bokeh.channels != 3 {
         return Err(Error::usage(format!(
@@ -279,14 +319,15 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
         return Err(Error::usage(format!("dfd.init must be a normalized disparity in [0, 1], got {}", opts.init)));
     }
     let (w, h) = (aif.width, aif.height);
-    let opts = DfdOptions { kernel: resolve_kernel(w, h, s, opts), ..*opts };
+    let plan = plan(w, h, s, opts);
+    let opts = DfdOptions { kernel: plan.kernel, ..*opts };
     if opts.kernel == DfdKernel::Ray && s.profile != Profile::Physical {
         return Err(Error::usage(
             "dfd.kernel ray needs render.profile physical: the ray test is a term of the physical profile's depth groups",
         ));
     }
     let mut disparity: Option<Image> = None;
-    for level in (0..opts.levels).rev() {
+    for level in (plan.finest_level..plan.finest_level + opts.levels).rev() {
         let (lw, lh) = level_size(w, h, level);
         let (a, b) = (resize_rgb(aif, lw, lh), resize_rgb(bokeh, lw, lh));
         let d = match disparity.take() {
@@ -297,7 +338,8 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
         (ls.blur, ls.lens) = level_blur_lens(s, w, lw, lh);
         disparity = Some(optimise_level(&a, &b, d, &ls, &opts, level, &mut step)?);
     }
-    Ok(disparity.expect("at least one level"))
+    let d = disparity.expect("at least one level");
+    Ok(if (d.width, d.height) == (w, h) { d } else { d.resized(w, h) })
 }
 
 /// The size of resolution level `level` of a `w × h` photo: each side divided by `2^level`
@@ -411,20 +453,41 @@ mod tests {
         assert!(e.contains("32x32") && e.contains("8x8"), "{e}");
     }
 
-    /// `Auto` takes the ray test where it applies and fits the budget, the span render
-    /// otherwise; the ray test with the official profile is a usage error naming the kernel.
+    /// `Auto` takes the ray test where it applies, at the finest level that fits the budget
+    /// (full size where it can), the span render where the test does not apply; an explicit
+    /// kernel runs at full size; the ray test with the official profile is a usage error naming
+    /// the kernel. A reduced plan's map comes back at the photo's size.
     #[test]
-    fn auto_kernel_and_ray_checks() {
+    fn auto_plan_and_ray_checks() {
         let s = RenderSettings { blur: 6.4, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
         let o = DfdOptions::default();
-        assert_eq!(resolve_kernel(64, 64, &s, &o), DfdKernel::Ray);
-        assert_eq!(resolve_kernel(128, 128, &RenderSettings { blur: 15.0, ..s }, &o), DfdKernel::Ray);
-        assert_eq!(resolve_kernel(256, 256, &RenderSettings { blur: 30.0, ..s }, &o), DfdKernel::Fast);
-        assert_eq!(resolve_kernel(4000, 3000, &s, &o), DfdKernel::Fast);
-        assert_eq!(resolve_kernel(64, 64, &RenderSettings { occlusion: false, ..s }, &o), DfdKernel::Fast);
-        assert_eq!(resolve_kernel(64, 64, &RenderSettings { profile: Profile::Official, ..s }, &o), DfdKernel::Fast);
-        assert_eq!(resolve_kernel(64, 64, &s, &DfdOptions { renderer: DfdRenderer::GaussPsf, ..o }), DfdKernel::Fast);
-        assert_eq!(resolve_kernel(4000, 3000, &s, &DfdOptions { kernel: DfdKernel::Exact, ..o }), DfdKernel::Exact);
+        let p = |w, h, s: &RenderSettings, o: &DfdOptions| {
+            let p = plan(w, h, s, o);
+            (p.kernel, p.finest_level, p.width, p.height)
+        };
+        assert_eq!(p(64, 64, &s, &o), (DfdKernel::Ray, 0, 64, 64));
+        assert_eq!(p(128, 128, &RenderSettings { blur: 15.0, ..s }, &o), (DfdKernel::Ray, 0, 128, 128));
+        assert_eq!(p(256, 256, &RenderSettings { blur: 30.0, ..s }, &o), (DfdKernel::Ray, 1, 128, 128));
+        let big = plan(4000, 3000, &RenderSettings { blur: 400.0, ..s }, &o);
+        assert_eq!(big.kernel, DfdKernel::Ray);
+        assert!(big.width.min(big.height) >= AUTO_MIN_SIDE && big.width < 300, "{big:?}");
+        assert_eq!(p(64, 64, &RenderSettings { occlusion: false, ..s }, &o), (DfdKernel::Fast, 0, 64, 64));
+        assert_eq!(p(64, 64, &RenderSettings { profile: Profile::Official, ..s }, &o), (DfdKernel::Fast, 0, 64, 64));
+        assert_eq!(p(64, 64, &s, &DfdOptions { renderer: DfdRenderer::GaussPsf, ..o }), (DfdKernel::Fast, 0, 64, 64));
+        assert_eq!(p(4000, 3000, &s, &DfdOptions { kernel: DfdKernel::Exact, ..o }), (DfdKernel::Exact, 0, 4000, 3000));
+        // Nothing fits: a window as wide as the image at every level down to 16 px.
+        assert_eq!(p(40, 40, &RenderSettings { blur: 1e6, ..s }, &DfdOptions { iters: 10_000_000, ..o }), (DfdKernel::Fast, 0, 40, 40));
+        // A reduced plan: optimised at 32×24, returned at 64×48.
+        let aif = Image::from_vec(64, 48, 3, (0..64 * 48 * 3).map(|v| (v % 11) as f32 / 11.0).collect()).unwrap();
+        // K 8: 2 steps of levels 0 + 1 cost 2·(3072·π/4·23² + 768·π/4·15²) = 2.8e6 taps, of
+        // levels 1 + 2 3.1e5.
+        let ro = DfdOptions { iters: 2, levels: 2, ray_budget: 1e6, ..o };
+        let pl = plan(64, 48, &RenderSettings { blur: 8.0, ..s }, &ro);
+        assert_eq!((pl.kernel, pl.finest_level, pl.width, pl.height), (DfdKernel::Ray, 1, 32, 24), "{pl:?}");
+        let mut sizes = Vec::new();
+        let d = estimate(&aif, &aif, &RenderSettings { blur: 8.0, ..s }, &ro, |st| sizes.push(st.level)).unwrap();
+        assert_eq!((d.width, d.height), (64, 48));
+        assert_eq!(sizes, [2, 2, 1, 1]);
         let aif = Image::filled(8, 8, 3, 0.5);
         let official = RenderSettings { profile: Profile::Official, ..s };
         let e = estimate(&aif, &aif, &official, &DfdOptions { kernel: DfdKernel::Ray, iters: 1, ..o }, |_| {}).unwrap_err();

@@ -81,13 +81,14 @@ pub struct DfdReport {
     pub occlusion: bool,
     /// The optimisation's options (`kernel` as given: `auto` by default).
     pub options: DfdOptions,
-    /// The differentiable render used (`auto` resolved, see [`dfd::resolve_kernel`]).
-    pub kernel_used: dfd::DfdKernel,
+    /// How the estimate ran: the differentiable render (`auto` resolved) and the size it
+    /// optimised at before resizing to the photo's (see [`dfd::plan`]).
+    pub plan: dfd::DfdPlan,
     /// Adam steps run, all levels together.
     pub steps: usize,
-    /// The first full-size step's losses.
+    /// The first step's losses at the finest level (full size unless `plan` says otherwise).
     pub first: Step,
-    /// The last step's losses (full size).
+    /// The last step's losses (at the finest level).
     pub last: Step,
     /// The estimated disparity's range.
     pub disparity: Range,
@@ -136,10 +137,11 @@ pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
             &loss_series(&steps, w, h),
         )?;
     }
-    let full: Vec<&Step> = steps.iter().filter(|s| s.level == 0).collect();
+    let plan = dfd::plan(w, h, &job.settings, &job.options);
+    let full: Vec<&Step> = steps.iter().filter(|s| s.level == plan.finest_level).collect();
     let (first, last) = match (full.first(), full.last()) {
         (Some(&&a), Some(&&b)) => (a, b),
-        _ => return Err(Error::Internal("dfd: no full-size step was run".into())),
+        _ => return Err(Error::Internal("dfd: no step was run at the finest level".into())),
     };
     let n = disparity.data.len().max(1) as f64;
     Ok(DfdReport {
@@ -155,7 +157,7 @@ pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
         profile: job.settings.profile,
         occlusion: job.settings.occlusion,
         options: job.options,
-        kernel_used: dfd::resolve_kernel(w, h, &job.settings, &job.options),
+        plan,
         steps: steps.len(),
         first,
         last,
