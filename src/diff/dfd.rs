@@ -2,15 +2,18 @@
 //! that, rendered with an all-in-focus photo as one opaque layer, reproduces a photo of the
 //! same view focused at `focus` with blur `K`. Adam on the disparity, coarse to fine, loss
 //! `λ₁·L1 + λ₂·G + λ₃·HSSIM` (Eqn. 7; see [`super::loss`]), gradients through
-//! [`crate::render::SpanTape`] (the span render of one opaque layer, either profile; the
-//! default, [`DfdKernel::Fast`]) or [`crate::render::Tape`] (the exact kernel:
-//! [`DfdKernel::Exact`]), or through the Gaussian-PSF
-//! renderer of the ablation ([`super::gauss_psf`], chosen by [`DfdRenderer`]).
+//! [`crate::render::Tape`] with the ray test ([`DfdKernel::Ray`]: the exact kernel where a
+//! source behind a target counts as far as the ray between them passes the photo's surface;
+//! the default's choice, at the finest level its budget allows, see [`plan`]),
+//! [`crate::render::SpanTape`] (the span render of one opaque layer, either profile:
+//! [`DfdKernel::Fast`]) or the plain exact tape ([`DfdKernel::Exact`]), or through the
+//! Gaussian-PSF renderer of the ablation ([`super::gauss_psf`], chosen by [`DfdRenderer`]).
 //!
 //! The optimisation behind `drbokeh dfd` (files in and out: [`super::dfd_job`]). Cost per
 //! iteration: one render and its VJP at the level's size: O(pixels·(R + bins)) with the span
 //! render (R the largest CoC, bins the depth bins a stripe of rows sees), O(pixels·lens²) with
-//! the exact tape (the Gaussian PSF: O(pixels·(2R+1)²), R ≈ 1.5·K·max(focus, 1 − focus)).
+//! the exact tape, with or without the ray test (the Gaussian PSF: O(pixels·(2R+1)²),
+//! R ≈ 1.5·K·max(focus, 1 − focus)).
 
 use super::gauss_psf::{GaussTape, window_radius};
 use super::loss::{self, HSSIM_WINDOWS};
