@@ -21,6 +21,13 @@
 //! and prints the disparity error and the re-render at the other focus of the truth, `dfd`'s
 //! estimate and the fit (about 4 minutes a held-out scene at 200 iterations).
 //!
+//! With `RAY=1` it compares instead, per case, the true disparity, the span render's estimate
+//! and the ray test's (`dfd --kernel ray`; with `AUTO=1` the default plan, `dfd::plan`):
+//! disparity error and far-focus re-render, and the ray estimate's final loss. Knobs of that
+//! mode: `SIDE=N` (cases at N px instead of 64), `FINEST=L` (the ray estimate on the photos
+//! box-averaged by 2^L, resized back), `ITERS`, `LEVELS`, `LR`, `SMOOTH` (λ₂), `NOSPAN=1`
+//! (skip the span estimate), `DUMP=DIR` (the ray and true maps as .npy).
+//!
 //! `cargo run --release --example dfd_model_check -- [SCENES] [GROUNDTRUTH_DIR] [BINS] [SPP]`
 //! (defaults 8 generated scenes at 64x64 seed 1, no ground-truth folder, 64 bins, 256 spp).
 
