@@ -3,8 +3,10 @@
 //!
 //! Forward, per target `x`: each source `y` adds `wt = α_y·cov(R_y, r)/N(R_y)` (smooth disk
 //! edge [`lens::disk_coverage_smooth`], flux norm [`lens::disk_norm_smooth`], `R = K·|d|`),
-//! split over the depth groups `γ(d_y, d_x)` ([`lens::depth_groups`]), to the groups'
-//! `[P, a]`; the groups are filled front to back ([`lens::over_groups_smooth`]). Backward:
+//! split over the depth groups `γ(d_y, d_x)` ([`lens::depth_groups`]; with the ray test, the
+//! behind share times whether the ray from `x` to `y` passes the layer's surface, [`RayTest`]),
+//! to the groups' `[P, a]`; the groups are filled front to back
+//! ([`lens::over_groups_smooth`]). Backward:
 //! the groups' cotangents come from [`lens::over_groups_smooth_vjp`], then one pass over the
 //! taps scatters them to the sources' colour, alpha and radius and to both disparities.
 //!
