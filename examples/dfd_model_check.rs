@@ -261,6 +261,23 @@ fn fit(scene: &str, aif: &Image, target: &Image, blur: f32, focus: f32, mut d: I
     d
 }
 
+/// One line per named map: its disparity error against the case's truth and its re-render at
+/// the other focus (linear and sRGB PSNR), then `suffix`.
+fn compare_maps(case: &drbokeh::bench::dfd_eval::DfdCase, maps: &[(&str, &Image)], suffix: &str) -> Result<()> {
+    for (name, map) in maps {
+        let r = score(&rerender(&case.aif, map, case.blur, case.other_focus)?, &case.other, case.border);
+        println!(
+            "{:15} {:8} disparity MAE {:.4}  re-render at the other focus: {:6.2} dB linear {:6.2} dB sRGB{suffix}",
+            case.scene,
+            name,
+            mae(map, &case.truth, case.border, |_| true),
+            r.psnr,
+            r.psnr_srgb
+        );
+    }
+    Ok(())
+}
+
 fn l1(a: &Image, b: &Image, border: usize) -> f64 {
     let (w, h) = (a.width, a.height);
     let (mut s, mut n) = (0f64, 0usize);
@@ -345,34 +362,12 @@ fn main() -> Result<()> {
                 )?;
             }
             let secs = t.elapsed().as_secs_f64();
-            let mae = |a: &Image| mae(a, &case.truth, case.border, |_| true);
-            for (name, map) in [("truth", &case.truth), ("span", &est), ("ray", &ray)] {
-                let r = score(&rerender(&case.aif, map, case.blur, case.other_focus)?, &case.other, case.border);
-                println!(
-                    "{:15} {:8} disparity MAE {:.4}  re-render at the other focus: {:6.2} dB linear {:6.2} dB sRGB  ({secs:.1} s)",
-                    case.scene,
-                    name,
-                    mae(map),
-                    r.psnr,
-                    r.psnr_srgb
-                );
-            }
+            compare_maps(&case, &[("truth", &case.truth), ("span", &est), ("ray", &ray)], &format!("  ({secs:.1} s)"))?;
             continue;
         }
         if let Some(iters) = std::env::var("PROBE").ok().and_then(|v| v.parse().ok()) {
             let fit = probe(&case, iters);
-            let mae = |a: &Image| mae(a, &case.truth, case.border, |_| true);
-            for (name, map) in [("truth", &case.truth), ("estimate", &est), ("probe", &fit)] {
-                let r = score(&rerender(&case.aif, map, case.blur, case.other_focus)?, &case.other, case.border);
-                println!(
-                    "{:15} {:8} disparity MAE {:.4}  re-render at the other focus: {:6.2} dB linear {:6.2} dB sRGB",
-                    case.scene,
-                    name,
-                    mae(map),
-                    r.psnr,
-                    r.psnr_srgb
-                );
-            }
+            compare_maps(&case, &[("truth", &case.truth), ("estimate", &est), ("probe", &fit)], "")?;
             continue;
         }
         let m = (case.blur.ceil() as usize) + 3;

@@ -69,7 +69,7 @@ pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[
                 let wt = (px[A] * (cov / src.norm[j].0)) as f64;
                 let mut split = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(src.d[j], dx) };
                 if ray && split[2] > 0.0 {
-                    split[2] *= RayTest::new(&src.d, w, h, (x, y), t, reach).map_or(1.0, |r| r.clear);
+                    split[2] *= RayTest::new(&src.d, w, h, (x, y), j, t, reach).map_or(1.0, |r| r.clear);
                 }
                 lens::add_to_groups(g, wt, split, px);
             }
@@ -134,7 +134,7 @@ pub(super) fn backward(
                 let (mut split, dsplit) = if grouped { depth_groups_with_grad(src.d[j], dx) } else { ([0.0, 1.0, 0.0], [0.0; 3]) };
                 // The behind group's unblocked share, and the ray test that scales it.
                 let behind = split[2];
-                let test = if ray && grouped && behind > 0.0 { RayTest::new(&src.d, w, h, (x, y), t, reach) } else { None };
+                let test = if ray && grouped && behind > 0.0 { RayTest::new(&src.d, w, h, (x, y), j, t, reach) } else { None };
                 if let Some(r) = &test {
                     split[2] *= r.clear;
                 }
@@ -201,8 +201,8 @@ struct RayTest {
 }
 
 impl RayTest {
-    fn new(d: &[f32], w: usize, h: usize, (x, y): (usize, usize), t: &Tap, reach: i64) -> Option<RayTest> {
-        let j = clamped(x, y, t, w, h);
+    /// `j` is the tap's source, `clamped(x, y, t, w, h)`, which the caller has already.
+    fn new(d: &[f32], w: usize, h: usize, (x, y): (usize, usize), j: usize, t: &Tap, reach: i64) -> Option<RayTest> {
         let (ep, es) = (d[y * w + x], d[j]);
         let (frac, dt_dp, dt_ds) = lens::ray_crossing(ep, es)?;
         // One axis: the crossing's coordinate and its derivative in `frac` (0 where clamped).
