@@ -26,7 +26,9 @@
 //! disparity error and far-focus re-render, and the ray estimate's final loss. Knobs of that
 //! mode: `SIDE=N` (cases at N px instead of 64), `FINEST=L` (the ray estimate on the photos
 //! box-averaged by 2^L, resized back), `ITERS`, `LEVELS`, `LR`, `SMOOTH` (λ₂), `NOSPAN=1`
-//! (skip the span estimate), `DUMP=DIR` (the ray and true maps as .npy).
+//! (skip the span estimate), `DUMP=DIR` (as .npy: the ray and true maps, the photo, the traced
+//! truth at the other focus and both maps' re-renders there; the case's K and foci as
+//! `SCENE_meta.json`).
 //!
 //! `cargo run --release --example dfd_model_check -- [SCENES] [GROUNDTRUTH_DIR] [BINS] [SPP]`
 //! (defaults 8 generated scenes at 64x64 seed 1, no ground-truth folder, 64 bins, 256 spp).
@@ -360,6 +362,20 @@ fn main() -> Result<()> {
                     8,
                     drbokeh::color::Transfer::Linear,
                 )?;
+                for (name, img) in [
+                    ("far_ray", rerender(&case.aif, &ray, case.blur, case.other_focus)?),
+                    ("far_truthmap", rerender(&case.aif, &case.truth, case.blur, case.other_focus)?),
+                    ("far_traced", case.other.clone()),
+                    ("aif", case.aif.clone()),
+                ] {
+                    let path = PathBuf::from(format!("{dir}/{}_{name}.npy", case.scene));
+                    drbokeh::io::write_output(&path, &img, 8, drbokeh::color::Transfer::Linear)?;
+                }
+                let meta = format!(
+                    "{{\"blur\": {}, \"focus\": {}, \"other_focus\": {}, \"border\": {}}}",
+                    case.blur, case.focus, case.other_focus, case.border
+                );
+                std::fs::write(format!("{dir}/{}_meta.json", case.scene), meta).expect("meta");
             }
             let secs = t.elapsed().as_secs_f64();
             compare_maps(&case, &[("truth", &case.truth), ("span", &est), ("ray", &ray)], &format!("  ({secs:.1} s)"))?;
