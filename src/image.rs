@@ -162,19 +162,61 @@ impl Image {
 }
 
 impl Image {
-    /// Bilinear (triangle-filter) resize of a one-channel image; allocates the result.
+    /// Triangle-filter resize of a one-channel image (the `image` crate's: bilinear when
+    /// enlarging, the triangle widened by the scale when shrinking); allocates the result.
+    /// Values keep their range, whatever it is: the crate clamps f32 samples to [0, 1], which
+    /// turned a depth map in metres into a constant and cut HDR highlights to 1, so a map
+    /// outside [0, 1] is mapped into it (in f64, by its finite minimum and maximum) and back.
+    /// The filter's weights are non-negative and sum to 1, so every output is a convex
+    /// combination of inputs and lies within their range. NaN spreads into the outputs it
+    /// touches.
     pub fn resized(&self, width: usize, height: usize) -> Image {
         assert_eq!(self.channels, 1, "resized: one channel only");
-        let buf = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(self.width as u32, self.height as u32, self.data.clone())
-            .expect("image size");
-        let out = image::imageops::resize(&buf, width as u32, height as u32, image::imageops::FilterType::Triangle);
-        Image::from_vec(width, height, 1, out.into_raw()).expect("image size")
+        let (lo, hi) = self.data.iter().filter(|v| v.is_finite()).fold((0f64, 1f64), |(lo, hi), &v| (lo.min(v as f64), hi.max(v as f64)));
+        let inside = (lo, hi) == (0.0, 1.0);
+        let span = hi - lo;
+        let data = if inside { self.data.clone() } else { self.data.iter().map(|&v| ((v as f64 - lo) / span) as f32).collect() };
+        let buf = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(self.width as u32, self.height as u32, data).expect("image size");
+        let mut out = image::imageops::resize(&buf, width as u32, height as u32, image::imageops::FilterType::Triangle).into_raw();
+        if !inside {
+            out.iter_mut().for_each(|u| *u = (lo + *u as f64 * span) as f32);
+        }
+        Image::from_vec(width, height, 1, out).expect("image size")
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Resizing keeps values outside [0, 1] (the `image` crate alone clamps f32 to [0, 1]):
+    /// a depth map in metres, an HDR highlight and negative values survive, a 2× box of
+    /// equal values is that value, and every output lies within the input's range.
+    #[test]
+    fn resize_keeps_any_range() {
+        // Depth in metres: a 2×-downscale of 2×2 constant blocks gives the blocks' depths.
+        let depth = Image::from_vec(4, 2, 1, vec![1.5, 1.5, 8.0, 8.0, 1.5, 1.5, 8.0, 8.0]).unwrap();
+        let small = depth.resized(2, 1);
+        assert!(small.data.iter().all(|&v| (1.5..=8.0).contains(&v)), "{:?}", small.data);
+        assert!(small.data[0] < 4.0 && small.data[1] > 5.5, "{:?}", small.data);
+        // An HDR highlight: its energy survives shrinking (the mean of an 8×8 is kept by a
+        // 4×4 of it within the filter's edge handling), and enlarging reaches it.
+        let mut v = vec![0.5f32; 64];
+        v[27] = 40.0;
+        let hdr = Image::from_vec(8, 8, 1, v).unwrap();
+        let down = hdr.resized(4, 4);
+        assert!(down.data.iter().cloned().fold(0f32, f32::max) > 5.0, "{:?}", down.data);
+        assert!(hdr.resized(16, 16).data.iter().cloned().fold(0f32, f32::max) > 20.0);
+        // Negative values, and a constant outside [0, 1].
+        let neg = Image::from_vec(2, 1, 1, vec![-3.0, -1.0]).unwrap().resized(4, 1);
+        assert!(neg.data.iter().all(|&v| (-3.0..=-1.0).contains(&v)) && neg.data[0] < neg.data[3], "{:?}", neg.data);
+        assert!(Image::filled(5, 3, 1, 4.0).resized(3, 2).data.iter().all(|&v| (v - 4.0).abs() < 1e-6));
+        // Inside [0, 1] the crate's result is untouched.
+        let unit = Image::from_vec(3, 1, 1, vec![0.0, 0.25, 1.0]).unwrap();
+        let buf = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(3, 1, unit.data.clone()).unwrap();
+        let want = image::imageops::resize(&buf, 5, 2, image::imageops::FilterType::Triangle).into_raw();
+        assert_eq!(unit.resized(5, 2).data, want);
+    }
 
     /// Stacking interleaves the parts' channels pixel by pixel, in order, at any size.
     #[test]

@@ -106,9 +106,11 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             (Some(depth_path), Some(map)) => {
                 let map = map?;
                 read_warnings.extend(map.warnings);
-                let raw_depth = map.image;
-                let raw_depth = fit_to(raw_depth, &rgb, depth_path, image_path, &mut read_warnings)?;
-                depth::normalize(&raw_depth, cfg.input.depth_kind, depth_path)?
+                // Normalized (holes filled) at the map's own size, then resized: a hole (NaN,
+                // a depth of 0) must not be averaged into its neighbours.
+                let mut disparity = depth::normalize(&map.image, cfg.input.depth_kind, depth_path)?;
+                disparity.map = fit_to(disparity.map, &rgb, depth_path, image_path, &mut read_warnings)?;
+                disparity
             }
             _ => {
                 // No depth map: the configured depth model predicts relative disparity.
