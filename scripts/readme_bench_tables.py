@@ -109,6 +109,7 @@ DFD_REPORTS = [
     ("seed2", "Seed 2", "docs/dfd-bench-seed2"),
     ("heldout", "Held-out Mitsuba scenes", "docs/dfd-heldout"),
     ("heldout13", "Fresh held-out Mitsuba scenes (generator seed 13)", "docs/dfd-heldout13"),
+    ("heldout21", "Third held-out Mitsuba set (generator seed 21)", "docs/dfd-heldout21"),
 ]
 for key, _, folder in DFD_REPORTS:
     md = (root / folder / "report.md").read_text()
