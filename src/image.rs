@@ -162,27 +162,76 @@ impl Image {
 }
 
 impl Image {
-    /// Triangle-filter resize of a one-channel image (the `image` crate's: bilinear when
-    /// enlarging, the triangle widened by the scale when shrinking); allocates the result.
-    /// Values keep their range, whatever it is: the crate clamps f32 samples to [0, 1], which
-    /// turned a depth map in metres into a constant and cut HDR highlights to 1, so a map
-    /// outside [0, 1] is mapped into it (in f64, by its finite minimum and maximum) and back.
-    /// The filter's weights are non-negative and sum to 1, so every output is a convex
-    /// combination of inputs and lies within their range. NaN spreads into the outputs it
-    /// touches.
-    pub fn resized(&self, width: usize, height: usize) -> Image {
-        assert_eq!(self.channels, 1, "resized: one channel only");
-        let (lo, hi) = self.data.iter().filter(|v| v.is_finite()).fold((0f64, 1f64), |(lo, hi), &v| (lo.min(v as f64), hi.max(v as f64)));
-        let inside = (lo, hi) == (0.0, 1.0);
-        let span = hi - lo;
-        let data = if inside { self.data.clone() } else { self.data.iter().map(|&v| ((v as f64 - lo) / span) as f32).collect() };
-        let buf = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(self.width as u32, self.height as u32, data).expect("image size");
-        let mut out = image::imageops::resize(&buf, width as u32, height as u32, image::imageops::FilterType::Triangle).into_raw();
-        if !inside {
-            out.iter_mut().for_each(|u| *u = (lo + *u as f64 * span) as f32);
+    /// Triangle-filter resize, any channel count: bilinear when enlarging, the triangle
+    /// widened by the scale when shrinking (antialiasing); the same size returns a copy.
+    /// Allocates the result and one intermediate (the source's height × the new width).
+    /// Every output is a convex combination of inputs (weights ≥ 0, summing to 1), so values
+    /// keep any range: written here rather than taken from the `image` crate, whose f32 resize
+    /// clamps samples to [0, 1] (that made a depth map in metres a constant and cut HDR
+    /// highlights to 1). NaN spreads into the outputs it touches.
+    pub fn resized(&self, w: usize, h: usize) -> Image {
+        if (self.width, self.height) == (w, h) {
+            return self.clone();
         }
-        Image::from_vec(width, height, 1, out).expect("image size")
+        use rayon::prelude::*;
+        let c = self.channels;
+        if self.is_empty() || w == 0 || h == 0 {
+            return Image::new(w, h, c);
+        }
+        let tx = taps(self.width, w);
+        let ty = taps(self.height, h);
+        // Horizontal pass: self.height rows of w pixels.
+        let mut tmp = vec![0f32; self.height * w * c];
+        tmp.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
+            let src = &self.data[y * self.width * c..(y + 1) * self.width * c];
+            for (x, (start, ws)) in tx.iter().enumerate() {
+                for ch in 0..c {
+                    let mut acc = 0f32;
+                    for (k, wt) in ws.iter().enumerate() {
+                        acc += wt * src[(start + k) * c + ch];
+                    }
+                    row[x * c + ch] = acc;
+                }
+            }
+        });
+        let mut out = Image::new(w, h, c);
+        out.data.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
+            let (start, ws) = &ty[y];
+            for (k, wt) in ws.iter().enumerate() {
+                let src = &tmp[(start + k) * w * c..(start + k + 1) * w * c];
+                for (o, s) in row.iter_mut().zip(src) {
+                    *o += wt * s;
+                }
+            }
+        });
+        out
     }
+}
+
+/// Filter taps of a triangle-filter resize along one axis: for each output index, the first
+/// input index and the normalized weights. Downscaling widens the filter (antialiasing).
+fn taps(src: usize, dst: usize) -> Vec<(usize, Vec<f32>)> {
+    let scale = src as f64 / dst as f64;
+    let support = scale.max(1.0);
+    (0..dst)
+        .map(|o| {
+            let center = (o as f64 + 0.5) * scale;
+            let lo = ((center - support).floor().max(0.0)) as usize;
+            let hi = ((center + support).ceil() as usize).min(src);
+            let mut w: Vec<f64> = (lo..hi).map(|i| (1.0 - ((i as f64 + 0.5 - center) / support).abs()).max(0.0)).collect();
+            let sum: f64 = w.iter().sum();
+            if sum <= 0.0 {
+                // Degenerate (tiny source): nearest pixel.
+                let i = (center.floor() as usize).min(src - 1);
+                return (i, vec![1.0]);
+            }
+            w.iter_mut().for_each(|v| *v /= sum);
+            // Trim zero taps at the ends.
+            let first = w.iter().position(|&v| v > 0.0).unwrap_or(0);
+            let last = w.iter().rposition(|&v| v > 0.0).unwrap_or(0);
+            (lo + first, w[first..=last].iter().map(|&v| v as f32).collect())
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -199,8 +248,7 @@ mod tests {
         let small = depth.resized(2, 1);
         assert!(small.data.iter().all(|&v| (1.5..=8.0).contains(&v)), "{:?}", small.data);
         assert!(small.data[0] < 4.0 && small.data[1] > 5.5, "{:?}", small.data);
-        // An HDR highlight: its energy survives shrinking (the mean of an 8×8 is kept by a
-        // 4×4 of it within the filter's edge handling), and enlarging reaches it.
+        // An HDR highlight survives shrinking and enlarging (the clamp kept at most 1).
         let mut v = vec![0.5f32; 64];
         v[27] = 40.0;
         let hdr = Image::from_vec(8, 8, 1, v).unwrap();
@@ -211,11 +259,15 @@ mod tests {
         let neg = Image::from_vec(2, 1, 1, vec![-3.0, -1.0]).unwrap().resized(4, 1);
         assert!(neg.data.iter().all(|&v| (-3.0..=-1.0).contains(&v)) && neg.data[0] < neg.data[3], "{:?}", neg.data);
         assert!(Image::filled(5, 3, 1, 4.0).resized(3, 2).data.iter().all(|&v| (v - 4.0).abs() < 1e-6));
-        // Inside [0, 1] the crate's result is untouched.
-        let unit = Image::from_vec(3, 1, 1, vec![0.0, 0.25, 1.0]).unwrap();
-        let buf = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(3, 1, unit.data.clone()).unwrap();
-        let want = image::imageops::resize(&buf, 5, 2, image::imageops::FilterType::Triangle).into_raw();
-        assert_eq!(unit.resized(5, 2).data, want);
+        // Any channel count: each channel as if alone (here affine images of one map).
+        let one = Image::from_vec(2, 1, 1, vec![0.0, 1.0]).unwrap().resized(3, 2);
+        let rgb = Image::from_vec(2, 1, 3, vec![0.0, 10.0, -1.0, 1.0, 20.0, -2.0]).unwrap().resized(3, 2);
+        for (i, &v) in one.data.iter().enumerate() {
+            let want = [v, 10.0 + 10.0 * v, -1.0 - v];
+            for (c, w) in want.iter().enumerate() {
+                assert!((rgb.data[i * 3 + c] - w).abs() < 1e-5, "pixel {i} channel {c}: {:?}", rgb.data);
+            }
+        }
     }
 
     /// Stacking interleaves the parts' channels pixel by pixel, in order, at any size.

@@ -1011,7 +1011,10 @@ fn depth_same_aspect_at_half_resolution_warns_and_works() {
     let (blurred, apart) = (mean_abs(&full, &photo), mean_abs(&half, &full));
     // Measured: 0.0235 and 0.0121 (the half-size map's edges are soft at this 32×24 size);
     // with the clamp, 0.0333.
-    assert!(blurred > 0.02 && apart < 0.7 * blurred, "full-size map's render {blurred:.4} from the photo, half-size map's {apart:.4} from it");
+    assert!(
+        blurred > 0.02 && apart < 0.7 * blurred,
+        "full-size map's render {blurred:.4} from the photo, half-size map's {apart:.4} from it"
+    );
 }
 
 #[test]

@@ -68,7 +68,7 @@ fn max_diff(a: &Image, b: &Image) -> f32 {
 /// model canvas, normalize with the preset's mean/std in the contract's colour order, apply
 /// W·x + B (+ sigmoid), min-max over the content when the preset says so, resize back.
 fn expected_conv(rgb: &Image, c: &contract::Contract, g: &Geometry, sigmoid_out: bool) -> Image {
-    let r = prep::resize(&srgb(rgb), g.w, g.h);
+    let r = srgb(rgb).resized(g.w, g.h);
     let k = match c.scale {
         contract::ValueScale::Unit => 1.0,
         contract::ValueScale::Byte => 255.0,
@@ -90,7 +90,7 @@ fn expected_conv(rgb: &Image, c: &contract::Contract, g: &Geometry, sigmoid_out:
         minmax(&mut y);
     }
 
-    prep::resize(&Image::from_vec(g.w, g.h, 1, y).unwrap(), rgb.width, rgb.height)
+    Image::from_vec(g.w, g.h, 1, y).unwrap().resized(rgb.width, rgb.height)
 }
 
 fn contract_of(model: &str, preset: &str) -> contract::Contract {
@@ -119,9 +119,9 @@ fn geometry_plans() {
     assert_eq!((dlb.model_w, dlb.model_h, dlb.w, dlb.h, dlb.x0, dlb.y0), (48, 32, 41, 30, 3, 1));
     // Resizing to the same size is an exact copy; a constant image stays constant.
     let img = photo(13, 9);
-    assert_eq!(prep::resize(&img, 13, 9), img);
+    assert_eq!(img.resized(13, 9), img);
     let flat = Image::filled(7, 5, 2, 0.25);
-    assert!(prep::resize(&flat, 31, 2).data.iter().all(|&v| (v - 0.25).abs() < 1e-6));
+    assert!(flat.resized(31, 2).data.iter().all(|&v| (v - 0.25).abs() < 1e-6));
 }
 
 #[test]
@@ -262,9 +262,9 @@ fn lama_fixed_size_crops_resizes_and_pastes() {
     assert!(cw < w && ch < h, "a crop, not the whole image: {cw}x{ch}");
     let mask_img = Image::from_vec(w, h, 1, mask.iter().map(|&m| m as u8 as f32).collect()).unwrap();
     let crop_rgb = srgb(&rgb.crop(x0, y0, cw, ch));
-    let m512: Vec<bool> = prep::resize(&mask_img.crop(x0, y0, cw, ch), 512, 512).data.iter().map(|&v| v > 1e-3).collect();
-    let filled = mean_fill(&prep::resize(&crop_rgb, 512, 512), &m512);
-    let mut back = prep::resize(&filled, cw, ch);
+    let m512: Vec<bool> = mask_img.crop(x0, y0, cw, ch).resized(512, 512).data.iter().map(|&v| v > 1e-3).collect();
+    let filled = mean_fill(&crop_rgb.resized(512, 512), &m512);
+    let mut back = filled.resized(cw, ch);
     back.map_inplace(|v| srgb_to_linear(v.clamp(0.0, 1.0)));
     let mut want = rgb.clone();
     paste(&mut want, &back, x0, y0, &distance_to(&mask, w, h), 2.0);

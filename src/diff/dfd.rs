@@ -332,7 +332,7 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
     let mut disparity: Option<Image> = None;
     for level in (plan.finest_level..plan.finest_level + opts.levels).rev() {
         let (lw, lh) = level_size(w, h, level);
-        let (a, b) = (resize_rgb(aif, lw, lh), resize_rgb(bokeh, lw, lh));
+        let (a, b) = (aif.resized(lw, lh), bokeh.resized(lw, lh));
         let d = match disparity.take() {
             Some(d) => d.resized(lw, lh),
             None => Image::filled(lw, lh, 1, opts.init),
@@ -398,15 +398,6 @@ fn optimise_level(
         }
     }
     Ok(d)
-}
-
-/// Triangle-filter resize of an RGB image, channel by channel.
-fn resize_rgb(img: &Image, w: usize, h: usize) -> Image {
-    if (img.width, img.height) == (w, h) {
-        return img.clone();
-    }
-    let parts: Vec<Image> = (0..img.channels).map(|c| img.channel(c).resized(w, h)).collect();
-    Image::stack(&parts.iter().collect::<Vec<_>>())
 }
 
 #[cfg(test)]

@@ -79,71 +79,6 @@ pub fn plan(size: SizeSpec, resize: ResizeMode, src_w: usize, src_h: usize) -> G
     }
 }
 
-/// Filter taps of a triangle-filter resize along one axis: for each output index, the first
-/// input index and the normalized weights. Downscaling widens the filter (antialiasing).
-fn taps(src: usize, dst: usize) -> Vec<(usize, Vec<f32>)> {
-    let scale = src as f64 / dst as f64;
-    let support = scale.max(1.0);
-    (0..dst)
-        .map(|o| {
-            let center = (o as f64 + 0.5) * scale;
-            let lo = ((center - support).floor().max(0.0)) as usize;
-            let hi = ((center + support).ceil() as usize).min(src);
-            let mut w: Vec<f64> = (lo..hi).map(|i| (1.0 - ((i as f64 + 0.5 - center) / support).abs()).max(0.0)).collect();
-            let sum: f64 = w.iter().sum();
-            if sum <= 0.0 {
-                // Degenerate (tiny source): nearest pixel.
-                let i = (center.floor() as usize).min(src - 1);
-                return (i, vec![1.0]);
-            }
-            w.iter_mut().for_each(|v| *v /= sum);
-            // Trim zero taps at the ends.
-            let first = w.iter().position(|&v| v > 0.0).unwrap_or(0);
-            let last = w.iter().rposition(|&v| v > 0.0).unwrap_or(0);
-            (lo + first, w[first..=last].iter().map(|&v| v as f32).collect())
-        })
-        .collect()
-}
-
-/// Resizes an image of any channel count with a separable triangle filter (bilinear when
-/// enlarging, area-like when shrinking). The same size returns an exact copy.
-pub fn resize(img: &Image, w: usize, h: usize) -> Image {
-    if (img.width, img.height) == (w, h) {
-        return img.clone();
-    }
-    let c = img.channels;
-    if img.is_empty() || w == 0 || h == 0 {
-        return Image::new(w, h, c);
-    }
-    let tx = taps(img.width, w);
-    let ty = taps(img.height, h);
-    // Horizontal pass: img.height rows of w pixels.
-    let mut tmp = vec![0f32; img.height * w * c];
-    tmp.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
-        let src = &img.data[y * img.width * c..(y + 1) * img.width * c];
-        for (x, (start, ws)) in tx.iter().enumerate() {
-            for ch in 0..c {
-                let mut acc = 0f32;
-                for (k, wt) in ws.iter().enumerate() {
-                    acc += wt * src[(start + k) * c + ch];
-                }
-                row[x * c + ch] = acc;
-            }
-        }
-    });
-    let mut out = Image::new(w, h, c);
-    out.data.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
-        let (start, ws) = &ty[y];
-        for (k, wt) in ws.iter().enumerate() {
-            let src = &tmp[(start + k) * w * c..(start + k + 1) * w * c];
-            for (o, s) in row.iter_mut().zip(src) {
-                *o += wt * s;
-            }
-        }
-    });
-    out
-}
-
 /// Tensor shape of a `channels`-channel input for the geometry and layout.
 pub fn input_shape(g: &Geometry, layout: Layout, channels: usize) -> Vec<i64> {
     let (c, h, w) = (channels as i64, g.model_h as i64, g.model_w as i64);
@@ -175,7 +110,7 @@ fn to_layout(canvas: &[f32], g: &Geometry, channels: usize, layout: Layout) -> V
 /// reordered to the contract's colour order and layout. Padding is 0 after normalization.
 pub fn image_tensor(img: &Image, c: &Contract, g: &Geometry) -> Vec<f32> {
     assert_eq!(img.channels, 3, "image_tensor: RGB input");
-    let r = resize(img, g.w, g.h);
+    let r = img.resized(g.w, g.h);
     let k = match c.scale {
         ValueScale::Unit => 1.0f32,
         ValueScale::Byte => 255.0,
@@ -201,7 +136,7 @@ pub fn image_tensor(img: &Image, c: &Contract, g: &Geometry) -> Vec<f32> {
 /// binary (any coverage counts as masked, so no foreground colour is used as context).
 pub fn mask_tensor(mask: &Image, layout: Layout, g: &Geometry) -> Vec<f32> {
     assert_eq!(mask.channels, 1, "mask_tensor: one channel");
-    let r = resize(mask, g.w, g.h);
+    let r = mask.resized(g.w, g.h);
     let mut canvas = vec![0f32; g.model_w * g.model_h];
     for y in 0..g.h {
         for x in 0..g.w {
@@ -279,5 +214,5 @@ pub fn decode_output(shape: &[i64], data: &[f32], c: &Contract, g: &Geometry, ch
             content.map_inplace(|_| 0.0);
         }
     }
-    Ok(resize(&content, g.src_w, g.src_h))
+    Ok(content.resized(g.src_w, g.src_h))
 }
