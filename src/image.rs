@@ -170,10 +170,10 @@ impl Image {
     /// clamps samples to [0, 1] (that made a depth map in metres a constant and cut HDR
     /// highlights to 1). NaN spreads into the outputs it touches.
     pub fn resized(&self, w: usize, h: usize) -> Image {
+        use rayon::prelude::*;
         if (self.width, self.height) == (w, h) {
             return self.clone();
         }
-        use rayon::prelude::*;
         let c = self.channels;
         if self.is_empty() || w == 0 || h == 0 {
             return Image::new(w, h, c);
