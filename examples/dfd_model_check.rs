@@ -371,11 +371,10 @@ fn main() -> Result<()> {
                     let path = PathBuf::from(format!("{dir}/{}_{name}.npy", case.scene));
                     drbokeh::io::write_output(&path, &img, 8, drbokeh::color::Transfer::Linear)?;
                 }
-                let meta = format!(
-                    "{{\"blur\": {}, \"focus\": {}, \"other_focus\": {}, \"border\": {}}}",
-                    case.blur, case.focus, case.other_focus, case.border
-                );
-                std::fs::write(format!("{dir}/{}_meta.json", case.scene), meta).expect("meta");
+                let meta = serde_json::json!({
+                    "blur": case.blur, "focus": case.focus, "other_focus": case.other_focus, "border": case.border
+                });
+                std::fs::write(format!("{dir}/{}_meta.json", case.scene), meta.to_string()).expect("meta");
             }
             let secs = t.elapsed().as_secs_f64();
             compare_maps(&case, &[("truth", &case.truth), ("span", &est), ("ray", &ray)], &format!("  ({secs:.1} s)"))?;
