@@ -8,8 +8,11 @@
 //! region's counts, `WORST=1` the largest errors, `FGERR=1` the foreground colour's largest
 //! errors (α·|F - F_true|) with the pixel's photo and background values, `BGPART=1` the render
 //! with the estimated background swapped for the true one on its soft, hidden or uncovered
-//! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`, `PM=1` the
+//! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`, `KEEP_CUT=1` leaves cut
+//! highlights uncompleted (`[inpaint] highlights = "excluded"`), `PM=1` the
 //! exemplar fill (`[inpaint] method = "patchmatch"`),
+//! `TWIN=1` traces the scene without the highlights hidden behind full cover (same inputs) and
+//! prints how far apart the two truths lie,
 //! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
 use drbokeh::bench::run::score;
 use drbokeh::bench::scenes::generate;
@@ -49,6 +52,9 @@ fn main() -> drbokeh::Result<()> {
         if let Ok(r) = std::env::var("RADIUS") {
             cfg.inpaint.radius = r.parse().unwrap();
         }
+        if std::env::var("KEEP_CUT").is_ok() {
+            cfg.inpaint.highlights = drbokeh::stages::background::HighlightSources::Excluded;
+        }
         if std::env::var("PM").is_ok() {
             cfg.inpaint.method = drbokeh::stages::inpaint_onnx::InpaintMethod::PatchMatch;
         }
@@ -70,6 +76,20 @@ fn main() -> drbokeh::Result<()> {
             let nv = r.as_ref().map(|(_, v)| v.iter().filter(|&&x| x).count()).unwrap_or(0);
             let nh = hard.iter().filter(|&&x| x).count();
             eprintln!("{} ramp {:?} valid {nv} of {nh}", sc.name, e);
+        }
+        if std::env::var("DISCS").is_ok() {
+            let opts = drbokeh::stages::background::InpaintOptions::default();
+            let r = drbokeh::stages::background::fill_region(&inp.aif, &inp.matte, &opts, 0.0);
+            let mut f = inp.aif.clone();
+            for d in drbokeh::stages::highlight_completion::complete(&mut f, &inp.aif, &r) {
+                let m = sc.margin as f32;
+                let near = sc
+                    .bg_highlights
+                    .iter()
+                    .map(|h| (h.cx - m, h.cy - m, h.r, h.radiance * h.tint[1]))
+                    .min_by(|a, b| ((a.0 - d.cx).hypot(a.1 - d.cy)).total_cmp(&(b.0 - d.cx).hypot(b.1 - d.cy)));
+                eprintln!("{} disc ({:.2}, {:.2}) r {:.2} L {:.1}; nearest true {near:.2?}", sc.name, d.cx, d.cy, d.r, d.rgb[1]);
+            }
         }
         if std::env::var("REGION").is_ok() {
             let r = drbokeh::stages::background::fill_region(
@@ -127,6 +147,23 @@ fn main() -> drbokeh::Result<()> {
             (f64::NAN, f64::NAN)
         };
         let ex = p(&rend(&inp.two_layers, true)?);
+        if std::env::var("TWIN").is_ok() {
+            let (twin, removed) = sc.without_hidden_highlights();
+            let tin = twin.inputs()?;
+            assert!(tin.aif.data == inp.aif.data && tin.matte.data == inp.matte.data && tin.disparity.data == inp.disparity.data);
+            let (gt2, _) = trace_split(&twin.trace_planes(), &ts, twin.window(), &|_| {})?;
+            let apart = score(&gt2, &gt, border).psnr_srgb;
+            let dbg: f32 =
+                twin.planes.last().unwrap().rgb.data.iter().zip(&sc.planes.last().unwrap().rgb.data).map(|(a, b)| (a - b).abs()).sum();
+            let dgt: f32 = gt2.data.iter().zip(&gt.data).map(|(a, b)| (a - b).abs()).sum();
+            eprintln!("dbg {dbg} dgt {dgt}");
+            let ex_twin = p(&rend(&tin.two_layers, true)?);
+            let pipe2 = score(&out.image, &gt2, border).psnr_srgb;
+            eprintln!(
+                "{} twin: hidden highlights {removed}  truths apart {apart:.2}  exact {ex:.2} twin's exact layers {ex_twin:.2}  pipeline {pipe:.2} / on the twin {pipe2:.2}",
+                sc.name
+            );
+        }
         if std::env::var("FGSWAP").is_ok() && est.len() == 2 {
             let t = &inp.two_layers[0];
             let e = &est[0];
@@ -168,6 +205,17 @@ fn main() -> drbokeh::Result<()> {
                 let l = Layer::new(d, "x")?;
                 Ok(p(&rend(&[inp.two_layers[0].clone(), l], true)?))
             };
+            let hl_only = {
+                let (t, e) = (inp.two_layers[1].image(), est[1].image());
+                let mut d = e.clone();
+                for i in 0..size * size {
+                    if inp.matte.data[i] > 0.0 && t.data[i * 5..i * 5 + 3].iter().any(|&v| v > 1.0) {
+                        d.data[i * 5..i * 5 + 5].copy_from_slice(&t.data[i * 5..i * 5 + 5]);
+                    }
+                }
+                p(&rend(&[inp.two_layers[0].clone(), Layer::new(d, "x")?], true)?)
+            };
+            eprintln!("{} bgpart: true HDR pixels behind the matte {hl_only:.2}", sc.name);
             let soft = mix(&|a| a > 0.0 && a < 0.98)?;
             let hidden = mix(&|a| a >= 0.98)?;
             let outside = mix(&|a| a <= 0.0)?;

@@ -643,6 +643,7 @@ impl Pipeline {
             "edge_band_px": bg.band.0,
             "edge_band_replaced_px": bg.band.1,
             "highlights_kept_px": bg.highlights_kept,
+            "highlights_completed": bg.highlights_completed,
             "foreground_unmixed_px": unmixed,
             "model": inpaint_model
         });

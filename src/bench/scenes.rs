@@ -114,6 +114,10 @@ pub struct SynthScene {
     pub thin: bool,
     /// True when the background carries small HDR highlights (radiance 5–50, radius 1.5–3 px).
     pub highlights: bool,
+    /// The far background plane's texture before its highlights (padded size).
+    pub bg_texture: Image,
+    /// The far background's highlights, in painting order.
+    pub bg_highlights: Vec<Highlight>,
 }
 
 /// Signed distance (px, negative inside) of a shape at a point.
@@ -308,18 +312,42 @@ fn photo_crop(rng: &mut Rng, w: usize, h: usize, photo: &Image) -> Image {
     img
 }
 
-/// Adds antialiased bright discs to `rgb` at the given centres.
-fn add_highlights(rng: &mut Rng, rgb: &mut Image, centres: &[(f32, f32)]) {
-    for &(cx, cy) in centres {
-        let r = rng.range(1.5, 3.0);
-        let radiance = rng.range(5.0, 50.0);
-        let tint = [rng.range(0.7, 1.0), rng.range(0.7, 1.0), rng.range(0.7, 1.0)];
-        let cov = coverage_disk(cx, cy, r);
-        for (x, y, a) in cov {
+/// One small HDR highlight painted onto the background: an antialiased disc.
+#[derive(Clone, Copy, Debug)]
+pub struct Highlight {
+    /// Centre in padded-plane pixels.
+    pub cx: f32,
+    /// Centre in padded-plane pixels.
+    pub cy: f32,
+    /// Radius, px.
+    pub r: f32,
+    /// Linear radiance of the disc (times `tint`).
+    pub radiance: f32,
+    /// Per-channel factor in [0.7, 1].
+    pub tint: [f32; 3],
+}
+
+/// Draws one highlight per centre (radius, radiance, tint).
+fn draw_highlights(rng: &mut Rng, centres: &[(f32, f32)]) -> Vec<Highlight> {
+    centres
+        .iter()
+        .map(|&(cx, cy)| {
+            let r = rng.range(1.5, 3.0);
+            let radiance = rng.range(5.0, 50.0);
+            let tint = [rng.range(0.7, 1.0), rng.range(0.7, 1.0), rng.range(0.7, 1.0)];
+            Highlight { cx, cy, r, radiance, tint }
+        })
+        .collect()
+}
+
+/// Paints `highlights` onto `rgb` in order, each over what is there.
+fn paint_highlights(rgb: &mut Image, highlights: &[Highlight]) {
+    for h in highlights {
+        for (x, y, a) in coverage_disk(h.cx, h.cy, h.r) {
             if x < rgb.width && y < rgb.height {
                 let p = rgb.pixel_mut(x, y);
-                for c in 0..3 {
-                    p[c] = p[c] * (1.0 - a) + radiance * tint[c] * a;
+                for (v, t) in p.iter_mut().zip(h.tint) {
+                    *v = *v * (1.0 - a) + h.radiance * t * a;
                 }
             }
         }
@@ -420,7 +448,9 @@ pub fn generate(seed: u64, index: usize, width: usize, height: usize, photos: &[
     }
 
     // Background: far plane everywhere, optionally a nearer step plane over one side.
-    let mut bg = texture(&mut rng, pw, ph, photos);
+    let bg_texture = texture(&mut rng, pw, ph, photos);
+    let mut bg = bg_texture.clone();
+    let mut bg_highlights = Vec::new();
     if highlights {
         // Foreground edges in the frame: pixels of partial combined coverage.
         let mut edge = Vec::new();
@@ -442,7 +472,8 @@ pub fn generate(seed: u64, index: usize, width: usize, height: usize, photos: &[
                 centres.push((rng.range(0.0, pw as f32), rng.range(0.0, ph as f32)));
             }
         }
-        add_highlights(&mut rng, &mut bg, &centres);
+        bg_highlights = draw_highlights(&mut rng, &centres);
+        paint_highlights(&mut bg, &bg_highlights);
     }
     if bg_step {
         let shape = Shape::Card {
@@ -485,6 +516,8 @@ pub fn generate(seed: u64, index: usize, width: usize, height: usize, photos: &[
         max_coc: crate::render::lens::coc_radius(dmax, blur),
         thin,
         highlights,
+        bg_texture,
+        bg_highlights,
     }
 }
 
@@ -571,6 +604,30 @@ impl SynthScene {
     /// The output frame within the padded planes: `width × height` at (`margin`, `margin`).
     pub fn window(&self) -> super::trace::Window {
         super::trace::Window { x0: self.margin, y0: self.margin, width: self.width, height: self.height }
+    }
+
+    /// The same scene without the far background's highlights that the photo cannot show:
+    /// those whose every covered pixel lies inside the frame, fully behind nearer planes.
+    /// Its [`Self::inputs`] give the same photo, depth map and matte bit for bit, so no method
+    /// fed those can tell the two scenes apart, while a lens sees around the cover: how far
+    /// apart the two traced truths lie bounds what any single-photo method can score (issue
+    /// 12's diagnosis). Returns the twin and how many highlights it lacks.
+    pub fn without_hidden_highlights(&self) -> (SynthScene, usize) {
+        let (m, pw) = (self.margin, self.planes[0].alpha.width);
+        let nearer = &self.planes[..self.planes.len() - 1];
+        let hidden = |x: usize, y: usize| {
+            let inside = x >= m && y >= m && x < m + self.width && y < m + self.height;
+            inside && nearer.iter().any(|p| p.alpha.data[y * pw + x] >= 1.0)
+        };
+        let kept: Vec<Highlight> =
+            self.bg_highlights.iter().copied().filter(|h| !coverage_disk(h.cx, h.cy, h.r).iter().all(|&(x, y, _)| hidden(x, y))).collect();
+        let mut twin = self.clone();
+        let bg = twin.planes.last_mut().expect("background plane");
+        bg.rgb = self.bg_texture.clone();
+        paint_highlights(&mut bg.rgb, &kept);
+        twin.bg_highlights = kept;
+        let removed = self.bg_highlights.len() - twin.bg_highlights.len();
+        (twin, removed)
     }
 
     /// Builds every method's inputs from the planes.

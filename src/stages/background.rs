@@ -30,8 +30,11 @@ pub enum EdgeBand {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum HighlightSources {
-    /// They do not: the hole is filled from their surroundings ([`super::highlights`]).
+    /// They do not, and those the hole cuts are completed as discs behind it
+    /// ([`super::highlight_completion`]).
     #[default]
+    Completed,
+    /// They do not: the hole is filled from their surroundings ([`super::highlights`]).
     Excluded,
     /// They do, like any pixel (a highlight is smeared across the hole).
     Included,
@@ -104,6 +107,8 @@ pub struct Background {
     pub band: (usize, usize),
     /// Visible highlights kept out of the fill's sources.
     pub highlights_kept: usize,
+    /// Highlights the mask cuts, completed as discs behind it ([`super::highlight_completion`]).
+    pub highlights_completed: usize,
     /// How deep (fast-marching pixels) the fill went; infinite for the whole region.
     pub reach: f32,
 }
@@ -122,6 +127,7 @@ impl Background {
             skipped: total.saturating_sub(filled),
             band: (band.0, band.1),
             highlights_kept: band.2,
+            highlights_completed: 0,
             reach,
         }
     }
@@ -253,7 +259,7 @@ pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outsi
     }
     let mut highlights = vec![false; w * h];
     let mut highlights_kept = 0;
-    if opts.highlights == HighlightSources::Excluded {
+    if opts.highlights != HighlightSources::Included {
         // The known pixels within `radius + 1` of the mask, in raster order (rows in parallel).
         let near = dilate(&mask, w, h, opts.radius + 1.0);
         let candidates: Vec<usize> =
@@ -334,8 +340,20 @@ pub fn fill_background(prepared: PreparedFill, photo: &Image, alpha: &Image, opt
     // Kept highlights sit next to known pixels: the fill always reached them.
     let filled = filled?.saturating_sub(region.highlights_kept);
     region.restore_highlights(&mut rgb_out, photo);
+    let completed = complete_highlights(&mut rgb_out, photo, &region, opts);
     let stats = (region.band, region.band_replaced, region.highlights_kept);
-    Ok(Background::new(rgb_out, disp_out, region.mask, filled, stats, reach))
+    let mut bg = Background::new(rgb_out, disp_out, region.mask, filled, stats, reach);
+    bg.highlights_completed = completed;
+    Ok(bg)
+}
+
+/// With [`HighlightSources::Completed`], the highlights `region` cuts completed as discs in
+/// `filled` ([`super::highlight_completion::complete`]); how many.
+pub fn complete_highlights(filled: &mut Image, photo: &Image, region: &FillRegion, opts: &InpaintOptions) -> usize {
+    match opts.highlights {
+        HighlightSources::Completed => super::highlight_completion::complete(filled, photo, region).len(),
+        HighlightSources::Excluded | HighlightSources::Included => 0,
+    }
 }
 
 #[cfg(test)]
@@ -383,5 +401,46 @@ mod tests {
         let full = vec![true; w * h];
         let alpha = Image::from_vec(w, h, 1, vec![0.5; w * h]).unwrap();
         assert_eq!(region(full).reach(&alpha, Reach::Seen(2.0)), super::super::mask::marching_reach(2.0));
+    }
+
+    /// The whole fill on a disc of radiance 20 half behind a solid subject: by default the
+    /// hidden half comes back in the background layer (light within 15% of the disc's), with
+    /// `"excluded"` it does not; the visible background is the photo's either way.
+    #[test]
+    fn a_highlight_the_subject_cuts_is_completed_behind_it() {
+        let (w, h) = (64, 48);
+        let (cx, cy, r) = (32.4, 23.7, 2.6);
+        let disc = super::super::highlight_completion::Disc { cx, cy, r, rgb: [20.0; 3] };
+        let mut photo = Image::filled(w, h, 3, 0.3);
+        let mut truth = photo.clone();
+        let alpha = Image::from_vec(w, h, 1, (0..w * h).map(|i| if i % w >= 33 { 1.0 } else { 0.0 }).collect()).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let a = disc.coverage(x, y);
+                truth.pixel_mut(x, y).iter_mut().for_each(|v| *v += (20.0 - *v) * a);
+                if x < 33 {
+                    photo.pixel_mut(x, y).copy_from_slice(truth.pixel(x, y));
+                } else {
+                    photo.pixel_mut(x, y).fill(0.05);
+                }
+            }
+        }
+        let disp = Image::filled(w, h, 1, 0.0);
+        let hidden_light = |img: &Image| (0..w * h).filter(|&i| i % w >= 33).map(|i| img.data[i * 3] as f64 - 0.3).sum::<f64>();
+        let want = hidden_light(&truth);
+        for (mode, completed) in [(HighlightSources::Completed, 1), (HighlightSources::Excluded, 0)] {
+            let opts = InpaintOptions { highlights: mode, ..Default::default() };
+            let bg = inpaint_background(&photo, &disp, &alpha, &opts, Reach::Whole, 0.0).unwrap();
+            assert_eq!(bg.highlights_completed, completed, "{mode:?}");
+            let got = hidden_light(&bg.rgb);
+            if completed == 1 {
+                assert!((got - want).abs() < 0.15 * want, "hidden light {got} against {want}");
+            } else {
+                assert!(got.abs() < 0.1 * want, "{mode:?}: hidden light {got}");
+            }
+            for i in (0..w * h).filter(|&i| i % w < 30) {
+                assert_eq!(bg.rgb.data[i * 3..i * 3 + 3], photo.data[i * 3..i * 3 + 3], "{mode:?}: visible pixel {i}");
+            }
+        }
     }
 }

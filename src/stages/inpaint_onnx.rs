@@ -138,6 +138,7 @@ pub fn inpaint_background(
     model.report.post_ms += ms_since(t);
 
     fill.restore_highlights(&mut rgb_out, rgb);
+    let completed = super::background::complete_highlights(&mut rgb_out, rgb, &fill, opts);
     let mask = fill.mask;
     match model.contract.depth {
         DepthFill::Telea => {
@@ -157,7 +158,9 @@ pub fn inpaint_background(
         }
     }
     disp_out.map_inplace(|v| v.clamp(0.0, 1.0));
-    Ok((Background::new(rgb_out, disp_out, mask, total, stats, reach), model.report))
+    let mut bg = Background::new(rgb_out, disp_out, mask, total, stats, reach);
+    bg.highlights_completed = completed;
+    Ok((bg, model.report))
 }
 
 /// Which implementation fills the background (`[inpaint] method`, `--inpaint`).

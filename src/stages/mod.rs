@@ -15,6 +15,7 @@ pub mod depth_edges;
 pub mod depth_onnx;
 pub mod fill_depth;
 pub mod foreground;
+pub mod highlight_completion;
 pub mod highlights;
 pub mod inpaint;
 pub mod inpaint_onnx;

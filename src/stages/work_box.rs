@@ -29,7 +29,8 @@ pub const MAX_SHARE: f64 = 0.8;
 /// reaches the render, for the largest CoC radius `max_coc` and the measured depth-edge ramp:
 /// the foreground's visibility reach (≤ `max_coc/2 + 2`) plus its depth fill's Telea disc;
 /// the ramp model's background fill and Gaussian weights (≤ 3 ramp widths); the background
-/// fill's mask growth, its edge-band test windows (2 × growth + 3) and highlight windows; the
+/// fill's mask growth, its edge-band test windows (2 × growth + 3), highlight windows and the
+/// cut highlights' disc fits (within the discs' term); the
 /// carried colour's reach; and a margin for the fills' discs and rounding. Generous on
 /// purpose: a larger box only costs time.
 pub fn margin(max_coc: f32, edges: &EdgeWidths, fill_depth: &FillDepthOptions, inpaint: &InpaintOptions) -> f32 {
