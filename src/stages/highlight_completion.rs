@@ -24,10 +24,10 @@ pub const MAX_RADIUS: f32 = 5.0;
 /// Smallest radius fitted, px.
 const MIN_RADIUS: f32 = 0.75;
 /// Search steps, px: centres then radii.
-const CENTRE_STEP: f32 = 0.25;
-const RADIUS_STEP: f32 = 0.25;
+const CENTRE_STEP: f32 = 0.5;
+const RADIUS_STEP: f32 = 0.5;
 /// The second search's step, px, over one coarse step around the coarse answer.
-const FINE_STEP: f32 = 0.05;
+const FINE_STEP: f32 = 0.1;
 /// A component larger than this (pixels) is not point-like; left alone.
 const MAX_PIXELS: usize = 96;
 /// A fit is used when it explains at least this share of the visible pixels' coverage energy.
@@ -64,8 +64,10 @@ impl Disc {
 /// was measured on. Returns the discs painted. Components larger than a point, or whose
 /// visible part no disc explains, are left alone.
 ///
-/// Cost: one scan of the highlight plane, then per touching component a grid search over
-/// centres and radii on its window (~1 ms each, components in parallel). Allocates the
+/// Cost: one scan of the highlight plane, then per touching component a coarse grid search
+/// over centres and radii on its window and a finer one around the best (components in
+/// parallel; `examples/highlight_completion_timing`: 5020 lights on a 12.2 MP frame's
+/// outlines in ~1.0 s on 2 threads, ~0.2 ms each). Allocates the
 /// component lists. The output stays finite for finite input (a blend with weights in [0, 1]).
 pub fn complete(filled: &mut Image, photo: &Image, region: &FillRegion) -> Vec<Disc> {
     if region.highlights_kept == 0 {
@@ -177,27 +179,30 @@ fn fit(photo: &Image, region: &FillRegion, comp: &[usize], w: usize, h: usize) -
     // Grid search, then a finer one around the best: centres over the component's box grown
     // by 3 px, radii up to MAX_RADIUS.
     // Loss = Σ (a - o)² over visible pixels = energy + Σ_{a > 0} (a² - 2·a·o).
-    let loss = |cx: f32, cy: f32, r: f32| {
-        let reach = r + 0.5;
-        let mut loss = energy;
-        for &(px, py, o) in &obs {
-            let (dx, dy) = (px - cx, py - cy);
-            if dx.abs() >= reach || dy.abs() >= reach {
-                continue;
-            }
-            let a = (reach - (dx * dx + dy * dy).sqrt()).clamp(0.0, 1.0) as f64;
-            loss += a * a - 2.0 * a * o;
-        }
-        // A whisker toward smaller discs among equal fits: invent no light.
-        loss + 1e-4 * r as f64
-    };
     let steps = |lo: f32, hi: f32, s: f32| (0..=((hi - lo) / s).round() as usize).map(move |k| lo + k as f32 * s);
+    // Per centre, the distances to the visible pixels a disc of the largest radius reaches
+    // (once), then every radius from them; pixels a disc does not reach add nothing.
     let search = |best: (f64, Option<(f32, f32, f32)>), cx: (f32, f32), cy: (f32, f32), r: (f32, f32), step: (f32, f32)| {
         let mut best = best;
+        let mut near: Vec<(f32, f64)> = Vec::with_capacity(obs.len());
+        let radii: Vec<f32> = steps(r.0.max(MIN_RADIUS), r.1.min(MAX_RADIUS), step.1).collect();
+        let far = radii.last().map_or(0.0, |r| r + 0.5);
         for y in steps(cy.0, cy.1, step.0) {
             for x in steps(cx.0, cx.1, step.0) {
-                for rr in steps(r.0.max(MIN_RADIUS), r.1.min(MAX_RADIUS), step.1) {
-                    let l = loss(x, y, rr);
+                near.clear();
+                near.extend(obs.iter().filter_map(|&(px, py, o)| {
+                    let d = ((px - x) * (px - x) + (py - y) * (py - y)).sqrt();
+                    (d < far).then_some((d, o))
+                }));
+                for &rr in &radii {
+                    let reach = rr + 0.5;
+                    let mut loss = energy;
+                    for &(d, o) in near.iter().filter(|n| n.0 < reach) {
+                        let a = (reach - d).clamp(0.0, 1.0) as f64;
+                        loss += a * a - 2.0 * a * o;
+                    }
+                    // A whisker toward smaller discs among equal fits: invent no light.
+                    let l = loss + 1e-4 * rr as f64;
                     if l < best.0 {
                         best = (l, Some((x, y, rr)));
                     }
