@@ -11,7 +11,8 @@
 //! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`, `KEEP_CUT=1` leaves cut
 //! highlights uncompleted (`[inpaint] highlights = "excluded"`), `PM=1` the
 //! exemplar fill (`[inpaint] method = "patchmatch"`),
-//! `TWIN=1` traces the scene without the highlights hidden behind full cover (same inputs) and
+//! `CUT=1` lists each background highlight the matte cuts with its hidden light (true /
+//! estimated), `TWIN=1` traces the scene without the highlights hidden behind full cover (same inputs) and
 //! prints how far apart the two truths lie,
 //! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
 use drbokeh::bench::run::score;
@@ -76,6 +77,46 @@ fn main() -> drbokeh::Result<()> {
             let nv = r.as_ref().map(|(_, v)| v.iter().filter(|&&x| x).count()).unwrap_or(0);
             let nh = hard.iter().filter(|&&x| x).count();
             eprintln!("{} ramp {:?} valid {nv} of {nh}", sc.name, e);
+        }
+        if std::env::var("CUT").is_ok() && est.len() == 2 {
+            // Each background highlight the matte cuts (some of its pixels under α > 0.02,
+            // some not): its hidden light, true against the estimated background layer.
+            let m = sc.margin as f32;
+            let (tb, eb) = (inp.two_layers[1].image(), est[1].image());
+            let lum = |img: &Image, i: usize| {
+                let d = &img.data[i * 5..i * 5 + 3];
+                0.2126 * d[0] + 0.7152 * d[1] + 0.0722 * d[2]
+            };
+            for hl in &sc.bg_highlights {
+                let d = drbokeh::stages::highlight_completion::Disc { cx: hl.cx - m, cy: hl.cy - m, r: hl.r, rgb: [0.0; 3] };
+                let (mut seen, mut hidden, mut t, mut e) = (0f32, 0f32, 0f32, 0f32);
+                for y in 0..size {
+                    for x in 0..size {
+                        let a = d.coverage(x, y);
+                        if a <= 0.0 {
+                            continue;
+                        }
+                        let i = y * size + x;
+                        if inp.matte.data[i] > 0.02 {
+                            hidden += a;
+                            t += lum(tb, i);
+                            e += lum(eb, i);
+                        } else {
+                            seen += a;
+                        }
+                    }
+                }
+                if hidden > 0.0 && seen > 0.0 {
+                    eprintln!(
+                        "{} cut highlight ({:.1}, {:.1}) r {:.2}: seen {:.0}%, hidden light {t:.1} / {e:.1}",
+                        sc.name,
+                        d.cx,
+                        d.cy,
+                        d.r,
+                        100.0 * seen / (seen + hidden)
+                    );
+                }
+            }
         }
         if std::env::var("DISCS").is_ok() {
             let opts = drbokeh::stages::background::InpaintOptions::default();
