@@ -11,7 +11,7 @@
 //! pixels only, `DILATE=R` / `RADIUS=R` set `[inpaint] dilate` / `radius`, `KEEP_CUT=1` leaves cut
 //! highlights uncompleted (`[inpaint] highlights = "excluded"`), `PM=1` the
 //! exemplar fill (`[inpaint] method = "patchmatch"`),
-//! `CUT=1` lists each background highlight the matte cuts with its hidden light (true /
+//! `AT=X,Y` (with `REGION=1`) prints the region around a pixel, `CUT=1` lists each background highlight the matte cuts with its hidden light (true /
 //! estimated), `TWIN=1` traces the scene without the highlights hidden behind full cover (same inputs) and
 //! prints how far apart the two truths lie,
 //! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
@@ -140,6 +140,25 @@ fn main() -> drbokeh::Result<()> {
                 0.0,
             );
             eprintln!("{} band {} replaced {} highlights {}", sc.name, r.band, r.band_replaced, r.highlights_kept);
+            if let Ok(at) = std::env::var("AT") {
+                // The region around pixel X,Y: luminance, alpha, mask (M) and kept highlight (H).
+                let v: Vec<usize> = at.split(',').map(|t| t.parse().unwrap()).collect();
+                for y in v[1].saturating_sub(4)..(v[1] + 5).min(size) {
+                    let row: Vec<String> = (v[0].saturating_sub(4)..(v[0] + 5).min(size))
+                        .map(|x| {
+                            let i = y * size + x;
+                            let l = drbokeh::stages::highlights::luminance(&inp.aif.data[i * 3..i * 3 + 3]);
+                            format!(
+                                "{l:5.1}/{:.2}{}{}",
+                                inp.matte.data[i],
+                                if r.mask[i] { "M" } else { " " },
+                                if r.highlights[i] { "H" } else { " " }
+                            )
+                        })
+                        .collect();
+                    eprintln!("  y{y:3} {}", row.join(" "));
+                }
+            }
             if let Ok(dir) = std::env::var("DUMP") {
                 let buf: Vec<u8> = (0..size * size)
                     .flat_map(|i| {
