@@ -10,7 +10,7 @@
 use drbokeh::Image;
 use drbokeh::onnx::session::clear_cache;
 use drbokeh::onnx::{ModelSpec, OnnxConfig, OnnxReport, runtime};
-use drbokeh::stages::background::{InpaintOptions, Reach};
+use drbokeh::stages::background::{BandReach, InpaintOptions, Reach};
 use drbokeh::stages::inpaint_onnx::{self, InpaintMethod};
 use drbokeh::stages::{depth_onnx, segment_onnx};
 use std::path::Path;
@@ -49,7 +49,7 @@ fn run_once(c: &Case, spec: &ModelSpec, cfg: &OnnxConfig, rgb: &Image, disp: &Im
         Kind::Depth => depth_onnx::estimate_disparity(rgb, spec, cfg).unwrap().1,
         Kind::Inpaint => {
             let opts = InpaintOptions { method: InpaintMethod::Onnx, onnx: spec.clone(), ..InpaintOptions::default() };
-            inpaint_onnx::inpaint_background(rgb, disp, alpha, &opts, Reach::Pixels(64.0), 0.0, cfg).unwrap().1
+            inpaint_onnx::inpaint_background(rgb, disp, alpha, &opts, Reach::Pixels(64.0), (0.0, BandReach::Any), cfg).unwrap().1
         }
     }
 }

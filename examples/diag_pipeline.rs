@@ -20,6 +20,7 @@ use drbokeh::bench::scenes::generate;
 use drbokeh::bench::trace::{TraceSettings, trace_split};
 use drbokeh::config::{Config, KernelChoice};
 use drbokeh::render::{self, Kernel, Layer, Profile, RenderSettings};
+use drbokeh::stages::background::BandReach;
 use drbokeh::stages::depth::Disparity;
 use drbokeh::{Focus, Image, Pipeline, Scene};
 
@@ -120,7 +121,7 @@ fn main() -> drbokeh::Result<()> {
         }
         if std::env::var("DISCS").is_ok() {
             let opts = drbokeh::stages::background::InpaintOptions::default();
-            let r = drbokeh::stages::background::fill_region(&inp.aif, &inp.matte, &opts, 0.0);
+            let r = drbokeh::stages::background::fill_region(&inp.aif, &inp.matte, &opts, 0.0, BandReach::Any);
             let mut f = inp.aif.clone();
             for d in drbokeh::stages::highlight_completion::complete(&mut f, &inp.aif, &r) {
                 let m = sc.margin as f32;
@@ -138,6 +139,7 @@ fn main() -> drbokeh::Result<()> {
                 &inp.matte,
                 &drbokeh::stages::background::InpaintOptions::default(),
                 0.0,
+                BandReach::Any,
             );
             eprintln!("{} band {} replaced {} highlights {}", sc.name, r.band, r.band_replaced, r.highlights_kept);
             if let Ok(at) = std::env::var("AT") {

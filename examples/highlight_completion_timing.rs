@@ -5,7 +5,7 @@
 //! `cargo run --release --example highlight_completion_timing -- [W H STRIPE REPEATS]`
 //! (defaults 4032 3024 200 5). Prints the discs found and the median time of `complete`.
 use drbokeh::Image;
-use drbokeh::stages::background::{FillRegion, InpaintOptions, fill_region};
+use drbokeh::stages::background::{BandReach, FillRegion, InpaintOptions, fill_region};
 use drbokeh::stages::highlight_completion::{Disc, complete};
 use std::time::Instant;
 
@@ -36,7 +36,7 @@ fn main() {
             }
         }
     }
-    let region: FillRegion = fill_region(&photo, &alpha, &InpaintOptions::default(), 0.0);
+    let region: FillRegion = fill_region(&photo, &alpha, &InpaintOptions::default(), 0.0, BandReach::Any);
     let mut times = Vec::new();
     let mut found = 0;
     for _ in 0..repeats {

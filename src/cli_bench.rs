@@ -81,7 +81,7 @@ pub struct TraceArgs {
     #[arg(short, long, value_name = "OUT")]
     output: PathBuf,
     /// Worker threads [default: all cores].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = crate::parse_threads)]
     threads: Option<usize>,
     /// Also print the estimated noise (two halves of the samples) and the time.
     #[arg(short, long)]
@@ -184,7 +184,7 @@ pub struct BenchArgs {
     #[arg(long, value_name = "K")]
     blur: Option<f32>,
     /// Worker threads [default: all cores].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = crate::parse_threads)]
     threads: Option<usize>,
 }
 

@@ -161,7 +161,7 @@ impl Config {
 
     /// Parses TOML text; the error message says which key is wrong and why.
     pub fn parse(text: &str) -> std::result::Result<Config, String> {
-        toml::from_str::<Config>(text).map_err(|e| describe_toml_error(&e))
+        toml::from_str::<Config>(text).map_err(|e| describe_toml_error(&e, text))
     }
 
     /// Checks value ranges that the types cannot express.
@@ -234,7 +234,28 @@ pub fn stays_inside(rel: &Path) -> bool {
 }
 
 /// Turns a TOML/serde error into one line; for an unknown key, suggests the closest valid key.
-fn describe_toml_error(e: &toml::de::Error) -> String {
+/// The dotted key (`segment.layers`) assigned on the line of `text` that holds byte `at`,
+/// with the table it is in; None off an assignment. O(bytes before `at`).
+fn key_at(text: &str, at: usize) -> Option<String> {
+    let mut table = String::new();
+    let mut start = 0;
+    for line in text.split_inclusive('\n') {
+        let end = start + line.len();
+        let t = line.trim();
+        if t.starts_with('[') {
+            table = t.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string();
+        }
+        if (start..end).contains(&at) {
+            let (key, _) = t.split_once('=').filter(|_| !t.starts_with('['))?;
+            let key = key.trim().trim_matches('"');
+            return Some(if table.is_empty() { key.to_string() } else { format!("{table}.{key}") });
+        }
+        start = end;
+    }
+    None
+}
+
+fn describe_toml_error(e: &toml::de::Error, text: &str) -> String {
     let msg = e.message().to_string();
     let mut out = msg.clone();
     if let Some(rest) = msg.strip_prefix("unknown field `") {
@@ -253,7 +274,13 @@ fn describe_toml_error(e: &toml::de::Error) -> String {
         }
     }
     match e.span() {
-        Some(span) => format!("{out} (at byte {})", span.start),
+        Some(span) => {
+            let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
+            match key_at(text, span.start) {
+                Some(key) if !out.contains(&format!("`{key}`")) => format!("{key}: {out} (line {line})"),
+                _ => format!("{out} (line {line})"),
+            }
+        }
         None => out,
     }
 }
@@ -282,6 +309,19 @@ mod tests {
         assert!(e.contains("blurr") && e.contains("did you mean `blur`"), "{e}");
         let e = Config::parse("[render]\nblur = \"x\"\n").unwrap_err();
         assert!(e.contains("blur") || e.contains("invalid type"), "{e}");
+    }
+
+    /// A wrong value names its key (with its table) and what is accepted, not the parser's types.
+    #[test]
+    fn wrong_values_name_their_key() {
+        for v in ["-1", "2.5", "0", "9", "true", "\"many\""] {
+            let e = Config::parse(&format!("[render]\nblur = 3\n\n[segment]\nlayers = {v}\n")).unwrap_err();
+            assert!(e.contains("segment.layers") && e.contains("1..=8") && e.contains("line 5"), "{v}: {e}");
+            assert!(!e.contains("variant"), "{v}: {e}");
+        }
+        let e = Config::parse("[render]\nblur = \"x\"\n").unwrap_err();
+        assert!(e.starts_with("render.blur:"), "{e}");
+        assert_eq!(key_at("a = 1\n[x.y]\n \"b\" = 2\n", 16).as_deref(), Some("x.y.b"));
     }
 
     #[test]

@@ -48,21 +48,25 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     let cfg: &Config = pipeline.config();
     let limits = ReadLimits { max_pixels: cfg.input.max_pixels };
     let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
-    let focus = job.focus;
+    let mut focus = job.focus;
     let output = &job.output;
     let inputs = io::InputFiles::new(job.inputs());
     inputs.check_write(output, "output")?;
     if let Some(dir) = &job.save_layers {
+        check_layer_folder(dir)?;
         // Every name the layers may get (the pipeline makes one up to `[segment] layers`),
         // before the run spends any time; `save_layers` checks again what it actually writes.
         for n in (1..=cfg.segment.layers.most().max(2)).chain([job.layers.len()]) {
-            inputs.check_writes(layer_file_names(dir, n).iter().flat_map(LayerFiles::all), "job.save_layers file")?;
+            for file in layer_file_names(dir, n).iter().flat_map(LayerFiles::all) {
+                inputs.check_write(file, "job.save_layers file")?;
+                io::check_distinct(&[(output, "output"), (file, "job.save_layers file")])?;
+            }
         }
     }
     let format = io::OutputFormat::from_path(output)?;
     preflight(job, cfg)?;
+    let mut read_warnings = ignored_options(job, cfg);
     let t_read = Instant::now();
-    let mut read_warnings = Vec::new();
     let outcome: Outcome = if !job.layers.is_empty() {
         // The files side by side (each EXR read is sequential in part: its chunks come from the
         // file in order); the first error in the layers' order is the one reported.
@@ -92,7 +96,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         // so one file's decode overlaps another's. Errors are reported in the order the files
         // are used (photo, depth, matte), as one after the other would.
         let (rgb, (depth_file, matte_file)) = rayon::join(
-            || io::read_photo(image_path, transfer, &limits),
+            || io::read_photo_file(image_path, transfer, &limits),
             || {
                 rayon::join(
                     || job.depth.as_ref().map(|p| io::read_depth_map(p, &limits)),
@@ -100,7 +104,8 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 )
             },
         );
-        let rgb = rgb?;
+        let io::Photo { image: rgb, warnings } = rgb?;
+        read_warnings.extend(warnings);
         let mut depth_stage = None;
         let disparity = match (&job.depth, depth_file) {
             (Some(depth_path), Some(map)) => {
@@ -109,6 +114,14 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 // Normalized (holes filled) at the map's own size, then resized: a hole (NaN,
                 // a depth of 0) must not be averaged into its neighbours.
                 let mut disparity = depth::normalize(&map.image, cfg.input.depth_kind, depth_path)?;
+                if disparity.is_flat() {
+                    // One plane: in focus wherever the focus is asked to be.
+                    read_warnings.push(format!(
+                        "{} has no depth range (every valid value is the same): the photo is one plane, taken as in focus; nothing is blurred",
+                        depth_path.display()
+                    ));
+                    focus = Focus::Disparity(disparity.map.data[0]);
+                }
                 disparity.map = fit_to(disparity.map, &rgb, depth_path, image_path, &mut read_warnings)?;
                 disparity
             }
@@ -147,7 +160,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
 
     if let Some(dir) = &job.save_layers {
         let t = Instant::now();
-        save_layers(dir, &layers, &inputs)?;
+        report.warnings.extend(save_layers(dir, &layers, &inputs)?);
         report.stages.push(StageReport::ran("save_layers", ms_since(t), None));
     }
 
@@ -164,6 +177,26 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     report.output = Some(output.display().to_string());
     report.total_ms = ms_since(t0);
     Ok(report)
+}
+
+/// The options set away from their defaults that this job cannot use, one warning each (in
+/// the library's names): what segments and fills a photo means nothing for given layers, or
+/// for the one-layer scatter without occlusion.
+fn ignored_options(job: &Job, cfg: &Config) -> Vec<String> {
+    let why = if !job.layers.is_empty() {
+        "the layers are given (job.layers)"
+    } else if !cfg.render.occlusion {
+        "render.occlusion = false renders the scene as one layer"
+    } else {
+        return Vec::new();
+    };
+    let set = [
+        (cfg.segment.layers != Default::default(), "segment.layers"),
+        (cfg.segment.method != Default::default(), "segment.method"),
+        (cfg.inpaint.method != Default::default(), "inpaint.method"),
+        (job.matte.is_some(), "job.matte"),
+    ];
+    set.iter().filter(|(on, _)| *on).map(|(_, key)| format!("{key} is ignored: {why}")).collect()
 }
 
 /// Cheap checks before anything is decoded or rendered, from file headers and the file
@@ -286,9 +319,34 @@ pub fn layer_file_names(dir: &Path, n: usize) -> Vec<LayerFiles> {
         .collect()
 }
 
+/// Refuses a `--save-layers` destination that exists and is not a folder (the layers are
+/// several files).
+fn check_layer_folder(dir: &Path) -> Result<()> {
+    match std::fs::metadata(dir) {
+        Ok(m) if !m.is_dir() => Err(Error::usage(format!(
+            "job.save_layers {} is a file: it must be a folder (created if missing) to write the layers into",
+            dir.display()
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// True for a file name that [`layer_file_names`] gives for some layer count: `0_fg`, `1_bg`,
+/// `0_bg` or `N_layer` (digits), then `.exr`, `_color.png`, `_alpha.png` or `_disparity.png`.
+fn is_layer_file_name(name: &str) -> bool {
+    let Some(stem) = [".exr", "_color.png", "_alpha.png", "_disparity.png"].iter().find_map(|s| name.strip_suffix(s)) else {
+        return false;
+    };
+    matches!(stem, "0_fg" | "1_bg" | "0_bg")
+        || stem.strip_suffix("_layer").is_some_and(|i| !i.is_empty() && i.bytes().all(|b| b.is_ascii_digit()))
+}
+
 /// Writes each layer (see [`layer_file_names`]); refuses, before writing anything, a file
-/// name that is one of the run's `inputs`.
-pub fn save_layers(dir: &Path, layers: &[Layer], inputs: &io::InputFiles) -> Result<()> {
+/// name that is one of the run's `inputs`. Layer files of an earlier run in `dir` that this
+/// run does not write (another layer count) are removed after the new ones are written, so
+/// that `--layer DIR/*.exr` renders this run's layers only; one that is an input of this run
+/// is kept. Returns a warning for each file removed or kept.
+pub fn save_layers(dir: &Path, layers: &[Layer], inputs: &io::InputFiles) -> Result<Vec<String>> {
     let files = layer_file_names(dir, layers.len());
     inputs.check_writes(files.iter().flat_map(LayerFiles::all), "job.save_layers file")?;
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -299,5 +357,52 @@ pub fn save_layers(dir: &Path, layers: &[Layer], inputs: &io::InputFiles) -> Res
         io::write_png(&f.alpha, &img.channel(3), 8, Transfer::Linear)?;
         io::write_png(&f.disparity, &img.channel(4), 16, Transfer::Linear)?;
     }
-    Ok(())
+    let written: Vec<&Path> = files.iter().flat_map(LayerFiles::all).collect();
+    let mut stale: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .flatten()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()) && is_layer_file_name(&e.file_name().to_string_lossy()))
+        .map(|e| e.path())
+        .filter(|p| !written.iter().any(|w| io::same_destination(w, p)))
+        .collect();
+    stale.sort();
+    let mut warnings = Vec::new();
+    for p in stale {
+        if inputs.check_write(&p, "").is_err() {
+            warnings.push(format!(
+                "{} is a layer file of an earlier run and an input of this one: kept (a glob of {} picks it up too)",
+                p.display(),
+                dir.display()
+            ));
+        } else {
+            std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            warnings.push(format!(
+                "removed {}: a layer file of an earlier run that this run's {} layer(s) replace",
+                p.display(),
+                layers.len()
+            ));
+        }
+    }
+    Ok(warnings)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every name the layers get is recognised as a layer file (so a later run can clear it),
+    /// and nothing else is.
+    #[test]
+    fn layer_file_names_are_recognised() {
+        for n in [1, 2, 3, 8, 11] {
+            for f in layer_file_names(Path::new("d"), n) {
+                for p in f.all() {
+                    assert!(is_layer_file_name(&p.file_name().unwrap().to_string_lossy()), "{}", p.display());
+                }
+            }
+        }
+        for other in ["photo.png", "0_fg.png", "_layer.exr", "a_layer.exr", "0_fg_color.jpg", "x0_bg.exr", "1_fg.exr"] {
+            assert!(!is_layer_file_name(other), "{other}");
+        }
+    }
 }

@@ -181,7 +181,7 @@ pub(crate) struct PipelineArgs {
     #[arg(long, value_enum)]
     kernel: Option<KernelArg>,
     /// Fast-kernel quality: 1 (fastest) … 8 (converges to the exact kernel) [default: 2].
-    #[arg(long, value_name = "Q")]
+    #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u32).range(1..=8))]
     quality: Option<u32>,
     /// Classical scatter without occlusion terms, one layer (a baseline for comparisons).
     #[arg(long)]
@@ -194,7 +194,7 @@ pub(crate) struct PipelineArgs {
     #[arg(long, value_name = "BITS", value_enum)]
     bit_depth: Option<BitDepthArg>,
     /// Worker threads [default: all cores].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
     threads: Option<usize>,
     /// Where the foreground layer comes from [default: auto].
     #[arg(long, value_enum)]
@@ -219,14 +219,36 @@ pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--threads N`: a count within [`drbokeh::resources::check_threads`]'s range (a negative
+/// one is named as such, not as a stray flag).
+pub(crate) fn parse_threads(s: &str) -> Result<usize, String> {
+    let n: i64 = s.trim().parse().map_err(|_| format!("expected a thread count (a whole number from 1), got '{s}'"))?;
+    let n = usize::try_from(n).map_err(|_| format!("must be at least 1, got {n}"))?;
+    drbokeh::resources::check_threads(n, "--threads").map_err(|e| e.to_string())
+}
+
 pub(crate) fn parse_xy(s: &str) -> Result<(i64, i64), String> {
     let (x, y) = s.split_once(',').ok_or_else(|| format!("expected X,Y (two integers), got '{s}'"))?;
     let p = |v: &str| v.trim().parse::<i64>().map_err(|_| format!("expected X,Y (two integers), got '{s}'"));
     Ok((p(x)?, p(y)?))
 }
 
+/// The command line, with every option that takes a value accepting one that starts with `-`
+/// (`--threads -1`): clap would take `-1` for a flag and say "unexpected argument '-1'",
+/// where the option's own rule names what it accepts.
+fn command() -> clap::Command {
+    let negatives = |a: clap::Arg| {
+        let takes = a.get_action().takes_values() && !a.is_positional();
+        if takes { a.allow_negative_numbers(true) } else { a }
+    };
+    <Cli as clap::CommandFactory>::command().mut_subcommands(move |sc| sc.mut_args(negatives))
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match <Cli as clap::FromArgMatches>::from_arg_matches(&command().get_matches()) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     if matches!(cli.command, Command::Render(_)) {
         // One frame at a time: its freed buffers serve the next stage (see the function; a
         // batch keeps several frames in flight and gained nothing there, 10-20% more peak RSS).
@@ -326,8 +348,12 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 31] = [
+const FLAGS: [(&str, &str); 35] = [
     ("segment.layers", "--layers"),
+    ("segment.method", "--segment"),
+    ("inpaint.method", "--inpaint"),
+    ("job.layers", "--layer"),
+    ("job.matte", "--matte"),
     ("render.occlusion = false", "--no-occlusion"),
     ("render.profile", "--profile"),
     ("render.kernel", "--kernel"),

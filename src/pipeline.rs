@@ -8,7 +8,7 @@ use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
-use crate::stages::background::{ForegroundColour, Reach, fill_background, prepare_background};
+use crate::stages::background::{BandReach, EdgeBand, ForegroundColour, InpaintOptions, Reach, fill_background, prepare_background};
 use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
@@ -173,6 +173,8 @@ struct PeelSpec<'a> {
     max_coc: f32,
     whole: bool,
     what: &'a str,
+    /// The edge band's rule for this layer (`[inpaint] edge_band`, or kept for a binary matte).
+    edge_band: EdgeBand,
 }
 
 /// The opaque scene behind a peeled layer: its colour (linear RGB) and disparity, inpainted,
@@ -221,9 +223,8 @@ pub struct Pipeline {
 /// An exact-kernel render estimated to take longer than this (seconds) is announced.
 const LONG_EXACT_SECONDS: f64 = 60.0;
 
-/// A circle of confusion smaller than this radius (pixels) moves no pixel's colour visibly:
-/// below it everywhere, the scene counts as all in focus.
-const SHARP_COC_PX: f32 = 0.5;
+/// Below [`lens::SHARP_COC_PX`] everywhere, the scene counts as all in focus.
+use crate::render::lens::SHARP_COC_PX;
 
 /// The "nothing is out of focus" rule: with the automatic kernel choice and every circle of
 /// confusion below [`SHARP_COC_PX`] (`max_coc` = the largest radius, pixels), rendering is
@@ -389,13 +390,18 @@ impl Pipeline {
                     single(&mut report, why)?
                 }
                 Segmentation::Foreground(alpha) => {
+                    // A binary matte from the user says no pixel outside it is mixed with the
+                    // subject: its edge band is background, kept as the photo has it.
+                    let binary = source == "matte" && alpha.data.par_iter().all(|&a| a == 0.0 || a == 1.0);
+                    let edge_band =
+                        if binary && cfg.inpaint.edge_band == EdgeBand::Tested { EdgeBand::Kept } else { cfg.inpaint.edge_band };
                     let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
                     report.ran(
                         "segment",
                         t,
                         Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})),
                     );
-                    self.peel_layers(scene, alpha, (focus, blur, max_coc), &mut report)?
+                    self.peel_layers(scene, alpha, (focus, blur, max_coc), edge_band, &mut report)?
                 }
             }
         };
@@ -415,7 +421,14 @@ impl Pipeline {
     /// peeled further at the cuts of [`slices::background_cuts`], each slice over what it hides.
     /// Reports `fill_depth` and `inpaint` for the foreground's peel and a `slice` stage for the
     /// rest.
-    fn peel_layers(&self, scene: &Scene, alpha: Image, (focus, blur, max_coc): (f32, f32, f32), report: &mut Report) -> Result<Vec<Layer>> {
+    fn peel_layers(
+        &self,
+        scene: &Scene,
+        alpha: Image,
+        (focus, blur, max_coc): (f32, f32, f32),
+        edge_band: EdgeBand,
+        report: &mut Report,
+    ) -> Result<Vec<Layer>> {
         let cfg = &self.config;
         let t = Instant::now();
         // The foreground's depth-edge ramp, when the cuts need it first (what they leave out);
@@ -437,7 +450,7 @@ impl Pipeline {
         // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
         // a layer keeps that layer's depth and would be taken for a nearer slice.
         let whole = !cuts.thresholds.is_empty();
-        let spec = PeelSpec { focus, blur, max_coc, whole, what: "foreground layer" };
+        let spec = PeelSpec { focus, blur, max_coc, whole, what: "foreground layer", edge_band };
         let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, edges, spec, report)?;
         report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
@@ -455,7 +468,7 @@ impl Pipeline {
                 let (rgb, disp) = behind.into_frame(&frame.0, &frame.1);
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
                 let whole = k + 1 < cuts.thresholds.len();
-                let spec = PeelSpec { focus, blur, max_coc, whole, what: "background slice" };
+                let spec = PeelSpec { focus, blur, max_coc, whole, what: "background slice", edge_band: cfg.inpaint.edge_band };
                 let p = self.peel(&rgb, &disp, alpha, None, spec, report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
@@ -556,8 +569,11 @@ impl Pipeline {
         within: Option<(&Image, &Image, work_box::Window)>,
         report: &mut Report,
     ) -> Result<Peeled> {
-        let PeelSpec { focus, blur, max_coc, whole, what } = spec;
+        let PeelSpec { focus, blur, max_coc, whole, what, edge_band } = spec;
         let cfg = &self.config;
+        let inpaint = InpaintOptions { edge_band, ..cfg.inpaint.clone() };
+        // Band pixels no blur of this render can reach keep the photo's colour.
+        let band = (edges.outside_px, BandReach::Render { disparity: disp, focus, blur });
         let t = Instant::now();
         let classical = cfg.inpaint.method != crate::stages::inpaint_onnx::InpaintMethod::Onnx;
         // Depth filling and the background fill's region tests need none of each other's
@@ -569,7 +585,7 @@ impl Pipeline {
                 let fd = foreground_disparity(disp, &alpha, &cfg.fill_depth, (focus, blur), &edges);
                 (fd, ms_since(t))
             },
-            || classical.then(|| prepare_background(photo, disp, &alpha, &cfg.inpaint, edges.outside_px)),
+            || classical.then(|| prepare_background(photo, disp, &alpha, &inpaint, band)),
         );
         let fd = fd?;
         // On a window, the pixels outside it took the quiet disparity: no blur can show them.
@@ -594,17 +610,9 @@ impl Pipeline {
         // size by construction).
         let (filled, mut parts) = rayon::join(
             || match prepared {
-                Some(p) => Ok((fill_background(p, photo, &alpha, &cfg.inpaint, reach)?, None)),
+                Some(p) => Ok((fill_background(p, photo, &alpha, &inpaint, reach)?, None)),
                 None => {
-                    let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(
-                        photo,
-                        disp,
-                        &alpha,
-                        &cfg.inpaint,
-                        reach,
-                        edges.outside_px,
-                        &cfg.onnx,
-                    )?;
+                    let (bg, r) = crate::stages::inpaint_onnx::inpaint_background(photo, disp, &alpha, &inpaint, reach, band, &cfg.onnx)?;
                     Ok::<_, Error>((bg, Some(r)))
                 }
             },
@@ -640,6 +648,7 @@ impl Pipeline {
             "filled_px": bg.filled,
             "skipped_unreachable_px": bg.skipped,
             "reach_px": if reach.is_finite() { serde_json::json!(reach) } else { serde_json::json!("whole") },
+            "edge_band": edge_band,
             "edge_band_px": bg.band.0,
             "edge_band_replaced_px": bg.band.1,
             "highlights_kept_px": bg.highlights_kept,
@@ -910,7 +919,7 @@ mod tests {
             for (focus, blur) in [(0.85f32, 12.0f32), (0.2, 24.0)] {
                 let edges = p.edge_widths(&disp, &alpha);
                 let mut report = Report::default();
-                let spec = PeelSpec { focus, blur, max_coc: blur, whole: false, what: "fg" };
+                let spec = PeelSpec { focus, blur, max_coc: blur, whole: false, what: "fg", edge_band: EdgeBand::Tested };
                 let boxed = p.peel(&rgb, &disp, alpha.clone(), None, spec, &mut report).unwrap();
                 let carried = p.carry(&rgb, &alpha).unwrap();
                 let whole = p.peel_frame(&rgb, &disp, (alpha.clone(), carried, edges), spec, None, &mut report).unwrap();

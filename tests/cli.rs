@@ -1577,3 +1577,259 @@ fn inpaint_patchmatch_from_flag_and_config() {
     assert_eq!(p1.data, pn.data);
     assert!(max_abs_diff(&p1.data, &t.data) > 0.0);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Reliability round 3: destinations, the edge band, flat depth, silent surprises
+// ---------------------------------------------------------------------------------------------
+
+/// The standard render's arguments with `extra` after them.
+fn render_args<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec!["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "1", "--blur", "3"];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// `-o` over a file `--save-layers` writes in the same run, by any spelling, is refused before
+/// anything is written; so is a `--save-layers` that is an existing file.
+#[test]
+fn output_over_a_saved_layer_is_refused() {
+    let s = Scene::new();
+    for out in ["L/0_fg.exr", "L/0_fg_color.png", "L/1_bg.exr"] {
+        s.bad(&render_args(&["--save-layers", "L", "-o", out]), &[out, "--save-layers", "same file"]);
+    }
+    s.bad(&render_args(&["--layers", "3", "--save-layers", "L", "-o", "L/2_layer.exr"]), &["L/2_layer.exr", "--save-layers"]);
+    // The folder exists already: any spelling of it.
+    std::fs::create_dir(s.path("L")).unwrap();
+    for out in ["L/0_fg_alpha.png", "./L/../L/1_bg_disparity.png"] {
+        s.bad(&render_args(&["--save-layers", "L", "-o", out]), &[out, "--save-layers"]);
+    }
+    std::fs::write(s.path("F"), b"a file").unwrap();
+    s.bad(&render_args(&["--save-layers", "F", "-o", "o.png"]), &["F", "--save-layers", "folder"]);
+}
+
+/// A second `--save-layers` run into the same folder with another layer count leaves only its
+/// own layers there (README's `--layer DIR/*.exr` idiom must render this run's layers), says
+/// what it removed, and leaves other files alone.
+#[test]
+fn save_layers_clears_an_earlier_runs_layers() {
+    let s = Scene::new();
+    s.ok(&render_args(&["--layers", "1", "--save-layers", "L", "-o", "one.png"]));
+    assert!(s.path("L/0_bg.exr").exists());
+    std::fs::write(s.path("L/notes.txt"), b"mine").unwrap();
+    let out = s.run(&render_args(&["--save-layers", "L", "-o", "two.png"]));
+    assert!(out.status.success(), "{}", common::stderr(&out));
+    let err = common::stderr(&out);
+    assert!(err.contains("removed") && err.contains("0_bg.exr"), "{err}");
+    let left = list_files(&s.path("L"));
+    let want: BTreeSet<String> = ["0_fg", "1_bg"]
+        .iter()
+        .flat_map(|l| [".exr", "_color.png", "_alpha.png", "_disparity.png"].map(|e| format!("{l}{e}")))
+        .chain(["notes.txt".to_string()])
+        .collect();
+    assert_eq!(left, want);
+    // The saved layers render as the run did.
+    s.ok(&["--layer", "L/0_fg.exr", "--layer", "L/1_bg.exr", "--focus", "1", "--blur", "3", "-o", "again.png"]);
+    let (a, b) = (
+        io::read_decoded(&s.path("two.png"), &ReadLimits::default()).unwrap(),
+        io::read_decoded(&s.path("again.png"), &ReadLimits::default()).unwrap(),
+    );
+    assert!(max_abs_diff(&a.image.data, &b.image.data) <= 1.5 / 255.0);
+}
+
+/// A flat depth map (one value everywhere) is one plane: it is in focus at the focus asked
+/// for, the photo comes back unchanged, and a warning names the file.
+#[test]
+fn flat_depth_map_is_one_plane_in_focus() {
+    let s = Scene::new();
+    io::write_exr(&s.path("flat.exr"), &Image::filled(W, H, 1, 2.5), &["Z"]).unwrap();
+    let photo = read_exr(&s.path("image.exr"));
+    for extra in [&[][..], &["--kernel", "exact"], &["--matte", "matte.png"]] {
+        let mut a = vec!["image.exr", "--depth", "flat.exr", "--focus", "1", "--blur", "4", "-o", "o.exr"];
+        a.extend_from_slice(extra);
+        let j = s.json(&a);
+        let warned = j["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("flat.exr has no depth range"));
+        assert!(warned, "{a:?}: {}", j["warnings"]);
+        let d = max_abs_diff(&read_exr(&s.path("o.exr")).data, &photo.data);
+        assert!(d < 1e-5, "{a:?}: the flat scene was blurred (max difference {d})");
+    }
+}
+
+/// Euclidean distance from (x, y) to the nearest pixel of the foreground square.
+fn distance_to_fg(x: usize, y: usize) -> f32 {
+    let dx = (FG_X.start as f32 - x as f32).max(x as f32 - (FG_X.end - 1) as f32).max(0.0);
+    let dy = (FG_Y.start as f32 - y as f32).max(y as f32 - (FG_Y.end - 1) as f32).max(0.0);
+    (dx * dx + dy * dy).sqrt()
+}
+
+/// In-focus background pixels come back as they were next to the subject: with a binary matte
+/// the edge band is not re-synthesized at all, and with any matte no band pixel beyond the
+/// foreground's blur changes while the background is in focus.
+#[test]
+fn in_focus_background_next_to_the_matte_is_unchanged() {
+    let s = Scene::new();
+    let photo = read_exr(&s.path("image.exr"));
+    // A soft matte: the square, with a ring of 0.5 around it.
+    let mut soft = matte_map(W, H);
+    for y in 0..H {
+        for x in 0..W {
+            if !in_fg(x, y) && distance_to_fg(x, y) <= 1.0 {
+                soft.data[y * W + x] = 0.5;
+            }
+        }
+    }
+    io::write_exr(&s.path("soft.exr"), &soft, &["Y"]).unwrap();
+    let base = |matte: &'static str, extra: &[&'static str]| {
+        let mut a = vec!["image.exr", "--depth", "depth.exr", "--matte", matte, "-o", "o.exr"];
+        a.extend_from_slice(extra);
+        a
+    };
+    // Everything in focus, rendered anyway: the photo back, and no band pixel replaced.
+    let j = s.json(&base("matte.png", &["--focus", "0.5", "--blur", "0", "--kernel", "exact"]));
+    assert_eq!(stage(&j, "inpaint")["detail"]["edge_band_replaced_px"], 0, "{j}");
+    let d = max_abs_diff(&read_exr(&s.path("o.exr")).data, &photo.data);
+    assert!(d < 1e-5, "blur 0 changed the photo by {d}");
+    // The background in focus, the subject blurred by 1.5 px: pixels 2 px or more from the
+    // subject see no blur and keep their colour exactly.
+    for matte in ["matte.png", "soft.exr"] {
+        for kernel in ["exact", "fast"] {
+            s.ok(&base(matte, &["--focus", "0", "--blur", "1.5", "--kernel", kernel]));
+            let out = read_exr(&s.path("o.exr"));
+            for y in 0..H {
+                for x in 0..W {
+                    let reach = if matte == "soft.exr" { 3.0 } else { 2.0 };
+                    if distance_to_fg(x, y) >= reach {
+                        let (a, b) = (out.pixel(x, y), photo.pixel(x, y));
+                        assert!(max_abs_diff(a, b) < 1e-5, "{matte} {kernel}: pixel ({x}, {y}) changed: {a:?} vs {b:?}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// An output that exists and is not a regular file is never replaced by one: a FIFO or a
+/// character device is written through (a FIFO nobody reads is refused at once), a link
+/// stays a link (its target gets the image), a folder or a link to nothing is refused.
+#[test]
+fn special_outputs_are_written_through_or_refused_never_replaced() {
+    use std::os::unix::fs::FileTypeExt;
+    let s = Scene::new();
+    // Outside the scene folder: `Scene::bad` reads every file there.
+    let other = tempfile::tempdir().unwrap();
+    let fifo = other.path().join("pipe.png");
+    assert!(Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+    let fifo_s = fifo.to_str().unwrap();
+    let is_fifo = |p: &Path| std::fs::symlink_metadata(p).unwrap().file_type().is_fifo();
+    s.bad_within(&render_args(&["-o", fifo_s]), &[fifo_s, "FIFO", "no process is reading"], Duration::from_secs(20));
+    assert!(is_fifo(&fifo));
+    // With a reader, the image streams through.
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read(&fifo).unwrap())
+    };
+    // The reader opens the FIFO first (a writer that finds none is refused).
+    let mut streamed = None;
+    for _ in 0..200 {
+        let out = s.run(&render_args(&["-o", fifo_s]));
+        if out.status.success() {
+            streamed = Some(reader.join().unwrap());
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    let bytes = streamed.expect("never written through the FIFO");
+    assert!(bytes.starts_with(b"\x89PNG"), "{} bytes, not a PNG", bytes.len());
+    assert!(is_fifo(&fifo));
+    // Character devices: written through, still devices.
+    s.ok(&render_args(&["-o", "/dev/null"]));
+    assert!(std::fs::metadata("/dev/null").unwrap().file_type().is_char_device());
+    let full = s.run(&render_args(&["-o", "/dev/full"]));
+    assert_ne!(full.status.code(), Some(0));
+    assert!(common::stderr(&full).contains("/dev/full") && !common::stderr(&full).contains("panicked"));
+    assert!(std::fs::metadata("/dev/full").unwrap().file_type().is_char_device());
+    // A link to a regular file stays a link; its target is the image.
+    std::fs::write(other.path().join("real.png"), b"old").unwrap();
+    std::os::unix::fs::symlink(other.path().join("real.png"), s.path("link.png")).unwrap();
+    std::os::unix::fs::symlink("/dev/null", s.path("null.png")).unwrap();
+    s.ok(&render_args(&["-o", "link.png"]));
+    s.ok(&render_args(&["-o", "null.png"]));
+    for l in ["link.png", "null.png"] {
+        assert!(std::fs::symlink_metadata(s.path(l)).unwrap().file_type().is_symlink(), "{l} was replaced");
+    }
+    assert!(std::fs::read(other.path().join("real.png")).unwrap().starts_with(b"\x89PNG"));
+    // A folder, and a link to nothing.
+    std::fs::create_dir(s.path("dir.png")).unwrap();
+    s.bad(&render_args(&["-o", "dir.png"]), &["dir.png", "folder"]);
+    let dangling = other.path().join("dangling.png");
+    std::os::unix::fs::symlink(other.path().join("missing/x.png"), &dangling).unwrap();
+    s.bad(&render_args(&["-o", dangling.to_str().unwrap()]), &["dangling.png", "does not exist"]);
+    assert!(std::fs::symlink_metadata(&dangling).unwrap().file_type().is_symlink());
+}
+
+/// Negative numbers reach the option's own rule (clap took them for flags: "unexpected
+/// argument '-1'"); a wrong `[segment] layers` in a config names the key and what it accepts.
+#[test]
+fn negative_counts_and_wrong_config_values_name_their_option() {
+    let s = Scene::new();
+    for (flag, v) in [("--threads", "-1"), ("--layers", "-1"), ("--quality", "-1"), ("--lens", "-1"), ("--threads", "0")] {
+        let err = s.bad(&render_args(&[flag, v, "-o", "o.png"]), &[flag]);
+        assert!(!err.contains("unexpected argument"), "{err}");
+    }
+    for v in ["-1", "2.5", "0", "\"x\""] {
+        std::fs::write(s.path("c.toml"), format!("[segment]\nlayers = {v}\n")).unwrap();
+        s.bad(&render_args(&["--config", "c.toml", "-o", "o.png"]), &["c.toml", "segment.layers", "1..=8"]);
+    }
+}
+
+/// Writes `img` (values in [0, 1]) as a uint8 NPY array of its 8-bit sRGB codes, as
+/// `numpy.save` of a decoded 8-bit photo would.
+fn save_u8_npy(path: &Path, img: &Image) {
+    let header = format!("{{'descr': '|u1', 'fortran_order': False, 'shape': ({}, {}, {}), }}", img.height, img.width, img.channels);
+    let pad = 64 - (10 + header.len() + 1) % 64;
+    let header = format!("{header}{}\n", " ".repeat(pad % 64));
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend((header.len() as u16).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    bytes.extend(img.data.iter().map(|&v| (drbokeh::color::linear_to_srgb(v).clamp(0.0, 1.0) * 255.0).round() as u8));
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// A uint8 NPY photo holds what an 8-bit PNG holds and renders like one (it was read as linear
+/// light 0-255, a blown-out render with exit 0).
+#[test]
+fn uint8_npy_photo_reads_as_an_8_bit_image() {
+    let s = Scene::new();
+    let png = io::read_decoded(&s.path("image.png"), &ReadLimits::default()).unwrap().image;
+    let linear: Vec<f32> = png.data.iter().map(|&v| drbokeh::color::srgb_to_linear(v)).collect();
+    save_u8_npy(&s.path("photo.npy"), &Image::from_vec(W, H, 3, linear).unwrap());
+    s.ok(&render_args(&["-o", "from_png.exr"]));
+    let mut a = render_args(&["-o", "from_npy.exr"]);
+    a[0] = "photo.npy";
+    s.ok(&a);
+    let d = max_abs_diff(&read_exr(&s.path("from_png.exr")).data, &read_exr(&s.path("from_npy.exr")).data);
+    assert!(d < 1e-5, "a uint8 NPY photo renders {d} away from the same PNG");
+}
+
+/// A photo's alpha channel is dropped with a warning when it is not opaque everywhere (a
+/// cut-out subject belongs in `--matte`), and options that given layers or `--no-occlusion`
+/// make meaningless are named as ignored.
+#[test]
+fn dropped_alpha_and_ignored_options_are_said() {
+    let s = Scene::new();
+    let rgb = texture(W, H, 1);
+    let with_alpha = |a: f32| Image::stack(&[&rgb, &Image::filled(W, H, 1, a)]);
+    io::write_png(&s.path("cut.png"), &with_alpha(0.5), 8, Transfer::Srgb).unwrap();
+    io::write_png(&s.path("opaque.png"), &with_alpha(1.0), 8, Transfer::Srgb).unwrap();
+    let warnings = |args: &[&str]| -> String { s.json(args)["warnings"].to_string() };
+    let w = warnings(&["cut.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "o.png"]);
+    assert!(w.contains("cut.png") && w.contains("alpha") && w.contains("--matte"), "{w}");
+    let w = warnings(&["opaque.png", "--depth", "depth.exr", "--focus", "1", "--blur", "3", "-o", "o.png"]);
+    assert!(!w.contains("alpha"), "{w}");
+    let w = warnings(&render_args(&["--no-occlusion", "--inpaint", "patchmatch", "--layers", "3", "-o", "o.png"]));
+    for flag in ["--inpaint is ignored", "--layers is ignored", "--matte is ignored", "--no-occlusion"] {
+        assert!(w.contains(flag), "{flag}: {w}");
+    }
+    io::save_npy(&s.path("bg.npy"), &scene_layers().1).unwrap();
+    let w = warnings(&["--layer", "bg.npy", "--layers", "auto", "--focus", "0", "--blur", "2", "-o", "o.png"]);
+    assert!(w.contains("--layers is ignored") && w.contains("--layer)"), "{w}");
+}

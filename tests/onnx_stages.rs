@@ -10,7 +10,7 @@ use drbokeh::color::srgb_to_linear;
 use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, SizeSpec};
 use drbokeh::onnx::prep::{self, Geometry};
 use drbokeh::onnx::{DepthFill, ModelSpec, OnnxConfig};
-use drbokeh::stages::background::{InpaintOptions, Reach};
+use drbokeh::stages::background::{BandReach, InpaintOptions, Reach};
 use drbokeh::stages::inpaint::{TeleaOptions, inpaint_telea};
 use drbokeh::stages::inpaint_onnx::{self, region, seam_weight};
 use drbokeh::stages::mask::distance_to;
@@ -240,7 +240,7 @@ fn paste(dst: &mut Image, src: &Image, x0: usize, y0: usize, dist: &[f32], feath
 /// The pixels the stage gives the model as holes: the background fill's region (its mask
 /// logic is tested in the library); these smooth test photos have no highlights to keep.
 fn model_mask(rgb: &Image, alpha: &Image, opts: &InpaintOptions) -> Vec<bool> {
-    let fill = drbokeh::stages::background::fill_region(rgb, alpha, opts, 0.0);
+    let fill = drbokeh::stages::background::fill_region(rgb, alpha, opts, 0.0, BandReach::Any);
     assert_eq!(fill.highlights_kept, 0);
     fill.mask
 }
@@ -252,7 +252,8 @@ fn lama_fixed_size_crops_resizes_and_pastes() {
     let disp = Image::from_vec(w, h, 1, (0..w * h).map(|i| 0.2 + 0.5 * (i % w) as f32 / w as f32).collect()).unwrap();
     let alpha = disk_alpha(w, h, 20.0, 20.0, 6.0);
     let opts = InpaintOptions { method: inpaint_onnx::InpaintMethod::Onnx, onnx: spec("lama.onnx", "lama"), ..InpaintOptions::default() };
-    let (bg, report) = inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(40.0), 0.0, &cfg()).unwrap();
+    let (bg, report) =
+        inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(40.0), (0.0, BandReach::Any), &cfg()).unwrap();
     assert_eq!(report.model_size, [512, 512]);
 
     // Rust side: the same region, the stub's function at 512x512, back, pasted.
@@ -288,7 +289,8 @@ fn lama_dynamic_fills_with_the_unmasked_mean_and_model_depth() {
     let alpha = disk_alpha(w, h, 25.0, 14.0, 5.0);
     let onnx = ModelSpec { depth: Some(DepthFill::Model), feather: Some(0.0), ..spec("lama_dynamic.onnx", "lama-dynamic") };
     let opts = InpaintOptions { method: inpaint_onnx::InpaintMethod::Onnx, onnx, ..InpaintOptions::default() };
-    let (bg, report) = inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(40.0), 0.0, &cfg()).unwrap();
+    let (bg, report) =
+        inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(40.0), (0.0, BandReach::Any), &cfg()).unwrap();
     assert_eq!(report.model_size, [h, w]);
     assert_eq!(report.runs, 2, "colour and disparity");
     let mask = model_mask(&rgb, &alpha, &opts);
@@ -347,11 +349,18 @@ fn wrong_names_list_what_the_model_has() {
     // Inpainting stub used with swapped names.
     let opts = InpaintOptions { onnx: ModelSpec { input: Some("img".into()), ..spec("lama.onnx", "lama") }, ..InpaintOptions::default() };
     let alpha = disk_alpha(16, 12, 8.0, 6.0, 3.0);
-    let e =
-        inpaint_onnx::inpaint_background(&photo(16, 12), &Image::filled(16, 12, 1, 0.5), &alpha, &opts, Reach::Pixels(10.0), 0.0, &cfg())
-            .err()
-            .unwrap()
-            .to_string();
+    let e = inpaint_onnx::inpaint_background(
+        &photo(16, 12),
+        &Image::filled(16, 12, 1, 0.5),
+        &alpha,
+        &opts,
+        Reach::Pixels(10.0),
+        (0.0, BandReach::Any),
+        &cfg(),
+    )
+    .err()
+    .unwrap()
+    .to_string();
     assert!(
         e.contains("lama.onnx") && e.contains("\"img\"") && e.contains("\"image\" f32[1, 3, 512, 512]") && e.contains("\"mask\""),
         "{e}"
@@ -427,7 +436,7 @@ fn an_implausible_inpainting_range_is_warned_about() {
     let run = |range: Option<[f32; 2]>| {
         let onnx = ModelSpec { output_range: range, ..spec("lama_dynamic.onnx", "lama-dynamic") };
         let opts = InpaintOptions { method: inpaint_onnx::InpaintMethod::Onnx, onnx, ..InpaintOptions::default() };
-        inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(40.0), 0.0, &cfg()).unwrap().1.warnings
+        inpaint_onnx::inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(40.0), (0.0, BandReach::Any), &cfg()).unwrap().1.warnings
     };
     assert!(run(None).is_empty(), "the preset's range matches the stub");
     // The stub gives [0, 1]: declared [0, 255] (the mistake of the issue), the fill is almost

@@ -118,19 +118,104 @@ fn unregister(tmp: &Path) {
     IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner()).remove(tmp);
 }
 
+/// How a destination that exists already is written (see [`destination`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Destination {
+    /// A regular file, or none yet: a temporary sibling renamed over this path (a symbolic
+    /// link's target, so that the link stays a link).
+    Replace(PathBuf),
+    /// A FIFO or a character device (`/dev/null`, a terminal, a pipe behind `/dev/stdout`):
+    /// written through, in place; there is nothing to replace and no temporary file.
+    Stream,
+}
+
+/// How `path` is written, or why it is not: a folder, a block device, a socket or a link to
+/// nothing is refused (usage error naming the file) rather than replaced by a regular file.
+/// A few `stat` calls; allocates the resolved path of a link.
+pub fn destination(path: &Path) -> Result<Destination> {
+    let refuse = |why: &str| Err(Error::usage(format!("cannot write {}: it is {why}; choose a regular file", path.display())));
+    let link = match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Destination::Replace(path.to_path_buf())),
+        Err(e) => return Err(Error::io(path, e)),
+        Ok(m) => m.file_type().is_symlink(),
+    };
+    // What the path leads to (through any links).
+    let kind = match std::fs::metadata(path) {
+        Ok(m) => m.file_type(),
+        Err(e) if link && e.kind() == std::io::ErrorKind::NotFound => return refuse("a symbolic link to a file that does not exist"),
+        Err(e) => return Err(Error::io(path, e)),
+    };
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if kind.is_fifo() || kind.is_char_device() {
+            return Ok(Destination::Stream);
+        } else if kind.is_block_device() {
+            return refuse("a block device");
+        } else if kind.is_socket() {
+            return refuse("a socket");
+        }
+    }
+    if kind.is_dir() {
+        refuse("a folder")
+    } else if link {
+        std::fs::canonicalize(path).map(Destination::Replace).map_err(|e| Error::io(path, e))
+    } else {
+        Ok(Destination::Replace(path.to_path_buf()))
+    }
+}
+
+/// Opens a FIFO or character device for writing through. A FIFO is opened without blocking
+/// first, so that one nobody reads is an error at once (ENXIO) instead of a hang, and then
+/// switched back to blocking writes.
+#[cfg(unix)]
+fn open_stream(path: &Path) -> Result<File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let file = OpenOptions::new().write(true).custom_flags(libc::O_NONBLOCK).open(path).map_err(|e| {
+        if e.raw_os_error() == Some(libc::ENXIO) {
+            Error::usage(format!("cannot write {}: it is a FIFO that no process is reading", path.display()))
+        } else {
+            Error::io(path, e)
+        }
+    })?;
+    // SAFETY: `fcntl` on a descriptor this function owns; it changes only its status flags.
+    let fd = std::os::fd::AsRawFd::as_raw_fd(&file);
+    let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+    if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFL, flags & !libc::O_NONBLOCK) } < 0 {
+        return Err(Error::io(path, std::io::Error::last_os_error()));
+    }
+    Ok(file)
+}
+
+#[cfg(not(unix))]
+fn open_stream(path: &Path) -> Result<File> {
+    OpenOptions::new().write(true).open(path).map_err(|e| Error::io(path, e))
+}
+
 /// Writes `path` atomically with `write`. The closure gets a buffered writer; the data is
-/// flushed and synced before the rename.
+/// flushed and synced before the rename. A destination that is a symbolic link keeps being
+/// one (its target is replaced); a FIFO or character device is written through, never
+/// replaced; other special files are refused ([`destination`]).
 pub fn write_atomic<F>(path: &Path, write: F) -> Result<()>
 where
     F: FnOnce(&mut BufWriter<File>) -> Result<()>,
 {
-    let dir = match path.parent() {
+    let target = match destination(path)? {
+        Destination::Replace(target) => target,
+        Destination::Stream => {
+            let mut w = BufWriter::new(open_stream(path)?);
+            write(&mut w)?;
+            return w.flush().map_err(|e| Error::io(path, e));
+        }
+    };
+    let dir = match target.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
     if !dir.is_dir() {
         return Err(Error::input(path, format!("output folder '{}' does not exist", dir.display())));
     }
+    let path = target.as_path();
     let (tmp, file) = create_temp(path)?;
     let result = (|| {
         let mut w = BufWriter::new(file);

@@ -66,6 +66,41 @@ impl InputFiles {
     }
 }
 
+/// Where `path` would be written: the identity of its folder and its name there, so that two
+/// spellings of a file that does not exist yet (`o/a.npy`, `./o/../o/a.npy`) compare equal.
+/// None when the folder does not exist (the write will fail on it anyway).
+fn place(path: &Path) -> Option<(FileId, std::ffi::OsString)> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    Some((file_id(dir)?, path.file_name()?.to_os_string()))
+}
+
+/// True when writing `a` and writing `b` would write the same file: the same place
+/// ([`place`]), or, for files that exist, the same identity (links and hard links included).
+pub fn same_destination(a: &Path, b: &Path) -> bool {
+    let same_file = matches!((file_id(a), file_id(b)), (Some(x), Some(y)) if x == y);
+    same_file || matches!((place(a), place(b)), (Some(x), Some(y)) if x == y) || a == b
+}
+
+/// Refuses (usage error, nothing written) two destinations of one run that are the same file
+/// ([`same_destination`]): the second write would replace the first. `dests` pairs each path
+/// with its name for the message (a flag or parameter name, e.g. "dfd.log"). O(n²) in the
+/// handful of destinations a run has.
+pub fn check_distinct(dests: &[(&Path, &str)]) -> Result<()> {
+    for (i, (a, what_a)) in dests.iter().enumerate() {
+        if let Some((b, what_b)) = dests[..i].iter().find(|(b, _)| same_destination(a, b)) {
+            return Err(Error::usage(format!(
+                "{what_a} {} and {what_b} {} are the same file: each file a run writes must be distinct (the second would replace the first)",
+                a.display(),
+                b.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -93,5 +128,28 @@ mod tests {
         std::fs::write(dir.join("other.png"), b"y").unwrap();
         assert!(guard.check_write(&dir.join("other.png"), "output").is_ok());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn two_spellings_of_one_destination_are_refused() {
+        let t = tempfile::tempdir().unwrap();
+        let dir = t.path();
+        std::fs::create_dir(dir.join("o")).unwrap();
+        let (a, b) = (dir.join("o/al.npy"), dir.join("o/../o/./al.npy"));
+        // Neither exists yet: the folder and the name decide.
+        assert!(same_destination(&a, &b));
+        let err = check_distinct(&[(&a, "output"), (&dir.join("o/al.csv"), "dfd.log"), (&b, "dfd.plot")]).unwrap_err().to_string();
+        assert!(err.contains("dfd.plot") && err.contains("output") && err.contains("al.npy"), "{err}");
+        assert!(check_distinct(&[(&a, "output"), (&dir.join("o/al.csv"), "dfd.log")]).is_ok());
+        // An existing file and a link to it.
+        std::fs::write(&a, b"x").unwrap();
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(&a, dir.join("link.npy")).unwrap();
+            assert!(same_destination(&dir.join("link.npy"), &a));
+        }
+        // Relative to the working folder: `x.png` and `./x.png`.
+        assert!(same_destination(Path::new("x.png"), Path::new("./x.png")));
+        assert!(!same_destination(Path::new("x.png"), Path::new("y.png")));
     }
 }

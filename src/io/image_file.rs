@@ -52,8 +52,9 @@ pub struct Decoded {
 
 /// Reads any supported image file as stored (see [`Decoded`]).
 ///
-/// NPY arrays of shape H x W or H x W x C (C in 1..=4) are accepted as linear images with their
-/// values unchanged. EXR files need channels R,G,B (optionally A), or Y (optionally A), or a
+/// NPY arrays of shape H x W or H x W x C (C in 1..=4) are accepted: float arrays as linear
+/// images with their values unchanged, uint8 / uint16 arrays as 8/16-bit display-encoded
+/// images (scaled to [0, 1], like a PNG's samples). EXR files need channels R,G,B (optionally A), or Y (optionally A), or a
 /// single channel of any name.
 pub fn read_decoded(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
     read_stored(path, limits).map(Stored::into_decoded)
@@ -206,14 +207,22 @@ fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Resul
         FileFormat::Tiff => super::tiff_file::decode_tiff(path, limits),
         FileFormat::Exr => decode_exr(path, limits),
         FileFormat::Npy => {
-            let image = super::format::read_npy_guarded(path, limits)?;
-            if image.channels > 4 {
-                return Err(Error::input(
-                    path,
-                    format!("NPY array has {} channels; an image needs 1 to 4 (H x W, or H x W x C)", image.channels),
-                ));
+            let bytes = super::format::read_input(path)?;
+            let (width, height, channels, samples) = super::format::guarded(path, FileFormat::Npy, || {
+                super::npy::decode_npy_samples(&bytes, limits.max_pixels).map_err(|m| Error::input(path, m))
+            })?;
+            if channels > 4 {
+                return Err(Error::input(path, format!("NPY array has {channels} channels; an image needs 1 to 4 (H x W, or H x W x C)")));
             }
-            Ok(Stored::from_image(image, Encoding::Linear, 32, FileFormat::Npy))
+            // uint8 / uint16 arrays are what an 8/16-bit image file holds (display-encoded, full
+            // range); float arrays are linear values.
+            let (samples, encoding, bit_depth) = match samples {
+                super::npy::NpySamples::U8(v) => (Samples::U8(v), Encoding::Display, 8),
+                super::npy::NpySamples::U16(v) => (Samples::U16(v), Encoding::Display, 16),
+                super::npy::NpySamples::F32(v) => (Samples::F32(v), Encoding::Linear, 32),
+            };
+            let has_alpha = matches!(channels, 2 | 4);
+            Ok(Stored { width, height, channels, samples, encoding, bit_depth, has_alpha, format: FileFormat::Npy })
         }
     }
 }
@@ -221,10 +230,52 @@ fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Resul
 /// Reads a photo as linear RGB (3 channels).
 ///
 /// Integer formats are decoded with `transfer` (pass [`Transfer::Srgb`] for ordinary photos,
-/// `Transfer::Gamma(2.2)` for the official naive-gamma mode); EXR, float TIFF and NPY values are
-/// kept as stored. Grey images are expanded to RGB and alpha is dropped. NaN or infinite values
+/// `Transfer::Gamma(2.2)` for the official naive-gamma mode), uint8/uint16 NPY arrays too (they
+/// hold what an 8/16-bit PNG holds); EXR, float TIFF and float NPY values are kept as stored. Grey images are expanded to RGB and alpha is dropped. NaN or infinite values
 /// are an error (naming the first offending pixel).
 pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Result<Image> {
+    read_photo_file(path, transfer, limits).map(|p| p.image)
+}
+
+/// A photo read by [`read_photo_file`], with what the caller should tell the user.
+#[derive(Clone, Debug)]
+pub struct Photo {
+    /// Linear RGB.
+    pub image: Image,
+    /// Usable but doubtful (an alpha channel that is not opaque everywhere, which is dropped).
+    pub warnings: Vec<String>,
+}
+
+/// True when an alpha channel (the last of `c` interleaved samples, `bits` wide, big-endian as
+/// PNG stores 16-bit samples) is below its maximum somewhere in `raw`. O(samples), no allocation.
+fn translucent_raw(raw: &[u8], c: usize, bits: u8) -> bool {
+    match (c, bits) {
+        (2 | 4, 8) => raw.iter().skip(c - 1).step_by(c).any(|&a| a != u8::MAX),
+        (2 | 4, _) => raw.as_chunks::<2>().0.iter().skip(c - 1).step_by(c).any(|a| *a != [u8::MAX; 2]),
+        _ => false,
+    }
+}
+
+/// [`read_photo`], and a warning when the file's alpha channel, which the photo leaves out, is
+/// not opaque everywhere (a cut-out subject: its matte belongs in `--matte`).
+pub fn read_photo_file(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Result<Photo> {
+    let translucent = std::sync::atomic::AtomicBool::new(false);
+    let image = read_photo_rgb(path, transfer, limits, &translucent)?;
+    let warnings = if translucent.into_inner() {
+        vec![format!(
+            "{} has an alpha channel that is not opaque everywhere; it is ignored (the photo is read as RGB): pass a matte with --matte to cut out the subject",
+            path.display()
+        )]
+    } else {
+        Vec::new()
+    };
+    Ok(Photo { image, warnings })
+}
+
+/// [`read_photo`]'s work; sets `translucent` when the file's alpha is below its maximum
+/// somewhere.
+fn read_photo_rgb(path: &Path, transfer: Transfer, limits: &ReadLimits, translucent: &std::sync::atomic::AtomicBool) -> Result<Image> {
+    use std::sync::atomic::Ordering::Relaxed;
     let format = detect_format(path)?;
     // Integer samples go through a table of `transfer.decode(q / max)` straight to linear RGB
     // (bit-identical to scaling first, then decoding: `decode_table`); a table with only finite
@@ -240,6 +291,9 @@ pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Resul
         let band = |raw: &[u8], c: usize, bits: u8, dst: &mut [MaybeUninit<f32>]| {
             // The 16-bit table only for a 16-bit file (built once, by the first band).
             let lut16: &[f32] = if bits == 16 { lut16.get_or_init(|| decode_table(transfer, 16)) } else { &[] };
+            if !translucent.load(Relaxed) && translucent_raw(raw, c, bits) {
+                translucent.store(true, Relaxed);
+            }
             png_band_into(dst, raw, c, which(c), bits, |q| lut8[q as usize], |q| lut16[q as usize])
         };
         if let Some(png) = super::png_rows::read_png_rows(path, limits, |_| 3, band)? {
@@ -253,6 +307,16 @@ pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Resul
         _ => read_stored_as(path, format, limits)?,
     };
     let c = d.channels;
+    if d.has_alpha {
+        let alpha = |k: usize| (c - 1..).step_by(c).take(k);
+        let n = d.width * d.height;
+        let below = match &d.samples {
+            Samples::U8(v) => alpha(n).any(|i| v[i] != u8::MAX),
+            Samples::U16(v) => alpha(n).any(|i| v[i] != u16::MAX),
+            Samples::F32(v) => alpha(n).any(|i| v[i] < 1.0),
+        };
+        translucent.store(below, Relaxed);
+    }
     let which = which(c);
     let (data, checked) = match d.samples {
         Samples::U8(v) => {

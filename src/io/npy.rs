@@ -19,6 +19,28 @@ pub fn read_npy(path: &Path, max_pixels: u64) -> Result<Image> {
 
 /// Decodes NPY bytes; the error is a message without the file name.
 pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, String> {
+    let (w, h, c, samples) = decode_npy_samples(bytes, max_pixels)?;
+    let data: Vec<f32> = match samples {
+        NpySamples::F32(v) => v,
+        NpySamples::U8(v) => v.into_iter().map(f32::from).collect(),
+        NpySamples::U16(v) => v.into_iter().map(f32::from).collect(),
+    };
+    Image::from_vec(w, h, c, data).ok_or_else(|| "NPY data length does not match its shape".into())
+}
+
+/// An NPY array's values in its own kind: integer arrays are kept as integers so that a reader
+/// can take them for what an 8/16-bit image file holds (see `read_photo`).
+pub(crate) enum NpySamples {
+    /// uint8.
+    U8(Vec<u8>),
+    /// uint16.
+    U16(Vec<u16>),
+    /// float32, or float64 narrowed.
+    F32(Vec<f32>),
+}
+
+/// Decodes NPY bytes to (width, height, channels, samples); checks as [`decode_npy`].
+pub(crate) fn decode_npy_samples(bytes: &[u8], max_pixels: u64) -> std::result::Result<(usize, usize, usize, NpySamples), String> {
     let data_start = check_header_length(bytes)?;
     let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a valid NPY file ({e})"))?;
     let shape = npy.shape().to_vec();
@@ -57,14 +79,22 @@ pub fn decode_npy(bytes: &[u8], max_pixels: u64) -> std::result::Result<Image, S
             count.saturating_mul(item)
         ));
     }
-    let data: Vec<f32> = match (ts.type_char(), item) {
-        (TypeChar::Float, 4) => npy.into_vec::<f32>().map_err(|e| e.to_string())?,
-        (TypeChar::Float, 8) => npy.into_vec::<f64>().map_err(|e| e.to_string())?.into_iter().map(|v| v as f32).collect(),
-        (TypeChar::Uint, 1) => npy.into_vec::<u8>().map_err(|e| e.to_string())?.into_iter().map(f32::from).collect(),
-        (TypeChar::Uint, 2) => npy.into_vec::<u16>().map_err(|e| e.to_string())?.into_iter().map(f32::from).collect(),
+    let samples = match (ts.type_char(), item) {
+        (TypeChar::Float, 4) => NpySamples::F32(npy.into_vec::<f32>().map_err(|e| e.to_string())?),
+        (TypeChar::Float, 8) => NpySamples::F32(npy.into_vec::<f64>().map_err(|e| e.to_string())?.into_iter().map(|v| v as f32).collect()),
+        (TypeChar::Uint, 1) => NpySamples::U8(npy.into_vec::<u8>().map_err(|e| e.to_string())?),
+        (TypeChar::Uint, 2) => NpySamples::U16(npy.into_vec::<u16>().map_err(|e| e.to_string())?),
         _ => return Err(format!("NPY dtype '{ts}' is not supported; use float32, float64, uint8 or uint16")),
     };
-    Image::from_vec(w as usize, h as usize, c as usize, data).ok_or_else(|| "NPY data length does not match its shape".into())
+    let len = match &samples {
+        NpySamples::F32(v) => v.len(),
+        NpySamples::U8(v) => v.len(),
+        NpySamples::U16(v) => v.len(),
+    };
+    if len as u64 != count {
+        return Err("NPY data length does not match its shape".into());
+    }
+    Ok((w as usize, h as usize, c as usize, samples))
 }
 
 /// Refuses a header whose declared length runs past the end of the file. npyz allocates the

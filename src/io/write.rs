@@ -32,9 +32,13 @@ impl OutputFormat {
         }
     }
 
-    /// `.png`, `.exr` or `.npy` (case-insensitive); anything else is an error naming the
-    /// extension and the supported ones.
+    /// `.png`, `.exr` or `.npy` (case-insensitive); a FIFO or character device without an
+    /// extension (`/dev/stdout`) gets PNG; anything else is an error naming the extension and
+    /// the supported ones.
     pub fn from_path(path: &Path) -> Result<OutputFormat> {
+        if path.extension().is_none() && matches!(super::atomic::destination(path), Ok(super::atomic::Destination::Stream)) {
+            return Ok(OutputFormat::Png);
+        }
         let ext = path.extension().map(|e| e.to_string_lossy().into_owned());
         match ext.as_deref().map(str::to_ascii_lowercase).as_deref() {
             Some("png") => Ok(OutputFormat::Png),

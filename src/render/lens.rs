@@ -28,6 +28,10 @@ pub fn scatter_radius(d: f32, k: f32) -> f32 {
     coc_radius(d, k).min(MAX_RADIUS) + 1.0
 }
 
+/// A circle of confusion below this radius (pixels) shows nothing of its source beyond its own
+/// pixel ([`disk_coverage`]): the source is in focus.
+pub const SHARP_COC_PX: f32 = 0.5;
+
 /// Largest scatter radius the model represents (pixels).
 pub const MAX_RADIUS: f32 = 1e30;
 

@@ -12,6 +12,7 @@ use super::inpaint::{TeleaOptions, inpaint_telea, inpaint_telea_many};
 use super::mask::dilate;
 use crate::error::Result;
 use crate::image::Image;
+use crate::render::lens;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +25,9 @@ pub enum EdgeBand {
     Tested,
     /// All of them (the plain dilation; loses visible highlights next to the subject).
     Replaced,
+    /// None of them: the matte is taken as exact (what the pipeline does with a binary matte
+    /// given by the user, which says that no pixel outside it is mixed).
+    Kept,
 }
 
 /// Whether visible point-like highlights near the hole feed the fill.
@@ -236,25 +240,72 @@ impl FillRegion {
     }
 }
 
+/// Which pixels of the edge band a re-synthesis could change in the render a fill is for.
+#[derive(Clone, Copy, Debug)]
+pub enum BandReach<'a> {
+    /// All of them (a caller that does not know the render).
+    Any,
+    /// Those a blur of the render reaches: within the foreground's largest circle of confusion
+    /// of the covered region (its disks light pixels closer than `r + ½`,
+    /// [`lens::disk_coverage`]), or out of focus themselves (CoC of at least
+    /// [`lens::SHARP_COC_PX`]). Elsewhere the render shows the band pixel as the photo has it,
+    /// so re-synthesizing it would change an in-focus pixel. `disparity` is the scene's
+    /// (normalized), `focus` and `blur` (K) the render's.
+    Render {
+        /// The scene's normalized disparity, the frame of the fill.
+        disparity: &'a Image,
+        /// The render's focal plane (normalized disparity).
+        focus: f32,
+        /// The render's blur strength K (pixels per unit of disparity).
+        blur: f32,
+    },
+}
+
+impl BandReach<'_> {
+    /// The `band` pixels (indices) a change could show at, in `band`'s order. Cost: one pass
+    /// over the covered pixels and, when the foreground's blur is narrower than the band, one
+    /// dilation of `covered`.
+    fn shown(self, band: &[usize], covered: &[bool], (w, h): (usize, usize), band_width: f32) -> Vec<usize> {
+        let BandReach::Render { disparity, focus, blur } = self else { return band.to_vec() };
+        let coc = |i: usize| lens::coc_radius(disparity.data[i] - focus, blur);
+        let fg = covered.par_iter().enumerate().filter(|(_, c)| **c).map(|(i, _)| coc(i)).reduce(|| 0.0, f32::max);
+        // Strictly closer than `r + ½`: at that distance a disk's coverage is 0.
+        let lit = fg + 0.5 - 1e-3;
+        let near = if fg < lens::SHARP_COC_PX {
+            None
+        } else if lit >= band_width {
+            return band.to_vec();
+        } else {
+            Some(dilate(covered, w, h, lit))
+        };
+        band.iter().copied().filter(|&i| near.as_ref().is_some_and(|n| n[i]) || coc(i) >= lens::SHARP_COC_PX).collect()
+    }
+}
+
 /// The region the background fill replaces, and the highlights it keeps out of its sources
 /// (within `radius + 1` of the mask: Telea reads a disc of `radius`). `ramp_outside` is the
 /// measured width (pixels) of a soft depth edge outside the outline
 /// ([`super::depth_edges`]); above a pixel, disparity is re-synthesized that far out plus one.
+/// Band pixels are tested (or replaced) only where `shown` says the render could show them.
 /// Cost: a few distance transforms on the matte's grown bounding box, and window medians on
 /// the band and around the mask (see the two modules); allocates a few masks.
-pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outside: f32) -> FillRegion {
+pub fn fill_region(rgb: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outside: f32, shown: BandReach) -> FillRegion {
     let (w, h) = (alpha.width, alpha.height);
     let covered = covered(alpha, opts);
     let depth_grown = (ramp_outside > 1.0).then(|| dilate(&covered, w, h, ramp_outside + 1.0));
     let grown = dilate(&covered, w, h, opts.dilate);
     // Rows in parallel (a full-frame scan at 12 MP); the order stays the raster order.
     let band: Vec<usize> = (0..h).into_par_iter().flat_map_iter(|y| (y * w..(y + 1) * w).filter(|&i| grown[i] && !covered[i])).collect();
+    let candidates = match opts.edge_band {
+        EdgeBand::Kept => Vec::new(),
+        _ => shown.shown(&band, &covered, (w, h), opts.dilate),
+    };
     let mut mask = covered;
     let replaced = match opts.edge_band {
-        EdgeBand::Replaced => vec![true; band.len()],
-        EdgeBand::Tested => super::contamination::contaminated(rgb, alpha, |j| !grown[j], &band, opts.dilate),
+        EdgeBand::Replaced | EdgeBand::Kept => vec![true; candidates.len()],
+        EdgeBand::Tested => super::contamination::contaminated(rgb, alpha, |j| !grown[j], &candidates, opts.dilate),
     };
-    for (&i, &r) in band.iter().zip(&replaced) {
+    for (&i, &r) in candidates.iter().zip(&replaced) {
         mask[i] = r;
     }
     let mut highlights = vec![false; w * h];
@@ -297,9 +348,9 @@ pub fn inpaint_background(
     alpha: &Image,
     opts: &InpaintOptions,
     reach: Reach,
-    ramp_outside: f32,
+    (ramp_outside, shown): (f32, BandReach),
 ) -> Result<Background> {
-    fill_background(prepare_background(rgb, disp, alpha, opts, ramp_outside), rgb, alpha, opts, reach)
+    fill_background(prepare_background(rgb, disp, alpha, opts, (ramp_outside, shown)), rgb, alpha, opts, reach)
 }
 
 /// The first half of [`inpaint_background`], which needs no reach: the fill region and the
@@ -312,8 +363,14 @@ pub struct PreparedFill {
 
 /// [`inpaint_background`]'s first half: [`fill_region`] beside the copies of `rgb` and `disp`
 /// (page faults mostly).
-pub fn prepare_background(rgb: &Image, disp: &Image, alpha: &Image, opts: &InpaintOptions, ramp_outside: f32) -> PreparedFill {
-    let (region, (rgb, disp)) = rayon::join(|| fill_region(rgb, alpha, opts, ramp_outside), || (rgb.clone(), disp.clone()));
+pub fn prepare_background(
+    rgb: &Image,
+    disp: &Image,
+    alpha: &Image,
+    opts: &InpaintOptions,
+    (ramp_outside, shown): (f32, BandReach),
+) -> PreparedFill {
+    let (region, (rgb, disp)) = rayon::join(|| fill_region(rgb, alpha, opts, ramp_outside, shown), || (rgb.clone(), disp.clone()));
     PreparedFill { region, rgb, disp }
 }
 
@@ -430,7 +487,7 @@ mod tests {
         let want = hidden_light(&truth);
         for (mode, completed) in [(HighlightSources::Completed, 1), (HighlightSources::Excluded, 0)] {
             let opts = InpaintOptions { highlights: mode, ..Default::default() };
-            let bg = inpaint_background(&photo, &disp, &alpha, &opts, Reach::Whole, 0.0).unwrap();
+            let bg = inpaint_background(&photo, &disp, &alpha, &opts, Reach::Whole, (0.0, BandReach::Any)).unwrap();
             assert_eq!(bg.highlights_completed, completed, "{mode:?}");
             let got = hidden_light(&bg.rgb);
             if completed == 1 {

@@ -31,6 +31,13 @@ pub struct Disparity {
 }
 
 impl Disparity {
+    /// True when the map has no depth range: every value is the same (a flat depth file
+    /// normalizes to 0 everywhere). O(pixels), stops at the first other value.
+    pub fn is_flat(&self) -> bool {
+        let d = &self.map.data;
+        d.iter().all(|&v| v == d[0])
+    }
+
     /// Normalized disparity of metric depth `z` (depth maps only).
     pub fn disparity_of_depth(&self, z: f64) -> Result<f32> {
         let Some((zmin, zmax)) = self.z_range else {
@@ -67,11 +74,15 @@ impl Disparity {
     }
 }
 
+/// A depth map whose valid values span less than this fraction of their magnitude is flat
+/// (f32 holds about 7 digits: 1e-6 is some 16 ulps).
+const FLAT_RELATIVE: f64 = 1e-6;
+
 /// Converts a raw one-channel map to normalized disparity.
 ///
 /// Invalid values (non-finite; for depth also ≤ 0) are filled from valid neighbours with
 /// Telea inpainting and reported in `filled_fraction`; a map with no valid value is an error
-/// naming `path`. A flat map (one value) gives D ≡ 0.
+/// naming `path`. A flat map (one value, to [`FLAT_RELATIVE`]) gives D ≡ 0 ([`Disparity::is_flat`]).
 pub fn normalize(raw: &Image, kind: DepthKind, path: &Path) -> Result<Disparity> {
     if raw.channels != 1 {
         return Err(Error::input(path, format!("a depth map needs one channel, found {}", raw.channels)));
@@ -96,7 +107,9 @@ pub fn normalize(raw: &Image, kind: DepthKind, path: &Path) -> Result<Disparity>
         let what = if kind == DepthKind::Depth { "finite and > 0" } else { "finite" };
         return Err(Error::input(path, format!("depth map has no valid value (every value must be {what})")));
     }
-    let span = hi - lo;
+    // A range within float noise of the values (a few ulps of f32) is no range: it would be
+    // stretched to [0, 1] and blur the noise.
+    let span = if hi - lo > FLAT_RELATIVE * hi.abs().max(lo.abs()) { hi - lo } else { 0.0 };
     let data: Vec<f32> = raw
         .data
         .par_iter()
@@ -129,5 +142,21 @@ mod tests {
         assert!((d.disparity_of_depth(2.0).unwrap() - 1.0 / 3.0).abs() < 1e-6);
         let bad = Image::from_vec(2, 1, 1, vec![f32::NAN, -1.0]).unwrap();
         assert!(normalize(&bad, DepthKind::Depth, Path::new("d.exr")).unwrap_err().to_string().contains("d.exr"));
+    }
+
+    #[test]
+    fn flat_maps_are_flat() {
+        // One value, and one value plus f32 rounding noise: no range to stretch.
+        for vals in [vec![2.0, 2.0, 2.0], vec![3.0, 3.0 + 3.0 * f32::EPSILON, 3.0], vec![0.0, 0.0, 0.0]] {
+            for kind in [DepthKind::Depth, DepthKind::Disparity] {
+                let raw = Image::from_vec(3, 1, 1, vals.clone()).unwrap();
+                let Ok(d) = normalize(&raw, kind, Path::new("d")) else { continue };
+                assert!(d.is_flat() && d.map.data.iter().all(|&v| v == 0.0), "{vals:?} {kind:?}");
+            }
+        }
+        // A small range that is not noise keeps its shape.
+        let raw = Image::from_vec(3, 1, 1, vec![1.0, 1.001, 1.002]).unwrap();
+        let d = normalize(&raw, DepthKind::Disparity, Path::new("d")).unwrap();
+        assert!(!d.is_flat() && (d.map.data[1] - 0.5).abs() < 1e-3, "{:?}", d.map.data);
     }
 }

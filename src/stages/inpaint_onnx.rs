@@ -99,11 +99,11 @@ pub fn inpaint_background(
     alpha: &Image,
     opts: &InpaintOptions,
     reach: super::background::Reach,
-    ramp_outside: f32,
+    (ramp_outside, shown): (f32, super::background::BandReach),
     cfg: &OnnxConfig,
 ) -> Result<(Background, OnnxReport)> {
     let (w, h) = (rgb.width, rgb.height);
-    let fill = super::background::fill_region(rgb, alpha, opts, ramp_outside);
+    let fill = super::background::fill_region(rgb, alpha, opts, ramp_outside, shown);
     let reach = fill.reach(alpha, reach);
     let stats = (fill.band, fill.band_replaced, fill.highlights_kept);
     // The model sees kept highlights as holes too (so it copies none into the hidden region);

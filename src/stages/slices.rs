@@ -117,16 +117,32 @@ impl Serialize for LayerCount {
 
 impl<'de> Deserialize<'de> for LayerCount {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Raw {
-            Count(u64),
-            Name(String),
+        use serde::de::Unexpected;
+        // A visitor, not an untagged enum: a wrong value (-1, 2.5, true) is named with what is
+        // expected instead of "did not match any variant".
+        struct Count;
+        impl serde::de::Visitor<'_> for Count {
+            type Value = LayerCount;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "\"auto\" or a layer count 1..={MAX_LAYERS}")
+            }
+            fn visit_u64<E: serde::de::Error>(self, n: u64) -> std::result::Result<LayerCount, E> {
+                match usize::try_from(n) {
+                    Ok(n) if (1..=MAX_LAYERS).contains(&n) => Ok(LayerCount::Fixed(n)),
+                    _ => Err(E::invalid_value(Unexpected::Unsigned(n), &self)),
+                }
+            }
+            fn visit_i64<E: serde::de::Error>(self, n: i64) -> std::result::Result<LayerCount, E> {
+                u64::try_from(n).map_err(|_| E::invalid_value(Unexpected::Signed(n), &self)).and_then(|n| self.visit_u64(n))
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> std::result::Result<LayerCount, E> {
+                Err(E::invalid_value(Unexpected::Float(v), &self))
+            }
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> std::result::Result<LayerCount, E> {
+                LayerCount::parse(s).map_err(E::custom)
+            }
         }
-        match Raw::deserialize(d)? {
-            Raw::Count(n) => Ok(LayerCount::Fixed(n as usize)),
-            Raw::Name(s) => LayerCount::parse(&s).map_err(serde::de::Error::custom),
-        }
+        d.deserialize_any(Count)
     }
 }
 
