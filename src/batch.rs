@@ -730,3 +730,40 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
         Err(e) => result(item, Status::Failed, Some(e.to_string()), secs, None),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicU64;
+
+    /// The most bytes in flight at once when images of `sizes` bytes each hold a budget of
+    /// 100 for 30 ms, all started together.
+    fn most_in_flight(sizes: &[u64]) -> u64 {
+        let budget = Budget { limit: 100, used: Mutex::new(0), freed: Condvar::new() };
+        let (now, most) = (AtomicU64::new(0), AtomicU64::new(0));
+        std::thread::scope(|s| {
+            for &bytes in sizes {
+                let (budget, now, most) = (&budget, &now, &most);
+                s.spawn(move || {
+                    budget.acquire(bytes);
+                    let held = now.fetch_add(bytes, Ordering::SeqCst) + bytes;
+                    most.fetch_max(held, Ordering::SeqCst);
+                    std::thread::sleep(std::time::Duration::from_millis(30));
+                    now.fetch_sub(bytes, Ordering::SeqCst);
+                    budget.release(bytes);
+                });
+            }
+        });
+        most.into_inner()
+    }
+
+    /// `[batch] memory_budget_mb`: images whose estimates together exceed the budget never run
+    /// at the same time, and one image larger than the whole budget still runs (alone).
+    #[test]
+    fn the_memory_budget_bounds_the_images_in_flight() {
+        let m = most_in_flight(&[60, 60, 30, 30, 60]);
+        assert!((60..=100).contains(&m), "{m} bytes were in flight at once against a budget of 100");
+        assert_eq!(most_in_flight(&[500]), 500);
+        assert_eq!(most_in_flight(&[500, 500, 500]), 500);
+    }
+}

@@ -336,6 +336,10 @@ fn resume_redoes_what_changed() {
     // Same size, garbage header.
     std::fs::write(&out_a, vec![7u8; good.len()]).unwrap();
     expect_redo("header");
+    // Same size, a valid PNG of other dimensions (a text chunk pads it to the byte).
+    std::fs::write(&out_a, png_of_length(8, 6, good.len())).unwrap();
+    assert_eq!(drbokeh::io::read_decoded(&out_a, &Default::default()).unwrap().image.width, 8);
+    expect_redo("the image 32x24");
     let sidecar = out.join(".a_bokeh.png.drbokeh-fingerprint");
     assert!(sidecar.exists(), "{:?}", files(&out));
     std::fs::remove_file(&sidecar).unwrap();
@@ -352,6 +356,23 @@ fn resume_redoes_what_changed() {
     let st = statuses(&s);
     assert_eq!((st[0].1.as_str(), st[1].1.as_str()), ("ok", "skipped"), "{st:?}");
     assert!(st[0].2.contains("parameters changed"), "{st:?}");
+}
+
+/// A valid `w` x `h` grey PNG of exactly `len` bytes: a `tEXt` chunk before `IEND` pads it.
+fn png_of_length(w: usize, h: usize, len: usize) -> Vec<u8> {
+    let mut png = Vec::new();
+    drbokeh::io::encode_png(&mut png, &Image::filled(w, h, 1, 0.5), 8, Transfer::Linear).unwrap();
+    let pad = len.checked_sub(png.len() + 12).expect("the target length leaves room for a chunk");
+    let mut chunk = b"tEXt".to_vec();
+    chunk.extend(b"k\0");
+    chunk.resize(4 + pad, b'x');
+    let mut out = png[..png.len() - 12].to_vec();
+    out.extend((pad as u32).to_be_bytes());
+    out.extend(&chunk);
+    out.extend(common::crc32(&chunk).to_be_bytes());
+    out.extend(&png[png.len() - 12..]);
+    assert_eq!(out.len(), len);
+    out
 }
 
 /// Issue 10: bad values the user set stop the batch with exit 2 before any image runs.
@@ -472,5 +493,90 @@ fn jobs_change_only_the_time() {
     for (jobs, order, outputs) in &runs[1..] {
         assert_eq!(order, &runs[0].1, "--jobs {jobs}: summary order");
         assert!(outputs == &runs[0].2, "--jobs {jobs}: outputs differ from --jobs 1");
+    }
+}
+
+/// SIGINT or SIGTERM during a batch: the images in flight finish (complete, with their
+/// fingerprints), no new one starts, the summary counts the rest as cancelled, exit 130, no
+/// temporary file is left, and a second run does the rest. A second signal aborts at once:
+/// still exit 130, no temporary file, and every output present is whole.
+#[test]
+fn signals_stop_a_batch_cleanly() {
+    use std::time::{Duration, Instant};
+    let (w, h, n) = (128, 96, 10);
+    for (signal, twice) in [("TERM", false), ("INT", false), ("TERM", true)] {
+        let t = tempfile::tempdir().unwrap();
+        let (inp, out) = (t.path().join("in"), t.path().join("out"));
+        std::fs::create_dir_all(&inp).unwrap();
+        let mut rng = common::Rng::new(7);
+        let rgb = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| rng.next_f32()).collect()).unwrap();
+        let depth = Image::from_vec(w, h, 1, (0..w * h).map(|i| if (i % w) < w / 2 { 1.0 } else { 4.0 }).collect()).unwrap();
+        for i in 0..n {
+            write_png(&inp.join(format!("p{i:02}.png")), &rgb, 8, Transfer::Srgb).unwrap();
+            write_exr(&inp.join(format!("p{i:02}.depth.exr")), &depth, &["Y"]).unwrap();
+        }
+        // The exact kernel at a wide blur: a few tenths of a second per image.
+        let args = ["--focus", "1", "--blur", "20", "--kernel", "exact", "--jobs", "1"];
+        let mut child = bin()
+            .arg("batch")
+            .arg(&inp)
+            .arg("-o")
+            .arg(&out)
+            .args(args)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let outputs = || -> Vec<std::path::PathBuf> {
+            let mut v: Vec<_> = std::fs::read_dir(&out).map(|d| d.flatten().map(|e| e.path()).collect()).unwrap_or_default();
+            v.sort();
+            v
+        };
+        let t0 = Instant::now();
+        while !outputs().iter().any(|p| p.extension().is_some_and(|e| e == "png")) {
+            assert!(t0.elapsed() < Duration::from_secs(60), "no output after 60 s");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let kill = || assert!(Command::new("kill").arg(format!("-{signal}")).arg(child.id().to_string()).status().unwrap().success());
+        kill();
+        if twice {
+            std::thread::sleep(Duration::from_millis(30));
+            kill();
+        }
+        let t0 = Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(60), "the batch did not stop within 60 s of SIG{signal}");
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        assert_eq!(status.code(), Some(130), "SIG{signal} (twice: {twice})");
+        let left = outputs();
+        let names: Vec<String> = left.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+        assert!(!names.iter().any(|n| n.ends_with(".drbokeh-tmp")), "temporary files left: {names:?}");
+        let pngs: Vec<_> = left.iter().filter(|p| p.extension().is_some_and(|e| e == "png")).collect();
+        assert!(!pngs.is_empty() && pngs.len() < n, "SIG{signal}: {} of {n} outputs", pngs.len());
+        for p in &pngs {
+            let img = drbokeh::io::read_decoded(p, &Default::default()).unwrap_or_else(|e| panic!("{} is not whole: {e}", p.display()));
+            assert_eq!((img.image.width, img.image.height), (w, h));
+            if !twice {
+                let record = format!(".{}.drbokeh-fingerprint", p.file_name().unwrap().to_string_lossy());
+                assert!(names.contains(&record), "{} finished without its fingerprint: {names:?}", p.display());
+            }
+        }
+        if !twice {
+            let s = summary(&out, "drbokeh-batch.json");
+            let (ok, cancelled) = (s["ok"].as_u64().unwrap(), s["cancelled"].as_u64().unwrap());
+            assert_eq!((ok as usize, ok + cancelled), (pngs.len(), n as u64), "{s}");
+        }
+        if signal != "TERM" || twice {
+            continue;
+        }
+        // A second run does the rest and skips what is done.
+        let (code, s, err) = batch_json(&inp, &out, &args);
+        assert_eq!(code, Some(0), "{err}");
+        let done = statuses(&s).iter().filter(|(_, st, _)| st == "skipped").count();
+        assert_eq!(done, pngs.len(), "{s}");
     }
 }

@@ -288,6 +288,43 @@ mod tests {
         assert_ne!(sibling_stem(Path::new(&a)), sibling_stem(Path::new(&b)));
     }
 
+    /// A write that fails half-way (the encoder's error after some bytes) leaves the previous
+    /// file as it was and no temporary file beside it.
+    #[test]
+    fn a_failed_write_keeps_the_previous_output() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path().join("a.png");
+        std::fs::write(&out, b"previous").unwrap();
+        let r = write_atomic(&out, |w| {
+            w.write_all(&[7u8; 100_000]).map_err(|e| Error::io(&out, e))?;
+            Err(Error::Internal("encoder failed".into()))
+        });
+        assert!(r.is_err());
+        assert_eq!(std::fs::read(&out).unwrap(), b"previous");
+        let names: Vec<_> = std::fs::read_dir(t.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("a.png")]);
+        // A successful one replaces it.
+        write_atomic(&out, |w| w.write_all(b"new").map_err(|e| Error::io(&out, e))).unwrap();
+        assert_eq!(std::fs::read(&out).unwrap(), b"new");
+    }
+
+    /// Special destinations: what [`destination`] answers for each kind of file.
+    #[cfg(unix)]
+    #[test]
+    fn special_destinations_are_classified() {
+        let t = tempfile::tempdir().unwrap();
+        let (file, link) = (t.path().join("f.png"), t.path().join("l.png"));
+        std::fs::write(&file, b"x").unwrap();
+        std::os::unix::fs::symlink(&file, &link).unwrap();
+        assert_eq!(destination(&t.path().join("new.png")).unwrap(), Destination::Replace(t.path().join("new.png")));
+        assert_eq!(destination(&file).unwrap(), Destination::Replace(file.clone()));
+        assert_eq!(destination(&link).unwrap(), Destination::Replace(std::fs::canonicalize(&file).unwrap()));
+        assert_eq!(destination(Path::new("/dev/null")).unwrap(), Destination::Stream);
+        assert!(destination(t.path()).unwrap_err().to_string().contains("folder"));
+        std::os::unix::fs::symlink(t.path().join("none"), t.path().join("d.png")).unwrap();
+        assert!(destination(&t.path().join("d.png")).unwrap_err().to_string().contains("does not exist"));
+    }
+
     #[test]
     fn stale_temps_go_live_ones_stay() {
         let t = tempfile::tempdir().unwrap();

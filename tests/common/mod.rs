@@ -17,9 +17,10 @@ pub fn shared_dir() -> PathBuf {
     dir
 }
 
-/// Sorted sub-folders of `dir`.
+/// Sorted sub-folders of `dir`; at least one (a test looping over none would pass on nothing).
 pub fn case_dirs(dir: &std::path::Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_dir()).collect();
+    assert!(!v.is_empty(), "no case folders in {}: the data the test checks is missing", dir.display());
     v.sort();
     v
 }
