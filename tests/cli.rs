@@ -1740,6 +1740,10 @@ fn special_outputs_are_written_through_or_refused_never_replaced() {
     let bytes = streamed.expect("never written through the FIFO");
     assert!(bytes.starts_with(b"\x89PNG"), "{} bytes, not a PNG", bytes.len());
     assert!(is_fifo(&fifo));
+    // Standard output, a pipe here: the PNG comes out there.
+    let piped = s.run(&render_args(&["-o", "/dev/stdout"]));
+    assert!(piped.status.success(), "{}", common::stderr(&piped));
+    assert!(piped.stdout.starts_with(b"\x89PNG"), "no PNG on standard output ({} bytes)", piped.stdout.len());
     // Character devices: written through, still devices.
     s.ok(&render_args(&["-o", "/dev/null"]));
     assert!(std::fs::metadata("/dev/null").unwrap().file_type().is_char_device());

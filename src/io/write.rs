@@ -32,12 +32,16 @@ impl OutputFormat {
         }
     }
 
-    /// `.png`, `.exr` or `.npy` (case-insensitive); a FIFO or character device without an
-    /// extension (`/dev/stdout`) gets PNG; anything else is an error naming the extension and
-    /// the supported ones.
+    /// `.png`, `.exr` or `.npy` (case-insensitive); a FIFO, character device or symbolic link
+    /// without an extension (`/dev/stdout`, `/dev/fd/1`) gets PNG; anything else is an error
+    /// naming the extension and the supported ones.
     pub fn from_path(path: &Path) -> Result<OutputFormat> {
-        if path.extension().is_none() && matches!(super::atomic::destination(path), Ok(super::atomic::Destination::Stream)) {
-            return Ok(OutputFormat::Png);
+        if path.extension().is_none() {
+            let special = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink())
+                || matches!(super::atomic::destination(path), Ok(super::atomic::Destination::Stream));
+            if special {
+                return Ok(OutputFormat::Png);
+            }
         }
         let ext = path.extension().map(|e| e.to_string_lossy().into_owned());
         match ext.as_deref().map(str::to_ascii_lowercase).as_deref() {
