@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Mutation testing of the modules that carry the rules README states (issue 44): every rule
+# should have a test that fails when the rule is changed. Not part of CI: each mutant is a
+# rebuild plus a test run (about a minute each on 2 cores with the default test subset).
+#
+#   scripts/mutants.sh                  # the scoped modules below
+#   scripts/mutants.sh src/io/atomic.rs # one file (repeat for more)
+#   MUTANTS_TESTS="--lib --test cli" scripts/mutants.sh ...   # another test subset
+#   scripts/mutants.sh --list           # list the mutants only
+#
+# cargo-mutants (crates.io) is installed into .tools/ on first use. Results go to
+# target/mutants/mutants.out/ (missed.txt lists the survivors); docs/mutants.md keeps the
+# latest survivor list with a word on each.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+version=27.1.0
+if ! .tools/bin/cargo-mutants --version 2>/dev/null | grep -q "$version"; then
+    cargo install cargo-mutants --locked --version "$version" --root .tools
+fi
+./scripts/setup-test-env.sh
+# The copy cargo-mutants builds in has no ../shared beside it.
+export DRBOKEH_SHARED=${DRBOKEH_SHARED:-$(cd "$root/../shared" && pwd)}
+list=()
+files=()
+for a in "$@"; do
+    case "$a" in
+        --list) list=(--list) ;;
+        *) files+=(--file "$a") ;;
+    esac
+done
+if [ ${#files[@]} -eq 0 ]; then
+    for f in src/stages/highlight_completion.rs src/stages/fill_depth.rs src/stages/contamination.rs \
+        src/stages/highlights.rs src/stages/background.rs src/render/lens.rs src/render/composite.rs \
+        src/diff/loss.rs src/batch.rs src/io/atomic.rs src/io/guard.rs; do
+        files+=(--file "$f")
+    done
+fi
+# The fast tests that exercise these modules; the full suite per mutant would take hours.
+read -r -a tests <<< "${MUTANTS_TESTS:---lib --test cli --test batch --test invariants --test stability --test backward}"
+exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 \
+    --cargo-test-arg=--release "${tests[@]/#/--cargo-test-arg=}"
