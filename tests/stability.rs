@@ -1,11 +1,16 @@
 //! Numerical stability on stiff and extreme inputs (property-based): every kernel gives finite
 //! output, inside the per-channel range of the input colours when the back layer is opaque,
-//! and a uniform colour stays uniform, for extreme K, focus, disparity, alpha and HDR colour.
-//! Also: the f32 accumulation error of the largest windows against f64.
+//! and a uniform colour stays that colour, for extreme K, focus, disparity, alpha and HDR
+//! colour, on both profiles (README's reliability table promises every kernel and quality; the
+//! physical profile is the default). Also: the f32 accumulation error of the largest windows
+//! against f64.
 
 use drbokeh::Image;
-use drbokeh::render::{self, Kernel, Layer, RenderSettings};
+use drbokeh::render::{self, Kernel, Layer, Profile, RenderSettings};
 use proptest::prelude::*;
+
+/// Every profile a render can use: each property below runs on both.
+const PROFILES: [Profile; 2] = [Profile::Physical, Profile::Official];
 
 const BLURS: [f32; 5] = [0.0, 1e-6, 1.0, 1e3, 1e6];
 const FOCI: [f32; 5] = [-10.0, 0.0, 0.5, 1.0, 10.0];
@@ -50,6 +55,11 @@ fn uniform01(seed: u64) -> impl FnMut() -> f32 {
     }
 }
 
+/// The colour of every pixel of [`make_layers`]'s uniform scenes: 0.25, or 0.25e6 with HDR.
+fn uniform_colour(hdr: bool) -> f32 {
+    0.25 * if hdr { 1e6 } else { 1.0 }
+}
+
 fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u64, uniform: bool) -> Vec<Layer> {
     let mut rnd = uniform01(seed);
     let scale = if hdr { 1e6 } else { 1.0 };
@@ -59,7 +69,7 @@ fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u
         for x in 0..w {
             let c = |v: f32| {
                 if uniform {
-                    0.25 * scale
+                    uniform_colour(hdr)
                 } else if v < 0.1 {
                     0.0
                 } else {
@@ -81,9 +91,19 @@ fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u
     vec![Layer::new(Image::from_vec(w, h, 5, fg).unwrap(), "fg").unwrap(), Layer::new(Image::from_vec(w, h, 5, bg).unwrap(), "bg").unwrap()]
 }
 
-fn check(layers: &[Layer], s: &RenderSettings, kernel: Kernel, uniform: bool) -> Result<(), TestCaseError> {
+/// What [`check`] asks of a render besides finite output inside the input colours' range.
+#[derive(Clone, Copy, Debug)]
+enum Expect {
+    /// Nothing more.
+    InRange,
+    /// Every channel of every pixel is this colour (relative 1e-4): the scene is one colour.
+    Uniform(f32),
+}
+
+fn check(layers: &[Layer], s: &RenderSettings, kernel: Kernel, expect: Expect) -> Result<(), TestCaseError> {
     let out = render::render(layers, s, kernel).unwrap();
-    prop_assert!(out.all_finite(), "non-finite output");
+    let what = format!("{kernel:?}, {:?}", s.profile);
+    prop_assert!(out.all_finite(), "{what}: non-finite output");
     let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
     for l in layers {
         for px in l.image().data.chunks_exact(5) {
@@ -98,15 +118,11 @@ fn check(layers: &[Layer], s: &RenderSettings, kernel: Kernel, uniform: bool) ->
             let tol = 1e-5 * hi[c].abs().max(1.0);
             // The back layer is opaque, so the composite is a convex combination... of the
             // layers' colours, up to the non-focal terms summing to at most 1.
-            prop_assert!(px[c] <= hi[c] + tol, "{} above the input range [{}, {}]", px[c], lo[c], hi[c]);
-            prop_assert!(px[c] >= 0.0f32.min(lo[c]) - tol, "{} below the input range", px[c]);
-            if uniform {
-                prop_assert!(
-                    (px[c] - hi[c]).abs() <= tol || px[c] == 0.0 || (px[c] - hi[c]).abs() / hi[c] < 1e-4,
-                    "uniform colour changed: {} vs {}",
-                    px[c],
-                    hi[c]
-                );
+            prop_assert!(px[c] <= hi[c] + tol, "{what}: {} above the input range [{}, {}]", px[c], lo[c], hi[c]);
+            prop_assert!(px[c] >= 0.0f32.min(lo[c]) - tol, "{what}: {} below the input range", px[c]);
+            if let Expect::Uniform(want) = expect {
+                // The colour is known: black, or any other colour, is a failure.
+                prop_assert!((px[c] - want).abs() <= 1e-4 * want, "{what}: uniform colour changed: {} vs {want}", px[c]);
             }
         }
     }
@@ -140,10 +156,12 @@ proptest! {
         let layers = make_layers(w, h, d, a, hdr, seed, false);
         let (blur, focus) = (BLURS[k], FOCI[f]);
         let lens = render::auto_lens(&layers, blur, focus);
-        let s = RenderSettings { blur, focus, lens, occlusion: true, profile: drbokeh::render::Profile::Official };
-        check(&layers, &s, Kernel::Exact, false)?;
-        check(&layers, &s, Kernel::Fast { quality: 2 }, false)?;
-        check(&layers, &RenderSettings { occlusion: false, ..s }, Kernel::Fast { quality: 2 }, false)?;
+        for profile in PROFILES {
+            let s = RenderSettings { blur, focus, lens, occlusion: true, profile };
+            check(&layers, &s, Kernel::Exact, Expect::InRange)?;
+            check(&layers, &s, Kernel::Fast { quality: 2 }, Expect::InRange)?;
+            check(&layers, &RenderSettings { occlusion: false, ..s }, Kernel::Fast { quality: 2 }, Expect::InRange)?;
+        }
     }
 
     #[test]
@@ -154,25 +172,24 @@ proptest! {
         let (w, h) = shape;
         let layers = make_layers(w, h, d, AlphaKind::One, hdr, seed, true);
         let (blur, focus) = (BLURS[k], FOCI[f]);
-        let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true, profile: drbokeh::render::Profile::Official };
-        check(&layers, &s, Kernel::Exact, true)?;
-        check(&layers, &s, Kernel::Fast { quality: 2 }, true)?;
+        let want = Expect::Uniform(uniform_colour(hdr));
+        for profile in PROFILES {
+            let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true, profile };
+            check(&layers, &s, Kernel::Exact, want)?;
+            check(&layers, &s, Kernel::Fast { quality: 2 }, want)?;
+        }
     }
 }
 
 #[test]
 fn long_thin_image_with_huge_blur_is_finite() {
-    for k in [1e3f32, 1e6] {
-        let layers = make_layers(1000, 3, DispKind::Random, AlphaKind::Random, true, 7, false);
-        let s = RenderSettings {
-            blur: k,
-            focus: 0.5,
-            lens: render::auto_lens(&layers, k, 0.5),
-            occlusion: true,
-            profile: drbokeh::render::Profile::Official,
-        };
-        let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
-        assert!(out.all_finite());
+    let layers = make_layers(1000, 3, DispKind::Random, AlphaKind::Random, true, 7, false);
+    for profile in PROFILES {
+        for k in [1e3f32, 1e6] {
+            let s = RenderSettings { blur: k, focus: 0.5, lens: render::auto_lens(&layers, k, 0.5), occlusion: true, profile };
+            let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
+            assert!(out.all_finite(), "{profile:?}, K {k}");
+        }
     }
 }
 
@@ -240,7 +257,8 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: 6, failure_persistence: None, rng_seed: proptest::test_runner::RngSeed::Fixed(10), ..ProptestConfig::default() })]
 
     /// Issue 10: every quality level × circles of confusion from 0 to far beyond the image ×
-    /// both kernels, with and without occlusion: the output is finite and keeps the light. The
+    /// both kernels × both profiles, with and without occlusion: the output is finite and keeps
+    /// the light. The
     /// exact kernel's mean stays near the input's (at huge blur it is the image's average);
     /// every fast quality's mean stays near the exact kernel's.
     #[test]
@@ -262,20 +280,21 @@ proptest! {
         // Largest CoC in pixels, about K·0.85 (the farthest layer's relative disparity).
         for coc in [0.0f32, 0.4, 1.0, 3.0, 8.0, 20.0, 35.0, 60.0, 150.0, 1e3, 5e3, 1e5, 1e8] {
             let blur = coc / 0.85;
-            for occlusion in [true, false] {
-                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion, profile: drbokeh::render::Profile::Official };
+            for (occlusion, profile) in [true, false].into_iter().flat_map(|o| PROFILES.map(|p| (o, p))) {
+                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion, profile };
                 let exact = render::render(&layers, &s, Kernel::Exact).unwrap();
-                prop_assert!(exact.all_finite(), "exact: non-finite output at CoC {coc}");
+                prop_assert!(exact.all_finite(), "{profile:?} exact: non-finite output at CoC {coc}");
                 let me = channel_means(&exact);
                 let worst = (0..3).map(|c| (me[c] - input[c]).abs() / input[c]).fold(0.0, f64::max);
                 // Loose: eq. 4's visibility box reads replicate-padded alpha, so at a blur as wide
                 // as the image it over-weights the border (16% off the input's mean seen here).
+                // The physical profile's worst on these cases: 12.0% (official 11.9%), at CoC 1e3.
                 if focus_off_layers && worst >= 0.25 {
-                    failures.push(format!("exact, CoC {coc}, occlusion {occlusion}: mean {me:?} vs input {input:?} ({:.1}%)", worst * 100.0));
+                    failures.push(format!("{profile:?} exact, CoC {coc}, occlusion {occlusion}: mean {me:?} vs input {input:?} ({:.1}%)", worst * 100.0));
                 }
                 for quality in 1..=8 {
                     let fast = render::render(&layers, &s, Kernel::Fast { quality }).unwrap();
-                    prop_assert!(fast.all_finite(), "fast q{quality}: non-finite output at CoC {coc}");
+                    prop_assert!(fast.all_finite(), "{profile:?} fast q{quality}: non-finite output at CoC {coc}");
                     let mf = channel_means(&fast);
                     let worst = (0..3).map(|c| (mf[c] - me[c]).abs() / me[c]).fold(0.0, f64::max);
                     // With the focus on a layer's near edge and a blur beyond 1e5 px, the few
@@ -284,7 +303,7 @@ proptest! {
                     // (6.8% at quality 1 seen here): a light loss would still be far beyond 10%.
                     let tol = if !focus_off_layers && coc >= 1e5 { 0.10 } else { 0.03 };
                     if worst >= tol {
-                        failures.push(format!("fast q{quality}, CoC {coc}, occlusion {occlusion}: mean {mf:?} vs exact {me:?} ({:.1}%)", worst * 100.0));
+                        failures.push(format!("{profile:?} fast q{quality}, CoC {coc}, occlusion {occlusion}: mean {mf:?} vs exact {me:?} ({:.1}%)", worst * 100.0));
                     }
                 }
             }

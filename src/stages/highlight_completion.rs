@@ -249,7 +249,131 @@ fn fit(photo: &Image, region: &FillRegion, comp: &[usize], w: usize, h: usize) -
 
 #[cfg(test)]
 mod tests {
+    //! The truths are drawn independently of the fitter: each pixel's share of an ideal shape is
+    //! counted on 16 × 16 samples ([`area`]), not taken from [`Disc::coverage`]'s ramp.
+
     use super::*;
+    use crate::stages::background::{BandReach, EdgeBand, HighlightSources, InpaintOptions, Reach, inpaint_background};
+
+    /// The test frame, px.
+    const W: usize = 48;
+    const H: usize = 40;
+    /// The lights' radiance, linear RGB (luminance 23.9): channels distinct, so that a colour
+    /// mix-up shows.
+    const LIGHT: [f32; 3] = [30.0, 24.0, 12.0];
+    /// What the photo shows inside the mask (the subject), linear.
+    const SUBJECT: f32 = 0.05;
+    /// Samples per pixel side of the supersampled truth.
+    const SS: usize = 16;
+
+    /// A shape in pixel coordinates (pixel `x` spans `[x, x + 1)`): whether a point is inside.
+    type Shape = dyn Fn(f64, f64) -> bool;
+
+    /// Share of pixel (`x`, `y`) inside `shape`, counted on SS × SS samples.
+    fn area(shape: &Shape, x: usize, y: usize) -> f32 {
+        let at = |k: usize| (k as f64 + 0.5) / SS as f64;
+        let n = (0..SS * SS).filter(|&k| shape(x as f64 + at(k % SS), y as f64 + at(k / SS))).count();
+        n as f32 / (SS * SS) as f32
+    }
+
+    /// An ideal disc at (`cx`, `cy`), radius `r`, px.
+    fn ideal_disc(cx: f64, cy: f64, r: f64) -> impl Fn(f64, f64) -> bool {
+        move |x, y| (x - cx).powi(2) + (y - cy).powi(2) <= r * r
+    }
+
+    /// What lies behind the light.
+    #[derive(Clone, Copy, Debug)]
+    enum Backdrop {
+        /// Grey 0.2.
+        Flat,
+        /// A dim periodic texture (0.15-0.25 per channel).
+        Textured,
+    }
+
+    impl Backdrop {
+        fn at(self, x: usize, y: usize) -> [f32; 3] {
+            match self {
+                Backdrop::Flat => [0.2; 3],
+                Backdrop::Textured => {
+                    let t = ((x * 7 + y * 13) % 11) as f32 / 11.0;
+                    [0.15 + 0.1 * t, 0.2 + 0.05 * t, 0.25 - 0.1 * t]
+                }
+            }
+        }
+    }
+
+    /// A light of radiance [`LIGHT`] over a backdrop, partly behind a subject.
+    struct Scene {
+        /// Backdrop and light: what the lens sees around the subject.
+        truth: Image,
+        /// The backdrop alone: a perfect fill that knows nothing of the light.
+        behind: Image,
+        /// The photo: `truth` outside the mask, the subject inside.
+        photo: Image,
+        /// The subject: the fill region.
+        mask: Vec<bool>,
+    }
+
+    impl Scene {
+        fn new(light: &Shape, backdrop: Backdrop, mask: impl Fn(usize, usize) -> bool) -> Scene {
+            let (mut truth, mut behind, mut photo) = (Image::new(W, H, 3), Image::new(W, H, 3), Image::filled(W, H, 3, SUBJECT));
+            let mut m = vec![false; W * H];
+            for y in 0..H {
+                for x in 0..W {
+                    let (a, b) = (area(light, x, y), backdrop.at(x, y));
+                    for c in 0..3 {
+                        truth.pixel_mut(x, y)[c] = b[c] * (1.0 - a) + LIGHT[c] * a;
+                    }
+                    behind.pixel_mut(x, y).copy_from_slice(&b);
+                    m[y * W + x] = mask(x, y);
+                    if !m[y * W + x] {
+                        photo.pixel_mut(x, y).copy_from_slice(truth.pixel(x, y));
+                    }
+                }
+            }
+            Scene { truth, behind, photo, mask: m }
+        }
+
+        /// The region the completion is given: the mask, and as kept highlights the visible
+        /// pixels of luminance above 1 (those more than ~4% covered by the light; the
+        /// backdrop is at most 0.25).
+        fn region(&self) -> FillRegion {
+            let hl = (0..W * H).map(|i| !self.mask[i] && luminance(&self.photo.data[i * 3..i * 3 + 3]) > 1.0).collect();
+            region(self.mask.clone(), hl)
+        }
+
+        /// [`complete`] over a perfect fill (the backdrop under the mask, the photo elsewhere):
+        /// the discs and the fill. Checks that nothing outside the mask changed.
+        fn complete(&self) -> (Vec<Disc>, Image) {
+            let mut filled = self.photo.clone();
+            for i in (0..W * H).filter(|&i| self.mask[i]) {
+                filled.data[i * 3..i * 3 + 3].copy_from_slice(&self.behind.data[i * 3..i * 3 + 3]);
+            }
+            let start = filled.clone();
+            let discs = complete(&mut filled, &self.photo, &self.region());
+            for i in (0..W * H).filter(|&i| !self.mask[i]) {
+                assert_eq!(filled.data[i * 3..i * 3 + 3], start.data[i * 3..i * 3 + 3], "pixel {i}, outside the mask, changed");
+            }
+            (discs, filled)
+        }
+
+        /// The light of `img` above the backdrop under the mask, per channel.
+        fn hidden_light(&self, img: &Image) -> [f64; 3] {
+            let mut sum = [0f64; 3];
+            for i in (0..W * H).filter(|&i| self.mask[i]) {
+                for (c, s) in sum.iter_mut().enumerate() {
+                    *s += img.data[i * 3 + c] as f64 - self.behind.data[i * 3 + c] as f64;
+                }
+            }
+            sum
+        }
+
+        /// The highlight components the completion would consider (touching the mask, at most
+        /// [`MAX_PIXELS`] pixels): a refusal test checks that its shape gets this far.
+        fn components(&self) -> usize {
+            touching_components(&self.region().highlights, &self.mask, W, H).len()
+        }
+    }
 
     /// A region whose mask is `mask` and whose kept highlights are `hl`.
     fn region(mask: Vec<bool>, hl: Vec<bool>) -> FillRegion {
@@ -257,44 +381,190 @@ mod tests {
         FillRegion { depth_mask: mask.clone(), grown: mask.clone(), mask, highlights: hl, band: 0, band_replaced: 0, highlights_kept: kept }
     }
 
-    /// A grey frame with a disc of radiance `l` at (`cx`, `cy`), radius `r` (coverage as
-    /// [`Disc::coverage`]).
-    fn frame_with_disc(w: usize, h: usize, cx: f32, cy: f32, r: f32, l: f32) -> Image {
-        let d = Disc { cx, cy, r, rgb: [l; 3] };
-        let mut img = Image::filled(w, h, 3, 0.2);
-        for y in 0..h {
-            for x in 0..w {
-                let a = d.coverage(x, y);
-                img.pixel_mut(x, y).iter_mut().for_each(|v| *v = *v * (1.0 - a) + l * a);
-            }
-        }
-        img
+    /// Area (px²) of the ideal disc (`cx`, `cy`, `r`) under `mask` (its pixels only; the rest
+    /// of the frame holds none of it).
+    fn hidden_area(cx: f64, cy: f64, r: f64, mask: &[bool]) -> f64 {
+        let d = ideal_disc(cx, cy, r);
+        let (x0, x1) = ((cx - r - 1.0).max(0.0) as usize, ((cx + r + 2.0) as usize).min(W));
+        let (y0, y1) = ((cy - r - 1.0).max(0.0) as usize, ((cy + r + 2.0) as usize).min(H));
+        (y0..y1).flat_map(|y| (x0..x1).map(move |x| (x, y))).filter(|&(x, y)| mask[y * W + x]).map(|(x, y)| area(&d, x, y) as f64).sum()
     }
 
-    /// A disc cut by a straight mask edge through its centre: the hidden half is painted back
-    /// into the fill within a few percent of the truth, and nothing outside the mask changes.
-    #[test]
-    fn a_disc_half_under_the_mask_is_completed() {
-        let (w, h) = (40, 30);
-        let (cx, cy, r) = (20.3, 14.6, 3.0);
-        let truth = frame_with_disc(w, h, cx, cy, r, 30.0);
-        let mask: Vec<bool> = (0..w * h).map(|i| (i % w) as f32 + 0.5 > cx).collect();
-        let hl: Vec<bool> = (0..w * h).map(|i| !mask[i] && luminance(truth.pixel(i % w, i / w)) > 1.0).collect();
-        let reg = region(mask.clone(), hl);
-        let mut filled = truth.clone();
-        for i in (0..w * h).filter(|&i| mask[i]) {
-            filled.data[i * 3..i * 3 + 3].fill(0.2);
+    /// How much hidden area (px²) a fit off by `step` px in the radius plus `step` px in the
+    /// centre (the worse of 8 directions) would paint wrong, for the ideal disc under `mask`.
+    fn cost_of_error(cx: f64, cy: f64, r: f64, step: f64, mask: &[bool]) -> f64 {
+        let a = hidden_area(cx, cy, r, mask);
+        let radius = [r - step, r + step].map(|rr| (hidden_area(cx, cy, rr, mask) - a).abs());
+        let centre = (0..8).map(|k| {
+            let t = k as f64 * std::f64::consts::FRAC_PI_4;
+            (hidden_area(cx + step * t.cos(), cy + step * t.sin(), r, mask) - a).abs()
+        });
+        radius[0].max(radius[1]) + centre.fold(0.0, f64::max)
+    }
+
+    /// The subject's outline near a light at (`cx`, `cy`), `past` px beyond its centre (the
+    /// subject on the far side).
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    enum Edge {
+        /// A straight vertical outline.
+        Vertical,
+        /// A straight outline at 27° from the vertical.
+        Oblique,
+        /// The outline of a round subject of radius 12 px (bulging towards the light).
+        Convex,
+        /// The light in a round notch of radius 10 px of the subject.
+        Concave,
+    }
+
+    impl Edge {
+        fn mask(self, cx: f64, cy: f64, past: f64) -> impl Fn(usize, usize) -> bool {
+            move |x, y| {
+                let (dx, dy) = (x as f64 + 0.5 - cx, y as f64 + 0.5 - cy);
+                match self {
+                    Edge::Vertical => dx > past,
+                    Edge::Oblique => (dx + 0.5 * dy) / 1.25f64.sqrt() > past,
+                    Edge::Convex => (dx - past - 12.0).hypot(dy) < 12.0,
+                    Edge::Concave => (dx - past + 10.0).hypot(dy) > 10.0,
+                }
+            }
         }
-        let before = filled.clone();
-        let discs = complete(&mut filled, &truth, &reg);
-        assert_eq!(discs.len(), 1);
-        let d = discs[0];
-        assert!((d.cx - cx).abs() <= 0.3 && (d.cy - cy).abs() <= 0.3 && (d.r - r).abs() <= 0.3, "{d:?}");
-        let light = |img: &Image| (0..w * h).filter(|&i| mask[i]).map(|i| img.data[i * 3] as f64).sum::<f64>();
-        let (got, want, none) = (light(&filled), light(&truth), light(&before));
-        assert!((got - want).abs() < 0.1 * (want - none), "hidden light {got} against {want} (unfilled {none})");
-        for i in (0..w * h).filter(|&i| !mask[i]) {
-            assert_eq!(filled.data[i * 3..i * 3 + 3], before.data[i * 3..i * 3 + 3]);
+    }
+
+    /// One case of the completion sweep: a light of radius `r` at `centre`, the subject's
+    /// outline `past` px beyond its centre.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    struct Cut {
+        r: f64,
+        centre: (f64, f64),
+        edge: Edge,
+        past: f64,
+    }
+
+    /// Cuts of the sweep that miss today (reported on issue 44, run by the ignored
+    /// `known_gap_the_fine_search_stops_at_its_window` below): the fine search looks only one
+    /// coarse step around the coarse grid's best fit, and for this oblique cut the coarse best
+    /// (21.5, 18.5, r 3.75) lies farther than that from the optimum (about (20.7, 18.2, r 3.15),
+    /// loss 0.008 against 0.07): the fit stops on its window's edge at (21.0, 18.3, r 3.45) and
+    /// paints 32% too much light.
+    const KNOWN_GAPS: [Cut; 1] = [Cut { r: 3.2, centre: (20.72, 18.21), edge: Edge::Oblique, past: 0.0 }];
+
+    /// Completes `cut` on both backdrops; returns what is wrong: not exactly one disc, or the
+    /// light under the mask off the truth's, in some channel, by more than what a fit off by
+    /// one FINE_STEP in the radius plus one in the centre would cost for that disc and outline
+    /// ([`cost_of_error`]). Checks that nothing outside the mask changes.
+    fn completion_failures(cut: Cut) -> Vec<String> {
+        let Cut { r, centre: (cx, cy), edge, past } = cut;
+        let mut failures = Vec::new();
+        for backdrop in [Backdrop::Flat, Backdrop::Textured] {
+            let s = Scene::new(&ideal_disc(cx, cy, r), backdrop, edge.mask(cx, cy, past));
+            let (discs, filled) = s.complete();
+            let (got, want) = (s.hidden_light(&filled), s.hidden_light(&s.truth));
+            let tol = cost_of_error(cx, cy, r, FINE_STEP as f64, &s.mask) / hidden_area(cx, cy, r, &s.mask);
+            let case = format!("r {r} at ({cx}, {cy}), {edge:?} outline {past:.2} px past the centre, {backdrop:?}");
+            if discs.len() != 1 {
+                failures.push(format!("{case}: {} discs {discs:?}", discs.len()));
+            } else if let Some(c) = (0..3).find(|&c| (got[c] - want[c]).abs() > tol * want[c]) {
+                let off = (got[c] / want[c] - 1.0) * 100.0;
+                failures.push(format!(
+                    "{case}: hidden light {got:.1?} vs {want:.1?} (channel {c} {off:+.1}%, tolerance {:.1}%), {:?}",
+                    tol * 100.0,
+                    discs[0]
+                ));
+            }
+        }
+        failures
+    }
+
+    /// README: a light half behind the subject's outline is completed as a disc behind it.
+    /// Ideal discs of radius 2-4.6 px (supersampled), their centres off the pixel grid, cut by
+    /// a straight (vertical, oblique) or curved (convex, concave) outline through their centre
+    /// or 0.3 r past it, on a flat and a textured backdrop: one disc is painted, and the light
+    /// under the mask is the truth's, per channel, within what a fit off by one FINE_STEP
+    /// (0.1 px, the fitter's resolution) in the radius plus one in the centre would cost for
+    /// that disc and outline (7-26% of the hidden light, the most for the smallest discs least
+    /// hidden). A half-pixel error (one coarse step) costs about five times that: a fit that
+    /// skipped its fine search fails. Nothing outside the mask changes. README's "within a few
+    /// percent" holds on average here (mean 3.6-7.6% per radius) but not disc by disc: 2-24%
+    /// off, the most for 2 px discs (the fitted radii lie on a 0.1 px grid, x.x5 px).
+    #[test]
+    fn ideal_discs_cut_by_straight_and_curved_outlines_are_completed() {
+        let mut failures = Vec::new();
+        for r in [2.0, 2.5, 3.2, 4.0, 4.6] {
+            for centre in [(20.3, 18.6), (20.72, 18.21)] {
+                for past in [0.0, 0.3 * r] {
+                    for edge in [Edge::Vertical, Edge::Oblique, Edge::Convex, Edge::Concave] {
+                        let cut = Cut { r, centre, edge, past };
+                        if !KNOWN_GAPS.contains(&cut) {
+                            failures.extend(completion_failures(cut));
+                        }
+                    }
+                }
+            }
+        }
+        assert!(failures.is_empty(), "{} failing case(s):\n{}", failures.len(), failures.join("\n"));
+    }
+
+    /// [`KNOWN_GAPS`], which fail today: remove a cut from the list once this passes for it.
+    #[test]
+    #[ignore = "known gap (issue 44): the fine search stops at the edge of its window"]
+    fn known_gap_the_fine_search_stops_at_its_window() {
+        let failures: Vec<String> = KNOWN_GAPS.into_iter().flat_map(completion_failures).collect();
+        assert!(failures.is_empty(), "{} failing case(s):\n{}", failures.len(), failures.join("\n"));
+    }
+
+    /// README: a disc with less than a tenth of its coverage in view is not completed
+    /// (MIN_SEEN: a sliver at the edge fits a large disc as well as a small one). A 4.5 px
+    /// light with only a 1.0-1.2 px rim in view (6-8% of its light) is left alone. Fails with
+    /// MIN_SEEN = 0 (both get a 3.55-4.65 px disc, 7-9% of it in view).
+    #[test]
+    fn a_disc_mostly_hidden_is_not_completed() {
+        for (cx, cy, r) in [(20.3, 18.6, 4.5), (20.5, 18.5, 4.5)] {
+            let s = Scene::new(&ideal_disc(cx, cy, r), Backdrop::Flat, |x, _| x >= 17);
+            let hidden = hidden_area(cx, cy, r, &s.mask) / (std::f64::consts::PI * r * r);
+            assert!(hidden > 0.9 && s.components() == 1, "the case must be a cut light mostly hidden: {hidden}");
+            let (discs, filled) = s.complete();
+            assert!(discs.is_empty(), "light at ({cx}, {cy}), r {r}, {:.1}% in view: completed as {discs:?}", (1.0 - hidden) * 100.0);
+            assert_eq!(s.hidden_light(&filled), [0.0; 3]);
+        }
+    }
+
+    /// README: discs at the 5 px radius bound are not completed (MAX_RADIUS: a point-like
+    /// highlight is at most ~8 px across). Lights of radius 5.5-7 px cut through their centre,
+    /// whose visible part is still a component of at most MAX_PIXELS (so that only the bound
+    /// can refuse them), are left alone. Fails without the `r >= MAX_RADIUS` test (a 5.05-5.25
+    /// px disc is painted).
+    #[test]
+    fn a_light_larger_than_the_radius_bound_is_not_completed() {
+        for r in [5.5, 6.0, 7.0] {
+            for (cx, cy) in [(20.3, 18.6), (20.5, 18.5)] {
+                let s = Scene::new(&ideal_disc(cx, cy, r), Backdrop::Flat, Edge::Vertical.mask(cx, cy, 0.0));
+                assert_eq!(s.components(), 1, "r {r}: the cut light must reach the fit");
+                let (discs, filled) = s.complete();
+                assert!(discs.is_empty(), "light at ({cx}, {cy}), r {r}: completed as {discs:?}");
+                assert_eq!(s.hidden_light(&filled), [0.0; 3]);
+            }
+        }
+    }
+
+    /// README: a fit explaining less than 60% of what is seen is not used (MIN_EXPLAINED). A
+    /// ring of light (outer radius 3 px, 1 px thick) and a light with a streak (a 2 px disc with
+    /// a 1-2 px wide tail of 9-12 px), cut through their centres, are left alone. Fails with
+    /// MIN_EXPLAINED = 0 (the ring gets a 3.05 px disc, the streaked light a 1.55-1.95 px one).
+    #[test]
+    fn shapes_a_disc_explains_poorly_are_not_completed() {
+        let (cx, cy) = (20.3, 18.6);
+        let ring = move |x: f64, y: f64| (2.0..=3.0).contains(&(x - cx).hypot(y - cy));
+        let streak = move |len: f64, wd: f64| {
+            move |x: f64, y: f64| (x - cx).hypot(y - cy) <= 2.0 || ((y - cy).abs() <= wd / 2.0 && (cx - 2.0 - len..=cx).contains(&x))
+        };
+        let shapes: [(&str, &Shape); 4] =
+            [("ring", &ring), ("streak 9x1", &streak(9.0, 1.0)), ("streak 12x1", &streak(12.0, 1.0)), ("streak 12x2", &streak(12.0, 2.0))];
+        for (name, shape) in shapes {
+            let s = Scene::new(shape, Backdrop::Flat, Edge::Vertical.mask(cx, cy, 0.0));
+            assert_eq!(s.components(), 1, "{name}: the cut light must reach the fit");
+            let (discs, filled) = s.complete();
+            assert!(discs.is_empty(), "{name}: completed as {discs:?}");
+            assert_eq!(s.hidden_light(&filled), [0.0; 3]);
         }
     }
 
@@ -302,28 +572,57 @@ mod tests {
     /// left alone; extreme radiance stays finite.
     #[test]
     fn only_point_like_highlights_at_the_mask_are_completed() {
-        let (w, h) = (40, 30);
-        let truth = frame_with_disc(w, h, 8.0, 8.0, 2.0, f32::MAX);
-        let mask: Vec<bool> = (0..w * h).map(|i| i % w >= 30).collect();
-        let hl: Vec<bool> = (0..w * h).map(|i| luminance(truth.pixel(i % w, i / w)) > 1.0).collect();
-        let mut filled = truth.clone();
-        assert!(complete(&mut filled, &truth, &region(mask.clone(), hl)).is_empty());
+        let far = Scene::new(&ideal_disc(8.0, 8.0, 2.0), Backdrop::Flat, |x, _| x >= 30);
+        assert_eq!(far.components(), 0);
+        assert!(far.complete().0.is_empty());
         // A bright block across the mask edge: more pixels than a point.
-        let mut block = Image::filled(w, h, 3, 0.2);
-        for y in 5..25 {
-            for x in 20..30 {
-                block.pixel_mut(x, y).fill(9.0);
+        let block = Scene::new(&|x, y| (20.0..30.0).contains(&x) && (5.0..25.0).contains(&y), Backdrop::Flat, |x, _| x >= 25);
+        assert_eq!(block.components(), 0, "100 visible pixels: more than MAX_PIXELS");
+        assert!(block.complete().0.is_empty());
+        // Radiance at f32::MAX cut by the mask: finite fill.
+        let (w, h) = (W, H);
+        let d = Disc { cx: 30.0, cy: 15.0, r: 2.5, rgb: [f32::MAX; 3] };
+        let mut truth = Image::filled(w, h, 3, 0.2);
+        for y in 0..h {
+            for x in 0..w {
+                let a = area(&ideal_disc(d.cx as f64, d.cy as f64, d.r as f64), x, y);
+                truth.pixel_mut(x, y).iter_mut().for_each(|v| *v = *v * (1.0 - a) + f32::MAX * a);
             }
         }
-        let hl: Vec<bool> = (0..w * h).map(|i| block.data[i * 3] > 1.0).collect();
-        let mut filled = block.clone();
-        assert!(complete(&mut filled, &block, &region(mask, hl)).is_empty());
-        // Radiance at f32::MAX cut by the mask: finite fill.
-        let truth = frame_with_disc(w, h, 30.0, 15.0, 2.5, f32::MAX);
         let mask: Vec<bool> = (0..w * h).map(|i| i % w >= 30).collect();
         let hl: Vec<bool> = (0..w * h).map(|i| !mask[i] && truth.data[i * 3] > 1.0).collect();
         let mut filled = truth.clone();
-        complete(&mut filled, &truth, &region(mask, hl));
+        assert_eq!(complete(&mut filled, &truth, &region(mask, hl)).len(), 1);
         assert!(filled.data.iter().all(|v| v.is_finite()));
+    }
+
+    /// The three `[inpaint] highlights` modes through the whole background fill
+    /// ([`inpaint_background`], the edge band kept as for a binary matte), on a 3.2 px light
+    /// cut through its centre: "completed" keeps the light out of the fill's sources and paints
+    /// its hidden part back (within the tolerance of the sweep above); "excluded" keeps it out
+    /// and paints nothing (the fill under the mask is the backdrop); "included" keeps no
+    /// highlight and completes none, and the cut light feeds the fill like any pixel (here 8x
+    /// the disc's own hidden light, smeared across the hole; asked: more than a quarter of it).
+    #[test]
+    fn highlight_modes_through_the_background_fill() {
+        let (cx, cy, r) = (20.3, 18.6, 3.2);
+        let s = Scene::new(&ideal_disc(cx, cy, r), Backdrop::Flat, Edge::Vertical.mask(cx, cy, 0.0));
+        let alpha = Image::from_vec(W, H, 1, s.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect()).unwrap();
+        let disp = Image::filled(W, H, 1, 0.0);
+        let want = s.hidden_light(&s.truth);
+        let tol = cost_of_error(cx, cy, r, FINE_STEP as f64, &s.mask) / hidden_area(cx, cy, r, &s.mask);
+        for mode in [HighlightSources::Completed, HighlightSources::Excluded, HighlightSources::Included] {
+            let opts = InpaintOptions { highlights: mode, edge_band: EdgeBand::Kept, ..Default::default() };
+            let bg = inpaint_background(&s.photo, &disp, &alpha, &opts, Reach::Whole, (0.0, BandReach::Any)).unwrap();
+            let got = s.hidden_light(&bg.rgb);
+            let (kept, completed) = (bg.highlights_kept, bg.highlights_completed);
+            let what = format!("{mode:?}: {kept} highlight pixels kept, {completed} completed, hidden light {got:.1?} (truth {want:.1?})");
+            let within = |lo: f64, hi: f64| (0..3).all(|c| (lo * want[c]..=hi * want[c]).contains(&got[c]));
+            match mode {
+                HighlightSources::Completed => assert!(kept > 0 && completed == 1 && within(1.0 - tol, 1.0 + tol), "{what}"),
+                HighlightSources::Excluded => assert!(kept > 0 && completed == 0 && within(-1e-4, 1e-4), "{what}"),
+                HighlightSources::Included => assert!(kept == 0 && completed == 0 && within(0.25, f64::INFINITY), "{what}"),
+            }
+        }
     }
 }
