@@ -7,6 +7,8 @@
 #   scripts/mutants.sh src/io/atomic.rs # one file (repeat for more)
 #   MUTANTS_TESTS="--lib --test cli" scripts/mutants.sh ...   # another test subset
 #   scripts/mutants.sh --list           # list the mutants only
+#   MUTANTS_IN_PLACE=1 scripts/mutants.sh ...  # mutate this tree (a spare worktree) and reuse
+#                                       # its target/ instead of a cold build in a copy
 #
 # cargo-mutants (crates.io) is installed into .tools/ on first use. Results go to
 # target/mutants/mutants.out/ (missed.txt lists the survivors); docs/mutants.md keeps the
@@ -15,7 +17,7 @@ set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 version=27.1.0
-if ! .tools/bin/cargo-mutants --version 2>/dev/null | grep -q "$version"; then
+if ! .tools/bin/cargo-mutants mutants --version 2>/dev/null | grep -q "$version"; then
     cargo install cargo-mutants --locked --version "$version" --root .tools
 fi
 ./scripts/setup-test-env.sh
@@ -23,9 +25,10 @@ fi
 export DRBOKEH_SHARED=${DRBOKEH_SHARED:-$(cd "$root/../shared" && pwd)}
 list=()
 files=()
+[ -n "${MUTANTS_IN_PLACE:-}" ] && list+=(--in-place)
 for a in "$@"; do
     case "$a" in
-        --list) list=(--list) ;;
+        --list) list+=(--list) ;;
         *) files+=(--file "$a") ;;
     esac
 done
@@ -39,4 +42,4 @@ fi
 # The fast tests that exercise these modules; the full suite per mutant would take hours.
 read -r -a tests <<< "${MUTANTS_TESTS:---lib --test cli --test batch --test invariants --test stability --test backward}"
 exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 \
-    --cargo-test-arg=--release "${tests[@]/#/--cargo-test-arg=}"
+    --cargo-arg=--release "${tests[@]/#/--cargo-test-arg=}"
