@@ -25,6 +25,7 @@ use super::gauss_psf::{GaussTape, window_radius};
 use super::loss::{self, HSSIM_WINDOWS};
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render::lens::coc_radius;
 use crate::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape, check_blur, check_focus};
 
 /// The window of the plain (single-scale) SSIM term, pixels: the usual 11×11 of Wang et al.
@@ -409,7 +410,7 @@ fn plan_warnings(s: &RenderSettings, opts: &DfdOptions, plan: &DfdPlan) -> Vec<S
             s.blur,
             s.focus,
             dfd_start::DEAD_COC_PX,
-            s.blur * focus_room(s.focus)
+            coc_radius(focus_room(s.focus), s.blur)
         ));
     }
     out

@@ -10,8 +10,8 @@
 //! tap: so a pixel pays `window taps × TAPE_CPU_PER_WINDOW_TAP + covered taps × per covered
 //! tap`. How many taps are covered depends on the disparities, which are not known before the
 //! run; the plan takes the worst case, every source as blurred as the range allows (a far
-//! background behind a near focus), so a run never takes longer than planned but often takes
-//! a third of it. The span render pays per pixel of CoC radius and per depth bin instead.
+//! background behind a near focus), so a run seldom takes longer than planned (on an
+//! otherwise idle machine) and often takes a third to a half of it. The span render pays per pixel of CoC radius and per depth bin instead.
 //! The old model (taps of the window, no coverage) put a blur larger than the frame 4x below
 //! its real cost: `--blur 1e9 --iters 20 --levels 2` on 64×64 ran 305 s at full size.
 //!
@@ -20,6 +20,7 @@
 use super::dfd::{DfdKernel, DfdOptions, DfdRenderer};
 use super::gauss_psf::window_radius;
 use crate::error::{Error, Result};
+use crate::render::lens::coc_radius;
 use crate::render::{Profile, RenderSettings, aperture, max_lens};
 
 /// The most Adam steps per level: a run converges in hundreds (the default is 100); the bound
@@ -67,11 +68,12 @@ const EXACT_CPU_PER_COVERED_TAP: f64 = 7.4e-8;
 /// K 8, 16, 30, 64 and 1e9 (the radius capped by the frame), 64×64 and 256×256.
 const SPAN_CPU_PER_RADIUS: f64 = 1.8e-7;
 /// The span render per pixel and depth bin a stripe uses (see [`crate::render::SpanTape`]):
-/// with every bin in use, 256×256 at K 16 (a far background, focus 1, three levels) took 54
-/// CPU seconds against 52 estimated.
+/// counted with every bin in use, `--kernel fast` on 256×256 at K 16 (a far background,
+/// focus 1, three levels) took 54 CPU seconds against 52 estimated.
 const SPAN_CPU_PER_BIN: f64 = 2e-8;
-/// The Gaussian PSF per pixel and tap of its `(2R+1)²` window (forward and VJP, one `exp`
-/// each).
+/// The Gaussian PSF per pixel and tap of its `(2R+1)²` window clipped to the frame (forward
+/// and VJP, one `exp` and a few multiply-adds each). Not measured (the command line does not
+/// reach this renderer): twice the tapes' cost of a tap that is only tested.
 const GAUSS_CPU_PER_TAP: f64 = 1.5e-8;
 /// Disparity bins a span render's stripe uses at most: the range [0, 1] at
 /// [`crate::render::BIN_STEP`] 0.01, plus the ends.
@@ -129,7 +131,7 @@ pub fn level_blur_lens(s: &RenderSettings, w: usize, lw: usize, lh: usize) -> (f
     // The ratio first: K near f32::MAX times the width would overflow to inf.
     let blur = s.blur * (lw as f32 / w as f32);
     // Saturating: a huge K (legal, finite) must give the widest window, not a wrapped one.
-    let reach = ((blur * focus_room(s.focus)).ceil() as usize).saturating_add(3);
+    let reach = (coc_radius(focus_room(s.focus), blur).ceil() as usize).saturating_add(3);
     (blur, reach.saturating_mul(2).saturating_add(1).min(max_lens(lw, lh) | 1))
 }
 
@@ -142,7 +144,7 @@ pub fn useful_levels(w: usize, h: usize, s: &RenderSettings, finest: usize, requ
     while n < requested {
         let (lw, lh) = level_size(w, h, finest + n);
         let (blur, _) = level_blur_lens(s, w, lw, lh);
-        if lw.min(lh) < MIN_LEVEL_SIDE || blur * focus_room(s.focus) < MIN_LEVEL_COC {
+        if lw.min(lh) < MIN_LEVEL_SIDE || coc_radius(focus_room(s.focus), blur) < MIN_LEVEL_COC {
             break;
         }
         n += 1;
@@ -157,7 +159,7 @@ fn step_cpu(kernel: DfdKernel, renderer: DfdRenderer, s: &RenderSettings, (w, h)
     let (blur, lens) = level_blur_lens(s, w, lw, lh);
     let pixels = (lw * lh) as f64;
     // The largest CoC a source can have here, at most what the window holds.
-    let radius = ((blur * focus_room(s.focus)) as f64).min((lens / 2) as f64);
+    let radius = (coc_radius(focus_room(s.focus), blur) as f64).min((lens / 2) as f64);
     let window = aperture::disk_tap_count(lens) as f64;
     let covered = (std::f64::consts::PI * (radius + 1.0).powi(2)).min(window);
     let render = match (renderer, kernel) {
