@@ -1,9 +1,10 @@
 //! The `dfd` subcommand (depth from defocus): flag parsing, the progress bar and the summary;
 //! the work is in `drbokeh::diff::dfd_job`.
 
-use crate::{ProfileArg, as_flags, print_json, set_threads};
+use crate::{ProfileArg, as_flags, flag_names, print_json, set_threads};
 use clap::{Args, ValueEnum};
-use drbokeh::diff::dfd::{DfdKernel, DfdOptions, LossVariant};
+use drbokeh::Error;
+use drbokeh::diff::dfd::{self, DfdKernel, DfdOptions, Event, LossVariant};
 use drbokeh::diff::dfd_job::{self, DfdJob};
 use drbokeh::io::ReadLimits;
 use drbokeh::render::RenderSettings;
@@ -75,16 +76,21 @@ pub struct DfdArgs {
     /// float32) or .exr (channel Y).
     #[arg(short, long, value_name = "OUT")]
     output: PathBuf,
-    /// Adam steps per resolution level.
-    #[arg(long, value_name = "N", default_value_t = DfdOptions::default().iters)]
-    iters: usize,
+    // The counts and the step size are parsed signed (a negative value reaches the library's
+    // rule, whose message names the flag, instead of clap's "unexpected argument '-1'").
+    /// Adam steps per resolution level (1 to 100000).
+    #[arg(long, value_name = "N", default_value_t = DfdOptions::default().iters as i64, allow_negative_numbers = true)]
+    iters: i64,
     /// Resolution levels, coarse to fine (each half the size of the next); 1 = full size only.
-    #[arg(long, value_name = "N", default_value_t = DfdOptions::default().levels)]
-    levels: usize,
+    /// Capped, with a warning, where a level would be under 8 px a side or blur no pixel by 1 px.
+    #[arg(long, value_name = "N", default_value_t = DfdOptions::default().levels as i64, allow_negative_numbers = true)]
+    levels: i64,
     /// Adam's step size, in normalized disparity.
-    #[arg(long, value_name = "LR", default_value_t = DfdOptions::default().learning_rate)]
+    #[arg(long, value_name = "LR", default_value_t = DfdOptions::default().learning_rate, allow_negative_numbers = true)]
     learning_rate: f32,
-    /// The disparity every pixel starts from.
+    /// The disparity every pixel starts from. A start within half a pixel of blur of the focal
+    /// plane cannot move: it is replaced (half-way out on the side with more room), with a
+    /// warning.
     #[arg(long, value_name = "D", default_value_t = DfdOptions::default().init, allow_hyphen_values = true)]
     init: f32,
     /// Lens calibration of the renderer inverted.
@@ -107,23 +113,27 @@ pub struct DfdArgs {
     #[arg(long, value_name = "PNG")]
     plot: Option<PathBuf>,
     /// Worker threads [default: all cores].
-    #[arg(long, value_name = "N")]
-    threads: Option<usize>,
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    threads: Option<i64>,
     /// Print a machine-readable summary (JSON) to stdout.
     #[arg(long)]
     json: bool,
 }
 
 pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
-    set_threads(args.threads)?;
+    let threads = args
+        .threads
+        .map(|n| usize::try_from(n).map_err(|_| Error::usage(format!("--threads must be a count of worker threads >= 1, got {n}"))))
+        .transpose()?;
+    set_threads(threads)?;
     // SIGINT/SIGTERM: remove the temporary output files, exit 130.
     let _ = ctrlc::set_handler(|| {
         eprintln!("\ninterrupted");
         drbokeh::io::atomic::remove_in_flight_temps_and_exit(130);
     });
     let options = DfdOptions {
-        iters: args.iters,
-        levels: args.levels,
+        iters: dfd::check_iters("dfd.iters", args.iters).map_err(as_flags)?,
+        levels: dfd::check_levels("dfd.levels", args.levels).map_err(as_flags)?,
         learning_rate: args.learning_rate,
         init: args.init,
         weights: LossVariant::from(args.loss).weights(),
@@ -146,14 +156,24 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
         options,
         limits: ReadLimits::default(),
     };
-    let bar = ProgressBar::new((options.iters * options.levels) as u64);
+    // The length comes with the plan (the levels the photo allows).
+    let bar = ProgressBar::new(0);
     bar.set_style(ProgressStyle::with_template("dfd {bar:40} {pos}/{len} steps, {msg} ({elapsed}, eta {eta})").expect("template"));
-    let report = dfd_job::run(&job, |s| {
-        bar.inc(1);
-        bar.set_message(format!("level {} loss {:.5}", s.level, s.loss));
+    let mut report = dfd_job::run(&job, |e| match e {
+        Event::Plan(p) => bar.set_length(p.steps as u64),
+        // At once: a long run is announced before it starts.
+        Event::Warning(m) => bar.suspend(|| eprintln!("warning: {}", flag_names(m))),
+        Event::Step(s) => {
+            bar.inc(1);
+            bar.set_message(format!("level {} loss {:.5}", s.level, s.loss));
+        }
     })
     .map_err(as_flags)?;
     bar.finish_and_clear();
+    // The report speaks the library's names too: the JSON gets the flags.
+    for w in &mut report.warnings {
+        *w = flag_names(w);
+    }
     if args.json {
         print_json(&report)?;
     } else {

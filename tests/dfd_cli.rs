@@ -1,14 +1,16 @@
 //! `drbokeh dfd`: recovery of a synthetic two-plane scene through the binary (files in, disparity
-//! map out), the loss log and plot, the ablation, and the usage-error contract.
+//! map out), the loss log and plot, the ablation, the usage-error contract, and the reliability
+//! rules (a start that can move, what the photo cannot tell, bounded runs, the final loss).
 
 mod common;
 
-use common::{Rng, assert_usage_error, drbokeh, run, stderr};
+use common::{Rng, assert_usage_error, drbokeh, run, run_within, stderr};
 use drbokeh::Image;
 use drbokeh::color::Transfer;
 use drbokeh::io::{self, ReadLimits};
 use drbokeh::render::{Kernel, Layer, Profile, RenderSettings, render};
 use std::path::Path;
+use std::time::Duration;
 
 const W: usize = 32;
 const H: usize = 32;
@@ -24,15 +26,50 @@ fn truth() -> Image {
 /// the exact render at `FOCUS`, `BLUR` of the AIF as the binary will read it (decoded back
 /// from the PNG) over the true disparity.
 fn write_scene(dir: &Path) {
+    write_scene_with(dir, &truth(), FOCUS, BLUR, "bokeh.exr");
+}
+
+/// Writes `aif.png` (a seeded 16-bit sRGB noise texture of `truth`'s size) and `bokeh`, the
+/// exact render (physical profile) at `focus`, `blur` of the AIF as the binary reads it, over
+/// the disparity `truth`.
+fn write_scene_with(dir: &Path, truth: &Image, focus: f32, blur: f32, bokeh: &str) {
+    let (w, h) = (truth.width, truth.height);
     let mut rng = Rng::new(9);
-    let aif = Image::from_vec(W, H, 3, (0..W * H * 3).map(|_| rng.next_f32()).collect()).unwrap();
+    let aif = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| rng.next_f32()).collect()).unwrap();
     io::write_png(&dir.join("aif.png"), &aif, 16, Transfer::Srgb).unwrap();
     let aif = io::read_photo(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
-    let s =
-        RenderSettings { blur: BLUR, focus: FOCUS, lens: 2 * (BLUR.ceil() as usize + 3) + 1, occlusion: true, profile: Profile::Physical };
-    let layer = Layer::from_parts(&aif, &Image::filled(W, H, 1, 1.0), &truth(), "truth").unwrap();
-    let bokeh = render(&[layer], &s, Kernel::Exact).unwrap();
-    io::write_output(&dir.join("bokeh.exr"), &bokeh, 8, Transfer::Linear).unwrap();
+    let lens = 2 * ((blur * focus.max(1.0 - focus)).ceil() as usize + 3) + 1;
+    let s = RenderSettings { blur, focus, lens, occlusion: true, profile: Profile::Physical };
+    let layer = Layer::from_parts(&aif, &Image::filled(w, h, 1, 1.0), truth, "truth").unwrap();
+    let out = render(&[layer], &s, Kernel::Exact).unwrap();
+    io::write_output(&dir.join(bokeh), &out, 8, Transfer::Linear).unwrap();
+}
+
+/// A `w × h` disparity: the left half at `left`, the right half at `right`.
+fn halves(w: usize, h: usize, left: f32, right: f32) -> Image {
+    Image::from_vec(w, h, 1, (0..w * h).map(|i| if i % w < w / 2 { left } else { right }).collect()).unwrap()
+}
+
+/// `drbokeh dfd ARGS --json` in `dir`, killed after `limit`: exit 0 expected; the report and
+/// stderr.
+fn dfd_json(dir: &Path, args: &[&str], limit: Duration) -> (serde_json::Value, String) {
+    let mut c = drbokeh(dir);
+    c.arg("dfd").args(args).arg("--json");
+    let out = run_within(c, limit);
+    let err = stderr(&out);
+    assert!(out.status.success(), "dfd {args:?} failed: {err}");
+    (serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("dfd {args:?}: not JSON ({e})")), err)
+}
+
+/// The report's warnings, joined.
+fn warnings(report: &serde_json::Value) -> String {
+    report["warnings"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no warnings list in {report}"))
+        .iter()
+        .map(|w| w.as_str().unwrap())
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 fn dfd(dir: &Path, extra: &[&str]) -> std::process::Command {
@@ -138,4 +175,186 @@ fn usage_errors() {
         &["--kernel ray", "--profile physical"],
         &with(&["--kernel", "ray", "--profile", "official", "-o", "d.npy"]),
     );
+}
+
+/// Item 1 of issue 34: a photo focused at 0.5 with the default start 0.5 had every pixel's CoC
+/// under half a pixel, a zero gradient, and came back as its start (map 0.5 everywhere, loss
+/// unchanged). Now that start is replaced by 0.25 (half-way out): the distance from the focal
+/// plane is recovered (halves at 0.2 and 0.85, K 8: within 0.05 of |d − 0.5|, against 0.325 for the
+/// stuck map), the loss drops, and the near/far ambiguity is a warning naming --focus, on
+/// stderr and in the JSON.
+#[test]
+fn a_start_on_the_focal_plane_moves() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let truth = halves(W, H, 0.2, 0.85);
+    write_scene_with(dir, &truth, 0.5, 8.0, "b.exr");
+    let args = ["aif.png", "b.exr", "--focus", "0.5", "--blur", "8", "--iters", "20", "--levels", "2", "-o", "d.npy"];
+    let (report, err) = dfd_json(dir, &args, Duration::from_secs(60));
+    let d = io::read_npy(&dir.join("d.npy"), u64::MAX).unwrap();
+    let dist = |v: f32| (v - 0.5).abs();
+    let e = d.data.iter().zip(&truth.data).map(|(a, b)| (dist(*a) - dist(*b)).abs() as f64).sum::<f64>() / (W * H) as f64;
+    let (first, last) = (report["first"]["loss"].as_f64().unwrap(), report["last"]["loss"].as_f64().unwrap());
+    eprintln!("| |d - f| - |truth - f| | = {e:.4}; loss {first:.5} -> {last:.5}; {err}");
+    assert!(e < 0.05, "mean error of |d - focus| {e:.4} (the stuck map: 0.325)");
+    assert!(last < 0.5 * first, "loss {first} -> {last}");
+    let w = warnings(&report);
+    assert!(w.contains("--focus 0.5") && w.contains("side"), "the near/far warning: {w}");
+    assert!(err.contains("warning: --focus 0.5"), "{err}");
+}
+
+/// Item 1: a start in the dead band (`--init 1 --focus 1`) is replaced by one half-way out
+/// (0.5), with a warning naming --init; the map moves to the truth (halves 1 and 0.4).
+#[test]
+fn a_dead_uniform_start_is_replaced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let (report, _) = dfd_json(
+        dir,
+        &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--init", "1", "--iters", "20", "--levels", "2", "-o", "d.npy"],
+        Duration::from_secs(60),
+    );
+    let w = warnings(&report);
+    assert!(w.contains("--init 1") && w.contains("started from 0.5"), "{w}");
+    let err = mean_abs_error(&io::read_npy(&dir.join("d.npy"), u64::MAX).unwrap());
+    assert!(err < 0.06, "mean disparity error {err:.4} (the stuck map: 0.30)");
+}
+
+/// Item 1: where no disparity blurs a pixel by half a pixel (K 0.4 at focus 0.5: at most
+/// 0.2 px) the photo cannot tell the map: a warning naming --blur, exit 0.
+#[test]
+fn a_photo_without_blur_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene_with(dir, &halves(W, H, 0.2, 0.85), 0.5, 0.4, "b.exr");
+    for blur in ["0.4", "0"] {
+        let (report, err) =
+            dfd_json(dir, &["aif.png", "b.exr", "--focus", "0.5", "--blur", blur, "--iters", "3", "-o", "d.npy"], Duration::from_secs(60));
+        let w = warnings(&report);
+        assert!(w.contains(&format!("--blur {blur}")) && w.contains("does not determine the map"), "{w}");
+        assert!(err.contains("does not determine"), "{err}");
+    }
+}
+
+/// Item 10: a focus outside [0, 1] is clamped as `render` clamps it, with a warning naming
+/// --focus; the report gives the focus used.
+#[test]
+fn focus_outside_the_range_is_clamped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let (report, _) = dfd_json(
+        dir,
+        &["aif.png", "bokeh.exr", "--focus", "2", "--blur", "4", "--iters", "3", "--levels", "1", "-o", "d.npy"],
+        Duration::from_secs(60),
+    );
+    assert_eq!(report["focus"], 1.0);
+    assert!(warnings(&report).contains("--focus 2 is outside [0, 1]"), "{report}");
+}
+
+/// Item 10: the report's "last" is the loss of the map returned (evaluated after the last
+/// update), checked against the library's own render and loss of the written map.
+#[test]
+fn last_loss_is_the_returned_maps() {
+    use drbokeh::diff::dfd::DfdOptions;
+    use drbokeh::diff::dfd_plan::level_blur_lens;
+    use drbokeh::diff::loss;
+    use drbokeh::render::Tape;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let (report, _) = dfd_json(
+        dir,
+        &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "3", "--levels", "1", "-o", "d.npy"],
+        Duration::from_secs(60),
+    );
+    assert_eq!((report["plan"]["kernel"].as_str(), report["plan"]["finest_level"].as_u64()), (Some("ray"), Some(0)));
+    assert_eq!(report["last"]["iter"], 3);
+    let d = io::read_npy(&dir.join("d.npy"), u64::MAX).unwrap();
+    let aif = io::read_photo(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
+    let target = io::read_photo(&dir.join("bokeh.exr"), Transfer::Srgb, &ReadLimits::default()).unwrap();
+    let mut s = RenderSettings { blur: BLUR, focus: FOCUS, lens: 0, occlusion: true, profile: Profile::Physical };
+    s.lens = level_blur_lens(&s, W, W, H).1;
+    let o = DfdOptions::default();
+    let layers = [Layer::from_parts(&aif, &Image::filled(W, H, 1, 1.0), &d, "estimate").unwrap()];
+    let img = Tape::record_with(&layers, &s, o.smoothing, true).unwrap().image().clone();
+    let wts = o.weights;
+    let expected = wts.l1 as f64 * loss::l1(&img, &target).value
+        + wts.ssim as f64 * loss::hssim(&img, &target, wts.windows).value
+        + wts.smoothness as f64 * loss::gradient_smoothness(&d).value;
+    let last = report["last"]["loss"].as_f64().unwrap();
+    assert!((last - expected).abs() <= 1e-6 * expected.max(1e-3), "reported {last}, the returned map's {expected}");
+}
+
+/// Item 10: negative values reach the flags' own rules (not clap's "unexpected argument '-1'
+/// found"); a count beyond the bound is refused at once.
+#[test]
+fn negative_and_huge_counts_name_their_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let base = ["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "-o", "d.npy"];
+    for (flag, value) in [
+        ("--learning-rate", "-0.02"),
+        ("--iters", "-1"),
+        ("--levels", "-1"),
+        ("--threads", "-1"),
+        ("--iters", "4294967296"),
+        ("--iters", "0"),
+    ] {
+        let err = assert_usage_error(dir, &format!("dfd {flag} {value}"), &[flag, value], || {
+            let mut c = drbokeh(dir);
+            c.arg("dfd").args(base).args([flag, value]);
+            run_within(c, Duration::from_secs(30))
+        });
+        assert!(!err.contains("unexpected argument"), "{flag} {value}: {err}");
+    }
+}
+
+/// Item 7: more levels than the photo allows are capped at once, with a warning naming
+/// --levels (a million levels on 64×64 took 54 s and 245 MB).
+#[test]
+fn levels_are_capped_by_the_photo() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let (report, _) = dfd_json(
+        dir,
+        &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "2", "--levels", "1000000", "-o", "d.npy"],
+        Duration::from_secs(20),
+    );
+    // 32, 16 and 8 px; K 1 at the coarsest: a pixel of CoC at most.
+    assert_eq!(report["plan"]["levels"], 3);
+    assert_eq!(report["steps"], 6);
+    assert!(warnings(&report).contains("--levels 1000000"), "{report}");
+}
+
+/// Item 8: a blur wider than the frame is planned with the window drawn (the frame's) and
+/// every tap covered. `--blur 1e9 --iters 5 --levels 1` on 64×64 ran at full size (5 steps of
+/// 16 CPU seconds: 40 s on 2 threads); the plan now optimises at 32×32, within its budget.
+#[test]
+fn a_blur_wider_than_the_frame_is_planned_by_its_window() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene_with(dir, &halves(64, 64, 1.0, 0.4), 1.0, 4.0, "b.exr");
+    let args = ["aif.png", "b.exr", "--focus", "1", "--blur", "1e9", "--iters", "5", "--levels", "1", "-o", "d.npy"];
+    let (report, _) = dfd_json(dir, &args, Duration::from_secs(25));
+    let plan = &report["plan"];
+    assert!(plan["finest_level"].as_u64().unwrap() >= 1, "{plan}");
+    let budget = drbokeh::diff::dfd::AUTO_CPU_BUDGET;
+    assert!(plan["cpu_seconds"].as_f64().is_some_and(|c| c <= budget), "{plan}");
+}
+
+/// Item 9: the default run on 64×64 at K 30 took 48 s on 2 threads; the plan keeps every
+/// default run within its budget (about 40 s there in the worst case of the cost model), and
+/// this one takes a few seconds.
+#[test]
+fn a_default_run_on_a_tiny_photo_is_quick() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene_with(dir, &halves(64, 64, 1.0, 0.4), 1.0, 30.0, "b.exr");
+    let (report, _) = dfd_json(dir, &["aif.png", "b.exr", "--focus", "1", "--blur", "30", "-o", "d.npy"], Duration::from_secs(30));
+    let budget = drbokeh::diff::dfd::AUTO_CPU_BUDGET;
+    assert!(report["plan"]["cpu_seconds"].as_f64().is_some_and(|c| c <= budget), "{}", report["plan"]);
 }

@@ -13,13 +13,20 @@
 //! iteration: one render and its VJP at the level's size: O(pixels·(R + bins)) with the span
 //! render (R the largest CoC, bins the depth bins a stripe of rows sees), O(pixels·lens²) with
 //! the exact tape, with or without the ray test (the Gaussian PSF: O(pixels·(2R+1)²),
-//! R ≈ 1.5·K·max(focus, 1 − focus)).
+//! R ≈ 1.5·K·max(focus, 1 − focus)). The plan (render, levels, cost) is [`super::dfd_plan`];
+//! the start, and what a defocused photo cannot tell (near or far, nothing below half a pixel
+//! of blur), [`super::dfd_start`].
 
+pub use super::dfd_plan::{AUTO_CPU_BUDGET, AUTO_MIN_SIDE, DfdPlan, MAX_ITERS, check_iters, check_levels, level_size, plan};
+
+use super::dfd_plan::{LONG_RUN_SECONDS, focus_room, level_blur_lens};
+use super::dfd_start::{self, ambiguous_share, movable_start, undetermined};
 use super::gauss_psf::{GaussTape, window_radius};
 use super::loss::{self, HSSIM_WINDOWS};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape, check_blur, check_focus, max_lens};
+use crate::render::lens::coc_radius;
+use crate::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape, check_blur, check_focus};
 
 /// The window of the plain (single-scale) SSIM term, pixels: the usual 11×11 of Wang et al.
 pub const SSIM_WINDOW: [usize; 1] = [11];
@@ -102,8 +109,8 @@ impl DfdRenderer {
 #[serde(rename_all = "kebab-case")]
 pub enum DfdKernel {
     /// [`DfdKernel::Ray`] where it applies (physical profile, occlusion on) and its estimated
-    /// cost over all levels stays within [`AUTO_RAY_BUDGET`]; [`DfdKernel::Fast`] otherwise
-    /// (see [`plan`]).
+    /// cost over all levels stays within [`DfdOptions::cpu_budget`] at some level;
+    /// [`DfdKernel::Fast`] otherwise (see [`plan`]).
     #[default]
     Auto,
     /// [`SpanTape`]: spans instead of taps, the in-layer depth groups interpolated between
@@ -119,77 +126,6 @@ pub enum DfdKernel {
     /// statistical fill of the other two only approximates. O(pixels·lens²) per step, about
     /// 1.7x the exact tape.
     Ray,
-}
-
-/// The most tap evaluations (Σ over levels of steps × pixels × window taps) that
-/// [`DfdKernel::Auto`] spends on the ray test: about two minutes of optimisation on 2 cores
-/// (a 128×128 step at K 15, 17.6 M taps, takes 0.47 s there). A 64×64 view at K 6.4 needs
-/// 2e8, 128×128 at K 15 2.3e9, 256×256 at K 30 3.6e10 (that one is then optimised at 128×128).
-pub const AUTO_RAY_BUDGET: f64 = 4e9;
-
-/// The smallest side, pixels, of the finest level [`DfdKernel::Auto`] may optimise at instead of
-/// the full size.
-pub const AUTO_MIN_SIDE: usize = 16;
-
-/// How [`estimate`] runs: the differentiable render, and the finest resolution level it
-/// optimises at (0: full size; above 0 the map is optimised at that level's size, the
-/// pyramid's `levels` levels ending there, and resized to the photo's size at the end).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-pub struct DfdPlan {
-    /// The render ([`DfdKernel::Auto`] resolved).
-    pub kernel: DfdKernel,
-    /// The finest level (see [`level_size`]).
-    pub finest_level: usize,
-    /// Width of the map optimised at the finest level, pixels.
-    pub width: usize,
-    /// Its height.
-    pub height: usize,
-}
-
-/// The plan of [`estimate`] for a `w × h` photo with settings `s` and `opts`. An explicit
-/// kernel runs at full size. [`DfdKernel::Auto`] takes the ray test where it applies (physical
-/// profile, occlusion on, the Dr.Bokeh renderer), at the finest level whose pyramid costs at
-/// most `opts.ray_budget` (not below [`AUTO_MIN_SIDE`] pixels a side), and the span render at
-/// full size where none does or the test does not apply (without occlusion the span render is
-/// the exact tape's function, and cheaper). On the bench's scenes at 128 and 256 px the ray
-/// test at a reduced size, resized, beat the span render at full size (README "The ray test").
-pub fn plan(w: usize, h: usize, s: &RenderSettings, opts: &DfdOptions) -> DfdPlan {
-    let at = |kernel, finest_level| {
-        let (width, height) = level_size(w, h, finest_level);
-        DfdPlan { kernel, finest_level, width, height }
-    };
-    if opts.kernel != DfdKernel::Auto {
-        return at(opts.kernel, 0);
-    }
-    if opts.renderer != DfdRenderer::DrBokeh || s.profile != Profile::Physical || !s.occlusion {
-        return at(DfdKernel::Fast, 0);
-    }
-    let cost = |finest: usize| -> f64 {
-        (finest..finest + opts.levels.min(64))
-            .map(|level| {
-                let (lw, lh) = level_size(w, h, level);
-                let (_, lens) = level_blur_lens(s, w, lw, lh);
-                opts.iters as f64 * (lw * lh) as f64 * (lens * lens) as f64 * std::f64::consts::FRAC_PI_4
-            })
-            .sum()
-    };
-    (0..64usize)
-        .take_while(|&l| {
-            let (lw, lh) = level_size(w, h, l);
-            l == 0 || lw.min(lh) >= AUTO_MIN_SIDE
-        })
-        .find(|&l| cost(l) <= opts.ray_budget)
-        .map_or_else(|| at(DfdKernel::Fast, 0), |l| at(DfdKernel::Ray, l))
-}
-
-/// A level's K (scaled with its width) and lens window (what the disparity range [0, 1] needs
-/// there, at most the level's largest window).
-fn level_blur_lens(s: &RenderSettings, w: usize, lw: usize, lh: usize) -> (f32, usize) {
-    // The ratio first: K near f32::MAX times the width would overflow to inf.
-    let blur = s.blur * (lw as f32 / w as f32);
-    // Saturating: a huge K (legal, finite) must give the widest window, not a wrapped one.
-    let reach = ((blur * s.focus.max(1.0 - s.focus).max(0.0)).ceil() as usize).saturating_add(3);
-    (blur, reach.saturating_mul(2).saturating_add(1).min(max_lens(lw, lh) | 1))
 }
 
 impl DfdKernel {
@@ -234,10 +170,12 @@ impl Recording<'_> {
 /// Options of [`estimate`].
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct DfdOptions {
-    /// Adam steps per resolution level.
+    /// Adam steps per resolution level, 1..=[`MAX_ITERS`] ([`check_iters`]).
     pub iters: usize,
     /// Resolution levels, coarsest first (each half the size of the next), ending at the plan's
     /// finest level ([`plan`]: full size unless `auto` chose a smaller one); 1 = that level only.
+    /// More than the photo and the blur allow are capped ([`super::dfd_plan::useful_levels`]),
+    /// with a warning.
     pub levels: usize,
     /// Adam's step size, in units of normalized disparity.
     pub learning_rate: f32,
@@ -246,15 +184,17 @@ pub struct DfdOptions {
     /// The physical profile's smooth edges (see [`Smoothing`]).
     #[serde(skip)]
     pub smoothing: Smoothing,
-    /// The disparity every pixel starts from.
+    /// The disparity every pixel starts from, in [0, 1]; one in the dead band of the first
+    /// level (within half a pixel of blur of the focal plane, where the map cannot move) is
+    /// replaced, with a warning ([`super::dfd_start::movable_start`]).
     pub init: f32,
     /// The renderer inverted.
     pub renderer: DfdRenderer,
     /// The Dr.Bokeh render differentiated (see [`DfdKernel`]).
     pub kernel: DfdKernel,
-    /// The most tap evaluations [`DfdKernel::Auto`] spends on the ray test ([`plan`];
-    /// default [`AUTO_RAY_BUDGET`]).
-    pub ray_budget: f64,
+    /// The estimated CPU seconds [`DfdKernel::Auto`] plans a run for ([`plan`]; default
+    /// [`AUTO_CPU_BUDGET`]).
+    pub cpu_budget: f64,
 }
 
 impl Default for DfdOptions {
@@ -268,7 +208,7 @@ impl Default for DfdOptions {
             init: 0.5,
             renderer: DfdRenderer::DrBokeh,
             kernel: DfdKernel::Auto,
-            ray_budget: AUTO_RAY_BUDGET,
+            cpu_budget: AUTO_CPU_BUDGET,
         }
     }
 }
@@ -278,7 +218,8 @@ impl Default for DfdOptions {
 pub struct Step {
     /// Resolution level ([`level_size`]), counting down to the plan's finest level (0: full size).
     pub level: usize,
-    /// Iteration within the level.
+    /// Iteration within the level: the losses of the map before update `iter` (`iters` for
+    /// the map after the last update, [`Estimate::last`]).
     pub iter: usize,
     /// Total loss.
     pub loss: f64,
@@ -290,17 +231,118 @@ pub struct Step {
     pub ssim: f64,
 }
 
+/// What [`estimate_with`] tells as it goes.
+#[derive(Clone, Copy, Debug)]
+pub enum Event<'a> {
+    /// The plan, before the first step.
+    Plan(&'a DfdPlan),
+    /// A warning, the moment it is known (a long run is announced before it starts); every
+    /// one is also in [`Estimate::warnings`].
+    Warning(&'a str),
+    /// An Adam step was taken: the losses of the map it started from.
+    Step(Step),
+}
+
+/// The result of [`estimate_with`].
+#[derive(Clone, Debug)]
+pub struct Estimate {
+    /// The disparity: one channel, the photos' size, in [0, 1].
+    pub disparity: Image,
+    /// How the run went ([`plan`]).
+    pub plan: DfdPlan,
+    /// The losses of the first step at the finest level (of the map that level started from).
+    pub first: Step,
+    /// The losses of the map returned, at the finest level's size (evaluated once more after
+    /// the last update; `iter` = `iters`).
+    pub last: Step,
+    /// What the user should know, naming the parameters (`render.focus`, `dfd.levels`, ...):
+    /// a clamped focus, capped levels, a long run, a start that could not move, a photo that
+    /// cannot tell the map or its near/far side.
+    pub warnings: Vec<String>,
+}
+
 /// Estimates the disparity (one channel, the photos' size, in [0, 1], the units of `focus`
 /// and `K`) from an all-in-focus photo `aif` and a photo `bokeh` of the same view rendered or
-/// taken at `s.focus` with blur `s.blur` (both linear RGB). `s.lens` is ignored: each level
-/// uses the window that the whole disparity range [0, 1] needs. `step` is called after every
-/// iteration. Errors (usage, naming the parameter): photos of different sizes or channel
-/// counts, a non-finite focus (`render.focus`), a blur that is not a finite number >= 0
-/// (`render.blur`), no iterations (`dfd.iters`) or levels (`dfd.levels`), a learning rate
-/// that is not a finite number > 0 (`dfd.learning_rate`), a start outside [0, 1] (`dfd.init`),
-/// [`DfdKernel::Ray`] with the official profile (`dfd.kernel`). `opts.kernel`'s
-/// [`DfdKernel::Auto`] is resolved once for all levels, with the finest level ([`plan`]).
+/// taken at `s.focus` with blur `s.blur` (both linear RGB): [`estimate_with`]'s map, `step`
+/// called after every iteration.
 pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptions, mut step: impl FnMut(Step)) -> Result<Image> {
+    estimate_with(aif, bokeh, s, opts, |e| {
+        if let Event::Step(st) = e {
+            step(st)
+        }
+    })
+    .map(|e| e.disparity)
+}
+
+/// [`estimate`] with its plan, its final losses and its warnings, `on` told of each as it
+/// comes ([`Event`]). `s.lens` is ignored: each level uses the window that the whole disparity
+/// range [0, 1] needs. A focus outside [0, 1] is clamped to it, with a warning (as `render`
+/// does). Errors (usage, naming the parameter): photos of different sizes or channel counts,
+/// a non-finite focus (`render.focus`), a blur that is not a finite number >= 0
+/// (`render.blur`), iterations outside 1..=[`MAX_ITERS`] (`dfd.iters`), no levels
+/// (`dfd.levels`), a learning rate that is not a finite number > 0 (`dfd.learning_rate`), a
+/// start outside [0, 1] (`dfd.init`), [`DfdKernel::Ray`] with the official profile
+/// (`dfd.kernel`). `opts.kernel`'s [`DfdKernel::Auto`] is resolved once for all levels, with
+/// the finest level ([`plan`]).
+pub fn estimate_with(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptions, mut on: impl FnMut(Event)) -> Result<Estimate> {
+    check_options(aif, bokeh, s, opts)?;
+    let mut warnings = Vec::new();
+    let mut warn = |m: String, on: &mut dyn FnMut(Event)| {
+        on(Event::Warning(&m));
+        warnings.push(m);
+    };
+    let (focus, clamped) = focus_in_range("render.focus", s.focus);
+    if let Some(m) = clamped {
+        warn(m, &mut on);
+    }
+    let s = RenderSettings { focus, ..*s };
+    let (w, h) = (aif.width, aif.height);
+    let plan = plan(w, h, &s, opts);
+    let opts = DfdOptions { kernel: plan.kernel, ..*opts };
+    if opts.kernel == DfdKernel::Ray && s.profile != Profile::Physical {
+        return Err(Error::usage(
+            "dfd.kernel ray needs render.profile physical: the ray test is a term of the physical profile's depth groups",
+        ));
+    }
+    on(Event::Plan(&plan));
+    for m in plan_warnings(&s, &opts, &plan) {
+        warn(m, &mut on);
+    }
+    let (start, why) = start_map(w, h, &s, &opts, &plan);
+    if let Some(m) = why {
+        warn(m, &mut on);
+    }
+    // Coarsest level first; each level starts from the previous one's map, resized.
+    let mut d = start;
+    let mut first = None;
+    let mut last = None;
+    for level in (plan.finest_level..plan.finest_level + plan.levels).rev() {
+        let (lw, lh) = level_size(w, h, level);
+        let (a, b) = (aif.resized(lw, lh), bokeh.resized(lw, lh));
+        let mut ls = s;
+        (ls.blur, ls.lens) = level_blur_lens(&s, w, lw, lh);
+        let mut step = |st: Step| {
+            if level == plan.finest_level && first.is_none() {
+                first = Some(st);
+            }
+            on(Event::Step(st));
+        };
+        d = optimise_level(&a, &b, d.resized(lw, lh), &ls, &opts, level, &mut step)?;
+        if level == plan.finest_level {
+            let terms = evaluate(&a, &b, &d, &ls, &opts, false)?.0;
+            last = Some(terms.at(level, opts.iters));
+            if let Some(m) = near_far_warning(&d, &ls) {
+                warn(m, &mut on);
+            }
+        }
+    }
+    let disparity = if (d.width, d.height) == (w, h) { d } else { d.resized(w, h) };
+    let (first, last) = first.zip(last).ok_or_else(|| Error::Internal("dfd: no step was run at the finest level".into()))?;
+    Ok(Estimate { disparity, plan, first, last, warnings })
+}
+
+/// The checks of [`estimate_with`] (see there).
+fn check_options(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptions) -> Result<()> {
     if (aif.width, aif.height) != (bokeh.width, bokeh.height) || aif.channels != 3 || bokeh.channels != 3 {
         return Err(Error::usage(format!(
             "the all-in-focus photo is {}x{} with {} channels and the defocused one {}x{} with {}: they must be the same size, RGB",
@@ -309,50 +351,155 @@ pub fn estimate(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOption
     }
     check_focus("render.focus", s.focus)?;
     check_blur("render.blur", s.blur)?;
-    if opts.iters == 0 {
-        return Err(Error::usage("dfd.iters must be >= 1"));
-    }
-    if opts.levels == 0 {
-        return Err(Error::usage("dfd.levels must be >= 1"));
-    }
+    check_iters("dfd.iters", i64::try_from(opts.iters).unwrap_or(i64::MAX))?;
+    check_levels("dfd.levels", i64::try_from(opts.levels).unwrap_or(i64::MAX))?;
     if !opts.learning_rate.is_finite() || opts.learning_rate <= 0.0 {
         return Err(Error::usage(format!("dfd.learning_rate must be a finite number > 0, got {}", opts.learning_rate)));
     }
     if !(0.0..=1.0).contains(&opts.init) {
         return Err(Error::usage(format!("dfd.init must be a normalized disparity in [0, 1], got {}", opts.init)));
     }
-    let (w, h) = (aif.width, aif.height);
-    let plan = plan(w, h, s, opts);
-    let opts = DfdOptions { kernel: plan.kernel, ..*opts };
-    if opts.kernel == DfdKernel::Ray && s.profile != Profile::Physical {
-        return Err(Error::usage(
-            "dfd.kernel ray needs render.profile physical: the ray test is a term of the physical profile's depth groups",
+    Ok(())
+}
+
+/// A focal plane given as normalized disparity, clamped to the disparity range [0, 1], with
+/// the warning that says so (the rule of `render`, `Pipeline::resolve_focus`); `key` names
+/// the parameter (`render.focus`).
+pub fn focus_in_range(key: &str, f: f32) -> (f32, Option<String>) {
+    if (0.0..=1.0).contains(&f) {
+        return (f, None);
+    }
+    let c = f.clamp(0.0, 1.0);
+    (c, Some(format!("{key} {f} is outside [0, 1] (the scene's disparity range); clamped to {c}")))
+}
+
+/// What the plan's user should know before it runs: levels capped, a long run, a photo whose
+/// blur cannot tell any disparity.
+fn plan_warnings(s: &RenderSettings, opts: &DfdOptions, plan: &DfdPlan) -> Vec<String> {
+    let mut out = Vec::new();
+    let blind = undetermined(s.blur, s.focus);
+    // A photo that shows no blur explains the levels too (none below the finest sees any).
+    if plan.levels < opts.levels && !blind {
+        out.push(format!(
+            "dfd.levels {}: the pyramid from {}x{} has {} level(s) that can see the blur (a coarser one would be under {} px a side or blur no pixel by {} px); running {}",
+            opts.levels,
+            plan.width,
+            plan.height,
+            plan.levels,
+            super::dfd_plan::MIN_LEVEL_SIDE,
+            super::dfd_plan::MIN_LEVEL_COC,
+            plan.levels
         ));
     }
-    let mut disparity: Option<Image> = None;
-    for level in (plan.finest_level..plan.finest_level + opts.levels).rev() {
-        let (lw, lh) = level_size(w, h, level);
-        let (a, b) = (aif.resized(lw, lh), bokeh.resized(lw, lh));
-        let d = match disparity.take() {
-            Some(d) => d.resized(lw, lh),
-            None => Image::filled(lw, lh, 1, opts.init),
-        };
-        let mut ls = *s;
-        (ls.blur, ls.lens) = level_blur_lens(s, w, lw, lh);
-        disparity = Some(optimise_level(&a, &b, d, &ls, &opts, level, &mut step)?);
+    let threads = rayon::current_num_threads();
+    let secs = plan.seconds(threads);
+    if secs > LONG_RUN_SECONDS {
+        let when = if secs < 5400.0 { format!("{:.0} minutes", secs / 60.0) } else { format!("{:.1} hours", secs / 3600.0) };
+        out.push(format!(
+            "dfd.iters {} x {} level(s) with the {} render up to {}x{} will take up to about {when} here ({threads} threads); fewer steps (dfd.iters) or levels (dfd.levels) take less",
+            opts.iters,
+            plan.levels,
+            plan.kernel.name(),
+            plan.width,
+            plan.height
+        ));
     }
-    let d = disparity.expect("at least one level");
-    Ok(if (d.width, d.height) == (w, h) { d } else { d.resized(w, h) })
+    if blind {
+        out.push(format!(
+            "render.blur {} at render.focus {}: no disparity in [0, 1] blurs a pixel by {} px (the largest CoC radius is {:.3} px), so the photo does not determine the map; it is returned as it started",
+            s.blur,
+            s.focus,
+            dfd_start::DEAD_COC_PX,
+            coc_radius(focus_room(s.focus), s.blur)
+        ));
+    }
+    out
 }
 
-/// The size of resolution level `level` of a `w × h` photo: each side divided by `2^level`
-/// (rounded down, at least 1 pixel). Level 0 is full size.
-pub fn level_size(w: usize, h: usize, level: usize) -> (usize, usize) {
-    let f = 1usize.checked_shl(level as u32).unwrap_or(usize::MAX);
-    ((w / f).max(1), (h / f).max(1))
+/// The map the first (coarsest) level starts from: `init` everywhere, or the replacement of
+/// a start in that level's dead band ([`movable_start`]) with the warning that says so. Where
+/// the photo cannot tell anything ([`undetermined`]) `init` is kept (and returned).
+fn start_map(w: usize, h: usize, s: &RenderSettings, opts: &DfdOptions, plan: &DfdPlan) -> (Image, Option<String>) {
+    let coarsest = plan.finest_level + plan.levels - 1;
+    let (cw, ch) = level_size(w, h, coarsest);
+    let (blur, _) = level_blur_lens(s, w, cw, ch);
+    match movable_start(opts.init, blur, s.focus) {
+        Some(d) if !undetermined(s.blur, s.focus) => (
+            Image::filled(cw, ch, 1, d),
+            Some(format!(
+                "dfd.init {} is within {} px of blur of render.focus {} at the first level ({cw}x{ch}, K {blur}), where the render does not change with the disparity and the map could not move; started from {d} instead (half-way out on the side of the focal plane with more room)",
+                opts.init,
+                dfd_start::DEAD_COC_PX,
+                s.focus
+            )),
+        ),
+        _ => (Image::filled(cw, ch, 1, opts.init), None),
+    }
 }
 
-/// Adam on one level's disparity.
+/// The near/far warning for the finest level's map `d` (settings `s` of that level): how
+/// much of it is blurred where the other side of the focal plane is in range too.
+fn near_far_warning(d: &Image, s: &RenderSettings) -> Option<String> {
+    let (behind, front) = ambiguous_share(d, s.blur, s.focus);
+    (behind + front > 0.0).then(|| {
+        format!(
+            "render.focus {} lies inside the disparity range [0, 1]: defocus shows how far a pixel is from the focal plane, not on which side, and {:.0}% of the map is blurred where both sides are in range; the map keeps the side it started on (behind the focal plane: {:.0}%, in front: {:.0}%), and the other side fits the photo as well",
+            s.focus,
+            100.0 * (behind + front),
+            100.0 * behind,
+            100.0 * front
+        )
+    })
+}
+
+/// The loss terms of one render of a level's map.
+#[derive(Clone, Copy, Debug)]
+struct Terms {
+    loss: f64,
+    l1: f64,
+    smoothness: f64,
+    ssim: f64,
+}
+
+impl Terms {
+    fn at(self, level: usize, iter: usize) -> Step {
+        Step { level, iter, loss: self.loss, l1: self.l1, smoothness: self.smoothness, ssim: self.ssim }
+    }
+}
+
+/// Renders map `d` of one level (`aif`, `target` and the settings `s` of that level) with the
+/// options' renderer and kernel: the loss terms, and with `grad` the loss's gradient with
+/// respect to every pixel's disparity (the render's VJP plus the smoothness term's). One
+/// render (and one VJP) at the level's size.
+fn evaluate(aif: &Image, target: &Image, d: &Image, s: &RenderSettings, opts: &DfdOptions, grad: bool) -> Result<(Terms, Vec<f64>)> {
+    let alpha = Image::filled(aif.width, aif.height, 1, 1.0);
+    let layers;
+    let tape = match opts.renderer {
+        DfdRenderer::DrBokeh => {
+            layers = [Layer::from_parts(aif, &alpha, d, "dfd")?];
+            match opts.kernel {
+                DfdKernel::Fast | DfdKernel::Auto => Recording::Span(SpanTape::record(&layers[0], s, opts.smoothing)?),
+                k => Recording::DrBokeh(Tape::record_with(&layers, s, opts.smoothing, k == DfdKernel::Ray)?),
+            }
+        }
+        DfdRenderer::GaussPsf => Recording::Gauss(GaussTape::record(aif, d, s.focus, s.blur, window_radius(s.blur, s.focus))?),
+    };
+    let wts = opts.weights;
+    let l1 = loss::l1(tape.image(), target);
+    let hs = loss::hssim(tape.image(), target, wts.windows);
+    let sm = loss::gradient_smoothness(d);
+    let loss = wts.l1 as f64 * l1.value + wts.ssim as f64 * hs.value + wts.smoothness as f64 * sm.value;
+    let terms = Terms { loss, l1: l1.value, smoothness: sm.value, ssim: hs.value };
+    if !grad {
+        return Ok((terms, Vec::new()));
+    }
+    let mut seed = l1.grad;
+    seed.data.iter_mut().zip(&hs.grad.data).for_each(|(g, hg)| *g = *g * wts.l1 + hg * wts.ssim);
+    let g = tape.disparity_grad(&seed)?;
+    Ok((terms, g.iter().zip(&sm.grad.data).map(|(&g, &sg)| g as f64 + wts.smoothness as f64 * sg as f64).collect()))
+}
+
+/// Adam on one level's disparity, `step` told of each step's losses.
 fn optimise_level(
     aif: &Image,
     target: &Image,
@@ -365,32 +512,12 @@ fn optimise_level(
     let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8f64);
     let n = d.data.len();
     let (mut m, mut v) = (vec![0f64; n], vec![0f64; n]);
-    let alpha = Image::filled(aif.width, aif.height, 1, 1.0);
-    let wts = opts.weights;
-    let gauss_radius = window_radius(s.blur, s.focus);
     for it in 0..opts.iters {
-        let layers;
-        let tape = match opts.renderer {
-            DfdRenderer::DrBokeh => {
-                layers = [Layer::from_parts(aif, &alpha, &d, "dfd")?];
-                match opts.kernel {
-                    DfdKernel::Fast | DfdKernel::Auto => Recording::Span(SpanTape::record(&layers[0], s, opts.smoothing)?),
-                    k => Recording::DrBokeh(Tape::record_with(&layers, s, opts.smoothing, k == DfdKernel::Ray)?),
-                }
-            }
-            DfdRenderer::GaussPsf => Recording::Gauss(GaussTape::record(aif, &d, s.focus, s.blur, gauss_radius)?),
-        };
-        let l1 = loss::l1(tape.image(), target);
-        let hs = loss::hssim(tape.image(), target, wts.windows);
-        let sm = loss::gradient_smoothness(&d);
-        let mut seed = l1.grad.clone();
-        seed.data.iter_mut().zip(&hs.grad.data).for_each(|(g, hg)| *g = *g * wts.l1 + hg * wts.ssim);
-        let g = tape.disparity_grad(&seed)?;
-        let total = wts.l1 as f64 * l1.value + wts.ssim as f64 * hs.value + wts.smoothness as f64 * sm.value;
-        step(Step { level, iter: it, loss: total, l1: l1.value, smoothness: sm.value, ssim: hs.value });
+        let (terms, g) = evaluate(aif, target, &d, s, opts, true)?;
+        step(terms.at(level, it));
         let t = (it + 1) as i32;
         for (i, dv) in d.data.iter_mut().enumerate() {
-            let gi = g[i] as f64 + wts.smoothness as f64 * sm.grad.data[i] as f64;
+            let gi = g[i];
             m[i] = b1 * m[i] + (1.0 - b1) * gi;
             v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
             let (mh, vh) = (m[i] / (1.0 - b1.powi(t)), v[i] / (1.0 - b2.powi(t)));
@@ -447,37 +574,41 @@ mod tests {
         assert!(e.contains("32x32") && e.contains("8x8"), "{e}");
     }
 
-    /// `Auto` takes the ray test where it applies, at the finest level that fits the budget
-    /// (full size where it can), the span render where the test does not apply; an explicit
-    /// kernel runs at full size; the ray test with the official profile is a usage error naming
-    /// the kernel. A reduced plan's map comes back at the photo's size.
+    /// `Auto` takes the ray test where it applies, at the finest level whose estimated run fits
+    /// the budget (full size where it can), the span render where the test does not apply; an
+    /// explicit kernel runs at full size; the ray test with the official profile is a usage
+    /// error naming the kernel. A reduced plan's map comes back at the photo's size.
     #[test]
     fn auto_plan_and_ray_checks() {
         let s = RenderSettings { blur: 6.4, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
         let o = DfdOptions::default();
         let p = |w, h, s: &RenderSettings, o: &DfdOptions| {
             let p = plan(w, h, s, o);
+            assert!(p.cpu_seconds <= o.cpu_budget || o.kernel != DfdKernel::Auto || p.finest_level > 0, "{p:?}");
             (p.kernel, p.finest_level, p.width, p.height)
         };
         assert_eq!(p(64, 64, &s, &o), (DfdKernel::Ray, 0, 64, 64));
-        assert_eq!(p(128, 128, &RenderSettings { blur: 15.0, ..s }, &o), (DfdKernel::Ray, 0, 128, 128));
-        assert_eq!(p(256, 256, &RenderSettings { blur: 30.0, ..s }, &o), (DfdKernel::Ray, 1, 128, 128));
+        // The worst case of the cost model (every source as blurred as the range allows) puts
+        // these a level lower than the old tap count did.
+        assert_eq!(p(128, 128, &RenderSettings { blur: 15.0, ..s }, &o), (DfdKernel::Ray, 1, 64, 64));
+        assert_eq!(p(256, 256, &RenderSettings { blur: 30.0, ..s }, &o), (DfdKernel::Ray, 2, 64, 64));
         let big = plan(4000, 3000, &RenderSettings { blur: 400.0, ..s }, &o);
         assert_eq!(big.kernel, DfdKernel::Ray);
-        assert!(big.width.min(big.height) >= AUTO_MIN_SIDE && big.width < 300, "{big:?}");
+        assert!(big.width.min(big.height) >= AUTO_MIN_SIDE && big.width < 300 && big.cpu_seconds <= o.cpu_budget, "{big:?}");
         assert_eq!(p(64, 64, &RenderSettings { occlusion: false, ..s }, &o), (DfdKernel::Fast, 0, 64, 64));
         assert_eq!(p(64, 64, &RenderSettings { profile: Profile::Official, ..s }, &o), (DfdKernel::Fast, 0, 64, 64));
         assert_eq!(p(64, 64, &s, &DfdOptions { renderer: DfdRenderer::GaussPsf, ..o }), (DfdKernel::Fast, 0, 64, 64));
         assert_eq!(p(4000, 3000, &s, &DfdOptions { kernel: DfdKernel::Exact, ..o }), (DfdKernel::Exact, 0, 4000, 3000));
-        // Nothing fits: a window as wide as the image at every level down to 16 px.
-        assert_eq!(p(40, 40, &RenderSettings { blur: 1e6, ..s }, &DfdOptions { iters: 10_000_000, ..o }), (DfdKernel::Fast, 0, 40, 40));
-        // A reduced plan: optimised at 32×24, returned at 64×48.
+        // Nothing fits: the span render at the coarsest level allowed (20 px; 10 would be under
+        // AUTO_MIN_SIDE).
+        let none = DfdOptions { iters: MAX_ITERS, ..o };
+        assert_eq!(p(40, 40, &RenderSettings { blur: 1e6, ..s }, &none), (DfdKernel::Fast, 1, 20, 20));
+        // A reduced plan: optimised at 32×24, returned at 64×48 (K 8, 2 steps of 2 levels: about
+        // 0.3 CPU seconds ending at full size, 0.04 ending at level 1).
         let aif = Image::from_vec(64, 48, 3, (0..64 * 48 * 3).map(|v| (v % 11) as f32 / 11.0).collect()).unwrap();
-        // K 8: 2 steps of levels 0 + 1 cost 2·(3072·π/4·23² + 768·π/4·15²) = 2.8e6 taps, of
-        // levels 1 + 2 3.1e5.
-        let ro = DfdOptions { iters: 2, levels: 2, ray_budget: 1e6, ..o };
+        let ro = DfdOptions { iters: 2, levels: 2, cpu_budget: 0.1, ..o };
         let pl = plan(64, 48, &RenderSettings { blur: 8.0, ..s }, &ro);
-        assert_eq!((pl.kernel, pl.finest_level, pl.width, pl.height), (DfdKernel::Ray, 1, 32, 24), "{pl:?}");
+        assert_eq!((pl.kernel, pl.finest_level, pl.width, pl.height, pl.levels, pl.steps), (DfdKernel::Ray, 1, 32, 24, 2, 4), "{pl:?}");
         let mut sizes = Vec::new();
         let d = estimate(&aif, &aif, &RenderSettings { blur: 8.0, ..s }, &ro, |st| sizes.push(st.level)).unwrap();
         assert_eq!((d.width, d.height), (64, 48));

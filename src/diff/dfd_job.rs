@@ -5,7 +5,7 @@
 //!
 //! Cost: the optimisation's (see [`dfd`]); the log and plot are O(steps).
 
-use super::dfd::{self, DfdOptions, Step, level_size};
+use super::dfd::{self, DfdOptions, Event, Step, level_size};
 use crate::bench::plot::{self, Point, Series, Ticks, XAxis};
 use crate::color::Transfer;
 use crate::error::{Error, Result};
@@ -71,7 +71,8 @@ pub struct DfdReport {
     pub width: usize,
     /// Photo height, pixels.
     pub height: usize,
-    /// Focal plane of the defocused photo (normalized disparity).
+    /// Focal plane of the defocused photo (normalized disparity), as used: clamped to [0, 1]
+    /// (with a warning).
     pub focus: f32,
     /// Blur K of the defocused photo (pixels per unit of disparity).
     pub blur: f32,
@@ -81,15 +82,21 @@ pub struct DfdReport {
     pub occlusion: bool,
     /// The optimisation's options (`kernel` as given: `auto` by default).
     pub options: DfdOptions,
-    /// How the estimate ran: the differentiable render (`auto` resolved) and the size it
-    /// optimised at before resizing to the photo's (see [`dfd::plan`]).
+    /// How the estimate ran: the differentiable render (`auto` resolved), the size it
+    /// optimised at before resizing to the photo's, the levels and the estimated cost (see
+    /// [`dfd::plan`]).
     pub plan: dfd::DfdPlan,
     /// Adam steps run, all levels together.
     pub steps: usize,
-    /// The first step's losses at the finest level (full size unless `plan` says otherwise).
+    /// The first step's losses at the finest level (full size unless `plan` says otherwise):
+    /// those of the map that level started from.
     pub first: Step,
-    /// The last step's losses (at the finest level).
+    /// The losses of the map returned, at the finest level (evaluated after the last update).
     pub last: Step,
+    /// What the user should know (a clamped focus, capped levels, a long run, a start that
+    /// could not move, a photo that cannot tell the map or its near/far side), naming the
+    /// parameters.
+    pub warnings: Vec<String>,
     /// The estimated disparity's range.
     pub disparity: Range,
     /// Worker threads.
@@ -100,9 +107,10 @@ pub struct DfdReport {
 
 /// Runs `job`: checks the destinations against the inputs (usage error), reads the photos
 /// (I/O and input errors name the file), checks they have the same size (usage error naming
-/// both files and sizes), estimates the disparity (calling `step` after every Adam step) and
-/// writes the output, the log and the plot.
-pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
+/// both files and sizes), estimates the disparity (telling `on` of the plan, each warning and
+/// every Adam step as they come: [`dfd::estimate_with`]) and writes the output, the log and
+/// the plot.
+pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     let t0 = Instant::now();
     check_destinations(job)?;
     let aif = io::read_photo(&job.aif, Transfer::Srgb, &job.limits)?;
@@ -119,11 +127,14 @@ pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
         )));
     }
     let mut steps = Vec::new();
-    let disparity = dfd::estimate(&aif, &bokeh, &job.settings, &job.options, |s| {
-        steps.push(s);
-        step(s);
+    let est = dfd::estimate_with(&aif, &bokeh, &job.settings, &job.options, |e| {
+        if let Event::Step(s) = e {
+            steps.push(s);
+        }
+        on(e);
     })?;
-    io::write_output(&job.output, &disparity, 8, Transfer::Linear)?;
+    let disparity = &est.disparity;
+    io::write_output(&job.output, disparity, 8, Transfer::Linear)?;
     let (w, h) = (aif.width, aif.height);
     if let Some(path) = &job.log {
         io::atomic::write_atomic(path, |f| f.write_all(log_csv(&steps, w, h).as_bytes()).map_err(|e| Error::io(path, e)))?;
@@ -137,12 +148,6 @@ pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
             &loss_series(&steps, w, h),
         )?;
     }
-    let plan = dfd::plan(w, h, &job.settings, &job.options);
-    let full: Vec<&Step> = steps.iter().filter(|s| s.level == plan.finest_level).collect();
-    let (first, last) = match (full.first(), full.last()) {
-        (Some(&&a), Some(&&b)) => (a, b),
-        _ => return Err(Error::Internal("dfd: no step was run at the finest level".into())),
-    };
     let n = disparity.data.len().max(1) as f64;
     Ok(DfdReport {
         aif: job.aif.clone(),
@@ -152,15 +157,16 @@ pub fn run(job: &DfdJob, mut step: impl FnMut(Step)) -> Result<DfdReport> {
         plot: job.plot.clone(),
         width: w,
         height: h,
-        focus: job.settings.focus,
+        focus: dfd::focus_in_range("render.focus", job.settings.focus).0,
         blur: job.settings.blur,
         profile: job.settings.profile,
         occlusion: job.settings.occlusion,
         options: job.options,
-        plan,
+        plan: est.plan,
         steps: steps.len(),
-        first,
-        last,
+        first: est.first,
+        last: est.last,
+        warnings: est.warnings.clone(),
         disparity: Range {
             min: disparity.data.iter().copied().fold(f32::INFINITY, f32::min),
             mean: (disparity.data.iter().map(|&v| v as f64).sum::<f64>() / n) as f32,
