@@ -165,6 +165,16 @@ fn usage_errors() {
     bad("output over an input", &["bokeh.exr", "input"], &with(&["-o", "bokeh.exr"]));
     bad("log over an input", &["--log", "aif.png"], &with(&["-o", "d.npy", "--log", "aif.png"]));
     bad("PNG output", &["d.png", ".npy"], &with(&["-o", "d.png"]));
+    // Issue 34 item 2: one file by two spellings (the log replaced the map before).
+    std::fs::create_dir(dir.join("o")).unwrap();
+    let abs: &'static str = dir.join("o/al.csv").to_str().unwrap().to_owned().leak();
+    for (what, extra) in [
+        ("log over the output", vec!["-o", "o/al.npy", "--log", "./o/al.npy"]),
+        ("plot over the output", vec!["-o", "o/al.exr", "--plot", "./o/../o/al.exr"]),
+        ("plot over the log", vec!["-o", "d.npy", "--log", "o/al.csv", "--plot", abs]),
+    ] {
+        bad(what, &["same file", "al."], &with(&extra));
+    }
     bad("missing file", &["nothere.png"], &["nothere.png", "bokeh.exr", "--focus", "1", "--blur", "4", "-o", "d.npy"]);
     bad("NaN focus", &["--focus", "NaN"], &["aif.png", "bokeh.exr", "--focus", "NaN", "--blur", "4", "-o", "d.npy"]);
     bad("negative blur", &["--blur"], &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "-1", "-o", "d.npy"]);

@@ -190,11 +190,8 @@ fn check_destinations(job: &DfdJob) -> Result<()> {
         .into_iter()
         .filter_map(|(p, what)| p.map(|p| (p.as_path(), what)))
         .collect();
-    for (i, (a, wa)) in dests.iter().enumerate() {
-        if let Some((_, wb)) = dests[i + 1..].iter().find(|(b, _)| b == a) {
-            return Err(Error::usage(format!("{wa} and {wb} are the same file {}: choose different destinations", a.display())));
-        }
-    }
+    // As files, not spellings: `o/al.npy` and `./o/al.npy` are one destination.
+    io::check_distinct(&dests)?;
     let inputs = io::InputFiles::new([&job.aif, &job.bokeh]);
     dests.iter().try_for_each(|(p, what)| inputs.check_write(p, what))
 }
