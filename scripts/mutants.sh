@@ -41,5 +41,5 @@ if [ ${#files[@]} -eq 0 ]; then
 fi
 # The fast tests that exercise these modules; the full suite per mutant would take hours.
 read -r -a tests <<< "${MUTANTS_TESTS:---lib --test cli --test batch --test invariants --test stability --test backward}"
-exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 \
+exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 --minimum-test-timeout 120 \
     --cargo-arg=--release "${tests[@]/#/--cargo-test-arg=}"
