@@ -37,8 +37,8 @@ impl From<LossArg> for LossVariant {
 /// `--kernel`: which differentiable render is inverted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum DfdKernelArg {
-    /// `ray` where it applies (physical profile, occlusion) and fits about two minutes of
-    /// work; `fast` otherwise.
+    /// `ray` where it applies (physical profile, occlusion), at the finest size whose run fits
+    /// the time budget (about 30 s on 2 cores at worst); `fast` otherwise.
     Auto,
     /// Spans, depth groups interpolated between depth bins (either profile).
     Fast,
@@ -82,7 +82,8 @@ pub struct DfdArgs {
     #[arg(long, value_name = "N", default_value_t = DfdOptions::default().iters as i64, allow_negative_numbers = true)]
     iters: i64,
     /// Resolution levels, coarse to fine (each half the size of the next); 1 = full size only.
-    /// Capped, with a warning, where a level would be under 8 px a side or blur no pixel by 1 px.
+    /// Capped where a level would be under 8 px a side (with a warning when asked for more than
+    /// the photo has) or blur no pixel by 2 px.
     #[arg(long, value_name = "N", default_value_t = DfdOptions::default().levels as i64, allow_negative_numbers = true)]
     levels: i64,
     /// Adam's step size, in normalized disparity.

@@ -305,7 +305,7 @@ pub fn estimate_with(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdO
         ));
     }
     on(Event::Plan(&plan));
-    for m in plan_warnings(&s, &opts, &plan) {
+    for m in plan_warnings(w, h, &s, &opts, &plan) {
         warn(m, &mut on);
     }
     let (start, why) = start_map(w, h, &s, &opts, &plan);
@@ -375,20 +375,18 @@ pub fn focus_in_range(key: &str, f: f32) -> (f32, Option<String>) {
 
 /// What the plan's user should know before it runs: levels capped, a long run, a photo whose
 /// blur cannot tell any disparity.
-fn plan_warnings(s: &RenderSettings, opts: &DfdOptions, plan: &DfdPlan) -> Vec<String> {
+fn plan_warnings(w: usize, h: usize, s: &RenderSettings, opts: &DfdOptions, plan: &DfdPlan) -> Vec<String> {
     let mut out = Vec::new();
-    let blind = undetermined(s.blur, s.focus);
-    // A photo that shows no blur explains the levels too (none below the finest sees any).
-    if plan.levels < opts.levels && !blind {
+    // A request beyond what the photo's size allows is the user's to hear about; levels the
+    // plan or the blur drop below that are its own business (the report has `plan.levels`).
+    let most = super::dfd_plan::size_levels(w, h);
+    if opts.levels > most {
         out.push(format!(
-            "dfd.levels {}: the pyramid from {}x{} has {} level(s) that can see the blur (a coarser one would be under {} px a side or blur no pixel by {} px); running {}",
+            "dfd.levels {}: a {w}x{h} photo has {most} level(s) of at least {} px a side; running {} (levels that blur no pixel by {} px are left out too)",
             opts.levels,
-            plan.width,
-            plan.height,
-            plan.levels,
             super::dfd_plan::MIN_LEVEL_SIDE,
-            super::dfd_plan::MIN_LEVEL_COC,
-            plan.levels
+            plan.levels,
+            super::dfd_plan::MIN_LEVEL_COC
         ));
     }
     let threads = rayon::current_num_threads();
@@ -404,7 +402,7 @@ fn plan_warnings(s: &RenderSettings, opts: &DfdOptions, plan: &DfdPlan) -> Vec<S
             plan.height
         ));
     }
-    if blind {
+    if undetermined(s.blur, s.focus) {
         out.push(format!(
             "render.blur {} at render.focus {}: no disparity in [0, 1] blurs a pixel by {} px (the largest CoC radius is {:.3} px), so the photo does not determine the map; it is returned as it started",
             s.blur,

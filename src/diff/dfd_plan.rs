@@ -32,23 +32,27 @@ pub const MAX_ITERS: usize = 100_000;
 /// one-pixel levels for 54 s).
 pub const MIN_LEVEL_SIDE: usize = 8;
 
-/// The smallest largest CoC radius, pixels, of a pyramid level below the finest: where every
-/// disparity of [0, 1] blurs by under a pixel (K halves at each level) the level sees almost
-/// nothing, and under half a pixel its gradient is exactly zero (its loss stayed constant).
-pub const MIN_LEVEL_COC: f32 = 1.0;
+/// The smallest largest CoC radius, pixels, of a pyramid level below the finest (K halves at
+/// each level): below a pixel a level sees almost nothing, and at half a pixel its gradient is
+/// exactly zero (its loss stayed constant). Two pixels also keep the default start (0.5, one
+/// pixel of CoC at focus 0 or 1) out of the dead band of the first level.
+pub const MIN_LEVEL_COC: f32 = 2.0;
 
 /// The smallest side, pixels, of the finest level [`DfdKernel::Auto`] may optimise at instead
 /// of the full size.
 pub const AUTO_MIN_SIDE: usize = 16;
 
 /// The CPU seconds (this project's 2-core machine, see the module notes) that
-/// [`DfdKernel::Auto`] plans for: about 40 s of wall time on 2 threads in the worst case of
-/// the cost model, so that no default run on a photo up to 256×256 passes a minute there.
-/// Scenes near the worst case (a far background at disparity 0, focus 1, K 8 and 16 at 128
-/// and 256 px) planned at 73 CPU seconds took 67. A level coarser costs about 16 times less
-/// (a quarter of the pixels, a quarter of the window's taps) and loses detail: 256×256 at
-/// K 16 (two planes) has a mean disparity error of 0.015 optimised at 128×128, 0.036 at 64×64.
-pub const AUTO_CPU_BUDGET: f64 = 80.0;
+/// [`DfdKernel::Auto`] plans for: in the worst case of the cost model about 30 s of wall time
+/// on 2 idle cores, and under a minute with one of them busy elsewhere, so that no default run
+/// on a photo up to 256×256 passes a minute there. Scenes near the worst case (a far
+/// background at disparity 0, focus 1, K 8 and 16 at 128 and 256 px) planned at 73 CPU
+/// seconds (a budget of 80) took 62: 61-65 s of wall time while another build shared the
+/// machine. A level coarser costs about 16 times less (a quarter of the pixels, a quarter of
+/// the window's taps) and loses detail: 256×256 at K 16 (two planes) has a mean disparity
+/// error of 0.015 optimised at 128×128 (28 CPU seconds), 0.036 at 64×64 (2.7), the plan under
+/// this budget.
+pub const AUTO_CPU_BUDGET: f64 = 60.0;
 
 /// A run estimated to take longer than this (seconds on the threads it has) is announced.
 pub const LONG_RUN_SECONDS: f64 = 60.0;
@@ -139,6 +143,9 @@ pub fn level_blur_lens(s: &RenderSettings, w: usize, lw: usize, lh: usize) -> (f
 /// photo has that can see the blur: every level below the finest at least [`MIN_LEVEL_SIDE`]
 /// pixels a side with a largest CoC radius (its K times [`focus_room`]) of at least
 /// [`MIN_LEVEL_COC`]. At least 1 (the finest always runs). O(log(size)).
+///
+/// [`size_levels`] is the same count by size alone, from full size: what a request is
+/// measured against before the plan and the blur drop more.
 pub fn useful_levels(w: usize, h: usize, s: &RenderSettings, finest: usize, requested: usize) -> usize {
     let mut n = 1;
     while n < requested {
@@ -150,6 +157,16 @@ pub fn useful_levels(w: usize, h: usize, s: &RenderSettings, finest: usize, requ
         n += 1;
     }
     n
+}
+
+/// How many levels a `w × h` photo has from full size, each at least [`MIN_LEVEL_SIDE`]
+/// pixels a side below the first: the most `--levels` can ask for. O(log(size)).
+pub fn size_levels(w: usize, h: usize) -> usize {
+    let fits = |l: &usize| {
+        let (lw, lh) = level_size(w, h, *l);
+        lw.min(lh) >= MIN_LEVEL_SIDE
+    };
+    1 + (1..64).take_while(fits).count()
 }
 
 /// Estimated CPU seconds of one step of `kernel` (or of `renderer` when that is not Dr.Bokeh)
@@ -263,8 +280,10 @@ mod tests {
         assert_eq!(useful_levels(64, 64, &s, 0, usize::MAX), 4);
         assert_eq!(useful_levels(64, 16, &s, 0, 10), 2);
         assert_eq!(useful_levels(5, 5, &s, 0, 10), 1);
-        // K 4 at focus 0.5: 2 px of CoC at most, 1 at level 1, 0.5 at level 2.
-        assert_eq!(useful_levels(256, 256, &settings(4.0, 0.5), 0, 10), 2);
+        assert_eq!((size_levels(64, 64), size_levels(64, 16), size_levels(15, 15), size_levels(1, 1)), (4, 2, 1, 1));
+        // K 4 at focus 0.5: 2 px of CoC at most, 1 at level 1.
+        assert_eq!(useful_levels(256, 256, &settings(4.0, 0.5), 0, 10), 1);
+        assert_eq!(useful_levels(256, 256, &settings(8.0, 0.5), 0, 10), 2);
         assert_eq!(useful_levels(256, 256, &settings(0.0, 0.5), 0, 10), 1);
     }
 
@@ -277,6 +296,26 @@ mod tests {
         // (measured: 305 s).
         assert!((250.0..700.0).contains(&huge.cpu_seconds), "{huge:?}");
         assert_eq!(level_blur_lens(&settings(1e9, 1.0), 64, 64, 64).1, 183);
+    }
+
+    /// Item 9 of issue 34: every default plan for a photo up to 256×256 fits the budget (the
+    /// old one ran 64×64 at K 30 for 48 s and 256×256 at K 16 for 53 s on 2 threads).
+    #[test]
+    fn default_plans_of_small_photos_fit_the_budget() {
+        let o = DfdOptions::default();
+        for (w, h) in [(16, 16), (40, 24), (64, 64), (100, 75), (256, 64), (256, 256)] {
+            for k in [0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 30.0, 60.0, 120.0, 1e3, 1e9, 3e38] {
+                for f in [0.0, 0.3, 0.5, 1.0] {
+                    let p = plan(w, h, &settings(k, f), &o);
+                    assert!(p.cpu_seconds <= AUTO_CPU_BUDGET, "{w}x{h} K {k} focus {f}: {p:?}");
+                }
+            }
+        }
+        // The issue's two: now optimised at 32×32 and 64×64.
+        let p = plan(64, 64, &settings(30.0, 1.0), &o);
+        assert_eq!((p.kernel, p.width), (DfdKernel::Ray, 32), "{p:?}");
+        let p = plan(256, 256, &settings(16.0, 1.0), &o);
+        assert_eq!((p.kernel, p.width), (DfdKernel::Ray, 64), "{p:?}");
     }
 
     #[test]
