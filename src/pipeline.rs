@@ -306,11 +306,8 @@ impl Pipeline {
                 None => return Err(Error::usage("render.focus_depth needs a depth map; with given layers use render.focus")),
             },
         };
-        if !(0.0..=1.0).contains(&f) {
-            let c = f.clamp(0.0, 1.0);
-            report.warnings.push(format!("focus {f} is outside [0, 1] (the scene's disparity range); clamped to {c}"));
-            return Ok(c);
-        }
+        let (f, clamped) = render::focus_in_range("render.focus", f);
+        report.warnings.extend(clamped);
         Ok(f)
     }
 

@@ -291,7 +291,7 @@ pub fn estimate_with(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdO
         on(Event::Warning(&m));
         warnings.push(m);
     };
-    let (focus, clamped) = focus_in_range("render.focus", s.focus);
+    let (focus, clamped) = crate::render::focus_in_range("render.focus", s.focus);
     if let Some(m) = clamped {
         warn(m, &mut on);
     }
@@ -360,17 +360,6 @@ fn check_options(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptio
         return Err(Error::usage(format!("dfd.init must be a normalized disparity in [0, 1], got {}", opts.init)));
     }
     Ok(())
-}
-
-/// A focal plane given as normalized disparity, clamped to the disparity range [0, 1], with
-/// the warning that says so (the rule of `render`, `Pipeline::resolve_focus`); `key` names
-/// the parameter (`render.focus`).
-pub fn focus_in_range(key: &str, f: f32) -> (f32, Option<String>) {
-    if (0.0..=1.0).contains(&f) {
-        return (f, None);
-    }
-    let c = f.clamp(0.0, 1.0);
-    (c, Some(format!("{key} {f} is outside [0, 1] (the scene's disparity range); clamped to {c}")))
 }
 
 /// What the plan's user should know before it runs: levels capped, a long run, a photo whose

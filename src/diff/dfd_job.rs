@@ -157,7 +157,7 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
         plot: job.plot.clone(),
         width: w,
         height: h,
-        focus: dfd::focus_in_range("render.focus", job.settings.focus).0,
+        focus: crate::render::focus_in_range("render.focus", job.settings.focus).0,
         blur: job.settings.blur,
         profile: job.settings.profile,
         occlusion: job.settings.occlusion,

@@ -201,6 +201,17 @@ pub fn check_focus(key: &str, f: f32) -> Result<f32> {
     if f.is_finite() { Ok(f) } else { Err(Error::usage(format!("{key} must be a finite number, got {f}"))) }
 }
 
+/// A focal plane given as normalized disparity, clamped to the scene's disparity range [0, 1],
+/// with the warning that says so (`render` and `dfd` alike); `key` names the parameter
+/// (`render.focus`).
+pub fn focus_in_range(key: &str, f: f32) -> (f32, Option<String>) {
+    if (0.0..=1.0).contains(&f) {
+        return (f, None);
+    }
+    let c = f.clamp(0.0, 1.0);
+    (c, Some(format!("{key} {f} is outside [0, 1] (the scene's disparity range); clamped to {c}")))
+}
+
 /// The one rule for a lens window side regardless of the image (pixels): odd, hence >= 1 (the
 /// window is centred on its pixel). [`validate`] also bounds it by the image ([`max_lens`]).
 /// Returns `lens`; the usage error names `key` (`render.lens`).
