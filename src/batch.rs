@@ -401,10 +401,7 @@ fn apply_manifest_outputs(
 
 /// `path` with its folder resolved (symlinks, `..`), to compare files that may not exist yet.
 fn file_key(path: &Path) -> Option<PathBuf> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = crate::io::folder_of(path);
     Some(std::fs::canonicalize(dir).ok()?.join(path.file_name()?))
 }
 

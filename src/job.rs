@@ -232,10 +232,7 @@ fn preflight(job: &Job, cfg: &Config) -> Result<()> {
 /// Refuses an output whose folder is missing or not writable, by creating and removing a
 /// probe file there (permissions alone miss read-only mounts and ACLs).
 fn check_writable_folder(output: &Path) -> Result<()> {
-    let dir = match output.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
+    let dir = io::folder_of(output);
     if !dir.is_dir() {
         return Err(Error::input(dir, format!("the folder of the output {} does not exist", output.display())));
     }
@@ -368,7 +365,7 @@ pub fn save_layers(dir: &Path, layers: &[Layer], inputs: &io::InputFiles) -> Res
     stale.sort();
     let mut warnings = Vec::new();
     for p in stale {
-        if inputs.check_write(&p, "").is_err() {
+        if inputs.contains(&p) {
             warnings.push(format!(
                 "{} is a layer file of an earlier run and an input of this one: kept (a glob of {} picks it up too)",
                 p.display(),

@@ -208,10 +208,7 @@ where
             return w.flush().map_err(|e| Error::io(path, e));
         }
     };
-    let dir = match target.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = super::guard::folder_of(&target);
     if !dir.is_dir() {
         return Err(Error::input(path, format!("output folder '{}' does not exist", dir.display())));
     }

@@ -42,11 +42,21 @@ impl InputFiles {
         InputFiles { files }
     }
 
+    /// The input (as the user gave it) that `path` is the same file as, if any.
+    fn input_at(&self, path: &Path) -> Option<&(FileId, PathBuf)> {
+        let id = file_id(path)?;
+        self.files.iter().find(|(f, _)| *f == id)
+    }
+
+    /// True when `path` is one of the inputs, by any name.
+    pub fn contains(&self, path: &Path) -> bool {
+        self.input_at(path).is_some()
+    }
+
     /// Refuses (usage error, nothing written) a destination that is one of the inputs. `what`
     /// names the destination for the message, e.g. "output" or "--save-layers file".
     pub fn check_write(&self, dest: &Path, what: &str) -> Result<()> {
-        let Some(id) = file_id(dest) else { return Ok(()) };
-        match self.files.iter().find(|(f, _)| *f == id) {
+        match self.input_at(dest) {
             Some((_, input)) if input.as_path() == dest => Err(Error::usage(format!(
                 "{what} {} is also an input of this run; it would be overwritten: choose another destination",
                 dest.display()
@@ -66,14 +76,20 @@ impl InputFiles {
     }
 }
 
+/// The folder `path` is written in: its parent, or `.` for a bare name (whose parent is
+/// empty).
+pub fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
 /// Where `path` would be written: the identity of its folder and its name there, so that two
 /// spellings of a file that does not exist yet (`o/a.npy`, `./o/../o/a.npy`) compare equal.
 /// None when the folder does not exist (the write will fail on it anyway).
 fn place(path: &Path) -> Option<(FileId, std::ffi::OsString)> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     Some((file_id(dir)?, path.file_name()?.to_os_string()))
 }
 

@@ -31,7 +31,7 @@ pub mod write;
 pub use depth::{DepthMap, read_depth, read_depth_map};
 pub use exr_file::{ExrChannel, ExrChannels, ExrLayout, read_exr_channels, read_exr_image, write_exr};
 pub use format::{FileFormat, SUPPORTED_INPUT_EXTENSIONS, check_regular_file, detect_format, read_input, read_input_text};
-pub use guard::{InputFiles, check_distinct, same_destination};
+pub use guard::{InputFiles, check_distinct, folder_of, same_destination};
 pub use image_file::{Decoded, Encoding, Photo, read_decoded, read_photo, read_photo_file};
 pub use layer::{LAYER_CHANNELS, LayerFile, read_layer, read_layer_file};
 pub use limits::ReadLimits;
