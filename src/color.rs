@@ -33,6 +33,33 @@ impl Transfer {
     }
 }
 
+/// How a photo's values relate to the light in front of the camera: what the highlights stage
+/// (`stages::light_recovery`) must know to tell clipped light from white.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PhotoEncoding {
+    /// Linear values as stored (EXR, float TIFF, float NPY): nothing was clipped at white.
+    Linear,
+    /// Integer samples of `bits` bits (8 or 16: PNG, JPEG, TIFF, uint NPY), decoded to linear
+    /// with `transfer`: the largest code decodes to 1.0 and holds all the light above it.
+    Integer {
+        /// Bits per sample.
+        bits: u8,
+        /// The curve the samples were decoded with.
+        transfer: Transfer,
+    },
+}
+
+impl PhotoEncoding {
+    /// The curve that maps this photo's linear values to the values its file stores (sRGB for
+    /// a linear photo: the scale a user's threshold is given in).
+    pub fn transfer(self) -> Transfer {
+        match self {
+            PhotoEncoding::Linear => Transfer::Srgb,
+            PhotoEncoding::Integer { transfer, .. } => transfer,
+        }
+    }
+}
+
 /// The sRGB decoding curve (IEC 61966-2-1): encoded value in [0, 1] → linear light.
 /// Values above 1 follow the power law; negative values are divided by 12.92.
 #[inline]

@@ -20,6 +20,8 @@ use std::path::Path;
 pub struct Config {
     /// `[input]`: what the depth file holds and the decoding limit.
     pub input: InputConfig,
+    /// `[highlights]`: the light of clipped highlights (integer photos), or a boost.
+    pub highlights: crate::stages::light_recovery::HighlightsOptions,
     /// `[segment]`: where the foreground layer comes from.
     pub segment: SegmentOptions,
     /// `[fill_depth]`: how the foreground's disparity is extended under its outline.
@@ -193,6 +195,7 @@ impl Config {
         if self.batch.depth_patterns.is_empty() {
             return Err(Error::usage("batch.depth_patterns must list at least one pattern (e.g. \"{stem}.depth\")"));
         }
+        self.highlights.validate("highlights")?;
         if self.input.max_pixels == 0 {
             return Err(Error::usage("input.max_pixels must be > 0"));
         }

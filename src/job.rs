@@ -104,7 +104,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 )
             },
         );
-        let io::Photo { image: rgb, warnings } = rgb?;
+        let io::Photo { image: rgb, encoding, warnings } = rgb?;
         read_warnings.extend(warnings);
         let mut depth_stage = None;
         let disparity = match (&job.depth, depth_file) {
@@ -141,7 +141,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         };
         let read_ms = ms_since(t_read);
         let build = if job.save_layers.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
-        let mut out = pipeline.run_with(&Scene { rgb, disparity, matte }, focus, build)?;
+        let mut out = pipeline.run_with(&Scene { rgb, disparity, matte, encoding }, focus, build)?;
         if let Some(s) = depth_stage {
             out.report.stages.insert(0, s);
         }

@@ -29,4 +29,5 @@ pub mod timing;
 pub use config::Config;
 pub use error::{Error, Result};
 pub use image::Image;
+pub use color::PhotoEncoding;
 pub use pipeline::{Focus, Outcome, Pipeline, Scene};

@@ -9,6 +9,7 @@ use drbokeh::io::BitDepth;
 use drbokeh::job::{self, Job};
 use drbokeh::pipeline::{Focus, Pipeline};
 use drbokeh::stages::depth::DepthKind;
+use drbokeh::stages::light_recovery::HighlightMode;
 use drbokeh::stages::slices::LayerCount;
 use drbokeh::timing::ms_since;
 use std::path::PathBuf;
@@ -112,6 +113,23 @@ impl From<BitDepthArg> for BitDepth {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum HighlightsArg {
+    Auto,
+    Off,
+    Boost,
+}
+
+impl From<HighlightsArg> for HighlightMode {
+    fn from(h: HighlightsArg) -> HighlightMode {
+        match h {
+            HighlightsArg::Auto => HighlightMode::Auto,
+            HighlightsArg::Off => HighlightMode::Off,
+            HighlightsArg::Boost => HighlightMode::Boost,
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum DepthKindArg {
     Depth,
     Disparity,
@@ -209,6 +227,18 @@ pub(crate) struct PipelineArgs {
     /// Folder with the ONNX models, named as their presets' files (u2net.onnx, lama.onnx, ...).
     #[arg(long, value_name = "DIR")]
     model_dir: Option<PathBuf>,
+    /// Clipped highlights of an 8/16-bit photo: auto (their light estimated from the fringe
+    /// around each light), off, or boost (brightness above the threshold raised up to
+    /// --highlight-gain times) [default: auto; linear photos are left as they are].
+    #[arg(long, value_enum)]
+    highlights: Option<HighlightsArg>,
+    /// Stored value in (0, 1] at or above which a sample is a clipped highlight (auto) or is
+    /// boosted (boost) [default: 0.98].
+    #[arg(long, value_name = "T")]
+    highlight_threshold: Option<f32>,
+    /// boost: the brightness factor at stored value 1, in [1, 100] [default: 4].
+    #[arg(long, value_name = "G")]
+    highlight_gain: Option<f32>,
 }
 
 pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
@@ -335,6 +365,11 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     if let Some(d) = &args.model_dir {
         cfg.onnx.model_dir = Some(d.clone());
     }
+    if let Some(m) = args.highlights {
+        cfg.highlights.mode = m.into();
+    }
+    cfg.highlights.threshold = args.highlight_threshold.unwrap_or(cfg.highlights.threshold);
+    cfg.highlights.gain = args.highlight_gain.unwrap_or(cfg.highlights.gain);
     if let Some(k) = args.depth_kind {
         cfg.input.depth_kind = match k {
             DepthKindArg::Depth => DepthKind::Depth,
@@ -348,7 +383,10 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 35] = [
+const FLAGS: [(&str, &str); 38] = [
+    ("highlights.mode", "--highlights"),
+    ("highlights.threshold", "--highlight-threshold"),
+    ("highlights.gain", "--highlight-gain"),
     ("segment.layers", "--layers"),
     ("segment.method", "--segment"),
     ("inpaint.method", "--inpaint"),

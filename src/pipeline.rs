@@ -4,6 +4,7 @@
 //! [`Pipeline::render_layers`] takes ready-made layers. Both return an [`Outcome`] with the
 //! linear result, the layers used and a [`Report`] of what ran, what was skipped and why.
 
+use crate::color::PhotoEncoding;
 use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -13,6 +14,7 @@ use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
 use crate::stages::foreground::{EdgeColour, carried_colour, unmix_edges};
+use crate::stages::light_recovery::{self, Recovered};
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::stages::slices::{self, LayerCount};
 use crate::stages::work_box;
@@ -29,6 +31,9 @@ pub struct Scene {
     pub disparity: Disparity,
     /// Optional foreground matte (one channel, [0, 1]).
     pub matte: Option<Image>,
+    /// How the photo was stored: an integer photo's clipped lights are restored by the
+    /// highlights stage ([`light_recovery`]).
+    pub encoding: PhotoEncoding,
 }
 
 /// How the focal plane is chosen.
@@ -55,7 +60,7 @@ pub enum StageStatus {
 /// What happened in one stage.
 #[derive(Clone, Debug, Serialize)]
 pub struct StageReport {
-    /// The stage: "read", "depth_model", "segment", "fill_depth", "inpaint", "slice", "render",
+    /// The stage: "read", "depth_model", "highlights", "segment", "fill_depth", "inpaint", "slice", "render",
     /// "save_layers" or "write".
     pub name: &'static str,
     /// Whether it ran.
@@ -337,7 +342,7 @@ impl Pipeline {
         // Nothing is out of focus: the photo is its own answer (unless a kernel is asked for).
         let sharp = nothing_out_of_focus(cfg.render.kernel, max_coc);
         if let (Some(why), BuildLayers::WhenRendered) = (&sharp, build) {
-            for name in ["segment", "fill_depth", "inpaint", "slice", "render"] {
+            for name in ["highlights", "segment", "fill_depth", "inpaint", "slice", "render"] {
                 report.skipped(name, why.clone());
             }
             report.params = self.params((w, h), (blur, focus, 0), "none", 0, max_coc);
@@ -345,11 +350,25 @@ impl Pipeline {
             return Ok(Outcome { image: scene.rgb.clone(), layers: Vec::new(), report });
         }
 
+        // The light of clipped highlights, before anything is layered or filled.
+        let t = Instant::now();
+        let recovered = light_recovery::recover(&scene.rgb, scene.encoding, &cfg.highlights);
+        let rgb = match &recovered {
+            Recovered::Changed(img, r) => {
+                report.ran("highlights", t, serde_json::to_value(r).ok());
+                img
+            }
+            Recovered::Unchanged(why) => {
+                report.skipped("highlights", *why);
+                &scene.rgb
+            }
+        };
+
         let single = |report: &mut Report, why: &str| -> Result<Vec<Layer>> {
             for name in ["fill_depth", "inpaint", "slice"] {
                 report.skipped(name, why.to_string());
             }
-            Ok(vec![Layer::from_parts(&scene.rgb, &Image::filled(w, h, 1, 1.0), disp, "scene")?])
+            Ok(vec![Layer::from_parts(rgb, &Image::filled(w, h, 1, 1.0), disp, "scene")?])
         };
 
         let layers = if !cfg.render.occlusion {
@@ -398,7 +417,7 @@ impl Pipeline {
                         t,
                         Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})),
                     );
-                    self.peel_layers(scene, alpha, (focus, blur, max_coc), edge_band, &mut report)?
+                    self.peel_layers((rgb, disp), alpha, (focus, blur, max_coc), edge_band, &mut report)?
                 }
             }
         };
@@ -420,7 +439,7 @@ impl Pipeline {
     /// rest.
     fn peel_layers(
         &self,
-        scene: &Scene,
+        (rgb, disp): (&Image, &Image),
         alpha: Image,
         (focus, blur, max_coc): (f32, f32, f32),
         edge_band: EdgeBand,
@@ -430,7 +449,7 @@ impl Pipeline {
         let t = Instant::now();
         // The foreground's depth-edge ramp, when the cuts need it first (what they leave out);
         // else the peel measures it beside its colour carry.
-        let edges = (cfg.segment.layers.most() > 2).then(|| self.edge_widths(&scene.disparity.map, &alpha));
+        let edges = (cfg.segment.layers.most() > 2).then(|| self.edge_widths(disp, &alpha));
         let edges_ms = ms_since(t);
         let t = Instant::now();
         let cuts = if let Some(edges) = edges {
@@ -439,7 +458,7 @@ impl Pipeline {
             let hard = hard_mask(&alpha, &cfg.fill_depth);
             let near = crate::stages::mask::dilate(&hard, alpha.width, alpha.height, edges.outside_px + 1.0);
             let background: Vec<bool> = near.iter().map(|&n| !n).collect();
-            slices::background_cuts(&scene.disparity.map, &background, cfg.segment.layers, &cfg.segment)
+            slices::background_cuts(disp, &background, cfg.segment.layers, &cfg.segment)
         } else {
             slices::Cuts::default()
         };
@@ -448,13 +467,13 @@ impl Pipeline {
         // a layer keeps that layer's depth and would be taken for a nearer slice.
         let whole = !cuts.thresholds.is_empty();
         let spec = PeelSpec { focus, blur, max_coc, whole, what: "foreground layer", edge_band };
-        let first = self.peel(&scene.rgb, &scene.disparity.map, alpha, edges, spec, report)?;
+        let first = self.peel(rgb, disp, alpha, edges, spec, report)?;
         report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
         let mut layers = vec![first.layer];
         // The scene behind the last peel and the frame its window sits in.
         let mut behind = first.behind;
-        let mut frame = (std::borrow::Cow::Borrowed(&scene.rgb), std::borrow::Cow::Borrowed(&scene.disparity.map));
+        let mut frame = (std::borrow::Cow::Borrowed(rgb), std::borrow::Cow::Borrowed(disp));
         if cuts.thresholds.is_empty() {
             let why = cuts.limit.clone().unwrap_or_else(|| format!("segment.layers = {}", cfg.segment.layers));
             report.skipped("slice", why);

@@ -15,7 +15,7 @@
 use super::exr_file::read_exr_image;
 use super::format::{FileFormat, detect_format, guarded, open, read_input};
 use super::limits::ReadLimits;
-use crate::color::Transfer;
+use crate::color::{PhotoEncoding, Transfer};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use image::{DynamicImage, ImageDecoder, ImageError, ImageFormat, ImageReader};
@@ -242,6 +242,9 @@ pub fn read_photo(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Resul
 pub struct Photo {
     /// Linear RGB.
     pub image: Image,
+    /// How the file stored it (integer samples clip the light above white; the highlights
+    /// stage, `stages::light_recovery`, reads this).
+    pub encoding: PhotoEncoding,
     /// Usable but doubtful (an alpha channel that is not opaque everywhere, which is dropped).
     pub warnings: Vec<String>,
 }
@@ -260,7 +263,7 @@ fn translucent_raw(raw: &[u8], c: usize, bits: u8) -> bool {
 /// not opaque everywhere (a cut-out subject: its matte belongs in `--matte`).
 pub fn read_photo_file(path: &Path, transfer: Transfer, limits: &ReadLimits) -> Result<Photo> {
     let translucent = std::sync::atomic::AtomicBool::new(false);
-    let image = read_photo_rgb(path, transfer, limits, &translucent)?;
+    let (image, encoding) = read_photo_rgb(path, transfer, limits, &translucent)?;
     let warnings = if translucent.into_inner() {
         vec![format!(
             "{} has an alpha channel that is not opaque everywhere; it is ignored (the photo is read as RGB): pass a matte with --matte to cut out the subject",
@@ -269,12 +272,17 @@ pub fn read_photo_file(path: &Path, transfer: Transfer, limits: &ReadLimits) -> 
     } else {
         Vec::new()
     };
-    Ok(Photo { image, warnings })
+    Ok(Photo { image, encoding, warnings })
 }
 
-/// [`read_photo`]'s work; sets `translucent` when the file's alpha is below its maximum
-/// somewhere.
-fn read_photo_rgb(path: &Path, transfer: Transfer, limits: &ReadLimits, translucent: &std::sync::atomic::AtomicBool) -> Result<Image> {
+/// [`read_photo`]'s work, and how the file stored the photo; sets `translucent` when the
+/// file's alpha is below its maximum somewhere.
+fn read_photo_rgb(
+    path: &Path,
+    transfer: Transfer,
+    limits: &ReadLimits,
+    translucent: &std::sync::atomic::AtomicBool,
+) -> Result<(Image, PhotoEncoding)> {
     use std::sync::atomic::Ordering::Relaxed;
     let format = detect_format(path)?;
     // Integer samples go through a table of `transfer.decode(q / max)` straight to linear RGB
@@ -298,7 +306,7 @@ fn read_photo_rgb(path: &Path, transfer: Transfer, limits: &ReadLimits, transluc
         };
         if let Some(png) = super::png_rows::read_png_rows(path, limits, |_| 3, band)? {
             let finite = lut8.iter().chain(lut16.get().into_iter().flatten()).all(|v| v.is_finite());
-            return finish_photo(path, png.image, finite);
+            return Ok((finish_photo(path, png.image, finite)?, PhotoEncoding::Integer { bits: png.bits, transfer }));
         }
     }
     // An interlaced PNG (the row route declined it) goes to the whole-image decoder directly.
@@ -307,6 +315,10 @@ fn read_photo_rgb(path: &Path, transfer: Transfer, limits: &ReadLimits, transluc
         _ => read_stored_as(path, format, limits)?,
     };
     let c = d.channels;
+    let encoding = match d.encoding {
+        Encoding::Display => PhotoEncoding::Integer { bits: d.bit_depth, transfer },
+        Encoding::Linear => PhotoEncoding::Linear,
+    };
     if d.has_alpha {
         let alpha = |k: usize| (c - 1..).step_by(c).take(k);
         let n = d.width * d.height;
@@ -335,7 +347,7 @@ fn read_photo_rgb(path: &Path, transfer: Transfer, limits: &ReadLimits, transluc
             (data, false)
         }
     };
-    finish_photo(path, Image::from_vec(d.width, d.height, 3, data).expect("three channels per pixel"), checked)
+    Ok((finish_photo(path, Image::from_vec(d.width, d.height, 3, data).expect("three channels per pixel"), checked)?, encoding))
 }
 
 /// The photo `img` of `path`, or the error naming its first NaN or infinite value; `finite`:

@@ -1,5 +1,5 @@
 //! The classical stages that turn image + depth (+ matte) into layers, in data-flow order:
-//! `depth` (normalize, focus) → `segment` → `depth_edges` (how far the depth map's edges ramp
+//! `light_recovery` (the light of clipped highlights, integer photos) → `depth` (normalize, focus) → `segment` → `depth_edges` (how far the depth map's edges ramp
 //! past the matte's) → `fill_depth` → `background` (inpaint, with the `contamination` and
 //! `highlights` rules) → `foreground` (colour at soft edges) → layers; with `--layers`, `slices`
 //! cuts the background at gaps of its depth and the same stages peel each slice in turn.
@@ -19,6 +19,7 @@ pub mod highlight_completion;
 pub mod highlights;
 pub mod inpaint;
 pub mod inpaint_onnx;
+pub mod light_recovery;
 pub mod mask;
 pub mod patchmatch;
 pub mod segment;
