@@ -45,7 +45,8 @@ fn main() -> drbokeh::Result<()> {
             let scene = Scene {
                 rgb: sc.aif.clone(),
                 disparity: Disparity { map: sc.disparity.clone(), z_range: None, filled_fraction: 0.0 },
-                matte: Some(sc.alpha.clone()), encoding: drbokeh::PhotoEncoding::Linear,
+                matte: Some(sc.alpha.clone()),
+                encoding: drbokeh::PhotoEncoding::Linear,
             };
             let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
             let p = |img: &Image| score(img, &s.gt, border).psnr_srgb;

@@ -67,7 +67,8 @@ fn main() -> drbokeh::Result<()> {
         let scene = Scene {
             rgb: inp.aif.clone(),
             disparity: Disparity { map: depth_in, z_range: None, filled_fraction: 0.0 },
-            matte: Some(inp.matte.clone()), encoding: drbokeh::PhotoEncoding::Linear,
+            matte: Some(inp.matte.clone()),
+            encoding: drbokeh::PhotoEncoding::Linear,
         };
         let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
         let est = &out.layers;

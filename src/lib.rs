@@ -26,8 +26,8 @@ pub mod resources;
 pub mod stages;
 pub mod timing;
 
+pub use color::PhotoEncoding;
 pub use config::Config;
 pub use error::{Error, Result};
 pub use image::Image;
-pub use color::PhotoEncoding;
 pub use pipeline::{Focus, Outcome, Pipeline, Scene};

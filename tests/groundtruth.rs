@@ -137,7 +137,8 @@ fn pipeline_beats_the_baselines_from_photo_depth_and_matte() {
         let input = Scene {
             rgb: scene.aif.clone(),
             disparity: Disparity { map: scene.disparity.clone(), z_range: None, filled_fraction: 0.0 },
-            matte: Some(matte), encoding: drbokeh::PhotoEncoding::Linear,
+            matte: Some(matte),
+            encoding: drbokeh::PhotoEncoding::Linear,
         };
         let (w, h) = (scene.aif.width, scene.aif.height);
         let single = Layer::from_parts(&scene.aif, &Image::filled(w, h, 1, 1.0), &scene.disparity, "photo").unwrap();

@@ -187,8 +187,12 @@ fn uniform_photo_through_the_pipeline_stays_uniform() {
     let mut failures = Vec::new();
     for (mname, matte) in &mattes {
         for (dname, d) in depth_maps(w, h) {
-            let scene =
-                Scene { rgb: rgb.clone(), disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: matte.clone(), encoding: drbokeh::PhotoEncoding::Linear };
+            let scene = Scene {
+                rgb: rgb.clone(),
+                disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 },
+                matte: matte.clone(),
+                encoding: drbokeh::PhotoEncoding::Linear,
+            };
             for f in FOCI {
                 for (ki, k) in BLURS.into_iter().enumerate() {
                     let mut cfg = Config::default();
@@ -375,7 +379,8 @@ fn subject_scene(w: usize, h: usize, sq: (usize, usize, usize, usize), focus: f3
     Scene {
         rgb,
         disparity: Disparity { map, z_range: None, filled_fraction: 0.0 },
-        matte: Some(plane(w, h, |x, y| inside(x, y) as u8 as f32)), encoding: drbokeh::PhotoEncoding::Linear,
+        matte: Some(plane(w, h, |x, y| inside(x, y) as u8 as f32)),
+        encoding: drbokeh::PhotoEncoding::Linear,
     }
 }
 
@@ -443,7 +448,12 @@ fn more_layers_peel_a_stepped_background() {
         }
     });
     let matte = plane(w, h, |x, y| subject(x, y) as u8 as f32);
-    let scene = Scene { rgb, disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: Some(matte), encoding: drbokeh::PhotoEncoding::Linear };
+    let scene = Scene {
+        rgb,
+        disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 },
+        matte: Some(matte),
+        encoding: drbokeh::PhotoEncoding::Linear,
+    };
     let run = |layers: LayerCount| {
         let mut cfg = Config::default();
         cfg.render.blur = Some(8.0);
@@ -596,7 +606,12 @@ fn tiny_images_render_finite_output() {
         let rgb = Image::filled(w, h, 3, 0.4);
         let map = plane(w, h, |x, y| ((x + y) % 2) as f32);
         for matte in [None, Some(plane(w, h, |x, y| ((x + y) % 2) as f32))] {
-            let scene = Scene { rgb: rgb.clone(), disparity: Disparity { map: map.clone(), z_range: None, filled_fraction: 0.0 }, matte, encoding: drbokeh::PhotoEncoding::Linear };
+            let scene = Scene {
+                rgb: rgb.clone(),
+                disparity: Disparity { map: map.clone(), z_range: None, filled_fraction: 0.0 },
+                matte,
+                encoding: drbokeh::PhotoEncoding::Linear,
+            };
             let mut cfg = Config::default();
             cfg.render.blur = Some(10.0);
             let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(0.5)).unwrap();
@@ -645,7 +660,12 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
     let inside = |x: usize, y: usize| ((x as f32 - 30.0).powi(2) + (y as f32 - 22.0).powi(2)).sqrt();
     let matte = plane(w, h, |x, y| (12.5 - inside(x, y)).clamp(0.0, 1.0));
     let d = plane(w, h, |x, y| if inside(x, y) < 12.0 { 0.88 + 0.002 * x as f32 } else { 0.1 + 0.2 * x as f32 / w as f32 });
-    let scene = Scene { rgb, disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 }, matte: Some(matte), encoding: drbokeh::PhotoEncoding::Linear };
+    let scene = Scene {
+        rgb,
+        disparity: Disparity { map: d, z_range: None, filled_fraction: 0.0 },
+        matte: Some(matte),
+        encoding: drbokeh::PhotoEncoding::Linear,
+    };
     for (focus, kernel) in [(0.9, "exact"), (0.2, "exact"), (0.9, "fast"), (0.5, "fast")] {
         let mut cfg = Config::default();
         cfg.render.blur = Some(12.0);

@@ -511,7 +511,8 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
             let scene = Scene {
                 rgb: inp.aif.clone(),
                 disparity: Disparity { map: disparity.clone(), z_range: None, filled_fraction: 0.0 },
-                matte: Some(inp.matte.clone()), encoding: crate::color::PhotoEncoding::Linear,
+                matte: Some(inp.matte.clone()),
+                encoding: crate::color::PhotoEncoding::Linear,
             };
             Ok(Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?.image)
         }
