@@ -108,52 +108,164 @@ fn rows_of(rows: &[DfdRow], k: RowKind) -> BTreeMap<&str, &DfdRow> {
     rows.iter().filter(|r| r.kind == k).map(|r| (r.scene.as_str(), r)).collect()
 }
 
-/// The issue's acceptance checks on the default method: its re-render within [`ACCEPT_DB`] of
-/// the true disparity's (sRGB and linear PSNR), and its disparity error against the
-/// no-occlusion and Gaussian-PSF ablations (and the start).
+/// One re-render check of [`Acceptance`]: per case, the true disparity's re-render PSNR minus
+/// the default method's (each capped at 100 dB), in one encoding.
+#[derive(Clone, Debug)]
+pub struct RerenderCheck {
+    /// The encoding: "sRGB" or "linear".
+    pub what: &'static str,
+    /// Per case: (the gap in dB, positive where the true map re-renders better; the scene).
+    pub gaps: Vec<(f64, String)>,
+}
+
+impl RerenderCheck {
+    /// The mean gap, dB (NaN without cases).
+    pub fn mean(&self) -> f64 {
+        mean(self.gaps.iter().map(|g| g.0))
+    }
+
+    /// The largest gap and its scene (-inf and "" without cases).
+    pub fn worst(&self) -> (f64, &str) {
+        self.gaps.iter().fold((f64::NEG_INFINITY, ""), |a, g| if g.0 > a.0 { (g.0, g.1.as_str()) } else { a })
+    }
+
+    /// Cases whose gap is at most [`ACCEPT_DB`].
+    pub fn within(&self) -> usize {
+        self.gaps.iter().filter(|g| g.0 <= ACCEPT_DB).count()
+    }
+
+    /// The check: the mean gap is at most [`ACCEPT_DB`].
+    pub fn holds(&self) -> bool {
+        self.mean() <= ACCEPT_DB
+    }
+}
+
+/// One disparity-error comparison of [`Acceptance`]: the default method against `base`, means
+/// over the cases both have.
+#[derive(Clone, Debug)]
+pub struct MaeCheck {
+    /// What the default method is compared with.
+    pub base: RowKind,
+    /// Cases compared.
+    pub cases: usize,
+    /// Mean disparity MAE of the default method and of `base`, overall.
+    pub ours: f64,
+    /// The same for `base`.
+    pub theirs: f64,
+    /// Mean disparity MAE of the default method over the textured pixels.
+    pub ours_textured: f64,
+    /// The same for `base`.
+    pub theirs_textured: f64,
+    /// Cases where the default method's MAE is lower, overall.
+    pub wins: usize,
+    /// The same over the textured pixels.
+    pub wins_textured: usize,
+}
+
+impl MaeCheck {
+    /// The check, overall: the default method's mean MAE is lower.
+    pub fn beats(&self) -> bool {
+        self.ours < self.theirs
+    }
+
+    /// The check over the textured pixels.
+    pub fn beats_textured(&self) -> bool {
+        self.ours_textured < self.theirs_textured
+    }
+}
+
+/// The issue's acceptance checks on the default method ([`DfdMethod::Physical`]): its
+/// re-render within [`ACCEPT_DB`] of the true disparity's (sRGB and linear PSNR), and its
+/// disparity error against the no-occlusion and Gaussian-PSF ablations and the start.
+#[derive(Clone, Debug)]
+pub struct Acceptance {
+    /// sRGB, then linear.
+    pub rerender: [RerenderCheck; 2],
+    /// Against each of no occlusion, Gaussian PSF and the start that has rows.
+    pub disparity: Vec<MaeCheck>,
+}
+
+impl Acceptance {
+    /// The checks of `rows`; None without rows of the default method.
+    pub fn of(rows: &[DfdRow]) -> Option<Acceptance> {
+        let ours = rows_of(rows, RowKind::Estimate(DfdMethod::Physical));
+        if ours.is_empty() {
+            return None;
+        }
+        let truth = rows_of(rows, RowKind::TrueDisparity);
+        let pairs: Vec<(&DfdRow, &DfdRow)> = ours.iter().filter_map(|(k, o)| truth.get(k).map(|t| (*o, *t))).collect();
+        let check = |what, get: fn(&DfdRow) -> f64| RerenderCheck {
+            what,
+            gaps: pairs.iter().map(|(o, t)| (get(t).min(PSNR_CAP) - get(o).min(PSNR_CAP), o.scene.clone())).collect(),
+        };
+        let rerender = [check("sRGB", |r| r.rerender.psnr_srgb), check("linear", |r| r.rerender.psnr)];
+        let mut disparity = Vec::new();
+        for base in [RowKind::Estimate(DfdMethod::NoOcclusion), RowKind::Estimate(DfdMethod::GaussPsf), RowKind::Init] {
+            let theirs = rows_of(rows, base);
+            let p: Vec<(&DfdRow, &DfdRow)> = ours.iter().filter_map(|(k, o)| theirs.get(k).map(|t| (*o, *t))).collect();
+            if p.is_empty() {
+                continue;
+            }
+            disparity.push(MaeCheck {
+                base,
+                cases: p.len(),
+                ours: mean(p.iter().map(|x| x.0.mae)),
+                theirs: mean(p.iter().map(|x| x.1.mae)),
+                ours_textured: mean(p.iter().map(|x| x.0.mae_textured)),
+                theirs_textured: mean(p.iter().map(|x| x.1.mae_textured)),
+                wins: p.iter().filter(|x| x.0.mae < x.1.mae).count(),
+                wins_textured: p.iter().filter(|x| x.0.mae_textured < x.1.mae_textured).count(),
+            });
+        }
+        Some(Acceptance { rerender, disparity })
+    }
+
+    /// The comparison with `base`, if it has rows.
+    pub fn against(&self, base: RowKind) -> Option<&MaeCheck> {
+        self.disparity.iter().find(|c| c.base == base)
+    }
+}
+
+/// The acceptance checks ([`Acceptance`]) as report.md's list, one line each (empty without
+/// rows of the default method).
 pub fn acceptance(rows: &[DfdRow]) -> String {
     let mut s = String::new();
-    let ours = rows_of(rows, RowKind::Estimate(DfdMethod::Physical));
-    if ours.is_empty() {
+    let Some(a) = Acceptance::of(rows) else {
         return s;
-    }
-    let truth = rows_of(rows, RowKind::TrueDisparity);
-    let pairs: Vec<(&DfdRow, &DfdRow)> = ours.iter().filter_map(|(k, o)| truth.get(k).map(|t| (*o, *t))).collect();
-    let n = pairs.len();
-    for (what, get) in [("sRGB", (|r: &DfdRow| r.rerender.psnr_srgb) as fn(&DfdRow) -> f64), ("linear", |r: &DfdRow| r.rerender.psnr)] {
-        let gaps: Vec<(f64, &str)> = pairs.iter().map(|(o, t)| (get(t).min(PSNR_CAP) - get(o).min(PSNR_CAP), o.scene.as_str())).collect();
-        let within = gaps.iter().filter(|g| g.0 <= ACCEPT_DB).count();
-        let worst = gaps.iter().cloned().fold((f64::NEG_INFINITY, ""), |a, b| if b.0 > a.0 { b } else { a });
+    };
+    let yes = |b: bool| if b { "yes" } else { "no" };
+    for c in &a.rerender {
+        let (worst, scene) = c.worst();
         let _ = writeln!(
             s,
-            "- Re-render PSNR {what}, true disparity minus **{}**: mean {:.2} dB, worst {:.2} dB ({}); within {ACCEPT_DB} dB in {within}/{n} cases; mean within {ACCEPT_DB} dB: **{}**.",
+            "- Re-render PSNR {}, true disparity minus **{}**: mean {:.2} dB, worst {:.2} dB ({}); within {ACCEPT_DB} dB in {}/{} cases; mean within {ACCEPT_DB} dB: **{}**.",
+            c.what,
             DfdMethod::Physical.name(),
-            mean(gaps.iter().map(|g| g.0)),
-            worst.0,
-            worst.1,
-            if mean(gaps.iter().map(|g| g.0)) <= ACCEPT_DB { "yes" } else { "no" }
+            c.mean(),
+            worst,
+            scene,
+            c.within(),
+            c.gaps.len(),
+            yes(c.holds())
         );
     }
-    for base in [RowKind::Estimate(DfdMethod::NoOcclusion), RowKind::Estimate(DfdMethod::GaussPsf), RowKind::Init] {
-        let theirs = rows_of(rows, base);
-        let p: Vec<(&DfdRow, &DfdRow)> = ours.iter().filter_map(|(k, o)| theirs.get(k).map(|t| (*o, *t))).collect();
-        if p.is_empty() {
-            continue;
-        }
-        let (mo, mt) = (mean(p.iter().map(|x| x.0.mae)), mean(p.iter().map(|x| x.1.mae)));
-        let (to, tt) = (mean(p.iter().map(|x| x.0.mae_textured)), mean(p.iter().map(|x| x.1.mae_textured)));
-        let wins = p.iter().filter(|x| x.0.mae < x.1.mae).count();
-        let wins_t = p.iter().filter(|x| x.0.mae_textured < x.1.mae_textured).count();
+    for c in &a.disparity {
         let _ = writeln!(
             s,
-            "- Disparity MAE, **{}** vs **{}**: {mo:.4} vs {mt:.4} overall (lower in {wins}/{} cases), {to:.4} vs {tt:.4} in textured regions \
-             (lower in {wins_t}/{}); beats it on the mean: **{}** overall, **{}** textured.",
+            "- Disparity MAE, **{}** vs **{}**: {:.4} vs {:.4} overall (lower in {}/{} cases), {:.4} vs {:.4} in textured regions \
+             (lower in {}/{}); beats it on the mean: **{}** overall, **{}** textured.",
             DfdMethod::Physical.name(),
-            base.name(),
-            p.len(),
-            p.len(),
-            if mo < mt { "yes" } else { "no" },
-            if to < tt { "yes" } else { "no" }
+            c.base.name(),
+            c.ours,
+            c.theirs,
+            c.wins,
+            c.cases,
+            c.ours_textured,
+            c.theirs_textured,
+            c.wins_textured,
+            c.cases,
+            yes(c.beats()),
+            yes(c.beats_textured())
         );
     }
     s
