@@ -195,6 +195,8 @@ fn ignored_options(job: &Job, cfg: &Config) -> Vec<String> {
         (cfg.segment.method != Default::default(), "segment.method"),
         (cfg.inpaint.method != Default::default(), "inpaint.method"),
         (job.matte.is_some(), "job.matte"),
+        // One layer still gets the photo's light back; given layers are linear already.
+        (!job.layers.is_empty() && cfg.highlights != Default::default(), "highlights"),
     ];
     set.iter().filter(|(on, _)| *on).map(|(_, key)| format!("{key} is ignored: {why}")).collect()
 }

@@ -94,6 +94,9 @@ const PSF_GRID: [f32; 11] = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.4, 1.6, 1.8, 2
 /// Blobs (the largest) the photo's PSF is read from: enough to outvote a few odd ones, few
 /// enough that a night photo of thousands of lights pays for [`PSF_GRID`] once per sample.
 const PSF_SAMPLE: usize = 48;
+/// Blobs up to this radius (pixels, of a disc of their area) are preferred for reading the
+/// photo's PSF; larger ones are used only when there are too few.
+const PSF_BLOB_RADIUS: f32 = 6.0;
 /// Starts of the compass search: the best of the coarse grid.
 const STARTS: usize = 4;
 /// Variance (px²) of the pixel's own box filter, added to the PSF's: the footprint treats the
@@ -279,12 +282,13 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(I
     for m in mask.iter_mut() {
         *m &= 7;
     }
-    let seen: Vec<Option<Seen>> = found.par_iter().map(|b| see(rgb, &mask, b)).collect();
-    // The PSF from the blobs with the most pixels (the most fringe to read it from).
-    let mut by_size: Vec<&Seen> = seen.iter().flatten().collect();
-    by_size.sort_by_key(|s| std::cmp::Reverse(s.win.px.len()));
-    by_size.truncate(PSF_SAMPLE);
-    let sigma = photo_psf(&by_size, clip);
+    let seen: Vec<Option<Seen>> = found.par_iter().map(|b| see(rgb, &mask, b, clip)).collect();
+    // The PSF from the largest blobs of light size up to PSF_BLOB_RADIUS: the most fringe to
+    // read it from, at a bounded cost (the fit's cost grows with the window).
+    let mut sample: Vec<&Seen> = seen.iter().flatten().collect();
+    sample.sort_by(|a, b| psf_rank(a.r0).total_cmp(&psf_rank(b.r0)));
+    sample.truncate(PSF_SAMPLE);
+    let sigma = photo_psf(&sample, clip);
     let fits: Vec<Option<Fit>> = found
         .par_iter()
         .zip(&seen)
@@ -355,6 +359,9 @@ struct Window {
 struct Seen {
     win: Window,
     background: [f32; 3],
+    /// The fit's error with no light: Σ over the fit's samples of (v - B)² (unclipped) and
+    /// max(0, clip - B)² (clipped), all channels.
+    zero_error: f32,
     cx: f32,
     cy: f32,
     r0: f32,
@@ -362,7 +369,7 @@ struct Seen {
 
 /// The window and background of one blob. `None` when the window holds no unclipped sample to
 /// see the light against.
-fn see(rgb: &Image, mask: &[u8], blob: &Blob) -> Option<Seen> {
+fn see(rgb: &Image, mask: &[u8], blob: &Blob, clip: f32) -> Option<Seen> {
     let (w, h) = (rgb.width, rgb.height);
     let (bx0, by0, bx1, by1) = blob.bbox;
     let (x0, y0) = (bx0.saturating_sub(MARGIN), by0.saturating_sub(MARGIN));
@@ -401,10 +408,17 @@ fn see(rgb: &Image, mask: &[u8], blob: &Blob) -> Option<Seen> {
         let k = pool.len() / 2;
         background[c] = *pool.select_nth_unstable_by(k, f32::total_cmp).1;
     }
+    let mut zero_error = 0.0f32;
+    for (v, m, _) in win.px.iter().filter(|p| p.2) {
+        for c in 0..3 {
+            let e = if m >> c & 1 == 0 { v[c] - background[c] } else { (clip - background[c]).max(0.0) };
+            zero_error += e * e;
+        }
+    }
     let n = blob.pixels.len() as f32;
     let cx = blob.pixels.iter().map(|&i| (i % w) as f32 + 0.5).sum::<f32>() / n;
     let cy = blob.pixels.iter().map(|&i| (i / w) as f32 + 0.5).sum::<f32>() / n;
-    Some(Seen { win, background, cx, cy, r0: (n / std::f32::consts::PI).sqrt() })
+    Some(Seen { win, background, zero_error, cx, cy, r0: (n / std::f32::consts::PI).sqrt() })
 }
 
 impl Seen {
@@ -415,10 +429,10 @@ impl Seen {
     /// the best few: the error is sharp in the geometry (a sliver's coverage changes fast with
     /// the radius), so a grid alone misses its minimum. O(~150 footprints of the window).
     fn fit(&self, clip: f32, sigma: f32) -> (f32, Geometry, [f32; 3]) {
-        let mut f = vec![0.0f32; self.win.px.len()];
+        let mut cover = Vec::new();
         let mut score = |g: Geometry| -> (f32, [f32; 3]) {
-            self.win.footprint(g.cx, g.cy, g.r, g.sigma, &mut f);
-            solve_radiance(&self.win, &f, self.background, clip)
+            self.win.footprint(g, &mut cover);
+            solve_radiance(self, &cover, clip)
         };
         let mut coarse = Vec::new();
         let mut r = 0.25f32;
@@ -442,8 +456,12 @@ impl Seen {
     /// The fitted light: radiance per channel and the model's value at each of the blob's
     /// pixels (in `blob.pixels` order).
     fn light(&self, blob: &Blob, frame_width: usize, g: Geometry, excess: [f32; 3]) -> Fit {
+        let mut cover = Vec::new();
+        self.win.footprint(g, &mut cover);
         let mut f = vec![0.0f32; self.win.px.len()];
-        self.win.footprint(g.cx, g.cy, g.r, g.sigma, &mut f);
+        for (k, fk) in cover {
+            f[k as usize] = fk;
+        }
         let b = self.background;
         let core = blob
             .pixels
@@ -455,6 +473,12 @@ impl Seen {
             .collect();
         Fit { g, radiance: [0, 1, 2].map(|c| b[c] + excess[c]), core }
     }
+}
+
+/// Sort key of a blob of radius `r0` for the PSF sample: light-sized blobs (up to
+/// [`PSF_BLOB_RADIUS`]) first, largest first; then the larger ones, smallest first.
+fn psf_rank(r0: f32) -> f32 {
+    if r0 <= PSF_BLOB_RADIUS { -r0 } else { r0 }
 }
 
 /// The PSF σ (pixels) of the photo: the value of [`PSF_GRID`] under which the sampled blobs'
@@ -530,32 +554,33 @@ fn compass(start: Geometry, err: f32, error: &mut dyn FnMut(Geometry) -> f32) ->
 }
 
 impl Window {
-    /// The light model's coverage of each window pixel (0 … 1) for a disc at (cx, cy) (frame
-    /// pixels) of radius r blurred by a Gaussian of σ, averaged over the pixel, into `f`.
+    /// The light model's coverage (0 … 1) of the window pixels it reaches, as (window index,
+    /// coverage) into `cover` (cleared first; pixels left out of the fit are skipped), for a
+    /// disc at (cx, cy) (frame pixels) of radius r blurred by a Gaussian of σ, averaged over
+    /// the pixel.
     ///
     /// A PSF of σ ≥ [`WIDE_PSF`] is much wider than the pixel: the pixel's box is folded into
     /// the Gaussian (variance + 1/12) and the model read at the pixel's centre. A narrower one
     /// is averaged over [`SUB`]² sub-pixels (each box folded in the same way) where the disc's
     /// edge passes; elsewhere the pixel is wholly inside or outside. With σ = 0 that is the
     /// pixel's exact area coverage to ~1%.
-    fn footprint(&self, cx: f32, cy: f32, r: f32, sigma: f32, f: &mut [f32]) {
-        let centre = |k: usize| ((self.x0 + k % self.w) as f32 + 0.5, (self.y0 + k / self.w) as f32 + 0.5);
-        if sigma >= WIDE_PSF {
-            let s = (sigma * sigma + PIXEL_VARIANCE).sqrt();
-            for (k, out) in f.iter_mut().enumerate() {
-                let (x, y) = centre(k);
-                *out = footprint(((x - cx).powi(2) + (y - cy).powi(2)).sqrt() / s, r / s);
+    fn footprint(&self, g: Geometry, cover: &mut Vec<(u32, f32)>) {
+        cover.clear();
+        let Geometry { cx, cy, r, sigma } = g;
+        let wide = sigma >= WIDE_PSF;
+        let s = if wide { (sigma * sigma + PIXEL_VARIANCE).sqrt() } else { (sigma * sigma + PIXEL_VARIANCE / (SUB * SUB) as f32).sqrt() };
+        // Beyond this distance from the edge a pixel (half-diagonal 0.71) sees < 1e-5 of it.
+        let reach = 0.71 + 4.5 * s;
+        for (k, px) in self.px.iter().enumerate() {
+            if !px.2 {
+                continue;
             }
-            return;
-        }
-        let s = (sigma * sigma + PIXEL_VARIANCE / (SUB * SUB) as f32).sqrt();
-        // Beyond this distance from the edge a pixel (half-diagonal 0.71) sees < 1e-4 of it.
-        let reach = 0.71 + 4.0 * s;
-        for (k, out) in f.iter_mut().enumerate() {
-            let (x, y) = centre(k);
+            let (x, y) = ((self.x0 + k % self.w) as f32 + 0.5, (self.y0 + k / self.w) as f32 + 0.5);
             let rho = ((x - cx).powi(2) + (y - cy).powi(2)).sqrt();
-            *out = if rho - r > reach {
-                0.0
+            let f = if rho - r > reach {
+                continue;
+            } else if wide {
+                footprint(rho / s, r / s)
             } else if r - rho > reach {
                 1.0
             } else {
@@ -568,6 +593,9 @@ impl Window {
                 }
                 acc / (SUB * SUB) as f32
             };
+            if f > 0.0 {
+                cover.push((k as u32, f));
+            }
         }
     }
 }
@@ -591,19 +619,18 @@ const MIN_BOUND_COVERAGE: f32 = 0.1;
 /// The error's derivative in X is increasing and concave (piecewise linear; a clipped term
 /// stops counting once the model reaches the clip level), so Newton's method from X = 0
 /// climbs to the minimum without overshooting: a handful of steps.
-fn solve_radiance(win: &Window, f: &[f32], background: [f32; 3], clip: f32) -> (f32, [f32; 3]) {
-    let mut total = 0.0f32;
+fn solve_radiance(seen: &Seen, cover: &[(u32, f32)], clip: f32) -> (f32, [f32; 3]) {
+    let px = &seen.win.px;
+    let mut total = seen.zero_error;
     let mut excess = [0.0f32; 3];
     for c in 0..3 {
-        let b = background[c];
+        let b = seen.background[c];
         let t = clip - b;
         // g(X) = dE/dX / 2, g'(X).
         let slope = |x: f32| -> (f32, f32) {
             let (mut g, mut dg) = (0.0f32, 0.0f32);
-            for ((v, m, used), &fk) in win.px.iter().zip(f) {
-                if !used || fk <= 0.0 {
-                    continue;
-                }
+            for &(k, fk) in cover {
+                let (v, m, _) = px[k as usize];
                 if m >> c & 1 == 0 {
                     g += fk * (x * fk - (v[c] - b));
                     dg += fk * fk;
@@ -629,18 +656,16 @@ fn solve_radiance(win: &Window, f: &[f32], background: [f32; 3], clip: f32) -> (
         }
         x = x.clamp(0.0, MAX_RADIANCE - b);
         excess[c] = x;
-        for ((v, m, used), &fk) in win.px.iter().zip(f) {
-            if !used {
-                continue;
-            }
+        // The error with no light (`zero_error`), corrected where the model reaches. Every
+        // clipped sample counts: a geometry that leaves one unexplained is wrong, whatever X.
+        for &(k, fk) in cover {
+            let (v, m, _) = px[k as usize];
             let model = x * fk;
-            // Every clipped sample counts in the error: a geometry that leaves one unexplained
-            // is wrong, whatever X.
-            let e = if m >> c & 1 == 0 { v[c] - b - model } else { (t - model).max(0.0) };
-            total += e * e;
+            let (now, none) = if m >> c & 1 == 0 { (v[c] - b - model, v[c] - b) } else { ((t - model).max(0.0), t.max(0.0)) };
+            total += now * now - none * none;
         }
     }
-    (total, excess)
+    (total.max(0.0), excess)
 }
 
 /// Fraction of a unit Gaussian centred `a` from the centre of a disc of radius `b` that falls
