@@ -50,6 +50,8 @@ def pipeline_table(depth):
     for seed, folder in [(1, "docs/bench"), (2, "docs/bench-seed2")]:
         acc = collections.defaultdict(list)
         for r in csv.DictReader(open(root / folder / "report.csv")):
+            if r.get("input", "linear") != "linear":  # the 8-bit inputs (issue 35): report.md's own section
+                continue
             key = (r["method"], r["variant"])
             if key in cols:
                 for c in r["categories"].split(";") + ["all"]:
@@ -82,6 +84,8 @@ def options_table():
     for seed, folder in [(1, "docs/bench"), (2, "docs/bench-seed2")]:
         rows = collections.defaultdict(dict)
         for r in csv.DictReader(open(root / folder / "report.csv")):
+            if r.get("input", "linear") != "linear":  # the 8-bit inputs (issue 35): report.md's own section
+                continue
             if r["method"] == "drbokeh-pipeline":
                 rows[r["variant"]][(r["scene"], r["setting"])] = (float(r["psnr_srgb"]), float(r["psnr_linear"]), float(r["ssim_srgb"]))
         for depth, base in [("exact", "physical-fast-q2"), ("realistic", "realistic-depth")]:

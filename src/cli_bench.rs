@@ -5,6 +5,7 @@ use crate::{as_flags, set_threads};
 use clap::{Args, ValueEnum};
 use drbokeh::Error;
 use drbokeh::bench::dfd_eval::{self, DfdBenchOptions};
+use drbokeh::bench::inputs::Input;
 use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
 use drbokeh::bench::trace::{self, Footprint, Plane, TraceSettings, Window};
 use drbokeh::color::Transfer;
@@ -42,6 +43,28 @@ pub enum MethodArg {
     Scatter,
     /// Per-pixel gather within its own CoC.
     Gather,
+}
+
+/// `--inputs`: what the methods are fed (see [`Input`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum InputArg {
+    /// The linear HDR all-in-focus view (the ceiling).
+    Linear,
+    /// The view as an 8-bit sRGB photo, clipped at white.
+    Srgb8,
+    /// The same after a camera PSF (Gaussian, σ = 0.7 px) before clipping.
+    #[value(name = "srgb8-psf")]
+    Srgb8Psf,
+}
+
+impl From<InputArg> for Input {
+    fn from(i: InputArg) -> Input {
+        match i {
+            InputArg::Linear => Input::Linear,
+            InputArg::Srgb8 => Input::Srgb8,
+            InputArg::Srgb8Psf => Input::Srgb8Psf,
+        }
+    }
 }
 
 impl From<MethodArg> for Method {
@@ -162,6 +185,10 @@ pub struct BenchArgs {
     /// Methods to run (comma-separated) [default: all].
     #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
     methods: Vec<MethodArg>,
+    /// What the methods are fed (comma-separated): the linear HDR view, and the same view as an
+    /// 8-bit sRGB photo clipped at white, without and with a camera PSF [default: all three].
+    #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
+    inputs: Vec<InputArg>,
     /// Report folder (report.csv, report.md, error_vs_time.png, crops/; with --dfd figures/).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -223,6 +250,9 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     let scenes = args.scenes.unwrap_or(50);
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
     let methods = if args.methods.is_empty() { Method::ALL.to_vec() } else { args.methods.iter().map(|&m| m.into()).collect() };
+    let mut inputs: Vec<Input> = if args.inputs.is_empty() { Input::ALL.to_vec() } else { args.inputs.iter().map(|&i| i.into()).collect() };
+    inputs.sort();
+    inputs.dedup();
     if scenes == 0 && args.groundtruth.is_none() {
         return Err(Error::usage("--scenes must be at least 1").into());
     }
@@ -234,6 +264,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         groundtruth: args.groundtruth.clone(),
         textures: args.textures.clone(),
         methods,
+        inputs,
         out: args.out.clone(),
         spp: args.spp.unwrap_or(1024).clamp(2, 1 << 20),
         repeats: args.repeats.max(1),
@@ -258,7 +289,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     .map_err(as_flags)?;
     bar.finish_and_clear();
     eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
-    eprint!("{}", drbokeh::bench::report::comparisons(&res.rows));
+    eprint!("{}", drbokeh::bench::report::comparisons(&drbokeh::bench::report::primary_rows(&res.rows)));
     eprintln!("wrote {}", opts.out.join("report.md").display());
     Ok(())
 }
@@ -268,8 +299,10 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
     let d = DfdBenchOptions::default();
     let (w, h) = args.size.unwrap_or((d.width, d.height));
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
-    if !args.methods.is_empty() || args.textures.is_some() {
-        return Err(Error::usage("--methods and --textures are not used with --dfd (every depth-from-defocus method runs)").into());
+    if !args.methods.is_empty() || !args.inputs.is_empty() || args.textures.is_some() {
+        return Err(
+            Error::usage("--methods, --inputs and --textures are not used with --dfd (every depth-from-defocus method runs)").into()
+        );
     }
     if args.iters == 0 || args.levels == 0 {
         return Err(Error::usage("--iters and --levels must be at least 1").into());
@@ -310,5 +343,16 @@ mod tests {
             }
         }
         assert_eq!(MethodArg::value_variants().len(), Method::ALL.len());
+    }
+
+    /// Every `--inputs` name is the library's name of the same input, and every input has one.
+    #[test]
+    fn input_flags_agree_with_the_library() {
+        for arg in InputArg::value_variants() {
+            let name = arg.to_possible_value().expect("no hidden variants").get_name().to_owned();
+            assert_eq!(Input::parse(&name), Some(Input::from(*arg)), "{name}");
+            assert_eq!(Input::from(*arg).name(), name);
+        }
+        assert_eq!(InputArg::value_variants().len(), Input::ALL.len());
     }
 }

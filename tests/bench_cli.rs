@@ -87,40 +87,173 @@ fn trace_refuses_a_layer_that_is_not_one_plane() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// report.csv's columns: the header's names, in order.
+const CSV_HEADER: &str = "scene,setting,categories,method,variant,input,width,height,threads,blur,focus,max_coc_px,border_px,runs,\
+                          time_ms,rmse,si_rmse,psnr_linear,ssim_linear,zncc,psnr_srgb,ssim_srgb,psnr_srgb_full_frame,light_missing,\
+                          light_recovered";
+/// Index of the `input` column, of the first score column, and of the two light columns.
+const INPUT_COL: usize = 5;
+const FIRST_SCORE_COL: usize = 14;
+const LIGHT_MISSING_COL: usize = 23;
+const LIGHT_RECOVERED_COL: usize = 24;
+
+/// report.csv's rows (header checked), each split into its columns, with a 64x64 frame and a
+/// finite (or inf) number in every score column.
+fn csv_rows(csv: &str) -> Vec<Vec<&str>> {
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(CSV_HEADER), "{csv}");
+    let n = CSV_HEADER.split(',').count();
+    lines
+        .map(|l| {
+            let cols: Vec<&str> = l.split(',').collect();
+            assert_eq!(cols.len(), n, "{l}");
+            assert_eq!((cols[INPUT_COL + 1], cols[INPUT_COL + 2]), ("64", "64"), "{l}");
+            for v in &cols[FIRST_SCORE_COL..LIGHT_MISSING_COL] {
+                let x: f64 = v.parse().unwrap();
+                assert!(x.is_finite() || *v == "inf", "{l}");
+            }
+            cols
+        })
+        .collect()
+}
+
 #[test]
 fn tiny_bench_run_writes_the_report() {
     let dir = tmp("bench");
-    let o = drbokeh(&dir, &["bench", "--scenes", "2", "--size", "64x64", "--seed", "3", "--spp", "64", "--repeats", "1", "--out", "rep"]);
+    let o = drbokeh(
+        &dir,
+        &[
+            "bench",
+            "--scenes",
+            "2",
+            "--size",
+            "64x64",
+            "--seed",
+            "3",
+            "--spp",
+            "64",
+            "--repeats",
+            "1",
+            "--inputs",
+            "linear",
+            "--out",
+            "rep",
+        ],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let rep = dir.join("rep");
     let csv = std::fs::read_to_string(rep.join("report.csv")).unwrap();
-    let lines: Vec<&str> = csv.lines().collect();
-    // 2 scenes x (7 + 4 + 8 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
+    let rows = csv_rows(&csv);
+    // 2 scenes x (7 + 4 + 9 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
     // every profile-aware method, realistic-depth for the three that read the depth map, and
-    // the pipeline's options: layers-auto with both depth maps, patchmatch).
-    assert_eq!(lines.len(), 1 + 2 * 26, "{csv}");
-    assert_eq!(lines.iter().filter(|l| l.contains(",realistic-depth,")).count(), 2 * 3);
-    for option in [",layers-auto,", ",realistic-depth-layers-auto,", ",patchmatch,"] {
-        assert_eq!(lines.iter().filter(|l| l.contains(option)).count(), 2, "{option}");
+    // the pipeline's options: realistic depth without matte, layers-auto with both depth maps,
+    // patchmatch).
+    assert_eq!(rows.len(), 2 * 27, "{csv}");
+    let count = |variant: &str| rows.iter().filter(|c| c[4] == variant).count();
+    assert_eq!(count("realistic-depth"), 2 * 3);
+    for option in ["layers-auto", "realistic-depth-layers-auto", "patchmatch", "realistic-depth-no-matte"] {
+        assert_eq!(count(option), 2, "{option}");
     }
-    assert_eq!(lines.iter().filter(|l| l.contains(",physical-exact,")).count(), 2 * 4);
-    assert!(lines[0].starts_with("scene,setting,categories,method,variant,width,height,threads"));
-    for l in &lines[1..] {
-        let cols: Vec<&str> = l.split(',').collect();
-        assert_eq!(cols.len(), 22, "{l}");
-        assert_eq!((cols[5], cols[6]), ("64", "64"));
-        for v in &cols[13..] {
-            let x: f64 = v.parse().unwrap();
-            assert!(x.is_finite() || *v == "inf", "{l}");
-        }
+    assert_eq!(count("physical-exact"), 2 * 4);
+    assert_eq!(count("highlights-off"), 0, "the stage does nothing on linear input: not run");
+    for c in &rows {
+        assert_eq!(c[INPUT_COL], "linear");
+        assert_eq!((c[LIGHT_MISSING_COL], c[LIGHT_RECOVERED_COL]), ("", ""), "no light columns on linear input: {c:?}");
     }
     let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
     for needle in ["## Summary", "drbokeh-layers", "scatter-no-occlusion", "gather", "Per category", "vs **gather**", "error_vs_time.png"] {
         assert!(md.contains(needle), "report.md lacks {needle}:\n{md}");
     }
+    assert!(!md.contains("## Inputs compared"), "one linear input: nothing to compare\n{md}");
     let png = std::fs::read(rep.join("error_vs_time.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
     assert!(std::fs::read_dir(rep.join("crops")).unwrap().count() >= 1);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The 8-bit inputs (issue 35): the reference, default and realistic-depth settings of every
+/// method plus the pipeline's highlights-off; the pipeline's highlights stage runs on them
+/// (light recovered > 0 with `auto`, 0 with `off`); report.md compares the inputs.
+#[test]
+fn bench_on_8bit_inputs_compares_them() {
+    let dir = tmp("bench-8bit");
+    let o = drbokeh(
+        &dir,
+        &[
+            "bench",
+            "--scenes",
+            "1",
+            "--size",
+            "64x64",
+            "--seed",
+            "3",
+            "--spp",
+            "64",
+            "--repeats",
+            "1",
+            "--crops",
+            "0",
+            "--inputs",
+            "srgb8-psf,srgb8",
+            "--out",
+            "rep",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rep = dir.join("rep");
+    let csv = std::fs::read_to_string(rep.join("report.csv")).unwrap();
+    let rows = csv_rows(&csv);
+    // Per input: layers and sliced 2 settings each, the pipeline 5, the scatter 3, the gather 2.
+    assert_eq!(rows.len(), 2 * 14, "{csv}");
+    for input in ["srgb8", "srgb8-psf"] {
+        let of = |method: &str, variant: &str| {
+            let r: Vec<&Vec<&str>> = rows.iter().filter(|c| c[INPUT_COL] == input && c[3] == method && c[4] == variant).collect();
+            assert_eq!(r.len(), 1, "{input} {method} {variant}\n{csv}");
+            r[0].clone()
+        };
+        for (m, v) in [("drbokeh-layers", "exact"), ("drbokeh-sliced", "physical-fast-q2"), ("scatter-no-occlusion", "realistic-depth")] {
+            assert_eq!((of(m, v)[LIGHT_MISSING_COL], of(m, v)[LIGHT_RECOVERED_COL]), ("", ""), "{m} {v}");
+        }
+        of("gather", "realistic-depth");
+        let auto = of("drbokeh-pipeline", "physical-fast-q2");
+        let off = of("drbokeh-pipeline", "highlights-off");
+        let no_matte = of("drbokeh-pipeline", "realistic-depth-no-matte");
+        let missing: f64 = auto[LIGHT_MISSING_COL].parse().unwrap();
+        assert!(missing > 1.0, "the scene's lights are clipped: {auto:?}");
+        assert_eq!(off[LIGHT_MISSING_COL], auto[LIGHT_MISSING_COL]);
+        assert_eq!(off[LIGHT_RECOVERED_COL].parse::<f64>().unwrap(), 0.0);
+        assert!(no_matte[LIGHT_RECOVERED_COL].parse::<f64>().unwrap().is_finite());
+        if input == "srgb8" {
+            let recovered: f64 = auto[LIGHT_RECOVERED_COL].parse().unwrap();
+            assert!(recovered > 0.0, "the highlights stage ran on the 8-bit photo: {auto:?}");
+        }
+    }
+    let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    for needle in [
+        "on the **srgb8** input",
+        "## Inputs compared",
+        "| method | setting | cases | srgb8 | srgb8-psf |",
+        "| drbokeh-pipeline | highlights-off | 1 |",
+        "`auto` (defaults) against `off`",
+        "| srgb8-psf | all cases | 1 |",
+        "Estimator-like depth, no matte",
+        "Light recovered by the highlights stage",
+        "(error_vs_time.png)",
+        "(error_vs_time_srgb8-psf.png)",
+    ] {
+        assert!(md.contains(needle), "report.md lacks {needle}:\n{md}");
+    }
+    for png in ["error_vs_time.png", "error_vs_time_srgb8-psf.png"] {
+        assert_eq!(&std::fs::read(rep.join(png)).unwrap()[..8], b"\x89PNG\r\n\x1a\n", "{png}");
+    }
+    assert!(!rep.join("error_vs_time_srgb8.png").exists(), "the primary input's plot is error_vs_time.png");
+    // --inputs names what it does not know, and is not for --dfd.
+    let o = drbokeh(&dir, &["bench", "--inputs", "srgb16", "--out", "x"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("srgb16"), "{}", stderr(&o));
+    let o = drbokeh(&dir, &["bench", "--dfd", "--inputs", "srgb8", "--out", "x"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--inputs"), "{}", stderr(&o));
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -130,11 +263,31 @@ fn bench_on_the_shared_groundtruth_folders_and_bad_flags() {
     let gt = common::shared_dir().join("groundtruth");
     let o = drbokeh(
         &dir,
-        &["bench", "--groundtruth", gt.to_str().unwrap(), "--methods", "gather", "--repeats", "1", "--crops", "0", "--out", "rep"],
+        &[
+            "bench",
+            "--groundtruth",
+            gt.to_str().unwrap(),
+            "--methods",
+            "gather",
+            "--inputs",
+            "linear,srgb8",
+            "--repeats",
+            "1",
+            "--crops",
+            "0",
+            "--out",
+            "rep",
+        ],
     );
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = std::fs::read_to_string(dir.join("rep/report.csv")).unwrap();
     assert!(csv.contains("portrait,focus_fg") && csv.contains("thin_bars,focus_bg,bg_in_focus;thin"), "{csv}");
+    for input in ["linear", "srgb8"] {
+        let row = format!(",gather,default,{input},256,256,");
+        assert!(csv.lines().any(|l| l.starts_with("portrait,focus_fg,") && l.contains(&row)), "{input}:\n{csv}");
+    }
+    let md = std::fs::read_to_string(dir.join("rep/report.md")).unwrap();
+    assert!(md.contains("| gather | default |") && md.contains("## Inputs compared"), "{md}");
     for (name, method) in [
         ("layers", Method::Layers),
         ("scatter", Method::Scatter),

@@ -5,6 +5,8 @@ pub mod dfd_eval;
 pub mod dfd_report;
 pub mod gather;
 pub mod groundtruth;
+pub mod input_report;
+pub mod inputs;
 pub mod metrics;
 pub mod plot;
 pub mod report;

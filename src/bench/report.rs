@@ -1,7 +1,10 @@
-//! The benchmark's outputs: `report.csv` (one row per case × method × setting),
-//! `report.md` (Table-1-style summary, per-category rows, Dr.Bokeh against the baselines),
-//! `error_vs_time.png` and side-by-side crops in `crops/`.
+//! The benchmark's outputs: `report.csv` (one row per case × input × method × setting),
+//! `report.md` (Table-1-style summary, per-category rows, Dr.Bokeh against the baselines, all
+//! on the primary input; then the inputs compared, [`super::input_report`]),
+//! `error_vs_time.png` (primary input) and `error_vs_time_<input>.png` (each other input),
+//! and side-by-side crops in `crops/`.
 
+use super::inputs::Input;
 use super::plot::{self, draw_text, text_width};
 use super::run::{BenchOptions, BenchResult, Case, Method, Row, Variant, srgb};
 use crate::error::{Error, Result};
@@ -95,13 +98,61 @@ pub fn by_method(rows: &[Row]) -> BTreeMap<(Method, Variant), Summary> {
     groups.into_iter().map(|(k, v)| (k, summarize(&v))).collect()
 }
 
+/// The input the method tables, the main plot and the crops are drawn from: the linear one
+/// when it ran (the ceiling), else the first of `inputs` (linear for none).
+pub fn primary_input(inputs: &[Input]) -> Input {
+    if inputs.contains(&Input::Linear) { Input::Linear } else { inputs.first().copied().unwrap_or(Input::Linear) }
+}
+
+/// The inputs present in `rows`, in report order.
+pub fn inputs_of(rows: &[Row]) -> Vec<Input> {
+    Input::ALL.into_iter().filter(|i| rows.iter().any(|r| r.input == *i)).collect()
+}
+
+/// The rows rendered from `input` (copies).
+pub fn input_rows(rows: &[Row], input: Input) -> Vec<Row> {
+    rows.iter().filter(|r| r.input == input).cloned().collect()
+}
+
+/// The rows of the primary input ([`primary_input`] of the inputs present): what the method
+/// tables and [`comparisons`] read.
+pub fn primary_rows(rows: &[Row]) -> Vec<Row> {
+    input_rows(rows, primary_input(&inputs_of(rows)))
+}
+
 /// Writes every output of a run into `opts.out`.
 pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
     let out = &opts.out;
     write_text(&out.join("report.csv"), &csv(&res.rows))?;
     write_text(&out.join("report.md"), &markdown(opts, res))?;
-    // One series per method and lens profile, so a line joins only settings of one model.
-    let means = by_method(&res.rows);
+    let primary = primary_input(&inputs_of(&res.rows));
+    for input in inputs_of(&res.rows) {
+        let (file, title) = if input == primary {
+            ("error_vs_time.png".to_string(), format!("mean PSNR vs run time, {} cases", res.cases))
+        } else {
+            (plot_file(input), format!("mean PSNR vs run time, {} cases, {} input", res.cases, input.name()))
+        };
+        time_plot(&out.join(file), &title, &input_rows(&res.rows, input))?;
+    }
+    if !res.crops.is_empty() {
+        let dir = out.join("crops");
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        for c in &res.crops {
+            write_panels(&dir.join(format!("{}.png", c.name)), &c.panels)?;
+        }
+    }
+    Ok(())
+}
+
+/// The error-versus-time figure of a non-primary input: `error_vs_time_<input>.png`.
+pub fn plot_file(input: Input) -> String {
+    format!("error_vs_time_{}.png", input.name())
+}
+
+/// Writes the error-versus-time figure of `rows` (one input's): one series per method and lens
+/// profile, so a line joins only settings of one model.
+fn time_plot(path: &Path, title: &str, rows: &[Row]) -> Result<()> {
+    let means = by_method(rows);
     let series: Vec<plot::Series> = [Profile::Official, Profile::Physical]
         .into_iter()
         .flat_map(|profile| Method::ALL.iter().map(move |&m| (m, profile)))
@@ -118,42 +169,35 @@ pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
             (!pts.is_empty()).then_some(plot::Series { name, points: pts })
         })
         .collect();
-    plot::error_vs_time(
-        &out.join("error_vs_time.png"),
-        &format!("mean PSNR vs run time, {} cases", res.cases),
-        "mean PSNR, sRGB (dB, higher is better)",
-        &series,
-    )?;
-    if !res.crops.is_empty() {
-        let dir = out.join("crops");
-        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-        for c in &res.crops {
-            write_panels(&dir.join(format!("{}.png", c.name)), &c.panels)?;
-        }
-    }
-    Ok(())
+    plot::error_vs_time(path, title, "mean PSNR, sRGB (dB, higher is better)", &series)
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {
     crate::io::atomic::write_atomic(path, |w| w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e)))
 }
 
-/// One row per case × method × setting.
+/// One row per case × input × method × setting. The last two columns are empty except on the
+/// pipeline's rows from clipped inputs: `light_missing` (linear light clipping took from the
+/// photo, summed over its samples) and `light_recovered` (the fraction of it the highlights
+/// stage gave back; empty when nothing was clipped). See [`super::run::LightRecovery`].
 pub fn csv(rows: &[Row]) -> String {
     let mut s = String::from(
-        "scene,setting,categories,method,variant,width,height,threads,blur,focus,max_coc_px,border_px,runs,time_ms,\
-         rmse,si_rmse,psnr_linear,ssim_linear,zncc,psnr_srgb,ssim_srgb,psnr_srgb_full_frame\n",
+        "scene,setting,categories,method,variant,input,width,height,threads,blur,focus,max_coc_px,border_px,runs,time_ms,\
+         rmse,si_rmse,psnr_linear,ssim_linear,zncc,psnr_srgb,ssim_srgb,psnr_srgb_full_frame,light_missing,light_recovered\n",
     );
     for r in rows {
         let sc = &r.scores;
+        let missing = r.light.map(|l| format!("{:.4}", l.missing)).unwrap_or_default();
+        let recovered = r.light.and_then(|l| l.fraction()).map(|f| format!("{f:.4}")).unwrap_or_default();
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{},{},{:.3},{:.6},{:.6},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4}",
+            "{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{},{},{:.3},{:.6},{:.6},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{missing},{recovered}",
             r.scene,
             r.setting,
             r.categories.join(";"),
             r.method.name(),
             r.variant.name(),
+            r.input.name(),
             r.width,
             r.height,
             r.threads,
@@ -182,10 +226,10 @@ fn reference_rows(rows: &[Row], m: Method) -> BTreeMap<(String, String), &Row> {
 }
 
 /// The rows of one method rendered with `profile` by the exact kernel (the gather, which has
-/// no profile, with its only setting), keyed by case.
+/// no profile, with its only setting), keyed by case. `rows` are one input's.
 fn profile_rows(rows: &[Row], m: Method, profile: Profile) -> BTreeMap<(String, String), &Row> {
     let v = match profile {
-        Profile::Physical if m.variants().contains(&Variant::PhysicalExact) => Variant::PhysicalExact,
+        Profile::Physical if rows.iter().any(|r| r.method == m && r.variant == Variant::PhysicalExact) => Variant::PhysicalExact,
         _ => m.reference(),
     };
     rows.iter().filter(|r| r.method == m && r.variant == v).map(|r| ((r.scene.clone(), r.setting.clone()), r)).collect()
@@ -297,7 +341,9 @@ pub fn category_table(rows: &[Row], profile: Profile) -> String {
 }
 
 fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
-    let rows = &res.rows;
+    let inputs = inputs_of(&res.rows);
+    let primary = primary_input(&inputs);
+    let rows = &input_rows(&res.rows, primary);
     let mut s = String::from("# Bokeh benchmark: error against a thin-lens ground truth\n\n");
     let _ = writeln!(s, "Command: `{}`\n", opts.command);
     let threads = rows.first().map(|r| r.threads).unwrap_or(0);
@@ -340,12 +386,24 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
          Times are the median of repeated runs (renders under ~1 s are repeated up to the `--repeats` count) of the render \
          alone; the pipeline method's time includes segmentation, depth filling and inpainting.\n\n",
     );
+    let compared = inputs.len() > 1 || primary.is_clipped();
+    if compared {
+        let _ = writeln!(
+            s,
+            "Inputs: {}. The sections up to \"Inputs compared\" are on the **{}** input ({}).\n",
+            inputs.iter().map(|i| format!("`{}`", i.name())).collect::<Vec<_>>().join(", "),
+            primary.name(),
+            primary.label()
+        );
+    } else {
+        let _ = writeln!(s, "Input: `{}` ({}).\n", primary.name(), primary.label());
+    }
     s.push_str("## Summary (mean over cases)\n\n");
     s.push_str(&summary_table(rows));
     s.push_str("\nMethods: ");
     let names: Vec<String> = Method::ALL.iter().map(|m| format!("`{}` = {}", m.name(), m.label())).collect();
     s.push_str(&names.join("; "));
-    s.push_str(". Settings: `exact` = the exact (oracle) kernel, `fast-qN` = the fast kernel at quality N (both the official profile), `physical-exact` = the physical lens profile with the exact kernel, `physical-fast-q2` = the physical profile with the fast kernel at quality 2 (the tool's defaults), `realistic-depth` = the defaults fed a depth map as an estimator gives it (exact depth averaged over 4x4 blocks, upsampled bilinearly, Gaussian σ = 1.5 px; the exact-layer methods have no such variant).\n\n");
+    s.push_str(". Settings: `exact` = the exact (oracle) kernel, `fast-qN` = the fast kernel at quality N (both the official profile), `physical-exact` = the physical lens profile with the exact kernel, `physical-fast-q2` = the physical profile with the fast kernel at quality 2 (the tool's defaults), `realistic-depth` = the defaults fed a depth map as an estimator gives it (exact depth averaged over 4x4 blocks, upsampled bilinearly, Gaussian σ = 1.5 px; the exact-layer methods have no such variant), `realistic-depth-no-matte` = the pipeline's defaults with that depth map and no matte (segmented from the depth alone), `highlights-off` = the pipeline's defaults with `[highlights] mode = \"off\"` (clipped inputs only).\n\n");
     s.push_str("## Dr.Bokeh (exact 2 layers, exact kernel) against the others\n\n");
     s.push_str(&comparisons(rows));
     s.push_str("\n## Per category (mean PSNR sRGB / SSIM sRGB, official profile, exact kernel)\n\n");
@@ -360,6 +418,9 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
         for c in &res.crops {
             let _ = writeln!(s, "- `crops/{}.png`: Dr.Bokeh {:+.2} dB sRGB PSNR against the scatter in this case", c.name, c.gain);
         }
+    }
+    if compared {
+        s.push_str(&super::input_report::section(&res.rows));
     }
     s
 }

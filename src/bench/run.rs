@@ -7,12 +7,18 @@
 //! (one layer, the `--no-occlusion` baseline); and the gathering baseline ([`super::gather`]).
 //! Renderer methods run with the exact kernel and the fast kernel's quality levels.
 //!
+//! Every method runs once per [`Input`] asked for (`--inputs`, [`super::inputs`]): the linear
+//! HDR all-in-focus view (every setting), and the 8-bit sRGB photo without and with a camera
+//! PSF (the reference and default settings, the realistic-depth ones and the pipeline with its
+//! highlights stage off; issue 35).
+//!
 //! Scores are computed with a border of the largest CoC radius left out (inputs lack the
 //! off-frame content the lens sees there), in linear light and on sRGB-encoded output clipped
 //! to [0, 1]; see [`Scores`].
 
 use super::gather::gather;
 use super::groundtruth::GtScene;
+use super::inputs::{self, Input, Prepared};
 use super::metrics::{psnr, rmse, si_rmse, ssim, zncc};
 use super::scenes::{FocusKind, SceneInputs, generate, gt_plane_layers};
 use super::trace::{Plane, TraceSettings, trace_split};
@@ -94,15 +100,38 @@ impl Method {
         alias.or_else(|| Method::ALL.into_iter().find(|m| m.name() == s))
     }
 
-    /// The kernel settings this method runs.
-    pub fn variants(self) -> Vec<Variant> {
+    /// The settings this method runs on `input`. On the linear input: every kernel setting and
+    /// option. On the clipped (8-bit) inputs, to keep the run short: the reference and default
+    /// settings, [`Variant::RealisticDepth`] for the methods that read the depth map, and for
+    /// the pipeline [`Variant::HighlightsOff`] (auto against off) and
+    /// [`Variant::RealisticNoMatte`] (which runs on every input).
+    pub fn variants(self, input: Input) -> Vec<Variant> {
         use Variant::*;
+        if input.is_clipped() {
+            let mut v = vec![self.reference(), self.default_setting()];
+            if self.reads_depth() {
+                v.push(RealisticDepth);
+            }
+            if self == Method::Pipeline {
+                v.extend([HighlightsOff, RealisticNoMatte]);
+            }
+            v.dedup();
+            return v;
+        }
         match self {
             Method::Layers => vec![Exact, Fast(1), Fast(2), Fast(4), Fast(8), PhysicalExact, PhysicalFast(2)],
             Method::Sliced => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2)],
-            Method::Pipeline => {
-                vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth, LayersAuto, RealisticLayersAuto, PatchMatch]
-            }
+            Method::Pipeline => vec![
+                Exact,
+                Fast(2),
+                PhysicalExact,
+                PhysicalFast(2),
+                RealisticDepth,
+                RealisticNoMatte,
+                LayersAuto,
+                RealisticLayersAuto,
+                PatchMatch,
+            ],
             Method::Scatter => vec![Exact, Fast(2), PhysicalExact, PhysicalFast(2), RealisticDepth],
             Method::Gather => vec![Plain, RealisticDepth],
         }
@@ -111,6 +140,18 @@ impl Method {
     /// The setting used when methods are compared (the reference kernel).
     pub fn reference(self) -> Variant {
         if self == Method::Gather { Variant::Plain } else { Variant::Exact }
+    }
+
+    /// The tool's default settings (physical profile, fast kernel at quality 2; the gather has
+    /// only one): what a user gets, the row the inputs are compared on.
+    pub fn default_setting(self) -> Variant {
+        if self == Method::Gather { Variant::Plain } else { Variant::PhysicalFast(2) }
+    }
+
+    /// True for the methods that read the depth map (and have [`Variant::RealisticDepth`]);
+    /// the exact-layer methods carry their depth in the layers.
+    pub fn reads_depth(self) -> bool {
+        matches!(self, Method::Pipeline | Method::Scatter | Method::Gather)
     }
 }
 
@@ -139,6 +180,14 @@ pub enum Variant {
     /// The pipeline's default settings with `--inpaint patchmatch` (the colour behind the
     /// foreground filled from exemplar patches, `stages::patchmatch`), exact depth map.
     PatchMatch,
+    /// The pipeline's default settings with `[highlights] mode = "off"` (the clipped photo as
+    /// decoded), exact depth map and matte: against the defaults (`auto`) it shows what the
+    /// highlights stage recovers. Clipped inputs only (on linear ones the stage does nothing).
+    HighlightsOff,
+    /// [`Variant::RealisticDepth`] without the matte: the pipeline segments from the realistic
+    /// depth map alone, as with a phone photo and an estimator (issue 35's acceptance compares
+    /// it with the baselines' realistic-depth rows).
+    RealisticNoMatte,
 }
 
 impl Variant {
@@ -154,11 +203,18 @@ impl Variant {
             Variant::LayersAuto => "layers-auto".into(),
             Variant::RealisticLayersAuto => "realistic-depth-layers-auto".into(),
             Variant::PatchMatch => "patchmatch".into(),
+            Variant::HighlightsOff => "highlights-off".into(),
+            Variant::RealisticNoMatte => "realistic-depth-no-matte".into(),
         }
     }
     /// Whether this setting reads the realistic depth map instead of the exact one.
     pub fn realistic(self) -> bool {
-        matches!(self, Variant::RealisticDepth | Variant::RealisticLayersAuto)
+        matches!(self, Variant::RealisticDepth | Variant::RealisticLayersAuto | Variant::RealisticNoMatte)
+    }
+
+    /// Whether the pipeline is given the scene's matte with this setting.
+    pub fn has_matte(self) -> bool {
+        self != Variant::RealisticNoMatte
     }
 
     /// The lens profile this setting renders with.
@@ -169,16 +225,21 @@ impl Variant {
             | Variant::RealisticDepth
             | Variant::LayersAuto
             | Variant::RealisticLayersAuto
-            | Variant::PatchMatch => crate::render::Profile::Physical,
+            | Variant::PatchMatch
+            | Variant::HighlightsOff
+            | Variant::RealisticNoMatte => crate::render::Profile::Physical,
             _ => crate::render::Profile::Official,
         }
     }
     fn kernel(self) -> Kernel {
         match self {
             Variant::Fast(q) | Variant::PhysicalFast(q) => Kernel::Fast { quality: q },
-            Variant::RealisticDepth | Variant::LayersAuto | Variant::RealisticLayersAuto | Variant::PatchMatch => {
-                Kernel::Fast { quality: 2 }
-            }
+            Variant::RealisticDepth
+            | Variant::LayersAuto
+            | Variant::RealisticLayersAuto
+            | Variant::PatchMatch
+            | Variant::HighlightsOff
+            | Variant::RealisticNoMatte => Kernel::Fast { quality: 2 },
             _ => Kernel::Exact,
         }
     }
@@ -201,6 +262,8 @@ pub struct BenchOptions {
     pub textures: Option<PathBuf>,
     /// The methods to run, at least one.
     pub methods: Vec<Method>,
+    /// The inputs every method is fed, at least one, in report order (see [`Input`]).
+    pub inputs: Vec<Input>,
     /// The report folder (created).
     pub out: PathBuf,
     /// Rays per pixel of the traced ground truth.
@@ -223,6 +286,7 @@ impl Default for BenchOptions {
             groundtruth: None,
             textures: None,
             methods: Method::ALL.to_vec(),
+            inputs: Input::ALL.to_vec(),
             out: PathBuf::from("bench-report"),
             spp: 1024,
             repeats: 3,
@@ -253,7 +317,8 @@ pub struct Case {
     pub gt: Image,
     /// Estimated RMS noise of `gt` (two-halves estimate), when it was traced here.
     pub gt_noise: Option<f64>,
-    /// What every method renders from (layers, photo, disparity, matte).
+    /// What every method renders from (layers, photo, disparity, matte), linear HDR: the
+    /// other inputs are made from it ([`inputs::prepare`]).
     pub inputs: SceneInputs,
 }
 
@@ -316,6 +381,8 @@ pub struct Row {
     pub method: Method,
     /// Its kernel setting.
     pub variant: Variant,
+    /// The input it rendered from.
+    pub input: Input,
     /// Frame width, pixels.
     pub width: usize,
     /// Frame height, pixels.
@@ -336,6 +403,29 @@ pub struct Row {
     pub time_ms: f64,
     /// The render's scores against the ground truth.
     pub scores: Scores,
+    /// The pipeline's highlights stage against what clipping took from the photo (pipeline
+    /// rows on clipped inputs; None otherwise).
+    pub light: Option<LightRecovery>,
+}
+
+/// How much of the light clipping took from a photo the highlights stage gave back. Both sums
+/// are linear light (white = 1) over the photo's samples.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightRecovery {
+    /// Light the stage added: Σ (its output − the photo), every sample (its report's
+    /// `light_added`; 0 when it did not run).
+    pub added: f64,
+    /// Light clipping took: Σ (the linear view before clipping − the photo) over the samples
+    /// stored as white ([`Prepared::missing_light`]).
+    pub missing: f64,
+}
+
+impl LightRecovery {
+    /// `added / missing`: 1 = all the missing light is back (above 1: too much). None when
+    /// nothing was clipped.
+    pub fn fraction(self) -> Option<f64> {
+        (self.missing > 0.0).then(|| self.added / self.missing)
+    }
 }
 
 /// Loads the photos of a texture folder (PNG/JPEG/TIFF/EXR), sorted by name.
@@ -454,7 +544,7 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
 
 /// Runs `f` once, then again while the total stays under ~1 s, up to `repeats` runs; returns
 /// the last result, the median time (ms) and the number of runs.
-fn timed(repeats: usize, mut f: impl FnMut() -> Result<Image>) -> Result<(Image, f64, usize)> {
+fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64, usize)> {
     let mut times = Vec::new();
     let t_all = Instant::now();
     let mut out;
@@ -472,10 +562,34 @@ fn timed(repeats: usize, mut f: impl FnMut() -> Result<Image>) -> Result<(Image,
     Ok((out, med, n))
 }
 
-/// Renders one method/setting on a case (linear RGB).
-pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
-    let inp = &case.inputs;
+/// What one render gave.
+pub struct Rendered {
+    /// The render, linear RGB.
+    pub image: Image,
+    /// The pipeline's highlights stage: linear light it added to the photo, summed over every
+    /// sample (0 when it was skipped); None for the other methods.
+    pub light_added: Option<f64>,
+}
+
+/// The light the pipeline's highlights stage added (its report's `light_added`), 0 when the
+/// stage did not run; an internal error when its report lacks the number.
+fn light_added(report: &crate::pipeline::Report) -> Result<f64> {
+    let Some(stage) = report.stages.iter().find(|s| s.name == "highlights") else { return Ok(0.0) };
+    if stage.status != crate::pipeline::StageStatus::Ran {
+        return Ok(0.0);
+    }
+    stage
+        .detail
+        .as_ref()
+        .and_then(|d| d["light_added"].as_f64())
+        .ok_or_else(|| Error::Internal("the highlights stage's report has no `light_added`".into()))
+}
+
+/// Renders one method/setting on a case from the inputs `photo` delivers (linear RGB).
+pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Result<Rendered> {
+    let inp: &SceneInputs = &photo.scene;
     let (blur, focus) = (case.blur, case.focus);
+    let plain = |image: Result<Image>| image.map(|image| Rendered { image, light_added: None });
     let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
         let lens = render::auto_lens(layers, blur, focus);
         render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile() }, v.kernel())
@@ -483,14 +597,14 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
     // The depth map the photo-based methods read.
     let disparity = if v.realistic() { &inp.realistic_disparity } else { &inp.disparity };
     match m {
-        Method::Layers => renderer(&inp.two_layers, true),
-        Method::Sliced => renderer(&inp.plane_layers, true),
+        Method::Layers => plain(renderer(&inp.two_layers, true)),
+        Method::Sliced => plain(renderer(&inp.plane_layers, true)),
         Method::Scatter => {
             let opaque = Image::filled(inp.aif.width, inp.aif.height, 1, 1.0);
             let single = Layer::from_parts(&inp.aif, &opaque, disparity, "all-in-focus layer")?;
-            renderer(&[single], false)
+            plain(renderer(&[single], false))
         }
-        Method::Gather => Ok(gather(&inp.aif, disparity, blur, focus)),
+        Method::Gather => plain(Ok(gather(&inp.aif, disparity, blur, focus))),
         Method::Pipeline => {
             let mut cfg = Config::default();
             cfg.render.blur = Some(blur);
@@ -508,13 +622,17 @@ pub fn render_method(case: &Case, m: Method, v: Variant) -> Result<Image> {
             if v == Variant::PatchMatch {
                 cfg.inpaint.method = crate::stages::inpaint_onnx::InpaintMethod::PatchMatch;
             }
+            if v == Variant::HighlightsOff {
+                cfg.highlights.mode = crate::stages::light_recovery::HighlightMode::Off;
+            }
             let scene = Scene {
                 rgb: inp.aif.clone(),
                 disparity: Disparity { map: disparity.clone(), z_range: None, filled_fraction: 0.0 },
-                matte: Some(inp.matte.clone()),
-                encoding: crate::color::PhotoEncoding::Linear,
+                matte: v.has_matte().then(|| inp.matte.clone()),
+                encoding: photo.input.encoding(),
             };
-            Ok(Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?.image)
+            let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
+            Ok(Rendered { light_added: Some(light_added(&out.report)?), image: out.image })
         }
     }
 }
@@ -550,6 +668,12 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
     if opts.methods.is_empty() {
         return Err(Error::usage("bench.methods: no method selected"));
     }
+    if opts.inputs.is_empty() {
+        return Err(Error::usage("bench.inputs: no input selected"));
+    }
+    // The crops and the report's method tables are drawn from one input: the linear one when
+    // it runs (the ceiling), else the first asked for.
+    let primary = super::report::primary_input(&opts.inputs);
     std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
     let threads = rayon::current_num_threads();
     let mut rows = Vec::new();
@@ -562,33 +686,49 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
             gt_noise.push(n);
         }
         let mut refs: Vec<(Method, Image, Scores)> = Vec::new();
-        for &m in &methods {
-            for v in m.variants() {
-                let (img, ms, runs) = timed(opts.repeats, || render_method(&case, m, v))?;
-                if !img.all_finite() {
-                    return Err(Error::Internal(format!("{} {} produced a non-finite value on {}", m.name(), v.name(), case.scene)));
+        for &input in &opts.inputs {
+            let photo = inputs::prepare(&case.inputs, input)?;
+            for &m in &methods {
+                for v in m.variants(input) {
+                    let (out, ms, runs) = timed(opts.repeats, || render_method(&case, &photo, m, v))?;
+                    let img = out.image;
+                    if !img.all_finite() {
+                        return Err(Error::Internal(format!(
+                            "{} {} ({} input) produced a non-finite value on {}",
+                            m.name(),
+                            v.name(),
+                            input.name(),
+                            case.scene
+                        )));
+                    }
+                    let scores = score(&img, &case.gt, case.border);
+                    let light = match (photo.missing_light, out.light_added) {
+                        (Some(missing), Some(added)) => Some(LightRecovery { added, missing }),
+                        _ => None,
+                    };
+                    if v == m.reference() && input == primary {
+                        refs.push((m, img, scores));
+                    }
+                    rows.push(Row {
+                        scene: case.scene.clone(),
+                        setting: case.setting.clone(),
+                        categories: case.categories.clone(),
+                        method: m,
+                        variant: v,
+                        input,
+                        width: case.gt.width,
+                        height: case.gt.height,
+                        threads,
+                        blur: case.blur,
+                        focus: case.focus,
+                        max_coc: case.max_coc,
+                        border: case.border,
+                        runs,
+                        time_ms: ms,
+                        scores,
+                        light,
+                    });
                 }
-                let scores = score(&img, &case.gt, case.border);
-                if v == m.reference() {
-                    refs.push((m, img, scores));
-                }
-                rows.push(Row {
-                    scene: case.scene.clone(),
-                    setting: case.setting.clone(),
-                    categories: case.categories.clone(),
-                    method: m,
-                    variant: v,
-                    width: case.gt.width,
-                    height: case.gt.height,
-                    threads,
-                    blur: case.blur,
-                    focus: case.focus,
-                    max_coc: case.max_coc,
-                    border: case.border,
-                    runs,
-                    time_ms: ms,
-                    scores,
-                });
             }
         }
         if opts.crops > 0 {
