@@ -9,6 +9,7 @@
 //! `*_onnx` are the model-based alternatives (see `crate::onnx`), behind the same interfaces.
 
 pub mod background;
+pub mod camera_psf;
 pub mod contamination;
 pub mod depth;
 pub mod depth_edges;
