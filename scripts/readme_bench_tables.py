@@ -124,5 +124,48 @@ for _, label, folder in DFD_REPORTS:
     md = (root / folder / "report.md").read_text()
     acc.append(f"{label}:\n\n" + section(md, "## Acceptance"))
 readme = replace_between(readme, "<!-- dfd-acceptance -->\n", "<!-- /dfd-acceptance -->", "\n\n".join(acc) + "\n")
+# Issue 35: the highlights stage on the 8-bit inputs, from docs/highlights/*/report.csv
+# (`drbokeh bench --methods pipeline,scatter,gather --scenes 20 --size 128x128 --seed S`,
+# and `--groundtruth ../shared/groundtruth`; each report's own "Inputs compared" section has
+# the per-category tables).
+HIGHLIGHT_SETS = [("seed 3 (tuned on)", "docs/highlights/seed3"), ("seed 4 (held out)", "docs/highlights/seed4"),
+                  ("Mitsuba scenes (held out)", "docs/highlights/mitsuba")]
+
+
+def highlights_table():
+    out = ["| set | input | cases | pipeline, `auto` (sRGB / linear dB) | `off` | auto - off | worst category (sRGB) | "
+           "no matte, estimator depth: pipeline - best baseline (sRGB / linear) | light put back / missing |",
+           "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for label, folder in HIGHLIGHT_SETS:
+        path = root / folder / "report.csv"
+        if not path.exists():
+            continue
+        rows = list(csv.DictReader(open(path)))
+        for inp in ["srgb8", "srgb8-psf"]:
+            def pick(method, variant, cat=None):
+                return [r for r in rows if r["input"] == inp and r["method"] == method and r["variant"] == variant
+                        and (cat is None or cat in r["categories"].split(";"))]
+            def mean(rs, col):
+                return sum(float(r[col]) for r in rs) / len(rs) if rs else float("nan")
+            auto, off = pick("drbokeh-pipeline", "physical-fast-q2"), pick("drbokeh-pipeline", "highlights-off")
+            if not auto:
+                continue
+            a = (mean(auto, "psnr_srgb"), mean(auto, "psnr_linear"))
+            o = (mean(off, "psnr_srgb"), mean(off, "psnr_linear"))
+            worst = min((mean(pick("drbokeh-pipeline", "physical-fast-q2", c), "psnr_srgb") - mean(pick("drbokeh-pipeline", "highlights-off", c), "psnr_srgb"), name)
+                        for c, name in CATEGORIES[1:] if pick("drbokeh-pipeline", "highlights-off", c))
+            nm = pick("drbokeh-pipeline", "realistic-depth-no-matte")
+            base = max((pick("scatter-no-occlusion", "realistic-depth"), pick("gather", "realistic-depth")), key=lambda rs: mean(rs, "psnr_srgb"))
+            missing = sum(float(r["light_missing"] or 0) for r in auto)
+            put_back = sum(float(r["light_missing"] or 0) * float(r["light_recovered"] or 0) for r in auto)
+            out.append(f"| {label} | `{inp}` | {len(auto)} | {a[0]:.2f} / {a[1]:.2f} | {o[0]:.2f} / {o[1]:.2f} | "
+                       f"{a[0] - o[0]:+.2f} / {a[1] - o[1]:+.2f} | {worst[0]:+.2f} ({worst[1]}) | "
+                       f"{mean(nm, 'psnr_srgb') - mean(base, 'psnr_srgb'):+.2f} / {mean(nm, 'psnr_linear') - mean(base, 'psnr_linear'):+.2f} | "
+                       f"{put_back / missing if missing else float('nan'):.2f} |")
+    return "\n".join(out)
+
+
+if "<!-- highlights-bench -->\n" in readme:
+    readme = replace_between(readme, "<!-- highlights-bench -->\n", "<!-- /highlights-bench -->", highlights_table() + "\n")
 readme_path.write_text(readme)
 print("README bench tables updated from docs/bench/report.md and docs/dfd-bench*/report.md", file=sys.stderr)
