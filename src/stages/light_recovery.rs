@@ -15,6 +15,8 @@
 //!   wherever the photo is clipped (a one-sided term: a clipped sample says only "at least").
 //!   Only clipped samples are replaced (by the model, where it is brighter). Blobs larger than
 //!   a light ([`MAX_LIGHT_RADIUS`]: sky, white walls, overexposed skin) are left as they are.
+//!   σ is the camera's, one for the photo ([`super::camera_psf`], from its sharpest edges;
+//!   else from the lights' own fits): a single clipped light cannot tell it.
 //! - [`HighlightMode::Boost`]: the look control of Photoshop's and Lightroom's lens blur: pixels
 //!   above the threshold are brightened up to `gain` times, with a smooth ramp (no step).
 //! - [`HighlightMode::Off`], and `auto` on linear photos (EXR, float TIFF/NPY: nothing was
@@ -83,7 +85,7 @@ pub const MAX_LIGHT_RADIUS: f32 = 24.0;
 /// Mitsuba scenes' lights reach (4–50), so it only stops a fit that nothing constrains.
 pub const MAX_RADIANCE: f32 = 64.0;
 /// Pixels of surroundings around a blob's bounding box that the fit sees: the glow of a PSF of
-/// σ ≤ [`SIGMAS`]' largest (2 px) has fallen below 1% of the light 5 px from its edge.
+/// σ ≤ [`PSF_GRID`]'s largest (2 px) has fallen below 1% of the light 5 px from its edge.
 const MARGIN: usize = 6;
 /// Surroundings at least this far (Chebyshev, pixels) outside the blob's bounding box give the
 /// background level the light is seen against (median per channel).
@@ -91,7 +93,7 @@ const RING: usize = 4;
 /// PSF widths σ (pixels) the photo's PSF is chosen from: a perfect pixel grid (0) to a soft
 /// lens.
 const PSF_GRID: [f32; 11] = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.4, 1.6, 1.8, 2.0];
-/// Blobs (the largest) the photo's PSF is read from: enough to outvote a few odd ones, few
+/// Blobs the photo's PSF is read from when its edges cannot tell it ([`PSF_BLOB_RADIUS`]): enough to outvote a few odd ones, few
 /// enough that a night photo of thousands of lights pays for [`PSF_GRID`] once per sample.
 const PSF_SAMPLE: usize = 48;
 /// Blobs up to this radius (pixels, of a disc of their area) are preferred for reading the
@@ -431,9 +433,10 @@ impl Seen {
     /// The least-error light with a PSF of σ `sigma` (pixels): its error, geometry and
     /// excess over the background per channel.
     ///
-    /// Coarse: the centroid, radii in 8% steps; then a compass search (centre, radius) from
-    /// the best few: the error is sharp in the geometry (a sliver's coverage changes fast with
-    /// the radius), so a grid alone misses its minimum. O(~150 footprints of the window).
+    /// Coarse: radii in 8% steps around the centroid; then a compass search (centre, radius)
+    /// from the best few: the error is sharp in the geometry (a sliver's coverage changes fast
+    /// with the radius), so a grid alone misses its minimum. O(~500 footprints of the part of
+    /// the window the light reaches).
     fn fit(&self, clip: f32, sigma: f32) -> (f32, Geometry, [f32; 3]) {
         let mut cover = Vec::new();
         let mut score = |g: Geometry| -> (f32, [f32; 3]) {
