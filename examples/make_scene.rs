@@ -7,7 +7,10 @@
 //!
 //! Run: `cargo run --release --example make_scene` (deterministic; rewrites the files).
 //! `cargo run --release --example make_scene -- DIR WIDTH HEIGHT` draws the same scene at
-//! another size into DIR (the end-to-end timing script uses it for a 12 MP photo).
+//! another size into DIR (the end-to-end timing script uses it for a 12 MP photo), and
+//! `... -- DIR WIDTH HEIGHT night` at night: a dim wall whose string lights are 6 to 20 times
+//! brighter than white, clipped by the 8-bit PNG, plus `image.exr`, the same photo linear and
+//! unclipped (the highlights stage's before/after, `scripts/highlights_before_after.sh`).
 
 use drbokeh::Image;
 use drbokeh::color::Transfer;
@@ -74,13 +77,15 @@ fn wall(x: f32, y: f32) -> [f32; 3] {
     if mortar { [0.12, 0.12, 0.11] } else { [0.16 + 0.14 * g + n, 0.06 + 0.06 * (1.0 - g) + n, 0.04 + 0.08 * g + n] }
 }
 
-/// Small very bright lights on the wall (string lights), radiance above 1 clipped by the PNG.
-fn lights(x: f32, y: f32) -> Option<[f32; 3]> {
+/// Small bright lights on the wall (string lights): white by day; at night (`night`) 6 to 20
+/// times brighter than white, which the 8-bit PNG clips.
+fn lights(x: f32, y: f32, night: bool) -> Option<[f32; 3]> {
     for k in 0..14 {
         let lx = 20.0 + k as f32 * 34.0;
         let ly = 60.0 + 18.0 * (k as f32 * 0.9).sin();
         if (x - lx).powi(2) + (y - ly).powi(2) < 4.0f32.powi(2) {
-            return Some([1.0, 0.92, 0.7]);
+            let gain = if night { 6.0 + 14.0 * (0.5 + 0.5 * (k as f32 * 2.3).sin()) } else { 1.0 };
+            return Some([1.0 * gain, 0.92 * gain, 0.7 * gain]);
         }
     }
     None
@@ -88,11 +93,14 @@ fn lights(x: f32, y: f32) -> Option<[f32; 3]> {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let (dir, w, h) = match &args[..] {
-        [] => (std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scene"), W, H),
-        [d, w, h] => (d.into(), w.parse()?, h.parse()?),
-        _ => return Err("usage: make_scene [DIR WIDTH HEIGHT]".into()),
+    let (dir, w, h, night) = match &args[..] {
+        [] => (std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scene"), W, H, false),
+        [d, w, h] => (d.into(), w.parse()?, h.parse()?, false),
+        [d, w, h, n] if n == "night" => (d.into(), w.parse()?, h.parse()?, true),
+        _ => return Err("usage: make_scene [DIR WIDTH HEIGHT [night]]".into()),
     };
+    // At night the wall gets a quarter of the daylight.
+    let wall_at = |x: f32, y: f32| wall(x, y).map(|v| if night { 0.25 * v } else { v });
     std::fs::create_dir_all(&dir)?;
     // Scene coordinates are those of the 480 x 320 original, stretched to the requested size.
     let (kx, ky) = (W as f32 / w as f32, H as f32 / h as f32);
@@ -111,7 +119,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                             cover += 1.0;
                             c
                         }
-                        None => lights(fx, fy).unwrap_or_else(|| wall(fx, fy)),
+                        None => lights(fx, fy, night).unwrap_or_else(|| wall_at(fx, fy)),
                     };
                     for i in 0..3 {
                         acc[i] += c[i];
@@ -127,6 +135,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     write_png(&dir.join("image.png"), &rgb, 8, Transfer::Srgb)?;
+    if night {
+        // The light the PNG clips, for comparison: the same photo, linear, unclipped.
+        write_exr(&dir.join("image.exr"), &rgb, &["R", "G", "B"])?;
+    }
     write_png(&dir.join("matte.png"), &matte, 8, Transfer::Linear)?;
     write_exr(&dir.join("depth.exr"), &depth, &["Y"])?;
     println!("wrote {}", dir.display());
