@@ -129,7 +129,7 @@ readme = replace_between(readme, "<!-- dfd-acceptance -->\n", "<!-- /dfd-accepta
 # and `--groundtruth ../shared/groundtruth`; each report's own "Inputs compared" section has
 # the per-category tables).
 HIGHLIGHT_SETS = [("seed 3 (tuned on)", "docs/highlights/seed3"), ("seed 4 (held out)", "docs/highlights/seed4"),
-                  ("Mitsuba scenes (held out)", "docs/highlights/mitsuba")]
+                  ("Mitsuba scenes (not tuned on)", "docs/highlights/mitsuba")]
 
 
 def highlights_table():
