@@ -648,9 +648,9 @@ fn solve_radiance(seen: &Seen, cover: &[(u32, f32)], clip: f32) -> (f32, [f32; 3
         for &(k, f) in cover {
             let (v, m, _) = px[k as usize];
             if m >> c & 1 == 0 {
-                pieces.push(Piece { f, e: v[c] - b, after: 0.0, breakpoint: f32::INFINITY });
+                pieces.push(Piece { f, e: v[c] - b, breakpoint: f32::INFINITY });
             } else if t > 0.0 && f >= MIN_BOUND_COVERAGE {
-                pieces.push(Piece { f, e: t, after: 0.0, breakpoint: t / f });
+                pieces.push(Piece { f, e: t, breakpoint: t / f });
             }
         }
         let (x, change) = minimize_pieces(&mut pieces, x_max);
@@ -671,11 +671,10 @@ fn solve_radiance(seen: &Seen, cover: &[(u32, f32)], clip: f32) -> (f32, [f32; 3
 const MIN_BOUND_COVERAGE: f32 = 0.03;
 
 /// One sample's share of [`solve_radiance`]'s error: `(e - X·f)²` for X below `breakpoint`,
-/// `after` beyond it.
+/// 0 beyond it (a clipped sample the model has brought to white; unclipped: never).
 struct Piece {
     f: f32,
     e: f32,
-    after: f32,
     breakpoint: f32,
 }
 
@@ -684,14 +683,13 @@ struct Piece {
 /// quadratic's minimum in each interval. O(n log n) for n pieces; sorts `pieces`.
 fn minimize_pieces(pieces: &mut [Piece], x_max: f32) -> (f32, f32) {
     pieces.sort_by(|a, b| a.breakpoint.total_cmp(&b.breakpoint));
-    // The active pieces' quadratic a·X² + b·X + k, and the constant of those that ended.
-    // Pieces that end at 0 are their constant from the start.
+    // The active pieces' quadratic a·X² + b·X + k (an ended piece costs nothing).
+    // Pieces that end at 0 cost nothing from the start.
     let (mut a, mut b, mut k) = (0.0f64, 0.0f64, 0.0f64);
     let mut i = 0;
     for p in pieces.iter() {
         let (f, e) = (p.f as f64, p.e as f64);
         if p.breakpoint <= 0.0 {
-            k += p.after as f64;
             i += 1;
         } else {
             a += f * f;
@@ -715,7 +713,7 @@ fn minimize_pieces(pieces: &mut [Piece], x_max: f32) -> (f32, f32) {
         let (f, e) = (p.f as f64, p.e as f64);
         a -= f * f;
         b += 2.0 * e * f;
-        k += p.after as f64 - e * e;
+        k -= e * e;
         start = end;
         i += 1;
     }
@@ -839,13 +837,12 @@ mod tests {
             let mut pieces: Vec<Piece> = (0..n)
                 .map(|_| {
                     let (f, e) = (0.02 + rnd(), rnd() * 2.0 - 0.3);
-                    let after = if rnd() < 0.5 { 0.0625 } else { 0.0 };
-                    let end = if after > 0.0 { e + 0.25 } else { e };
-                    Piece { f, e, after, breakpoint: end.max(0.0) / f }
+                    let end = if rnd() < 0.5 { f32::INFINITY } else { e };
+                    Piece { f, e, breakpoint: end.max(0.0) / f }
                 })
                 .collect();
             let sum =
-                |x: f32, ps: &[Piece]| -> f32 { ps.iter().map(|p| if x < p.breakpoint { (p.e - x * p.f).powi(2) } else { p.after }).sum() };
+                |x: f32, ps: &[Piece]| -> f32 { ps.iter().map(|p| if x < p.breakpoint { (p.e - x * p.f).powi(2) } else { 0.0 }).sum() };
             let x_max = 20.0;
             let scan = (0..=200_000).map(|i| x_max * i as f32 / 200_000.0).map(|x| sum(x, &pieces)).fold(f32::INFINITY, f32::min);
             let at_zero = sum(0.0, &pieces);
