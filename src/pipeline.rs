@@ -411,7 +411,7 @@ impl Pipeline {
                     let binary = source == "matte" && alpha.data.par_iter().all(|&a| a == 0.0 || a == 1.0);
                     let edge_band =
                         if binary && cfg.inpaint.edge_band == EdgeBand::Tested { EdgeBand::Kept } else { cfg.inpaint.edge_band };
-                    let fg_frac = alpha.data.iter().map(|&a| a as f64).sum::<f64>() / alpha.data.len() as f64;
+                    let fg_frac = alpha.sum() / alpha.data.len() as f64;
                     report.ran(
                         "segment",
                         t,

@@ -231,7 +231,7 @@ mod tests {
         assert_eq!(photo.pixel(8, 8)[0], srgb_to_linear(1.0));
         assert!((missing - (19.0 + 9.0)).abs() < 1e-4, "{missing}");
         let blurred = blur_rgb(&img, CAMERA_PSF_SIGMA);
-        let sum = |im: &Image| im.data.iter().map(|&v| v as f64).sum::<f64>();
+        let sum = Image::sum;
         assert!((sum(&blurred) - sum(&img)).abs() < 1e-3 * sum(&img), "{} vs {}", sum(&blurred), sum(&img));
         assert!(blurred.pixel(8, 8)[0] < 20.0 && blurred.pixel(9, 8)[0] > 1.0);
     }

@@ -169,7 +169,7 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
         warnings: est.warnings.clone(),
         disparity: Range {
             min: disparity.data.iter().copied().fold(f32::INFINITY, f32::min),
-            mean: (disparity.data.iter().map(|&v| v as f64).sum::<f64>() / n) as f32,
+            mean: (disparity.sum() / n) as f32,
             max: disparity.data.iter().copied().fold(f32::NEG_INFINITY, f32::max),
         },
         threads: rayon::current_num_threads(),

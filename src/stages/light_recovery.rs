@@ -217,7 +217,7 @@ fn boost(rgb: &Image, transfer: Transfer, opts: &HighlightsOptions) -> (Image, H
 
 /// Sum of all samples (linear), at least a tiny positive value.
 fn total_light(rgb: &Image) -> f64 {
-    rgb.data.par_chunks(1 << 16).map(|c| c.iter().map(|&v| v as f64).sum::<f64>()).sum::<f64>().max(1e-12)
+    rgb.sum().max(1e-12)
 }
 
 /// A clipped blob: its pixels (indices into the frame) and bounding box.
@@ -233,13 +233,15 @@ fn clipped_channels(rgb: &Image, clip: f32) -> Vec<u8> {
 }
 
 /// The 8-connected blobs of pixels with any bit set in `mask`. Blobs with more than
-/// `max_pixels` pixels are counted, not kept. Sequential flood fill, O(clipped pixels);
-/// marks visited pixels with bit 7 of `mask`.
+/// `max_pixels` pixels are counted, not kept. Sequential flood fill, O(clipped pixels), from
+/// the rows that hold any (found in parallel: a serial scan of every byte was a serial
+/// stretch of the stage at 12 MP, issue 39); marks visited pixels with bit 7 of `mask`.
 fn blobs(mask: &mut [u8], w: usize, h: usize, max_pixels: usize) -> (Vec<Blob>, usize) {
     const SEEN: u8 = 0x80;
     let (mut kept, mut large) = (Vec::new(), 0);
     let mut stack = Vec::new();
-    for start in 0..mask.len() {
+    let rows: Vec<usize> = mask.par_chunks(w).enumerate().filter(|(_, r)| r.iter().any(|&m| m & 7 != 0)).map(|(y, _)| y).collect();
+    for start in rows.into_iter().flat_map(|y| y * w..(y + 1) * w) {
         if mask[start] & 7 == 0 || mask[start] & SEEN != 0 {
             continue;
         }
@@ -284,9 +286,7 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(I
     }
     let max_pixels = (std::f32::consts::PI * MAX_LIGHT_RADIUS * MAX_LIGHT_RADIUS) as usize;
     let (found, large) = blobs(&mut mask, w, h, max_pixels);
-    for m in mask.iter_mut() {
-        *m &= 7;
-    }
+    mask.par_iter_mut().for_each(|m| *m &= 7);
     let seen: Vec<Option<Seen>> = found.par_iter().map(|b| see(rgb, &mask, b, clip)).collect();
     // The PSF from the largest blobs of light size up to PSF_BLOB_RADIUS: the most fringe to
     // read it from, at a bounded cost (the fit's cost grows with the window).
@@ -438,32 +438,40 @@ impl Seen {
     /// with the radius), so a grid alone misses its minimum. O(~500 footprints of the part of
     /// the window the light reaches).
     fn fit(&self, clip: f32, sigma: f32) -> (f32, Geometry, [f32; 3]) {
-        let mut cover = Vec::new();
-        let mut score = |g: Geometry| -> (f32, [f32; 3]) {
-            self.win.footprint(g, &mut cover);
-            solve_radiance(self, &cover, clip)
+        let score = |g: Geometry, cover: &mut Vec<(u32, f32)>| -> (f32, [f32; 3]) {
+            self.win.footprint(g, cover);
+            solve_radiance(self, cover, clip)
         };
         // Coarse: radii in 8% steps at the centroid and a third of a pixel around it (a light's
         // clipped blob is lopsided by the pixel grid; a wrong centre makes the right radius look
-        // wrong), the best few kept as starts.
-        let mut coarse = Vec::new();
+        // wrong), the best few kept as starts. The candidates, and then the starts' searches,
+        // run in parallel: one large light is otherwise a serial stretch of the stage (issue 39);
+        // each is scored alone and the results are taken in order, so any thread count gives
+        // the same light.
+        let mut grid = Vec::new();
         let mut r = (0.5 * self.r0 - 2.0 * sigma).max(0.25);
         while r <= self.r0 + 1.5 {
-            for (dx, dy) in CENTRE_OFFSETS {
-                let g = Geometry { cx: self.cx + dx, cy: self.cy + dy, r, sigma };
-                coarse.push((score(g).0, g));
-            }
+            grid.extend(CENTRE_OFFSETS.map(|(dx, dy)| Geometry { cx: self.cx + dx, cy: self.cy + dy, r, sigma }));
             r *= 1.08;
         }
+        let mut coarse: Vec<(f32, Geometry)> = grid.into_par_iter().map_init(Vec::new, |cover, g| (score(g, cover).0, g)).collect();
         coarse.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut best = (f32::INFINITY, coarse[0].1);
-        for &(err, start) in coarse.iter().take(STARTS) {
-            let found = compass(start, err, &mut |g| score(g).0);
-            if found.0 < best.0 {
-                best = found;
+        coarse.truncate(STARTS);
+        let first = coarse[0].1;
+        let found: Vec<(f32, Geometry)> = coarse
+            .into_par_iter()
+            .map(|(err, start)| {
+                let mut cover = Vec::new();
+                compass(start, err, &mut |g| score(g, &mut cover).0)
+            })
+            .collect();
+        let mut best = (f32::INFINITY, first);
+        for f in found {
+            if f.0 < best.0 {
+                best = f;
             }
         }
-        let (err, excess) = score(best.1);
+        let (err, excess) = score(best.1, &mut Vec::new());
         (err, best.1, excess)
     }
 
@@ -1030,7 +1038,7 @@ mod tests {
     #[test]
     fn large_clipped_areas_and_extremes() {
         let opts = HighlightsOptions::default();
-        let sum = |img: &Image| img.data.iter().map(|&v| v as f64).sum::<f64>();
+        let sum = Image::sum;
         let run = |img: &Image, what: &str| -> Image {
             match recover(img, SRGB8, &opts) {
                 Recovered::Changed(out, _) => {

@@ -75,9 +75,10 @@ pub enum Segmentation {
 
 /// Uses a matte as the foreground alpha, unless it is empty or covers everything.
 pub fn from_matte(matte: &Image) -> Segmentation {
-    if matte.data.iter().all(|&a| a < 1e-3) {
+    use rayon::prelude::*;
+    if matte.data.par_iter().all(|&a| a < 1e-3) {
         Segmentation::SingleLayer("the matte is empty".into())
-    } else if matte.data.iter().all(|&a| a > 1.0 - 1e-3) {
+    } else if matte.data.par_iter().all(|&a| a > 1.0 - 1e-3) {
         Segmentation::SingleLayer("the matte covers the whole image: nothing is behind it".into())
     } else {
         Segmentation::Foreground(matte.clone())
