@@ -16,9 +16,10 @@
 //! first-in first-out; both matter for reproducing OpenCV's fill order and thus its values.
 //! The plain mean (no [`OpenCvCompat`]) has no such values to reproduce: it pops cells from
 //! buckets 1/16 px of T wide (first-in first-out within one), which differs from OpenCV's order
-//! only among cells whose T differ by less than that, and is cheaper (see `Buckets`). Its
-//! weights depend on T and the fill order only, so it marches first and then computes the
-//! weights in parallel, ahead of the (sequential) weighted sums (`March::fill_plain`).
+//! only among cells whose T differ by less than that, and is cheaper (see `Buckets`). It
+//! marches first, then fills the cells half a pixel of T at a time, each from the known
+//! pixels and the earlier half pixels only, so that the cells of one such level are filled in
+//! parallel (`March::fill_plain`).
 //!
 //! OpenCV's finish is not scale free: to the weighted mean it adds a "nudge", the component sum
 //! of a unit vector built from image gradients (between -√2 and √2 code values), and integer
@@ -285,17 +286,24 @@ struct Buckets {
 /// Buckets per pixel of T (see [`Buckets`]).
 const BUCKETS_PER_PX: f32 = 16.0;
 
+/// Buckets per level of the plain fill ([`March::fill_plain`]): half a pixel of T, less than
+/// the least step from a cell to the one it is reached from (1/√2), so a cell's parent is
+/// always of an earlier level.
+const LEVEL_BUCKETS: usize = 8;
+
 impl Buckets {
     fn new() -> Self {
         Buckets { buckets: vec![Vec::new()], cur: 0, pos: 0 }
     }
-    fn push(&mut self, t: f32, cell: usize) {
+    /// Queues `cell` at T `t`; returns the bucket it went to.
+    fn push(&mut self, t: f32, cell: usize) -> usize {
         // `as` saturates: a huge T gets the last bucket the window can need.
         let b = ((t * BUCKETS_PER_PX) as usize).max(self.cur);
         if b >= self.buckets.len() {
             self.buckets.resize_with(b + 1, Vec::new);
         }
         self.buckets[b].push(cell as u32);
+        b
     }
     fn pop(&mut self) -> Option<usize> {
         loop {
@@ -576,24 +584,27 @@ impl March {
         }
     }
 
-    /// The plain mean's inward march over every image of `imgs` (the image the window lies in;
-    /// all of one size); returns the number of pixels filled (in each).
+    /// The plain weighted mean's inward march that fills the hole of every image of `imgs` (the
+    /// image the window lies in; all of one size); returns the number of pixels filled (in each).
     ///
-    /// A cell's weights depend on T and on which cells were reached before it, not on any
-    /// value; its value on the values of those cells. So the march runs first, alone (cheap:
-    /// T and the order), then the values in that order, a chunk of cells at a time, while the
-    /// next chunk's weights are computed on the other threads. Each value is the same, bit for
-    /// bit, as one computed at the moment the march reaches its cell, and does not depend on
-    /// the thread count.
+    /// The march runs first, alone (cheap: T and the order); each reached cell's level is the
+    /// half pixel of T it was queued in ([`LEVEL_BUCKETS`]). A cell is then filled from the
+    /// known pixels and the cells of earlier levels in its disc, so the cells of one level
+    /// need none of each other's values and are filled in parallel, level after level:
+    /// both the weights and the weighted sums use every core (the sums were one sequential
+    /// pass in march order, the stage's serial part at 16 threads; issue 39). A cell of the
+    /// same level lies along the front, where Telea's direction factor already weighs it
+    /// almost nothing. Each value depends on neither the thread count nor the CPU's vector
+    /// width.
     fn fill_plain(&mut self, imgs: &mut [&mut Image], radius: usize, max_distance: f32, avx2: bool) -> usize {
         use rayon::prelude::*;
-        /// Cells per chunk: a chunk's weights (8 bytes per disc cell) stay in cache.
-        const CHUNK: usize = 1024;
+        /// Cells per parallel task; a level with at most this many runs on the calling thread.
+        const RUN: usize = 64;
         let (pad, gw) = (self.pad, self.gw);
         let iw = imgs[0].width;
-        // When each cell was reached: 0 for the known cells, 1, 2, ... in march order, MAX for
+        // Each cell's level: 0 for the known cells, 1 + its bucket for the reached ones, MAX for
         // the padding and the cells never reached.
-        let mut reached: Vec<u32> = self.flags.iter().map(|&f| if f < INSIDE { 0 } else { u32::MAX }).collect();
+        let mut level: Vec<u32> = self.flags.iter().map(|&f| if f < INSIDE { 0 } else { u32::MAX }).collect();
         let mut order: Vec<u32> = Vec::new();
         let mut queue = Buckets::new();
         for &n in &self.band {
@@ -601,60 +612,82 @@ impl March {
         }
         while let Some(p) = queue.pop() {
             reach_from(&mut self.flags, &mut self.t, gw, p, max_distance, |_, _, q, d| {
+                let b = queue.push(d, q);
+                level[q] = (b / LEVEL_BUCKETS) as u32 + 1;
                 order.push(q as u32);
-                reached[q] = order.len() as u32;
-                queue.push(d, q);
             });
         }
+        // The cells grouped by level (stable: march order within a level).
+        let levels = order.iter().map(|&q| level[q as usize] as usize).max().unwrap_or(0) + 1;
+        let mut start = vec![0usize; levels + 1];
+        for &q in &order {
+            start[level[q as usize] as usize + 1] += 1;
+        }
+        for l in 0..levels {
+            start[l + 1] += start[l];
+        }
+        let mut grouped = vec![0u32; order.len()];
+        let mut at = start.clone();
+        for &q in &order {
+            let l = level[q as usize] as usize;
+            grouped[at[l]] = q;
+            at[l] += 1;
+        }
+        drop(order);
         let disc = Disc::new(radius, gw, iw);
         let taps = disc.len();
-        let (flags, t, reached) = (&self.flags, &self.t, &reached);
-        // A chunk's weights: per cell, its known taps' weights and numbers, and their count.
-        let ctx = PlainWeights { flags, t, reached, disc: &disc, gw };
-        let weigh = |cells: &[u32], (wts, nums, count): &mut (Vec<f32>, Vec<u32>, Vec<usize>)| {
-            const RUN: usize = 64;
-            wts.par_chunks_mut(RUN * taps)
-                .zip(nums.par_chunks_mut(RUN * taps))
-                .zip(count.par_chunks_mut(RUN))
-                .zip(cells.par_chunks(RUN))
-                .for_each_init(|| vec![0.0f32; taps], |all, (((wts, nums), count), cells)| ctx.weigh(avx2, cells, (wts, nums, count), all));
-        };
-        let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
-        let buffer = || (vec![0.0f32; CHUNK * taps], vec![0u32; CHUNK * taps], vec![0usize; CHUNK]);
-        let (mut cur, mut next) = (buffer(), buffer());
-        if let Some(first) = chunks.first() {
-            weigh(first, &mut cur);
-        }
-        for (k, cells) in chunks.iter().enumerate() {
-            let sums = |imgs: &mut [&mut Image], (wts, nums, count): &(Vec<f32>, Vec<u32>, Vec<usize>)| {
-                for (i, &n) in cells.iter().enumerate() {
-                    let n = n as usize;
-                    let centre = (n / gw - pad + self.y0) * iw + (n % gw - pad + self.x0);
-                    let known = (&wts[i * taps..][..count[i]], &nums[i * taps..][..count[i]]);
-                    match imgs {
-                        // The background fill's colour and disparity: one pass over the taps.
-                        [rgb, one] if (rgb.channels, one.channels) == (3, 1) => {
-                            mean_rgb_one(&disc, (&mut rgb.data, &mut one.data), known, centre)
-                        }
-                        _ => {
-                            for img in imgs.iter_mut() {
-                                mean(&disc, &mut img.data, img.channels, known, centre);
-                            }
+        let ctx = PlainWeights { flags: &self.flags, t: &self.t, reached: &level, disc: &disc, gw };
+        let channels: usize = imgs.iter().map(|im| im.channels).sum();
+        let centre_of = |n: usize| (n / gw - pad + self.y0) * iw + (n % gw - pad + self.x0);
+        // A run of cells' values (all images' channels, cell after cell) from the images as
+        // they stand: every tap read is known or of an earlier level, already written.
+        let values = |imgs: &[&mut Image], cells: &[u32], out: &mut [f32], scratch: &mut Scratch| {
+            let (wts, nums, count, all) = (&mut scratch.0, &mut scratch.1, &mut scratch.2, &mut scratch.3);
+            ctx.weigh(avx2, cells, (&mut wts[..cells.len() * taps], &mut nums[..cells.len() * taps], &mut count[..cells.len()]), all);
+            for ((i, &n), out) in cells.iter().enumerate().zip(out.chunks_exact_mut(channels)) {
+                let centre = centre_of(n as usize);
+                let known = (&wts[i * taps..][..count[i]], &nums[i * taps..][..count[i]]);
+                match imgs {
+                    // The background fill's colour and disparity: one pass over the taps.
+                    [rgb, one] if (rgb.channels, one.channels) == (3, 1) => mean_rgb_one(&disc, (&rgb.data, &one.data), known, centre, out),
+                    _ => {
+                        let mut c0 = 0;
+                        for img in imgs.iter() {
+                            mean(&disc, &img.data, img.channels, known, centre, &mut out[c0..c0 + img.channels]);
+                            c0 += img.channels;
                         }
                     }
                 }
-            };
-            rayon::join(
-                || sums(imgs, &cur),
-                || {
-                    if let Some(later) = chunks.get(k + 1) {
-                        weigh(later, &mut next);
-                    }
-                },
-            );
-            std::mem::swap(&mut cur, &mut next);
+            }
+        };
+        let scratch = || -> Scratch { (vec![0.0f32; RUN * taps], vec![0u32; RUN * taps], vec![0usize; RUN], vec![0.0f32; taps]) };
+        let mut out = Vec::new();
+        let mut own = scratch();
+        for l in 1..levels {
+            let cells = &grouped[start[l]..start[l + 1]];
+            if cells.is_empty() {
+                continue;
+            }
+            out.resize(cells.len() * channels, 0.0);
+            if cells.len() <= RUN {
+                values(imgs, cells, &mut out, &mut own);
+            } else {
+                let shared: &[&mut Image] = imgs;
+                out.par_chunks_mut(RUN * channels)
+                    .zip(cells.par_chunks(RUN))
+                    .for_each_init(scratch, |sc, (out, cells)| values(shared, cells, out, sc));
+            }
+            for (&n, v) in cells.iter().zip(out.chunks_exact(channels)) {
+                let centre = centre_of(n as usize);
+                let mut c0 = 0;
+                for img in imgs.iter_mut() {
+                    let ch = img.channels;
+                    img.data[centre * ch..(centre + 1) * ch].copy_from_slice(&v[c0..c0 + ch]);
+                    c0 += ch;
+                }
+            }
         }
-        order.len()
+        grouped.len()
     }
 
     /// OpenCV's inward march (`MODE` one of its finishes) that fills the hole of every image of
@@ -749,6 +782,10 @@ fn reach_from(flags: &mut [u8], t: &mut [f32], gw: usize, p: usize, max_distance
     }
 }
 
+/// Per-task scratch of [`March::fill_plain`]: a run's weights, disc cell numbers and counts
+/// of known taps, and one disc of weights.
+type Scratch = (Vec<f32>, Vec<u32>, Vec<usize>, Vec<f32>);
+
 /// What [`March::fill_plain`] weighs a cell's disc with: the march's flags and T, when each
 /// cell was reached, the disc.
 struct PlainWeights<'a> {
@@ -794,10 +831,10 @@ impl PlainWeights<'_> {
 }
 
 /// The plain weighted mean of pixel `centre` of `data` (`ch` channels) from its `known` taps
-/// of `disc` (their weights and disc cell numbers), written into the pixel. The sums run over
-/// the taps in disc order, all channels and the weight total in one pass.
+/// of `disc` (their weights and disc cell numbers), written into `out` (`ch` values). The sums
+/// run over the taps in disc order, all channels and the weight total in one pass.
 #[inline(always)]
-fn mean(disc: &Disc, data: &mut [f32], ch: usize, (weights, known): (&[f32], &[u32]), centre: usize) {
+fn mean(disc: &Disc, data: &[f32], ch: usize, (weights, known): (&[f32], &[u32]), centre: usize, out: &mut [f32]) {
     let centre = centre * ch;
     // A known tap lies inside the image, so its plain offset is always valid.
     let src = |k: u32| (centre as isize + disc.pixel[k as usize] * ch as isize) as usize;
@@ -811,14 +848,14 @@ fn mean(disc: &Disc, data: &mut [f32], ch: usize, (weights, known): (&[f32], &[u
             g += wgt * data[i + 1];
             b += wgt * data[i + 2];
         }
-        data[centre..centre + 3].copy_from_slice(&[r / s, g / s, b / s]);
+        out.copy_from_slice(&[r / s, g / s, b / s]);
     } else if ch == 1 {
         let mut v = 0.0f32;
         for (&wgt, &k) in weights.iter().zip(known) {
             s += wgt;
             v += wgt * data[src(k)];
         }
-        data[centre] = v / s;
+        out[0] = v / s;
     } else {
         for &wgt in weights {
             s += wgt;
@@ -828,15 +865,16 @@ fn mean(disc: &Disc, data: &mut [f32], ch: usize, (weights, known): (&[f32], &[u
             for (&wgt, &k) in weights.iter().zip(known) {
                 v += wgt * data[src(k) + c];
             }
-            data[centre + c] = v / s;
+            out[c] = v / s;
         }
     }
 }
 
-/// [`mean`] of a 3-channel and a 1-channel image at once (the same sums, in the same order,
-/// from one pass over the taps: the same bits as two calls).
+/// [`mean`] of a 3-channel and a 1-channel image at once into `out` (R, G, B, then the one
+/// channel): the same sums, in the same order, from one pass over the taps, so the same bits
+/// as two calls.
 #[inline(always)]
-fn mean_rgb_one(disc: &Disc, (rgb, one): (&mut [f32], &mut [f32]), (weights, known): (&[f32], &[u32]), centre: usize) {
+fn mean_rgb_one(disc: &Disc, (rgb, one): (&[f32], &[f32]), (weights, known): (&[f32], &[u32]), centre: usize, out: &mut [f32]) {
     let mut s = 1.0e-20f32;
     let (mut r, mut g, mut b, mut v) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for (&wgt, &k) in weights.iter().zip(known) {
@@ -849,8 +887,7 @@ fn mean_rgb_one(disc: &Disc, (rgb, one): (&mut [f32], &mut [f32]), (weights, kno
         b += wgt * rgb[i + 2];
         v += wgt * one[j];
     }
-    rgb[3 * centre..3 * centre + 3].copy_from_slice(&[r / s, g / s, b / s]);
-    one[centre] = v / s;
+    out.copy_from_slice(&[r / s, g / s, b / s, v / s]);
 }
 
 /// For OpenCV's finish, the two image differences OpenCV takes at a known tap, as (plus, minus,
@@ -1291,7 +1328,7 @@ mod tests {
     }
 
     /// The plain fill's values come out the same, bit for bit, on one thread and on several
-    /// (its weights are computed ahead of its sums, in parallel) and with and without AVX2.
+    /// (the cells of one level are filled in parallel) and with and without AVX2.
     #[test]
     fn the_plain_fill_does_not_depend_on_threads_or_simd() {
         let (w, h) = (230, 170);
