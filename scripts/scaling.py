@@ -19,7 +19,8 @@ s = 2 T2/T1 - 1 (so a 2-core machine still tells where the serial time is). It a
 that the output PNG is byte-identical at every thread count.
 
 With `--out FILE` the table is written there; `--readme ANCHOR` also copies it into README.md
-between `<!-- ANCHOR -->` anchors. `--bin DIR` takes `drbokeh` and `make_scene` from DIR (a
+between `<!-- ANCHOR -->` anchors (`--paste FILE --readme ANCHOR` copies a table measured
+elsewhere, e.g. on a lent many-core machine, without measuring). `--bin DIR` takes `drbokeh` and `make_scene` from DIR (a
 machine without cargo: build here, carry the two binaries). Figures are medians of this run's
 window only; the machine's name and core count head the table.
 """
@@ -102,7 +103,13 @@ def main():
     ap.add_argument("--readme", help="copy the table into README.md between <!-- ANCHOR --> anchors")
     ap.add_argument("--work", default=None, help="scene folder (default out/e2e-WxH)")
     ap.add_argument("--no-gaussian", action="store_true", help="skip the OpenCV reference")
+    ap.add_argument("--paste", help="with --readme: copy this table file into README.md, measure nothing")
     a = ap.parse_args()
+    if a.paste:
+        if not a.readme:
+            sys.exit("--paste needs --readme ANCHOR")
+        to_readme(pathlib.Path(a.paste).read_text().rstrip("\n"), a.readme)
+        return 0
     threads = [int(x) for x in a.threads.split(",")]
     if threads[0] != 1 or (len(threads) > 1 and threads[1] != 2):
         sys.exit("--threads must start with 1,2 (the serial fraction comes from them)")
@@ -180,13 +187,18 @@ def main():
         pathlib.Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         pathlib.Path(a.out).write_text(table + "\n")
     if a.readme:
-        readme = pathlib.Path("README.md").read_text()
-        tag = f"<!-- {a.readme} -->"
-        parts = readme.split(tag)
-        if len(parts) != 3:
-            sys.exit(f"README.md needs two {tag} anchors")
-        pathlib.Path("README.md").write_text(parts[0] + tag + "\n" + table + "\n" + tag + parts[2])
+        to_readme(table, a.readme)
     return 0 if same else 1
+
+
+def to_readme(table, anchor):
+    """Puts `table` between README.md's two `<!-- anchor -->` lines."""
+    readme = pathlib.Path("README.md").read_text()
+    tag = f"<!-- {anchor} -->"
+    parts = readme.split(tag)
+    if len(parts) != 3:
+        sys.exit(f"README.md needs two {tag} anchors")
+    pathlib.Path("README.md").write_text(parts[0] + tag + "\n" + table + "\n" + tag + parts[2])
 
 
 if __name__ == "__main__":

@@ -404,4 +404,33 @@ mod tests {
             assert!(!is_layer_file_name(other), "{other}");
         }
     }
+
+    /// A later run with fewer layers removes the earlier run's extra layer files, except one
+    /// that is an input of the later run (`--layer DIR/2_layer.exr` saved back into DIR): that
+    /// one is kept, with a warning, and nothing else of it survives.
+    #[test]
+    fn save_layers_removes_stale_layers_but_keeps_an_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let layer = |v: f32| {
+            let img = Image::filled(4, 3, 3, v);
+            Layer::from_parts(&img, &Image::filled(4, 3, 1, 1.0), &Image::filled(4, 3, 1, v), "t").unwrap()
+        };
+        let three = [layer(0.1), layer(0.2), layer(0.3)];
+        save_layers(dir.path(), &three, &io::InputFiles::default()).unwrap();
+        let third = &layer_file_names(dir.path(), 3)[2];
+        assert!(third.all().iter().all(|p| p.exists()));
+        // The later run reads the third layer's EXR (under another name, through `..`).
+        let alias = dir.path().join(".").join(third.exr.file_name().unwrap());
+        let warnings = save_layers(dir.path(), &[layer(0.4), layer(0.5)], &io::InputFiles::new([&alias])).unwrap();
+        assert!(third.exr.exists(), "the input was removed: {warnings:?}");
+        for p in [&third.color, &third.alpha, &third.disparity] {
+            assert!(!p.exists(), "{} was kept: {warnings:?}", p.display());
+        }
+        for f in &layer_file_names(dir.path(), 3)[..2] {
+            assert!(f.all().iter().all(|p| !p.exists()), "3-layer names of the first two layers were kept: {warnings:?}");
+        }
+        assert_eq!(warnings.iter().filter(|w| w.contains("kept")).count(), 1, "{warnings:?}");
+        assert_eq!(warnings.iter().filter(|w| w.starts_with("removed")).count(), 3 + 2 * 4, "{warnings:?}");
+        assert!(layer_file_names(dir.path(), 2).iter().all(|f| f.all().iter().all(|p| p.exists())));
+    }
 }
