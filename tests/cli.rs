@@ -1236,7 +1236,21 @@ fn threads_flag_gives_the_same_result() {
     // encoder) byte for byte at 1, 3 and 5 threads (issue 39).
     let png = |threads: &str| {
         let out = format!("t{threads}.png");
-        s.ok(&["image.png", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "0", "--blur", "5", "--threads", threads, "-o", &out]);
+        s.ok(&[
+            "image.png",
+            "--depth",
+            "depth.exr",
+            "--matte",
+            "matte.png",
+            "--focus",
+            "0",
+            "--blur",
+            "5",
+            "--threads",
+            threads,
+            "-o",
+            &out,
+        ]);
         std::fs::read(s.path(&out)).unwrap()
     };
     let one = png("1");
