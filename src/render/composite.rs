@@ -66,7 +66,9 @@ pub fn finish(width: usize, height: usize, mut acc: Vec<f32>) -> Image {
         head[3 * a..3 * b]
             .par_chunks_exact_mut(3 * FIRST_ROUND)
             .zip(tail[..(b - a) * ACC_CHANNELS].par_chunks(ACC_CHANNELS * FIRST_ROUND))
-            .for_each(|(dst, src)| dst.chunks_exact_mut(3).zip(src.chunks_exact(ACC_CHANNELS)).for_each(|(d, s)| d.copy_from_slice(&s[..3])));
+            .for_each(|(dst, src)| {
+                dst.chunks_exact_mut(3).zip(src.chunks_exact(ACC_CHANNELS)).for_each(|(d, s)| d.copy_from_slice(&s[..3]))
+            });
         // `par_chunks_exact_mut` leaves the round's last partial block: copied here.
         let done = a + (b - a) / FIRST_ROUND * FIRST_ROUND;
         for i in done..b {

@@ -39,8 +39,8 @@ use super::{Counts, Ctx};
 use crate::render::layer::{A, CHANNELS, D, max_rgb};
 use crate::render::lens::{self, disk_norm};
 use crate::render::{RenderSettings, Role, raw};
-use std::sync::atomic::Ordering;
 use rayon::prelude::*;
+use std::sync::atomic::Ordering;
 
 /// Scatters the physical sources that reach rows `[y0, y1)` at full resolution (stencils and
 /// exact disks) into the stripe accumulators: the one-group sum `sc.accs[0]`, and with band
