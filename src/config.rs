@@ -78,11 +78,20 @@ pub struct InputConfig {
     pub depth_kind: DepthKind,
     /// Images with more pixels are refused before decoding (decompression-bomb guard).
     pub max_pixels: u64,
+    /// A photo given without a depth file uses the depth map it embeds (GDepth in a JPEG)
+    /// before any depth model; false ignores it. Left out of the config's JSON at its default,
+    /// so batch fingerprints made before the key existed stay valid.
+    #[serde(skip_serializing_if = "is_true")]
+    pub embedded_depth: bool,
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
 }
 
 impl Default for InputConfig {
     fn default() -> Self {
-        InputConfig { depth_kind: DepthKind::Depth, max_pixels: 200_000_000 }
+        InputConfig { depth_kind: DepthKind::Depth, max_pixels: 200_000_000, embedded_depth: true }
     }
 }
 

@@ -7,7 +7,7 @@ use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::io::{self, ReadLimits};
-use crate::pipeline::{BuildLayers, Focus, Outcome, Pipeline, Report, Scene, StageReport};
+use crate::pipeline::{BuildLayers, DepthSource, Focus, Outcome, Pipeline, Report, Scene, StageReport};
 use crate::render::Layer;
 use crate::stages::depth;
 use crate::timing::ms_since;
@@ -20,7 +20,8 @@ use std::time::Instant;
 pub struct Job {
     /// The photo (PNG/JPEG/TIFF/EXR); None with `layers`.
     pub image: Option<PathBuf>,
-    /// Its depth map; None asks the configured depth model.
+    /// Its depth map; None: the depth map the photo embeds (GDepth, unless
+    /// `input.embedded_depth = false`), else the configured depth model.
     pub depth: Option<PathBuf>,
     /// Its optional foreground matte.
     pub matte: Option<PathBuf>,
@@ -94,12 +95,19 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         let image_path = job.image.as_ref().ok_or_else(|| Error::usage("a job needs an image (or layers)"))?;
         // The three files side by side: each decoder is sequential in part (a PNG's inflate),
         // so one file's decode overlaps another's. Errors are reported in the order the files
-        // are used (photo, depth, matte), as one after the other would.
-        let (rgb, (depth_file, matte_file)) = rayon::join(
+        // are used (photo, depth, matte), as one after the other would. Without a depth file,
+        // the photo's embedded depth map is read beside the photo.
+        let (rgb, (depth_read, matte_file)) = rayon::join(
             || io::read_photo_file(image_path, transfer, &limits),
             || {
                 rayon::join(
-                    || job.depth.as_ref().map(|p| io::read_depth_map(p, &limits)),
+                    || match &job.depth {
+                        Some(p) => DepthRead::File(io::read_depth_map(p, &limits)),
+                        None if cfg.input.embedded_depth => {
+                            DepthRead::Embedded(io::embedded_depth::read_gdepth(image_path, &limits).map(|e| e.map(Box::new)))
+                        }
+                        None => DepthRead::Off,
+                    },
                     || job.matte.as_ref().map(|p| io::read_matte(p, &limits)),
                 )
             },
@@ -107,32 +115,72 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         let io::Photo { image: rgb, encoding, warnings } = rgb?;
         read_warnings.extend(warnings);
         let mut depth_stage = None;
-        let disparity = match (&job.depth, depth_file) {
-            (Some(depth_path), Some(map)) => {
+        let (disparity, source) = match depth_read {
+            DepthRead::File(map) => {
+                let depth_path = job.depth.as_ref().expect("a depth file was read");
                 let map = map?;
                 read_warnings.extend(map.warnings);
+                let source = DepthSource::File {
+                    path: depth_path.display().to_string(),
+                    width: map.image.width,
+                    height: map.image.height,
+                    bit_depth: map.bit_depth,
+                };
                 // Normalized (holes filled) at the map's own size, then resized: a hole (NaN,
                 // a depth of 0) must not be averaged into its neighbours.
                 let mut disparity = depth::normalize(&map.image, cfg.input.depth_kind, depth_path)?;
                 if disparity.is_flat() {
-                    // One plane: in focus wherever the focus is asked to be.
-                    read_warnings.push(format!(
-                        "{} has no depth range (every valid value is the same): the photo is one plane, taken as in focus; nothing is blurred",
-                        depth_path.display()
-                    ));
+                    read_warnings.push(flat_warning(&depth_path.display().to_string()));
                     focus = Focus::Disparity(disparity.map.data[0]);
                 }
                 disparity.map = fit_to(disparity.map, &rgb, depth_path, image_path, &mut read_warnings)?;
-                disparity
+                (disparity, source)
             }
-            _ => {
-                // No depth map: the configured depth model predicts relative disparity.
+            DepthRead::Embedded(Ok(Some(e))) => {
+                // Metric depth, normalized and resized as a depth file of the same values is
+                // (the embedded map is usually smaller than the photo: no warning for that).
+                read_warnings.extend(e.warnings);
+                if cfg.input.depth_kind != depth::DepthKind::Depth {
+                    read_warnings.push(format!(
+                        "input.depth_kind = \"disparity\" is ignored: the depth map embedded in {} holds metric depth",
+                        image_path.display()
+                    ));
+                }
+                let mut disparity = depth::normalize(&e.depth, depth::DepthKind::Depth, image_path)?;
+                if disparity.is_flat() {
+                    read_warnings.push(flat_warning(&format!("the depth map embedded in {}", image_path.display())));
+                    focus = Focus::Disparity(disparity.map.data[0]);
+                }
+                if !crate::io::embedded_depth::same_aspect((e.depth.width, e.depth.height), (rgb.width, rgb.height)) {
+                    return Err(Error::input(
+                        image_path,
+                        format!(
+                            "GDepth:Data: the embedded depth image is {}x{} but the photo is {}x{} (a different aspect ratio)",
+                            e.depth.width, e.depth.height, rgb.width, rgb.height
+                        ),
+                    ));
+                }
+                disparity.map = disparity.map.resized(rgb.width, rgb.height);
+                let source = DepthSource::Embedded { path: image_path.display().to_string(), container: "gdepth", gdepth: e.info };
+                (disparity, source)
+            }
+            DepthRead::Embedded(Err(e)) => return Err(e),
+            read @ (DepthRead::Embedded(Ok(None)) | DepthRead::Off) => {
+                let why = match read {
+                    DepthRead::Off => format!("input.embedded_depth = false ignores any depth map {} embeds", image_path.display()),
+                    _ if io::detect_format(image_path)? == io::FileFormat::Jpeg => {
+                        format!("{} embeds no depth map (no GDepth XMP)", image_path.display())
+                    }
+                    _ => format!("{} embeds no depth map (embedded depth is read from JPEG photos: GDepth XMP)", image_path.display()),
+                };
+                // The configured depth model predicts relative disparity.
                 let t = Instant::now();
-                let (d, r) = crate::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx)?;
+                let (d, r) = crate::stages::depth_onnx::estimate_without_depth_map(&rgb, &cfg.depth.onnx, &cfg.onnx, &why)?;
                 read_warnings.extend(r.warnings.iter().cloned());
+                let source = DepthSource::Model { model: r.model.clone(), preset: r.preset.clone() };
                 let detail = serde_json::to_value(&r).ok();
                 depth_stage = Some(StageReport::ran("depth_model", ms_since(t), detail));
-                d
+                (d, source)
             }
         };
         let matte = match (&job.matte, matte_file) {
@@ -145,6 +193,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         if let Some(s) = depth_stage {
             out.report.stages.insert(0, s);
         }
+        out.report.depth_source = Some(source);
         out.report.stages.insert(0, StageReport::ran("read", read_ms, None));
         out
     };
@@ -177,6 +226,22 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     report.output = Some(output.display().to_string());
     report.total_ms = ms_since(t0);
     Ok(report)
+}
+
+/// What was read for a photo's depth.
+enum DepthRead {
+    /// The depth file (`job.depth`).
+    File(Result<io::DepthMap>),
+    /// The photo's embedded depth map, if it has one.
+    Embedded(Result<Option<Box<io::embedded_depth::EmbeddedDepth>>>),
+    /// No depth file, and `input.embedded_depth = false`.
+    Off,
+}
+
+/// The warning for a depth map (`what`) with no depth range.
+fn flat_warning(what: &str) -> String {
+    // One plane: in focus wherever the focus is asked to be.
+    format!("{what} has no depth range (every valid value is the same): the photo is one plane, taken as in focus; nothing is blurred")
 }
 
 /// The options set away from their defaults that this job cannot use, one warning each (in
@@ -253,8 +318,7 @@ fn check_writable_folder(output: &Path) -> Result<()> {
 /// Refuses a depth map or matte of `map` size whose aspect ratio differs from the photo's
 /// `rgb` size by more than 1%, naming both files.
 fn check_aspect(map: (usize, usize), rgb: (usize, usize), path: &Path, image_path: &Path) -> Result<()> {
-    let (a, b) = (map.0 as f64 / map.1 as f64, rgb.0 as f64 / rgb.1 as f64);
-    if (a / b - 1.0).abs() > 0.01 {
+    if !io::embedded_depth::same_aspect(map, rgb) {
         return Err(Error::input(
             path,
             format!("is {}x{} but the image {} is {}x{} (a different aspect ratio)", map.0, map.1, image_path.display(), rgb.0, rgb.1),

@@ -19,6 +19,7 @@ use std::time::Instant;
 mod cli_batch;
 mod cli_bench;
 mod cli_dfd;
+mod cli_inspect;
 
 #[derive(Parser)]
 #[command(name = "drbokeh", version, about = "Occlusion-aware lens blur (Dr.Bokeh) from one photo and its depth")]
@@ -40,6 +41,9 @@ enum Command {
     /// Depth from defocus: the disparity map that turns an all-in-focus photo into a photo of
     /// the same view focused at --focus (Adam through the differentiable renderer).
     Dfd(cli_dfd::DfdArgs),
+    /// What a photo holds: size, colour, the depth map it embeds (GDepth) and its parameters;
+    /// --extract-depth writes that map for other tools.
+    Inspect(cli_inspect::InspectArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -141,10 +145,13 @@ struct RenderArgs {
     /// The photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR (linear).
     #[arg(required_unless_present = "layer", conflicts_with = "layer")]
     image: Option<PathBuf>,
-    /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W). Required unless a depth
-    /// model is configured ([depth.onnx] or --model-dir).
+    /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W). Without it, the depth map
+    /// the photo embeds (GDepth in a JPEG), else the depth model ([depth.onnx] or --model-dir).
     #[arg(long, conflicts_with = "layer")]
     depth: Option<PathBuf>,
+    /// Ignore the depth map the photo embeds (GDepth); without --depth, the depth model is used.
+    #[arg(long, conflicts_with = "layer")]
+    no_embedded_depth: bool,
     /// Foreground matte: grey image or the alpha of an RGBA image, in [0, 1].
     #[arg(long, conflicts_with = "layer")]
     matte: Option<PathBuf>,
@@ -290,6 +297,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => cli_bench::bench(args).map(|()| ExitCode::SUCCESS),
         Command::Batch(args) => cli_batch::batch(args),
         Command::Dfd(args) => cli_dfd::dfd(args).map(|()| ExitCode::SUCCESS),
+        Command::Inspect(args) => cli_inspect::run(args).map(|()| ExitCode::SUCCESS),
     });
     match result {
         Ok(Ok(code)) => code,
@@ -383,7 +391,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 38] = [
+const FLAGS: [(&str, &str); 40] = [
     ("highlights.mode", "--highlights"),
     ("highlights.threshold", "--highlight-threshold"),
     ("highlights.gain", "--highlight-gain"),
@@ -403,6 +411,8 @@ const FLAGS: [(&str, &str); 38] = [
     ("render.gamma", "--gamma"),
     ("render.quality", "--quality"),
     ("input.depth_kind = \"depth\"", "--depth-kind depth"),
+    ("input.depth_kind = \"disparity\"", "--depth-kind disparity"),
+    ("input.embedded_depth = false", "--no-embedded-depth"),
     ("output.bit_depth", "--bit-depth"),
     ("batch.manifest", "--manifest"),
     ("job.save_layers", "--save-layers"),
@@ -458,7 +468,10 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         drbokeh::io::atomic::remove_in_flight_temps_and_exit(130);
     });
     let t0 = Instant::now();
-    let cfg = config_from(&args.opts)?;
+    let mut cfg = config_from(&args.opts)?;
+    if args.no_embedded_depth {
+        cfg.input.embedded_depth = false;
+    }
     let focus = match (args.focus, args.focus_at, args.focus_depth) {
         (Some(f), _, _) => Focus::Disparity(f),
         (_, Some((x, y)), _) => Focus::At(x, y),
@@ -504,6 +517,9 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         eprintln!("warning: {w}");
     }
     if args.verbose {
+        if let Some(d) = &report.depth_source {
+            eprintln!("{:>12}  {}", "depth", d.describe());
+        }
         for s in &report.stages {
             match &s.reason {
                 Some(r) => eprintln!("{:>12}  skipped: {r}", s.name),

@@ -114,6 +114,51 @@ pub struct UsedParams {
     pub threads: usize,
 }
 
+/// Where a render's depth came from (`depth_source` in `--json`; tagged by `kind`).
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum DepthSource {
+    /// A depth file (`--depth`).
+    File {
+        /// The file.
+        path: String,
+        /// Its size, pixels.
+        width: usize,
+        /// Its size, pixels.
+        height: usize,
+        /// Bits per sample in the file.
+        bit_depth: u8,
+    },
+    /// A depth map embedded in the photo.
+    Embedded {
+        /// The photo.
+        path: String,
+        /// The embedding: "gdepth" (Google's GDepth XMP in a JPEG).
+        container: &'static str,
+        /// Its parameters (format, near, far, mime, size...).
+        #[serde(flatten)]
+        gdepth: crate::io::embedded_depth::GDepthInfo,
+    },
+    /// A depth model (`[depth.onnx]` or `onnx.model_dir`).
+    Model {
+        /// The model file.
+        model: String,
+        /// The preset its contract started from.
+        preset: String,
+    },
+}
+
+impl DepthSource {
+    /// One line for people (`-v`).
+    pub fn describe(&self) -> String {
+        match self {
+            DepthSource::File { path, width, height, bit_depth } => format!("file {path} ({width}x{height}, {bit_depth}-bit)"),
+            DepthSource::Embedded { path, gdepth, .. } => format!("embedded in {path}: {}", gdepth.describe()),
+            DepthSource::Model { model, preset } => format!("model {model} (preset {preset})"),
+        }
+    }
+}
+
 /// Machine-readable summary of a run (`--json`).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Report {
@@ -123,6 +168,10 @@ pub struct Report {
     pub params: UsedParams,
     /// What the user should know (filled depth, clamped focus, long renders...).
     pub warnings: Vec<String>,
+    /// Where the scene's depth came from (set by [`crate::job::run`] for a photo; absent for
+    /// given layers).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth_source: Option<DepthSource>,
     /// The written file (set by [`crate::job::run`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub output: Option<String>,

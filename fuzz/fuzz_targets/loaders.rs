@@ -1,4 +1,4 @@
-//! The file loaders (photo, depth, matte, layer) on arbitrary bytes under each extension.
+//! The file loaders (photo, depth, matte, layer, the photo's embedded GDepth map) on arbitrary bytes under each extension.
 //! The first byte picks the extension; the rest is the file. The loaders take paths, so the
 //! bytes go to a per-process file in /dev/shm (or the temp folder).
 #![no_main]
@@ -21,4 +21,5 @@ fuzz_target!(|data: &[u8]| {
     let _ = read_depth(&path, &limits);
     let _ = read_matte(&path, &limits);
     let _ = read_layer(&path, &limits);
+    let _ = drbokeh::io::embedded_depth::read_gdepth(&path, &limits);
 });

@@ -227,6 +227,24 @@ fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Resul
     }
 }
 
+/// Decodes a PNG or JPEG held in memory (an image embedded in another file), with the same
+/// limits, panic guard and JPEG truncation check as a file of that format; `path` is the file
+/// that holds the bytes, for messages.
+pub(crate) fn decode_image_bytes(path: &Path, format: FileFormat, bytes: &[u8], limits: &ReadLimits) -> Result<Decoded> {
+    let complete = || match format {
+        FileFormat::Jpeg if jpeg_eoi_end(bytes).is_none() => {
+            Err(Error::input(path, format!("truncated JPEG: the data stops after {} bytes, before the end-of-image marker", bytes.len())))
+        }
+        _ => Ok(()),
+    };
+    match format {
+        FileFormat::Png | FileFormat::Jpeg => {
+            decode_with_image_crate(path, format, std::io::Cursor::new(bytes), limits, complete).map(Stored::into_decoded)
+        }
+        other => Err(Error::input(path, format!("an embedded {} image is not supported (PNG or JPEG only)", other.name()))),
+    }
+}
+
 /// Reads a photo as linear RGB (3 channels).
 ///
 /// Integer formats are decoded with `transfer` (pass [`Transfer::Srgb`] for ordinary photos,

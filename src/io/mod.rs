@@ -4,7 +4,8 @@
 //! [`limits`] (decompression-bomb limits), [`image_file`] (photos and generic rasters; a PNG
 //! photo decoded row by row in `png_rows`),
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
-//! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads).
+//! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads),
+//! [`xmp`] (a JPEG's XMP packets) and [`embedded_depth`] (the GDepth map inside a photo).
 //!
 //! Every error names the file and says what is wrong. Only regular files are opened (a FIFO
 //! or a device would block: [`check_regular_file`]), and a truncated file is an error in every
@@ -16,10 +17,12 @@
 
 pub mod atomic;
 pub mod depth;
+pub mod embedded_depth;
 pub mod exr_file;
 pub mod format;
 pub mod guard;
 pub mod image_file;
+pub mod inspect;
 pub mod layer;
 pub mod limits;
 pub mod matte;
@@ -27,6 +30,7 @@ pub mod npy;
 mod png_rows;
 pub mod tiff_file;
 pub mod write;
+pub mod xmp;
 
 pub use depth::{DepthMap, read_depth, read_depth_map};
 pub use exr_file::{ExrChannel, ExrChannels, ExrLayout, read_exr_channels, read_exr_image, write_exr};

@@ -162,7 +162,7 @@ impl ModelSpec {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DepthConfig {
-    /// The model (`[depth.onnx]`); used only when DEPTH is not given.
+    /// The model (`[depth.onnx]`); used only when no depth map is given or embedded in the photo.
     pub onnx: ModelSpec,
 }
 

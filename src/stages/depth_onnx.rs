@@ -21,19 +21,34 @@ pub fn estimate_disparity(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Re
     Ok((disparity, model.report))
 }
 
-/// The disparity of a photo given without a depth map: the `[depth.onnx]` model's, or the
-/// default depth preset's file in `onnx.model_dir`. With neither, a usage error that names
-/// `job.depth` (the depth map) and how to configure a model.
-pub fn estimate_without_depth_map(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Result<(Disparity, OnnxReport)> {
+/// The ways to give a photo depth, named by every "no depth" message (the library's names:
+/// `job.depth` and `onnx.model_dir` read as `--depth` and `--model-dir` on the command line).
+pub const THREE_WAYS: &str = "three ways forward: (1) a depth file (job.depth DEPTH: EXR, 16-bit PNG/TIFF, float TIFF or NPY); \
+     (2) a photo that embeds its depth map (a portrait-mode JPEG with Google GDepth XMP; `drbokeh inspect PHOTO` shows what a photo holds); \
+     (3) a depth model ([depth.onnx] model = \"midas_small.onnx\", preset = \"midas-small\" in the config, or a model folder (onnx.model_dir) holding depth_anything_v2.onnx)";
+
+/// The disparity of a photo given without a depth map and without an embedded one: the
+/// `[depth.onnx]` model's, or the default depth preset's file in `onnx.model_dir`. With
+/// neither, a usage error that says `why_no_embedded` (why the photo's own depth is not used)
+/// and names the three ways forward ([`THREE_WAYS`]).
+pub fn estimate_without_depth_map(
+    rgb: &Image,
+    spec: &ModelSpec,
+    cfg: &OnnxConfig,
+    why_no_embedded: &str,
+) -> Result<(Disparity, OnnxReport)> {
     if !spec.is_configured() {
-        let hint = "give job.depth, or configure a depth model ([depth.onnx] model = \"midas_small.onnx\", preset = \"midas-small\" in the config, or a model folder (onnx.model_dir) holding depth_anything_v2.onnx)";
         match &cfg.model_dir {
-            None => return Err(crate::error::Error::usage(format!("job.depth is required: no depth map and no depth model; {hint}"))),
+            None => {
+                return Err(crate::error::Error::usage(format!(
+                    "job.depth is required: no depth file is given, {why_no_embedded}, and no depth model is configured; {THREE_WAYS}"
+                )));
+            }
             Some(dir) => {
                 let (path, _) = crate::onnx::contract::resolve(spec, ModelKind::Depth, cfg)?;
                 if !path.is_file() {
                     return Err(crate::error::Error::usage(format!(
-                        "job.depth is required: no depth map, and the model folder {} has no {}; {hint}",
+                        "job.depth is required: no depth file is given, {why_no_embedded}, and the model folder {} has no {}; {THREE_WAYS}",
                         dir.display(),
                         path.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default()
                     )));

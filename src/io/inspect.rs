@@ -1,0 +1,162 @@
+//! What a photo file holds, for `drbokeh inspect`: its size, colour and bit depth from the
+//! header, and the depth map it embeds ([`super::embedded_depth`]) with its parameters.
+//!
+//! The depth map is decoded in full (its problems are errors, as in a render: a file that
+//! claims a depth map never inspects as one without); the photo's pixels are not, where the
+//! format's header says enough (PNG, JPEG, TIFF).
+
+use super::embedded_depth::{EmbeddedDepth, GDepthInfo, read_gdepth};
+use super::format::{FileFormat, detect_format, guarded};
+use super::limits::ReadLimits;
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// The embedded formats that are read today, and those that are not yet.
+pub const EMBEDDED_READ: &[&str] = &["GDepth (XMP in JPEG)"];
+/// Embedded depth and matte formats not read yet (named in reports).
+pub const EMBEDDED_NOT_READ: &[&str] = &["Dynamic Depth 1.0 (JPEG container items)", "HEIC/HEIF auxiliary depth and matte images"];
+
+/// What `inspect` reports of a photo (`--json` prints it as it is).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Inspection {
+    /// The file, as given.
+    pub path: String,
+    /// Its format ("JPEG", "PNG"...), detected from its content.
+    pub format: &'static str,
+    /// Width, pixels.
+    pub width: usize,
+    /// Height, pixels.
+    pub height: usize,
+    /// Channels per pixel (1 grey, 2 grey + alpha, 3 RGB, 4 RGBA).
+    pub channels: usize,
+    /// "grey", "grey+alpha", "rgb" or "rgba".
+    pub colour: &'static str,
+    /// Bits per sample.
+    pub bit_depth: u8,
+    /// The embedded depth map's parameters (`kind` "gdepth"), or null.
+    pub depth: Option<EmbeddedDepthReport>,
+    /// An embedded matte (none of the formats read today carries one): always null for now.
+    pub matte: Option<()>,
+    /// `GImage:Mime` when the file also keeps an original image (Lens Blur photos).
+    pub original_image: Option<String>,
+    /// What is looked for and what is not yet ([`EMBEDDED_READ`], [`EMBEDDED_NOT_READ`]).
+    pub embedded_formats_read: &'static [&'static str],
+    /// See [`EMBEDDED_NOT_READ`].
+    pub embedded_formats_not_read: &'static [&'static str],
+    /// What the user should know (each names the file).
+    pub warnings: Vec<String>,
+}
+
+/// An embedded depth map in [`Inspection`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct EmbeddedDepthReport {
+    /// "gdepth".
+    pub kind: &'static str,
+    /// Its parameters.
+    #[serde(flatten)]
+    pub gdepth: GDepthInfo,
+    /// Smallest depth in the map, in its units.
+    pub depth_min: f32,
+    /// Largest depth in the map, in its units.
+    pub depth_max: f32,
+}
+
+/// Inspects the photo `path`; also returns the embedded depth map, decoded (for
+/// `--extract-depth`).
+pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Option<EmbeddedDepth>)> {
+    let format = detect_format(path)?;
+    let header = photo_header(path, format, limits)?;
+    let embedded = read_gdepth(path, limits)?;
+    let depth = embedded.as_ref().map(|e| {
+        let (lo, hi) = e.depth.data.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        EmbeddedDepthReport { kind: "gdepth", gdepth: e.info.clone(), depth_min: lo, depth_max: hi }
+    });
+    let colour = match header.channels {
+        1 => "grey",
+        2 => "grey+alpha",
+        3 => "rgb",
+        _ => "rgba",
+    };
+    let inspection = Inspection {
+        path: path.display().to_string(),
+        format: format.name(),
+        width: header.width,
+        height: header.height,
+        channels: header.channels,
+        colour,
+        bit_depth: header.bit_depth,
+        depth,
+        matte: None,
+        original_image: embedded.as_ref().and_then(|e| e.original_image.clone()),
+        embedded_formats_read: EMBEDDED_READ,
+        embedded_formats_not_read: EMBEDDED_NOT_READ,
+        warnings: embedded.as_ref().map(|e| e.warnings.clone()).unwrap_or_default(),
+    };
+    Ok((inspection, embedded))
+}
+
+/// A raster's size and sample layout.
+struct Header {
+    width: usize,
+    height: usize,
+    channels: usize,
+    bit_depth: u8,
+}
+
+/// The header of `path` through the `image` crate's decoder (no pixels decoded), checked
+/// against `limits`; formats it cannot describe (EXR, NPY, float TIFF) are decoded in full.
+fn photo_header(path: &Path, format: FileFormat, limits: &ReadLimits) -> Result<Header> {
+    use image::ImageDecoder;
+    if matches!(format, FileFormat::Png | FileFormat::Jpeg | FileFormat::Tiff) {
+        let header = guarded(path, format, || {
+            let dec = image::ImageReader::open(path)
+                .map_err(|e| Error::io(path, e))?
+                .with_guessed_format()
+                .map_err(|e| Error::io(path, e))?
+                .into_decoder()
+                .map_err(|e| Error::input(path, format!("cannot read the {} header: {e}", format.name())))?;
+            let (w, h) = dec.dimensions();
+            let c = dec.color_type();
+            let channels = c.channel_count() as usize;
+            Ok(Header {
+                width: w as usize,
+                height: h as usize,
+                channels,
+                bit_depth: (c.bytes_per_pixel() as usize * 8 / channels.max(1)) as u8,
+            })
+        });
+        if let Ok(h) = header {
+            limits.check(path, h.width as u64, h.height as u64)?;
+            return Ok(h);
+        }
+    }
+    let d = super::image_file::read_decoded(path, limits)?;
+    Ok(Header { width: d.image.width, height: d.image.height, channels: d.image.channels, bit_depth: d.bit_depth })
+}
+
+/// Writes an embedded depth map for other tools, the format from `out`'s extension, atomically:
+/// `.exr` (one float channel `Z`) and `.npy` (H x W float32) hold the metric depth as decoded
+/// (in the map's units); `.png` holds it as a 16-bit grey image of depth / Far (so values in
+/// (Near/Far, 1]; multiply by Far for the units). A `--depth` of any of them gives the scene
+/// the embedded map gives (disparity is normalized, so a scale does not change it; the PNG
+/// within its 16-bit steps). Returns a description of what was written.
+pub fn write_extracted_depth(out: &Path, e: &EmbeddedDepth) -> Result<String> {
+    let (w, h) = (e.depth.width, e.depth.height);
+    match super::write::OutputFormat::from_path(out)? {
+        super::write::OutputFormat::Exr => {
+            super::exr_file::write_exr(out, &e.depth, &["Z"])?;
+            Ok(format!("metric depth, {w}x{h}, float channel Z"))
+        }
+        super::write::OutputFormat::Npy => {
+            super::npy::save_npy(out, &e.depth)?;
+            Ok(format!("metric depth, {w}x{h}, float32"))
+        }
+        super::write::OutputFormat::Png => {
+            let far = e.info.far as f32;
+            let mut scaled = e.depth.clone();
+            scaled.map_inplace(|d| d / far);
+            super::write::write_png(out, &scaled, 16, crate::color::Transfer::Linear)?;
+            Ok(format!("depth / Far (Far = {}), {w}x{h}, 16-bit grey", e.info.far))
+        }
+    }
+}
