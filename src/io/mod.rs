@@ -2,7 +2,7 @@
 //!
 //! One file per concern: [`format`] (detection by magic bytes then extension, panic guard),
 //! [`limits`] (decompression-bomb limits), [`image_file`] (photos and generic rasters; a PNG
-//! photo decoded row by row in `png_rows`),
+//! photo decoded row by row in `png_rows`; PNG encoded in parallel in `png_encode`),
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
 //! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads),
 //! [`xmp`] (a JPEG's XMP packets) and [`embedded_depth`] (the GDepth map inside a photo).
@@ -27,6 +27,7 @@ pub mod layer;
 pub mod limits;
 pub mod matte;
 pub mod npy;
+mod png_encode;
 mod png_rows;
 pub mod tiff_file;
 pub mod write;

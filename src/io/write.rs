@@ -390,7 +390,9 @@ fn quantize_block(src: &[f32], dst: &mut [u8], c: usize, bytes: usize, colour: i
     }
 }
 
-/// Encodes `img` (1, 2, 3 or 4 channels) as PNG into `w`; see [`write_png`].
+/// Encodes `img` (1, 2, 3 or 4 channels) as PNG into `w`; see [`write_png`]. Quantizing,
+/// filtering and compressing run in parallel (rayon's threads and this one, which writes);
+/// the bytes are the same for any thread count (`png_encode`).
 pub fn encode_png<W: Write>(w: W, img: &Image, bit_depth: u8, transfer: Transfer) -> std::result::Result<(), String> {
     let colour = match img.channels {
         1 => png::ColorType::Grayscale,
@@ -408,54 +410,16 @@ pub fn encode_png<W: Write>(w: W, img: &Image, bit_depth: u8, transfer: Transfer
     if img.is_empty() || img.width > u32::MAX as usize || img.height > u32::MAX as usize {
         return Err(format!("cannot write a {}x{} image as PNG", img.width, img.height));
     }
-    let failed = |e: png::EncodingError| format!("PNG encoder failed: {e}");
-    // The `png` crate directly (what the `image` crate's encoder wraps, with the same default
-    // settings): the quantizer writes big-endian 16-bit samples, so no byte-swapped copy.
-    // `Fast` is fdeflate, a DEFLATE tuned for PNG; `Adaptive` picks a filter per row.
-    let mut enc = png::Encoder::new(w, img.width as u32, img.height as u32);
-    enc.set_color(colour);
-    enc.set_depth(depth);
-    enc.set_compression(png::Compression::Fast);
-    enc.set_filter(png::Filter::Adaptive);
-    let mut writer = enc.write_header().map_err(failed)?;
     let table = EncodeTable::get(transfer, bit_depth);
     let q = Quantizer::new(table.as_deref(), transfer, bit_depth, img.channels);
-    // Filtering and deflate are one stream on one thread: the next band of rows is quantized
-    // on the other core meanwhile (no image-sized byte buffer, and the quantizer's time hidden
-    // behind the encoder's).
+    // Rows are quantized band by band where they are filtered and compressed (no image-sized
+    // byte buffer): `png_encode`, in parallel, byte-identical for any thread count.
     let row = img.width * img.channels;
-    let band = (BAND_SAMPLES / row).max(1) * row;
-    let mut stream = writer.stream_writer_with_size(IDAT_BYTES).map_err(failed)?;
-    let quantized = |k: usize| {
-        let src = &img.data[k * band..((k + 1) * band).min(img.data.len())];
-        let mut dst = vec![0u8; src.len() * q.bytes];
-        q.block(src, &mut dst);
-        dst
-    };
-    let bands = img.data.len().div_ceil(band);
-    let mut current = quantized(0);
-    for k in 0..bands {
-        // The writer stays on this thread (`W` need not be `Send`); the next band goes to rayon.
-        let mut next = None;
-        let written = rayon::in_place_scope(|s| {
-            if k + 1 < bands {
-                s.spawn(|_| next = Some(quantized(k + 1)));
-            }
-            stream.write_all(&current)
-        });
-        written.map_err(|e| format!("PNG encoder failed: {e}"))?;
-        current = next.unwrap_or_default();
-    }
-    stream.finish().map_err(failed)
+    super::png_encode::encode(w, img.width as u32, img.height as u32, colour, depth, |y, dst: &mut [u8]| {
+        let src = &img.data[y * row..][..dst.len() / q.bytes];
+        q.block(src, dst);
+    })
 }
-
-/// Samples per band of [`encode_png`]'s quantizer (whole rows, at least one): ~1 MB of floats,
-/// a few ms of work, so the two threads swap often and the last band's wait is short.
-const BAND_SAMPLES: usize = 1 << 18;
-
-/// Bytes per IDAT chunk that [`encode_png`] writes (the `png` crate's whole-image writer used
-/// chunks of up to 2 GB; decoders take any split).
-const IDAT_BYTES: usize = 1 << 20;
 
 /// Writes `img` (1 = grey, 2 = grey+alpha, 3 = RGB, 4 = RGBA channels) as an 8 or 16-bit PNG,
 /// atomically. Colour values are encoded with `transfer` (`Transfer::Linear` writes the values
@@ -557,9 +521,9 @@ mod tests {
         assert!(EncodeTable::new(Transfer::Gamma(2.2), 16).is_none(), "16-bit gamma keeps the formula");
     }
 
-    /// The PNG writer's bands (the next one quantized while the encoder takes the last) give
-    /// the image [`quantize`] gives in one piece: every channel count and both depths, bands
-    /// that do not divide the height, one band, and a row longer than a band.
+    /// The PNG writer's bands (each quantized where it is filtered and compressed) give the
+    /// image [`quantize`] gives in one piece: every channel count and both depths, bands that
+    /// do not divide the height, one band, and a row longer than a band.
     #[test]
     fn png_bands_decode_to_the_whole_image_quantized() {
         for (w, h) in [(300, 1000), (7, 3), (100_000, 2)] {
