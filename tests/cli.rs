@@ -1214,47 +1214,24 @@ fn input_variants() {
 #[test]
 fn threads_flag_gives_the_same_result() {
     let s = Scene::new();
-    let j = s.json(&[
-        "image.exr",
-        "--depth",
-        "depth.exr",
-        "--matte",
-        "matte.png",
-        "--focus",
-        "0",
-        "--blur",
-        "5",
-        "--threads",
-        "1",
-        "-o",
-        "t1.npy",
-    ]);
+    // The scene's render of `photo` into `out`, at `threads` when given (else all cores).
+    let args = |photo: &'static str, threads: Option<&'static str>, out: &'static str| {
+        let mut a = vec![photo, "--depth", "depth.exr", "--matte", "matte.png", "--focus", "0", "--blur", "5", "-o", out];
+        a.extend(threads.map(|t| ["--threads", t]).into_iter().flatten());
+        a
+    };
+    let j = s.json(&args("image.exr", Some("1"), "t1.npy"));
     assert_eq!(j["params"]["threads"], 1, "{j}");
-    s.ok(&["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--focus", "0", "--blur", "5", "-o", "tn.npy"]);
+    s.ok(&args("image.exr", None, "tn.npy"));
     assert_eq!(read_npy(&s.path("t1.npy")).data, read_npy(&s.path("tn.npy")).data);
     // The 8-bit PNG of an 8-bit photo (highlights stage, parallel fills, the parallel PNG
     // encoder) byte for byte at 1, 3 and 5 threads (issue 39).
-    let png = |threads: &str| {
-        let out = format!("t{threads}.png");
-        s.ok(&[
-            "image.png",
-            "--depth",
-            "depth.exr",
-            "--matte",
-            "matte.png",
-            "--focus",
-            "0",
-            "--blur",
-            "5",
-            "--threads",
-            threads,
-            "-o",
-            &out,
-        ]);
-        std::fs::read(s.path(&out)).unwrap()
+    let png = |threads: &'static str, out: &'static str| {
+        s.ok(&args("image.png", Some(threads), out));
+        std::fs::read(s.path(out)).unwrap()
     };
-    let one = png("1");
-    assert!(one == png("3") && one == png("5"), "the PNG differs between thread counts");
+    let one = png("1", "t1.png");
+    assert!(one == png("3", "t3.png") && one == png("5", "t5.png"), "the PNG differs between thread counts");
 }
 
 #[cfg(unix)]
