@@ -15,6 +15,7 @@ use crate::stages::depth_edges;
 use crate::stages::fill_depth::{DepthEdges, foreground_disparity, hard_mask};
 use crate::stages::foreground::{EdgeColour, carried_colour, unmix_edges};
 use crate::stages::light_recovery::{self, Recovered};
+use crate::stages::matting;
 use crate::stages::segment::{self, SegmentMethod, Segmentation};
 use crate::stages::slices::{self, LayerCount};
 use crate::stages::work_box;
@@ -455,6 +456,7 @@ impl Pipeline {
                     single(&mut report, why)?
                 }
                 Segmentation::Foreground(alpha) => {
+                    let (alpha, refined) = self.refine_matte(rgb, disp, alpha, source == "matte");
                     // A binary matte from the user says no pixel outside it is mixed with the
                     // subject: its edge band is background, kept as the photo has it.
                     let binary = source == "matte" && alpha.data.par_iter().all(|&a| a == 0.0 || a == 1.0);
@@ -464,7 +466,13 @@ impl Pipeline {
                     report.ran(
                         "segment",
                         t,
-                        Some(serde_json::json!({"source": source, "layers": 2, "foreground_fraction": fg_frac, "model": seg_model})),
+                        Some(serde_json::json!({
+                            "source": source,
+                            "layers": 2,
+                            "foreground_fraction": fg_frac,
+                            "model": seg_model,
+                            "refine": refined
+                        })),
                     );
                     self.peel_layers((rgb, disp), alpha, (focus, blur, max_coc), edge_band, &mut report)?
                 }
@@ -553,6 +561,18 @@ impl Pipeline {
             stage.ms += ms_since(t);
         }
         Ok(layers)
+    }
+
+    /// The foreground's matte refined on the photo's edges when `[segment] refine` says so for
+    /// its source (`stages::matting`; the band is the depth map's measured ramp around the
+    /// outline), with what was done (None: as it came).
+    fn refine_matte(&self, photo: &Image, disp: &Image, alpha: Image, user_matte: bool) -> (Image, Option<matting::Refined>) {
+        if !self.config.segment.refine.applies_to(user_matte) {
+            return (alpha, None);
+        }
+        let edges = self.edge_widths(disp, &alpha);
+        let (refined, info) = matting::refine(photo, &alpha, matting::band_for(&edges), self.config.segment.edge_softness);
+        (refined, Some(info))
     }
 
     /// The ramp of `disp` across the outline of `alpha` (`[fill_depth] edges`; none when the

@@ -276,6 +276,31 @@ fn matte_gives_two_layers_and_focus_keeps_the_subject_sharp() {
     assert!(max_abs_diff(&out.data, &inp.data) > 0.01);
 }
 
+/// Without a matte the depth split's outline is refined on the photo (`[segment] refine`,
+/// default "auto") and `--json` says so; a user's matte is kept as given unless "guided"; "off"
+/// refines nothing.
+#[test]
+fn matting_refines_the_depth_split_and_json_reports_it() {
+    let s = Scene::new();
+    let base = ["image.exr", "--depth", "depth.exr", "--focus", "1", "--blur", "4", "-o", "out.exr"];
+    let refine = |extra: &[&str], toml: Option<&str>| {
+        let mut a: Vec<&str> = base.iter().chain(extra).copied().collect();
+        if let Some(t) = toml {
+            std::fs::write(s.path("refine.toml"), format!("[segment]\nrefine = \"{t}\"\n")).unwrap();
+            a.extend(["--config", "refine.toml"]);
+        }
+        let j = s.json(&a);
+        assert_eq!(stage(&j, "segment")["detail"]["layers"], 2, "{j}");
+        stage(&j, "segment")["detail"]["refine"].clone()
+    };
+    let split = refine(&[], None);
+    assert!(split["unknown_px"].as_u64().unwrap() > 0, "{split}");
+    assert!(split["band_inside_px"].as_f64().unwrap() >= 2.0, "{split}");
+    assert!(refine(&["--matte", "matte.png"], None).is_null());
+    assert!(refine(&["--matte", "matte.png"], Some("guided"))["unknown_px"].as_u64().unwrap() > 0);
+    assert!(refine(&[], Some("off")).is_null());
+}
+
 #[test]
 fn focus_at_uses_the_disparity_under_the_pixel() {
     let s = Scene::new();

@@ -8,6 +8,7 @@ pub mod groundtruth;
 pub mod input_report;
 pub mod inputs;
 pub mod metrics;
+pub mod outline;
 pub mod plot;
 pub mod report;
 pub mod run;

@@ -25,7 +25,7 @@ pub const CATEGORIES: [(&str, &str); 5] = [
 ];
 
 /// PSNR values are capped here before averaging (identical images give +inf).
-const PSNR_CAP: f64 = 100.0;
+pub const PSNR_CAP: f64 = 100.0;
 
 /// Mean of the values that are not NaN (a metric that could not be computed); NaN if none.
 pub(super) fn mean(v: impl Iterator<Item = f64>) -> f64 {
@@ -176,22 +176,26 @@ fn write_text(path: &Path, text: &str) -> Result<()> {
     crate::io::atomic::write_atomic(path, |w| w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e)))
 }
 
-/// One row per case × input × method × setting. The last two columns are empty except on the
-/// pipeline's rows from clipped inputs: `light_missing` (linear light clipping took from the
-/// photo, summed over its samples) and `light_recovered` (the fraction of it the highlights
-/// stage gave back; empty when nothing was clipped). See [`super::run::LightRecovery`].
+/// One row per case × input × method × setting. `light_missing` and `light_recovered` are empty
+/// except on the pipeline's rows from clipped inputs: linear light clipping took from the
+/// photo, summed over its samples, and the fraction of it the highlights stage gave back
+/// (empty when nothing was clipped; see [`super::run::LightRecovery`]). `outline_violations`
+/// and `alpha_mae` are the scores along the true outline ([`super::outline`]; `alpha_mae` on
+/// the pipeline's rows only).
 pub fn csv(rows: &[Row]) -> String {
     let mut s = String::from(
         "scene,setting,categories,method,variant,input,width,height,threads,blur,focus,max_coc_px,border_px,runs,time_ms,\
-         rmse,si_rmse,psnr_linear,ssim_linear,zncc,psnr_srgb,ssim_srgb,psnr_srgb_full_frame,light_missing,light_recovered\n",
+         rmse,si_rmse,psnr_linear,ssim_linear,zncc,psnr_srgb,ssim_srgb,psnr_srgb_full_frame,light_missing,light_recovered,outline_violations,alpha_mae\n",
     );
     for r in rows {
         let sc = &r.scores;
         let missing = r.light.map(|l| format!("{:.4}", l.missing)).unwrap_or_default();
         let recovered = r.light.and_then(|l| l.fraction()).map(|f| format!("{f:.4}")).unwrap_or_default();
+        let violations = r.outline.violations;
+        let alpha_mae = r.outline.alpha_mae.map(|a| format!("{a:.4}")).unwrap_or_default();
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{},{},{:.3},{:.6},{:.6},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{missing},{recovered}",
+            "{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{},{},{:.3},{:.6},{:.6},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{missing},{recovered},{violations:.4},{alpha_mae}",
             r.scene,
             r.setting,
             r.categories.join(";"),
@@ -422,6 +426,7 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
     if compared {
         s.push_str(&super::input_report::section(&res.rows));
     }
+    s.push_str(&super::outline::section(&res.rows));
     s
 }
 

@@ -104,7 +104,7 @@ impl Method {
     /// option. On the clipped (8-bit) inputs, to keep the run short: the reference and default
     /// settings, [`Variant::RealisticDepth`] for the methods that read the depth map, and for
     /// the pipeline [`Variant::HighlightsOff`] (auto against off) and
-    /// [`Variant::RealisticNoMatte`] (which runs on every input).
+    /// [`Variant::RealisticNoMatte`] with and without matting (which run on every input).
     pub fn variants(self, input: Input) -> Vec<Variant> {
         use Variant::*;
         if input.is_clipped() {
@@ -113,7 +113,7 @@ impl Method {
                 v.push(RealisticDepth);
             }
             if self == Method::Pipeline {
-                v.extend([HighlightsOff, RealisticNoMatte]);
+                v.extend([HighlightsOff, RealisticNoMatte, RealisticNoMatteRefineOff]);
             }
             v.dedup();
             return v;
@@ -128,6 +128,7 @@ impl Method {
                 PhysicalFast(2),
                 RealisticDepth,
                 RealisticNoMatte,
+                RealisticNoMatteRefineOff,
                 LayersAuto,
                 RealisticLayersAuto,
                 PatchMatch,
@@ -188,6 +189,9 @@ pub enum Variant {
     /// depth map alone, as with a phone photo and an estimator (issue 35's acceptance compares
     /// it with the baselines' realistic-depth rows).
     RealisticNoMatte,
+    /// [`Variant::RealisticNoMatte`] with `[segment] refine = "off"`: the depth split's
+    /// outline as it comes, against which issue 42's matting is judged.
+    RealisticNoMatteRefineOff,
 }
 
 impl Variant {
@@ -205,16 +209,20 @@ impl Variant {
             Variant::PatchMatch => "patchmatch".into(),
             Variant::HighlightsOff => "highlights-off".into(),
             Variant::RealisticNoMatte => "realistic-depth-no-matte".into(),
+            Variant::RealisticNoMatteRefineOff => "realistic-depth-no-matte-refine-off".into(),
         }
     }
     /// Whether this setting reads the realistic depth map instead of the exact one.
     pub fn realistic(self) -> bool {
-        matches!(self, Variant::RealisticDepth | Variant::RealisticLayersAuto | Variant::RealisticNoMatte)
+        matches!(
+            self,
+            Variant::RealisticDepth | Variant::RealisticLayersAuto | Variant::RealisticNoMatte | Variant::RealisticNoMatteRefineOff
+        )
     }
 
     /// Whether the pipeline is given the scene's matte with this setting.
     pub fn has_matte(self) -> bool {
-        self != Variant::RealisticNoMatte
+        !matches!(self, Variant::RealisticNoMatte | Variant::RealisticNoMatteRefineOff)
     }
 
     /// The lens profile this setting renders with.
@@ -227,7 +235,8 @@ impl Variant {
             | Variant::RealisticLayersAuto
             | Variant::PatchMatch
             | Variant::HighlightsOff
-            | Variant::RealisticNoMatte => crate::render::Profile::Physical,
+            | Variant::RealisticNoMatte
+            | Variant::RealisticNoMatteRefineOff => crate::render::Profile::Physical,
             _ => crate::render::Profile::Official,
         }
     }
@@ -239,7 +248,8 @@ impl Variant {
             | Variant::RealisticLayersAuto
             | Variant::PatchMatch
             | Variant::HighlightsOff
-            | Variant::RealisticNoMatte => Kernel::Fast { quality: 2 },
+            | Variant::RealisticNoMatte
+            | Variant::RealisticNoMatteRefineOff => Kernel::Fast { quality: 2 },
             _ => Kernel::Exact,
         }
     }
@@ -403,6 +413,8 @@ pub struct Row {
     pub time_ms: f64,
     /// The render's scores against the ground truth.
     pub scores: Scores,
+    /// Its scores along the subject's true outline ([`super::outline`]).
+    pub outline: super::outline::OutlineScores,
     /// The pipeline's highlights stage against what clipping took from the photo (pipeline
     /// rows on clipped inputs; None otherwise).
     pub light: Option<LightRecovery>,
@@ -569,6 +581,9 @@ pub struct Rendered {
     /// The pipeline's highlights stage: linear light it added to the photo, summed over every
     /// sample (0 when it was skipped); None for the other methods.
     pub light_added: Option<f64>,
+    /// The pipeline's foreground matte (its front layer's alpha; all ones when it rendered one
+    /// layer); None for the other methods.
+    pub alpha: Option<Image>,
 }
 
 /// The light the pipeline's highlights stage added (its report's `light_added`), 0 when the
@@ -589,7 +604,7 @@ fn light_added(report: &crate::pipeline::Report) -> Result<f64> {
 pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Result<Rendered> {
     let inp: &SceneInputs = &photo.scene;
     let (blur, focus) = (case.blur, case.focus);
-    let plain = |image: Result<Image>| image.map(|image| Rendered { image, light_added: None });
+    let plain = |image: Result<Image>| image.map(|image| Rendered { image, light_added: None, alpha: None });
     let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
         let lens = render::auto_lens(layers, blur, focus);
         render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile() }, v.kernel())
@@ -622,6 +637,9 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
             if v == Variant::PatchMatch {
                 cfg.inpaint.method = crate::stages::inpaint_onnx::InpaintMethod::PatchMatch;
             }
+            if v == Variant::RealisticNoMatteRefineOff {
+                cfg.segment.refine = crate::stages::matting::RefineMethod::Off;
+            }
             if v == Variant::HighlightsOff {
                 cfg.highlights.mode = crate::stages::light_recovery::HighlightMode::Off;
             }
@@ -632,7 +650,11 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
                 encoding: photo.input.encoding(),
             };
             let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
-            Ok(Rendered { light_added: Some(light_added(&out.report)?), image: out.image })
+            let front = &out.layers[0];
+            let alpha =
+                Image::from_vec(front.width(), front.height(), 1, (0..front.width() * front.height()).map(|i| front.alpha(i)).collect())
+                    .ok_or_else(|| Error::Internal("the front layer's alpha".into()))?;
+            Ok(Rendered { light_added: Some(light_added(&out.report)?), image: out.image, alpha: Some(alpha) })
         }
     }
 }
@@ -686,6 +708,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
             gt_noise.push(n);
         }
         let mut refs: Vec<(Method, Image, Scores)> = Vec::new();
+        let true_outline = super::outline::Outline::of(&case.inputs.matte);
         for &input in &opts.inputs {
             let photo = inputs::prepare(&case.inputs, input)?;
             for &m in &methods {
@@ -702,6 +725,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
                         )));
                     }
                     let scores = score(&img, &case.gt, case.border);
+                    let outline = true_outline.score(&img, &case.gt, out.alpha.as_ref().map(|a| (a, &case.inputs.matte)));
                     let light = match (photo.missing_light, out.light_added) {
                         (Some(missing), Some(added)) => Some(LightRecovery { added, missing }),
                         _ => None,
@@ -726,6 +750,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
                         runs,
                         time_ms: ms,
                         scores,
+                        outline,
                         light,
                     });
                 }

@@ -1,5 +1,6 @@
 //! The classical stages that turn image + depth (+ matte) into layers, in data-flow order:
-//! `light_recovery` (the light of clipped highlights, integer photos) → `depth` (normalize, focus) → `segment` → `depth_edges` (how far the depth map's edges ramp
+//! `light_recovery` (the light of clipped highlights, integer photos) → `depth` (normalize, focus) → `segment` (then `matting`:
+//! a depth split's or a model's outline moved onto the photo's edges) → `depth_edges` (how far the depth map's edges ramp
 //! past the matte's) → `fill_depth` → `background` (inpaint, with the `contamination` and
 //! `highlights` rules) → `foreground` (colour at soft edges) → layers; with `--layers`, `slices`
 //! cuts the background at gaps of its depth and the same stages peel each slice in turn.
@@ -22,6 +23,7 @@ pub mod inpaint;
 pub mod inpaint_onnx;
 pub mod light_recovery;
 pub mod mask;
+pub mod matting;
 pub mod patchmatch;
 pub mod segment;
 pub mod segment_onnx;

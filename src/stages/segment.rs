@@ -46,6 +46,9 @@ pub struct SegmentOptions {
     pub layer_min_fraction: f64,
     /// `[segment.onnx]`: the model used by `method = "onnx"`.
     pub onnx: crate::onnx::ModelSpec,
+    /// How the coarse matte is refined on the photo's edges (`stages::matting`): "auto" (the
+    /// depth split's and a model's), "off", or "guided" (every matte, a user's too).
+    pub refine: super::matting::RefineMethod,
 }
 
 impl Default for SegmentOptions {
@@ -60,6 +63,7 @@ impl Default for SegmentOptions {
             layer_gap: 0.05,
             layer_min_fraction: 0.01,
             onnx: Default::default(),
+            refine: Default::default(),
         }
     }
 }
