@@ -90,12 +90,15 @@ fn trace_refuses_a_layer_that_is_not_one_plane() {
 /// report.csv's columns: the header's names, in order.
 const CSV_HEADER: &str = "scene,setting,categories,method,variant,input,width,height,threads,blur,focus,max_coc_px,border_px,runs,\
                           time_ms,rmse,si_rmse,psnr_linear,ssim_linear,zncc,psnr_srgb,ssim_srgb,psnr_srgb_full_frame,light_missing,\
-                          light_recovered";
+                          light_recovered,outline_violations,alpha_mae";
 /// Index of the `input` column, of the first score column, and of the two light columns.
 const INPUT_COL: usize = 5;
 const FIRST_SCORE_COL: usize = 14;
 const LIGHT_MISSING_COL: usize = 23;
 const LIGHT_RECOVERED_COL: usize = 24;
+/// Index of the outline scores (`bench::outline`): range violations and alpha error.
+const VIOLATIONS_COL: usize = 25;
+const ALPHA_MAE_COL: usize = 26;
 
 /// report.csv's rows (header checked), each split into its columns, with a 64x64 frame and a
 /// finite (or inf) number in every score column.
@@ -144,16 +147,31 @@ fn tiny_bench_run_writes_the_report() {
     let rep = dir.join("rep");
     let csv = std::fs::read_to_string(rep.join("report.csv")).unwrap();
     let rows = csv_rows(&csv);
-    // 2 scenes x (7 + 4 + 9 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
+    // 2 scenes x (7 + 4 + 10 + 5 + 2) method settings (physical-exact and physical-fast-q2 for
     // every profile-aware method, realistic-depth for the three that read the depth map, and
-    // the pipeline's options: realistic depth without matte, layers-auto with both depth maps,
-    // patchmatch).
-    assert_eq!(rows.len(), 2 * 27, "{csv}");
+    // the pipeline's options: realistic depth without matte with and without matting,
+    // layers-auto with both depth maps, patchmatch).
+    assert_eq!(rows.len(), 2 * 28, "{csv}");
     let count = |variant: &str| rows.iter().filter(|c| c[4] == variant).count();
     assert_eq!(count("realistic-depth"), 2 * 3);
-    for option in ["layers-auto", "realistic-depth-layers-auto", "patchmatch", "realistic-depth-no-matte"] {
+    for option in
+        ["layers-auto", "realistic-depth-layers-auto", "patchmatch", "realistic-depth-no-matte", "realistic-depth-no-matte-refine-off"]
+    {
         assert_eq!(count(option), 2, "{option}");
     }
+    // Outline scores: a share for every row, an alpha error on the pipeline's rows only (zero
+    // where it was given the exact matte).
+    for c in &rows {
+        let v: f64 = c[VIOLATIONS_COL].parse().unwrap();
+        assert!((0.0..=1.0).contains(&v), "{c:?}");
+        let pipeline = c[3] == "drbokeh-pipeline";
+        assert_eq!(c[ALPHA_MAE_COL].is_empty(), !pipeline, "{c:?}");
+        if pipeline && !c[4].contains("no-matte") {
+            assert_eq!(c[ALPHA_MAE_COL].parse::<f64>().unwrap(), 0.0, "{c:?}");
+        }
+    }
+    let report = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    assert!(report.contains("### Edges without a matte (issue 42)"), "{report}");
     assert_eq!(count("physical-exact"), 2 * 4);
     assert_eq!(count("highlights-off"), 0, "the stage does nothing on linear input: not run");
     for c in &rows {
@@ -203,8 +221,8 @@ fn bench_on_8bit_inputs_compares_them() {
     let rep = dir.join("rep");
     let csv = std::fs::read_to_string(rep.join("report.csv")).unwrap();
     let rows = csv_rows(&csv);
-    // Per input: layers and sliced 2 settings each, the pipeline 5, the scatter 3, the gather 2.
-    assert_eq!(rows.len(), 2 * 14, "{csv}");
+    // Per input: layers and sliced 2 settings each, the pipeline 6, the scatter 3, the gather 2.
+    assert_eq!(rows.len(), 2 * 15, "{csv}");
     for input in ["srgb8", "srgb8-psf"] {
         let of = |method: &str, variant: &str| {
             let r: Vec<&Vec<&str>> = rows.iter().filter(|c| c[INPUT_COL] == input && c[3] == method && c[4] == variant).collect();
