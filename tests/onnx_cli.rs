@@ -82,8 +82,14 @@ fn onnx_run_equals_classical_run_with_the_models_matte() {
     let md = stubs();
     let md = md.to_str().unwrap();
     let common = ["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "6", "--model-dir", md];
-    let a = ok(d, &[&common[..], &["--segment", "onnx", "--inpaint", "onnx", "-o", "a.png"]].concat(), &[]);
+    // A model's matte is refined on the photo by default (`[segment] refine = "auto"`); a user's
+    // is not: with refinement off the two runs see the same matte.
+    let auto = ok(d, &[&common[..], &["--segment", "onnx", "--inpaint", "onnx", "-o", "auto.png"]].concat(), &[]);
+    assert!(stage(&auto, "segment")["detail"]["refine"]["unknown_px"].as_u64().is_some(), "{auto}");
+    std::fs::write(d.join("off.toml"), "[segment]\nrefine = \"off\"\n").unwrap();
+    let a = ok(d, &[&common[..], &["--segment", "onnx", "--inpaint", "onnx", "--config", "off.toml", "-o", "a.png"]].concat(), &[]);
     assert_eq!(stage(&a, "segment")["detail"]["source"], "onnx", "{a}");
+    assert!(stage(&a, "segment")["detail"]["refine"].is_null(), "{a}");
     assert_eq!(stage(&a, "segment")["detail"]["model"]["preset"], "u2net");
     assert_eq!(stage(&a, "inpaint")["detail"]["method"], "onnx");
     assert_eq!(stage(&a, "inpaint")["detail"]["model"]["preset"], "lama");
