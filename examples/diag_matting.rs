@@ -23,9 +23,13 @@ fn main() -> drbokeh::Result<()> {
     for i in 0..n {
         let sc = generate(seed, i, size, size, &[]);
         let inp = sc.inputs()?;
-        let Segmentation::Foreground(coarse) = from_disparity(&inp.realistic_disparity, &cfg.segment) else {
-            println!("s{i:03}: one layer");
-            continue;
+        let coarse = match from_disparity(&inp.realistic_disparity, &cfg.segment) {
+            Segmentation::Foreground(a) => a,
+            Segmentation::SingleLayer(why) => {
+                let exact = matches!(from_disparity(&inp.disparity, &cfg.segment), Segmentation::Foreground(_));
+                println!("s{i:03}: one layer ({why}; with the exact depth: {})", if exact { "two layers" } else { "one too" });
+                continue;
+            }
         };
         let edges = depth_edges::measure(&inp.realistic_disparity, &hard_mask(&coarse, &cfg.fill_depth), size, size);
         let t = std::time::Instant::now();

@@ -10,7 +10,8 @@
 //!   is foreground (α = 1) and outside background (α = 0). The band's half-widths are the depth
 //!   map's measured ramp on each side ([`super::depth_edges::measure`]: the true edge lies
 //!   within the ramp) plus [`MIN_BAND_PX`] (an antialiased or feathered edge is that wide even
-//!   with an exact depth map).
+//!   with an exact depth map). A part thinner than the band (a bar a smoothed depth map
+//!   widened) keeps its ridge as foreground, where no thick core is near.
 //! - **Alpha.** In each window of radius `r` (the band's wider half plus one, so a window centred
 //!   in the band reaches known pixels on both sides) alpha is a linear function of colour,
 //!   `α ≈ a·I + b` (the colour-line model behind closed-form matting, Levin et al. 2008, and the
@@ -39,7 +40,7 @@
 //! full) comes back unchanged.
 
 use super::depth_edges::EdgeWidths;
-use super::mask::{gaussian_blur, grown_bbox, root, sq_distance_upto};
+use super::mask::{dilate, gaussian_blur, grown_bbox, root, sq_distance_upto};
 use crate::image::Image;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -58,7 +59,8 @@ pub enum RefineMethod {
 }
 
 impl RefineMethod {
-    /// Whether a matte from `source` is refined: a user's matte only when asked by name.
+    /// Whether a matte is refined: `user_matte` says it is the user's (refined only when
+    /// `Guided` is asked for by name), not the depth split's or a model's.
     pub fn applies_to(self, user_matte: bool) -> bool {
         match self {
             RefineMethod::Off => false,
@@ -209,8 +211,29 @@ impl Trimap {
                 *u = if hard[i] { root(to_out[j]) <= inside + 0.5 } else { root(to_in[j]) <= outside + 0.5 };
             }
         });
+        // A part thinner than the band (a bar, a wire, as a smoothed depth map widens it) would
+        // have no known foreground and keep its coarse outline: its ridge (the pixels farthest
+        // from the outside, the middle the smoothing spread evenly) is taken as foreground
+        // where no core is near.
+        let core: Vec<bool> = hard.par_iter().zip(&unknown).map(|(&m, &u)| m && !u).collect();
+        let near_core = dilate(&core, w, h, inside + 1.0);
+        unknown[y0 * w..y1 * w].par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (k, u) in row[x0..x1].iter_mut().enumerate() {
+                let i = (y0 + y) * w + x0 + k;
+                if *u && hard[i] && !near_core[i] && is_ridge(&to_out, bw, (k, y), y1 - y0) {
+                    *u = false;
+                }
+            }
+        });
         Some(Trimap { unknown, bbox: bb })
     }
+}
+
+/// Whether box pixel `(x, y)` of the squared distances `d2` (row width `bw`, `bh` rows) is at
+/// least as far from the outside as each of its 8 neighbours in the box.
+fn is_ridge(d2: &[u32], bw: usize, (x, y): (usize, usize), bh: usize) -> bool {
+    let here = d2[y * bw + x];
+    (y.saturating_sub(1)..(y + 2).min(bh)).all(|yy| (x.saturating_sub(1)..(x + 2).min(bw)).all(|xx| d2[yy * bw + xx] <= here))
 }
 
 /// Number of summed planes per pixel: weight, weight·p, weight·I (3), weight·I·p (3),
@@ -432,6 +455,21 @@ mod tests {
         let split = gaussian_blur(&Image::from_vec(96, 40, 1, truth.iter().map(|&t| (t >= 0.5) as u8 as f32).collect()).unwrap(), 0.8);
         let worst = out.data.iter().zip(&split.data).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
         assert!(worst < 1e-6, "{worst}");
+    }
+
+    /// A 2 px bar that a smoothed depth map widened to 8 px: the band swallows it whole, its
+    /// ridge stays foreground, and the refined bar is the photo's.
+    #[test]
+    fn a_thin_part_narrows_to_the_photo_bar() {
+        let (w, h) = (48, 32);
+        let bar = |x: usize| (22..24).contains(&x);
+        let photo: Vec<f32> = (0..w * h).flat_map(|i| if bar(i % w) { [0.1, 0.1, 0.15] } else { [0.7, 0.75, 0.8] }).collect();
+        let photo = Image::from_vec(w, h, 3, photo).unwrap();
+        let coarse = Image::from_vec(w, h, 1, (0..w * h).map(|i| (19..27).contains(&(i % w)) as u8 as f32).collect()).unwrap();
+        let (out, info) = refine(&photo, &coarse, (5.0, 3.0), 0.0);
+        assert!(info.unknown_px > 0);
+        let row: Vec<f32> = out.data[16 * w..17 * w].to_vec();
+        assert!((0..w).all(|x| row[x] == bar(x) as u8 as f32), "{row:?}");
     }
 
     #[test]
