@@ -33,7 +33,8 @@ fn main() -> drbokeh::Result<()> {
         };
         let edges = depth_edges::measure(&inp.realistic_disparity, &hard_mask(&coarse, &cfg.fill_depth), size, size);
         let t = std::time::Instant::now();
-        let (refined, info) = matting::refine(&inp.aif, &coarse, matting::band_for(&edges), cfg.segment.edge_softness);
+        let (refined, info) =
+            matting::refine(&inp.aif, &coarse, matting::band_for(&edges), cfg.segment.edge_softness, cfg.segment.refine.solver());
         let ms = t.elapsed().as_secs_f64() * 1e3;
         let outline = Outline::of(&inp.matte);
         let mae = |a| outline.score(&inp.aif, &inp.aif, Some((a, &inp.matte))).alpha_mae.unwrap();

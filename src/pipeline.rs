@@ -571,7 +571,13 @@ impl Pipeline {
             return (alpha, None);
         }
         let edges = self.edge_widths(disp, &alpha);
-        let (refined, info) = matting::refine(photo, &alpha, matting::band_for(&edges), self.config.segment.edge_softness);
+        let (refined, info) = matting::refine(
+            photo,
+            &alpha,
+            matting::band_for(&edges),
+            self.config.segment.edge_softness,
+            self.config.segment.refine.solver(),
+        );
         (refined, Some(info))
     }
 

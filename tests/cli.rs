@@ -298,6 +298,8 @@ fn matting_refines_the_depth_split_and_json_reports_it() {
     assert!(split["band_inside_px"].as_f64().unwrap() >= 2.0, "{split}");
     assert!(refine(&["--matte", "matte.png"], None).is_null());
     assert!(refine(&["--matte", "matte.png"], Some("guided"))["unknown_px"].as_u64().unwrap() > 0);
+    assert_eq!(split["solver"], "guided", "{split}");
+    assert_eq!(refine(&[], Some("closed-form"))["solver"], "closed-form");
     assert!(refine(&[], Some("off")).is_null());
 }
 

@@ -11,6 +11,7 @@
 
 pub mod background;
 pub mod camera_psf;
+pub mod closed_form;
 pub mod contamination;
 pub mod depth;
 pub mod depth_edges;
