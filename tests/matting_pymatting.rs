@@ -93,7 +93,7 @@ fn mean_over_unknown(a: &Image, b: &Image, trimap: &Image) -> f64 {
 }
 
 #[test]
-fn colour_fit_against_closed_form_matting() {
+fn closed_form_solver_against_pymatting() {
     let cases = cases();
     assert!(cases.len() >= 3, "too few soft-edged scenes: {}", cases.len());
     let dir = tempfile::tempdir().unwrap();
