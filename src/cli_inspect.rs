@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub(crate) struct InspectArgs {
-    /// The photo (JPEG with GDepth XMP, or any supported image).
+    /// The photo (JPEG with Dynamic Depth or GDepth XMP, or any supported image).
     photo: PathBuf,
     /// Print a machine-readable report (JSON) to stdout.
     #[arg(long)]
@@ -29,9 +29,9 @@ pub(crate) fn run(args: InspectArgs) -> anyhow::Result<()> {
     }
     let (report, embedded) = inspect(&args.photo, &limits)?;
     if let Some(out) = &args.extract_depth {
-        let e = embedded
-            .as_ref()
-            .ok_or_else(|| Error::input(&args.photo, "embeds no depth map (no GDepth XMP); --extract-depth has nothing to write"))?;
+        let e = embedded.as_ref().ok_or_else(|| {
+            Error::input(&args.photo, "embeds no depth map (no Dynamic Depth or GDepth XMP); --extract-depth has nothing to write")
+        })?;
         let what = write_extracted_depth(out, e)?;
         eprintln!("wrote {} ({what})", out.display());
     }
@@ -53,7 +53,7 @@ fn print_text(r: &Inspection) -> std::io::Result<()> {
     writeln!(o, "{}: {}, {}x{}, {}, {}-bit", r.path, r.format, r.width, r.height, r.colour, r.bit_depth)?;
     match &r.depth {
         Some(d) => {
-            let g = &d.gdepth;
+            let g = &d.info;
             let x = &g.xmp;
             let where_ = if x.extended_segments > 0 {
                 format!(
@@ -63,17 +63,39 @@ fn print_text(r: &Inspection) -> std::io::Result<()> {
             } else {
                 "XMP, standard packet".to_owned()
             };
-            writeln!(o, "depth: GDepth ({where_})")?;
-            writeln!(o, "  GDepth:Format       {}", g.format.name())?;
-            writeln!(o, "  GDepth:Near         {}", g.near)?;
-            writeln!(o, "  GDepth:Far          {}", g.far)?;
-            writeln!(o, "  GDepth:Units        {}", g.units.as_deref().unwrap_or("(not given)"))?;
-            writeln!(o, "  GDepth:MeasureType  {}", g.measure_type.as_deref().unwrap_or("(not given: OpticalAxis)"))?;
-            writeln!(o, "  GDepth:Mime         {}", g.mime)?;
-            writeln!(o, "  GDepth:Data         {}x{}, {}-bit grey, {} bytes", g.width, g.height, g.bit_depth, g.data_bytes)?;
-            writeln!(o, "  depth range         {} .. {}", d.depth_min, d.depth_max)?;
+            let p = g.container.prefix();
+            let row = |field: &str| format!("{p}:{field}");
+            writeln!(o, "depth: {} ({where_})", g.container.name())?;
+            writeln!(o, "  {:<19} {}", row("Format"), g.format.name())?;
+            writeln!(o, "  {:<19} {}", row("Near"), g.near)?;
+            writeln!(o, "  {:<19} {}", row("Far"), g.far)?;
+            writeln!(o, "  {:<19} {}", row("Units"), g.units.as_deref().unwrap_or("(not given)"))?;
+            writeln!(o, "  {:<19} {}", row("MeasureType"), g.measure_type.as_deref().unwrap_or("(not given: OpticalAxis)"))?;
+            let image = format!("{}x{}, {}-bit grey, {} bytes", g.width, g.height, g.bit_depth, g.data_bytes);
+            match &g.item {
+                None => {
+                    writeln!(o, "  {:<19} {}", row("Mime"), g.mime)?;
+                    writeln!(o, "  {:<19} {image}", row("Data"))?;
+                }
+                Some(i) => {
+                    writeln!(o, "  {:<19} {} (camera {})", row("DepthURI"), i.uri, i.camera)?;
+                    writeln!(
+                        o,
+                        "  {:<19} {}, {image}, at byte {} (Item:Length {}, Item:Padding {})",
+                        format!("Container:Item {}", i.index),
+                        g.mime,
+                        i.offset,
+                        i.length,
+                        i.padding
+                    )?;
+                    if let Some(c) = &i.confidence_uri {
+                        writeln!(o, "  {:<19} {c} (not used)", row("ConfidenceURI"))?;
+                    }
+                }
+            }
+            writeln!(o, "  {:<19} {} .. {}", "depth range", d.depth_min, d.depth_max)?;
             if let Some(c) = &g.confidence_mime {
-                writeln!(o, "  GDepth:Confidence   {c} (not used)")?;
+                writeln!(o, "  {:<19} {c} (not used)", row("Confidence"))?;
             }
         }
         None => writeln!(o, "depth: none embedded")?,

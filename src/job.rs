@@ -20,7 +20,7 @@ use std::time::Instant;
 pub struct Job {
     /// The photo (PNG/JPEG/TIFF/EXR); None with `layers`.
     pub image: Option<PathBuf>,
-    /// Its depth map; None: the depth map the photo embeds (GDepth, unless
+    /// Its depth map; None: the depth map the photo embeds (Dynamic Depth or GDepth, unless
     /// `input.embedded_depth = false`), else the configured depth model.
     pub depth: Option<PathBuf>,
     /// Its optional foreground matte.
@@ -104,7 +104,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                     || match &job.depth {
                         Some(p) => DepthRead::File(io::read_depth_map(p, &limits)),
                         None if cfg.input.embedded_depth => {
-                            DepthRead::Embedded(io::embedded_depth::read_gdepth(image_path, &limits).map(|e| e.map(Box::new)))
+                            DepthRead::Embedded(io::embedded_depth::read_embedded(image_path, &limits).map(|e| e.map(Box::new)))
                         }
                         None => DepthRead::Off,
                     },
@@ -155,13 +155,17 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                     return Err(Error::input(
                         image_path,
                         format!(
-                            "GDepth:Data: the embedded depth image is {}x{} but the photo is {}x{} (a different aspect ratio)",
-                            e.depth.width, e.depth.height, rgb.width, rgb.height
+                            "{}: the embedded depth image is {}x{} but the photo is {}x{} (a different aspect ratio)",
+                            e.info.data_field(),
+                            e.depth.width,
+                            e.depth.height,
+                            rgb.width,
+                            rgb.height
                         ),
                     ));
                 }
                 disparity.map = disparity.map.resized(rgb.width, rgb.height);
-                let source = DepthSource::Embedded { path: image_path.display().to_string(), container: "gdepth", gdepth: e.info };
+                let source = DepthSource::Embedded { path: image_path.display().to_string(), info: Box::new(e.info) };
                 (disparity, source)
             }
             DepthRead::Embedded(Err(e)) => return Err(e),
@@ -169,9 +173,12 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
                 let why = match read {
                     DepthRead::Off => format!("input.embedded_depth = false ignores any depth map {} embeds", image_path.display()),
                     _ if io::detect_format(image_path)? == io::FileFormat::Jpeg => {
-                        format!("{} embeds no depth map (no GDepth XMP)", image_path.display())
+                        format!("{} embeds no depth map (no Dynamic Depth or GDepth XMP)", image_path.display())
                     }
-                    _ => format!("{} embeds no depth map (embedded depth is read from JPEG photos: GDepth XMP)", image_path.display()),
+                    _ => format!(
+                        "{} embeds no depth map (embedded depth is read from JPEG photos: Dynamic Depth, GDepth XMP)",
+                        image_path.display()
+                    ),
                 };
                 // The configured depth model predicts relative disparity.
                 let t = Instant::now();

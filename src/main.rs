@@ -41,7 +41,8 @@ enum Command {
     /// Depth from defocus: the disparity map that turns an all-in-focus photo into a photo of
     /// the same view focused at --focus (Adam through the differentiable renderer).
     Dfd(cli_dfd::DfdArgs),
-    /// What a photo holds: size, colour, the depth map it embeds (GDepth) and its parameters;
+    /// What a photo holds: size, colour, the depth map it embeds (Dynamic Depth,
+    /// GDepth) and its parameters;
     /// --extract-depth writes that map for other tools.
     Inspect(cli_inspect::InspectArgs),
 }
@@ -146,10 +147,10 @@ struct RenderArgs {
     #[arg(required_unless_present = "layer", conflicts_with = "layer")]
     image: Option<PathBuf>,
     /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W). Without it, the depth map
-    /// the photo embeds (GDepth in a JPEG), else the depth model ([depth.onnx] or --model-dir).
+    /// the photo embeds (Dynamic Depth or GDepth in a JPEG), else the depth model ([depth.onnx] or --model-dir).
     #[arg(long, conflicts_with = "layer")]
     depth: Option<PathBuf>,
-    /// Ignore the depth map the photo embeds (GDepth); without --depth, the depth model is used.
+    /// Ignore the depth map the photo embeds (Dynamic Depth, GDepth); without --depth, the depth model is used.
     #[arg(long, conflicts_with = "layer")]
     no_embedded_depth: bool,
     /// Foreground matte: grey image or the alpha of an RGBA image, in [0, 1].

@@ -134,11 +134,10 @@ pub enum DepthSource {
     Embedded {
         /// The photo.
         path: String,
-        /// The embedding: "gdepth" (Google's GDepth XMP in a JPEG).
-        container: &'static str,
-        /// Its parameters (format, near, far, mime, size...).
+        /// Its parameters (the embedding as `container`: "gdepth" or "dynamic-depth"; format,
+        /// near, far, mime, size...).
         #[serde(flatten)]
-        gdepth: crate::io::embedded_depth::GDepthInfo,
+        info: Box<crate::io::embedded_depth::DepthInfo>,
     },
     /// A depth model (`[depth.onnx]` or `onnx.model_dir`).
     Model {
@@ -154,7 +153,7 @@ impl DepthSource {
     pub fn describe(&self) -> String {
         match self {
             DepthSource::File { path, width, height, bit_depth } => format!("file {path} ({width}x{height}, {bit_depth}-bit)"),
-            DepthSource::Embedded { path, gdepth, .. } => format!("embedded in {path}: {}", gdepth.describe()),
+            DepthSource::Embedded { path, info } => format!("embedded in {path}: {}", info.describe()),
             DepthSource::Model { model, preset } => format!("model {model} (preset {preset})"),
         }
     }

@@ -1,11 +1,14 @@
-//! Depth maps that a photo carries inside itself: Google's GDepth XMP in a JPEG (the depth
-//! metadata of portrait-mode and "Lens Blur" photos; <https://developers.google.com/depthmap-metadata>).
+//! Depth maps that a photo carries inside itself, in a JPEG: Google's GDepth XMP (the depth
+//! metadata of portrait-mode and "Lens Blur" photos; <https://developers.google.com/depthmap-metadata>)
+//! and Google's Dynamic Depth 1.0 (depth images appended to the JPEG as container items,
+//! [`super::dynamic_depth`]).
 //!
-//! Contract of [`read_gdepth`]:
+//! Contract of [`read_embedded`]:
 //! - Input: a JPEG file. Its XMP is read from the APP1 segments, the standard packet and the
 //!   extended one put together by offset and checked against `xmpNote:HasExtendedXMP`
-//!   ([`super::xmp`]). Any other format, or a JPEG without GDepth properties, is `Ok(None)`:
-//!   nothing is embedded.
+//!   ([`super::xmp`]). Any other format, or a JPEG with neither a Dynamic Depth depth map nor
+//!   GDepth properties, is `Ok(None)`: nothing is embedded. Where a file has both, the Dynamic
+//!   Depth map is read (a warning says the GDepth one is not).
 //! - GDepth properties (namespace `http://ns.google.com/photos/1.0/depthmap/`, any prefix,
 //!   attributes or elements, in either packet): `Format` (`RangeInverse` | `RangeLinear`),
 //!   `Near`, `Far` (depths in `Units`, 0 ≤ Near < Far, both finite; Near > 0 for RangeInverse),
@@ -21,14 +24,14 @@
 //! - Output ([`EmbeddedDepth`]): the metric depth at the depth image's own size, one channel
 //!   of f32 (computed in f64), exactly what a float depth file (`--depth`, `--depth-kind
 //!   depth`) of those values holds: the caller normalizes and resizes it the same way
-//!   ([`crate::job`]). And [`GDepthInfo`], the parameters, for reports.
+//!   ([`crate::job`]). And [`DepthInfo`], the parameters, for reports.
 //! - Every problem is an [`Error::Input`] naming the photo and the XMP field at fault
-//!   (`GDepth:Near`, `GDepth:Data`, `xmpNote:HasExtendedXMP`...): a photo that claims a depth
-//!   map never reads as one without depth.
+//!   (`GDepth:Near`, `DepthMap:DepthURI`, `xmpNote:HasExtendedXMP`...): a photo that claims a
+//!   depth map never reads as one without depth.
 //!
-//! Not read yet: Dynamic Depth 1.0 (depth images as container items after the primary JPEG)
-//! and HEIC/HEIF auxiliary depth and matte images.
+//! Not read yet: HEIC/HEIF auxiliary depth and matte images.
 
+use super::dynamic_depth::{self, ItemInfo};
 use super::format::{FileFormat, detect_format, guarded, read_input};
 use super::image_file::decode_image_bytes;
 use super::limits::ReadLimits;
@@ -71,6 +74,20 @@ impl RangeFormat {
         }
     }
 
+    /// The format named `v` (`field` in errors); `any_case`: as Dynamic Depth's reference
+    /// reader, which compares without case.
+    pub fn parse(path: &Path, v: &str, field: &str, any_case: bool) -> Result<RangeFormat> {
+        let v = v.trim();
+        let is = |name: &str| if any_case { v.eq_ignore_ascii_case(name) } else { v == name };
+        if is("RangeInverse") {
+            Ok(RangeFormat::RangeInverse)
+        } else if is("RangeLinear") {
+            Ok(RangeFormat::RangeLinear)
+        } else {
+            Err(Error::input(path, format!("{field} is '{}'; expected RangeInverse or RangeLinear", shorten(v))))
+        }
+    }
+
     /// Depth of the normalized sample `n` in [0, 1].
     pub fn depth(self, n: f64, near: f64, far: f64) -> f64 {
         match self {
@@ -88,22 +105,53 @@ impl RangeFormat {
     }
 }
 
-/// The parameters of an embedded GDepth map, as `inspect` and the render's report show them.
+/// Where in a photo its depth map was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Container {
+    /// Google's GDepth XMP: the depth image base64 in the XMP.
+    #[serde(rename = "gdepth")]
+    GDepth,
+    /// Google's Dynamic Depth 1.0: the depth image a container item after the primary JPEG.
+    #[serde(rename = "dynamic-depth")]
+    DynamicDepth,
+}
+
+impl Container {
+    /// The name people know.
+    pub fn name(self) -> &'static str {
+        match self {
+            Container::GDepth => "GDepth",
+            Container::DynamicDepth => "Dynamic Depth",
+        }
+    }
+
+    /// The XMP prefix of its depth-map fields, as errors and `inspect` name them.
+    pub fn prefix(self) -> &'static str {
+        match self {
+            Container::GDepth => "GDepth",
+            Container::DynamicDepth => "DepthMap",
+        }
+    }
+}
+
+/// The parameters of an embedded depth map, as `inspect` and the render's report show them.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct GDepthInfo {
-    /// `GDepth:Format`.
+pub struct DepthInfo {
+    /// The embedding.
+    pub container: Container,
+    /// `Format`.
     pub format: RangeFormat,
-    /// `GDepth:Near`, in `units`.
+    /// `Near`, in `units`.
     pub near: f64,
-    /// `GDepth:Far`, in `units`.
+    /// `Far`, in `units`.
     pub far: f64,
-    /// `GDepth:Units` ("m", "mm"...), when given.
+    /// `Units` ("m", "Meters", "Diopters"...), when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub units: Option<String>,
-    /// `GDepth:MeasureType` (`OpticalAxis`, the default, or `OpticalRay`), when given.
+    /// `MeasureType` (`OpticalAxis`, the default, or `OpticalRay`), when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measure_type: Option<String>,
-    /// `GDepth:Mime` of the depth image.
+    /// The depth image's MIME type (`GDepth:Mime`; a Dynamic Depth item's `Item:Mime`).
     pub mime: String,
     /// The depth image's size.
     pub width: usize,
@@ -111,21 +159,25 @@ pub struct GDepthInfo {
     pub height: usize,
     /// Bits per sample of the depth image (8 or 16).
     pub bit_depth: u8,
-    /// Bytes of the depth image (after base64).
+    /// Bytes of the depth image (after base64 for GDepth).
     pub data_bytes: usize,
     /// `GDepth:ConfidenceMime`, when a confidence map is embedded (reported, not used).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub confidence_mime: Option<String>,
+    /// Dynamic Depth: the container item that holds the depth image, and its camera.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub item: Option<ItemInfo>,
     /// Where the XMP came from (standard packet, extended segments).
     pub xmp: XmpLayout,
 }
 
-impl GDepthInfo {
+impl DepthInfo {
     /// One line for people: "GDepth RangeInverse, near 0.5, far 4 m, image/png 240x160 8-bit".
     pub fn describe(&self) -> String {
         let units = self.units.as_deref().map(|u| format!(" {u}")).unwrap_or_default();
         format!(
-            "GDepth {}, near {}, far {}{units}, {} {}x{} {}-bit",
+            "{} {}, near {}, far {}{units}, {} {}x{} {}-bit",
+            self.container.name(),
             self.format.name(),
             self.near,
             self.far,
@@ -135,6 +187,15 @@ impl GDepthInfo {
             self.bit_depth
         )
     }
+
+    /// The field that holds the depth image, for messages: `GDepth:Data`, or the Dynamic
+    /// Depth item with its URI.
+    pub fn data_field(&self) -> String {
+        match &self.item {
+            Some(i) => format!("Container:Item {} ('{}')", i.index, i.uri),
+            None => "GDepth:Data".to_owned(),
+        }
+    }
 }
 
 /// A depth map read from a photo (see the module doc).
@@ -143,7 +204,7 @@ pub struct EmbeddedDepth {
     /// Metric depth (in `info.units`), one channel, the embedded image's size.
     pub depth: Image,
     /// Its parameters.
-    pub info: GDepthInfo,
+    pub info: DepthInfo,
     /// `GImage:Mime` when the file also keeps an original image (a Lens Blur JPEG whose
     /// primary image may already be blurred).
     pub original_image: Option<String>,
@@ -151,19 +212,33 @@ pub struct EmbeddedDepth {
     pub warnings: Vec<String>,
 }
 
-/// Reads the GDepth map of the photo `path` (see the module doc): `Ok(None)` when the file is
-/// not a JPEG or holds no GDepth properties.
-pub fn read_gdepth(path: &Path, limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
+/// Reads the depth map the photo `path` embeds (see the module doc): `Ok(None)` when the file
+/// is not a JPEG or embeds none.
+pub fn read_embedded(path: &Path, limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
     if detect_format(path)? != FileFormat::Jpeg {
         return Ok(None);
     }
-    read_gdepth_bytes(path, &read_input(path)?, limits)
+    read_embedded_bytes(path, &read_input(path)?, limits)
 }
 
-/// [`read_gdepth`] of the JPEG bytes `b` of the file `path`.
-pub fn read_gdepth_bytes(path: &Path, b: &[u8], limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
+/// [`read_embedded`] of the JPEG bytes `b` of the file `path`.
+pub fn read_embedded_bytes(path: &Path, b: &[u8], limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
     let xmp = read_jpeg_xmp(path, b)?;
     let packets = Packets::parse(path, &xmp)?;
+    let gdepth = read_gdepth(path, b, &xmp, &packets, limits);
+    match dynamic_depth::read(path, b, &xmp, &packets, limits)? {
+        Some(mut dd) => {
+            if matches!(gdepth, Ok(Some(_)) | Err(_)) {
+                dd.warnings.push(format!("{} also has GDepth depth metadata; the Dynamic Depth map is the one used", path.display()));
+            }
+            Ok(Some(dd))
+        }
+        None => gdepth,
+    }
+}
+
+/// The GDepth map of the JPEG bytes `b`, if its XMP has GDepth properties.
+fn read_gdepth(path: &Path, b: &[u8], xmp: &JpegXmp, packets: &Packets, limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
     let field = |name: &str| packets.value(path, NS_GDEPTH, name, &format!("GDepth:{name}"));
     let names = ["Format", "Near", "Far", "Mime", "Data", "Units", "MeasureType", "ConfidenceMime", "Confidence"];
     let mut values = Vec::with_capacity(names.len());
@@ -180,60 +255,11 @@ pub fn read_gdepth_bytes(path: &Path, b: &[u8], limits: &ReadLimits) -> Result<O
             Error::input(path, format!("the photo has GDepth metadata but no GDepth:{name} (required by the GDepth format)"))
         })
     };
-    let format = match required(format, "Format")?.as_str() {
-        "RangeInverse" => RangeFormat::RangeInverse,
-        "RangeLinear" => RangeFormat::RangeLinear,
-        other => {
-            return Err(Error::input(path, format!("GDepth:Format is '{}'; expected RangeInverse or RangeLinear", shorten(other))));
-        }
-    };
-    let number = |v: String, name: &str| -> Result<f64> {
-        let x: f64 = v.parse().map_err(|_| Error::input(path, format!("GDepth:{name} is '{}', not a number", shorten(&v))))?;
-        if !x.is_finite() || x < 0.0 {
-            return Err(Error::input(path, format!("GDepth:{name} is {v}; it must be a finite depth ≥ 0")));
-        }
-        Ok(x)
-    };
-    let near = number(required(near, "Near")?, "Near")?;
-    let far = number(required(far, "Far")?, "Far")?;
-    if near >= far {
-        return Err(Error::input(path, format!("GDepth:Near ({near}) must be less than GDepth:Far ({far})")));
-    }
-    if format == RangeFormat::RangeInverse && near <= 0.0 {
-        return Err(Error::input(path, "GDepth:Near is 0; RangeInverse needs Near > 0 (its depths are far·near / (far − n·(far − near)))"));
-    }
+    let range = Range::checked(path, Container::GDepth, &required(format, "Format")?, &required(near, "Near")?, &required(far, "Far")?)?;
     let mime = required(mime, "Mime")?;
-    let declared = match mime.to_ascii_lowercase().as_str() {
-        "image/png" => FileFormat::Png,
-        "image/jpeg" | "image/jpg" => FileFormat::Jpeg,
-        _ => return Err(Error::input(path, format!("GDepth:Mime is '{}'; expected image/png or image/jpeg", shorten(&mime)))),
-    };
     let bytes = decode_base64(path, &required(data, "Data")?)?;
-    let found = FileFormat::from_magic(&bytes);
-    if found != Some(declared) {
-        let what = found.map_or("neither a PNG nor a JPEG".to_owned(), |f| format!("a {}", f.name()));
-        return Err(Error::input(path, format!("GDepth:Data holds {what}, but GDepth:Mime says {mime}")));
-    }
-    let decoded = decode_image_bytes(path, declared, &bytes, limits)
-        .map_err(|e| in_field(e, &format!("GDepth:Data (the embedded {mime} depth image)")))?;
-    let img = super::depth::single_grey_channel(path, decoded.image, "GDepth:Data (the embedded depth image)")?;
-    let photo = photo_size(path, b)?;
-    if !same_aspect((img.width, img.height), photo) {
-        return Err(Error::input(
-            path,
-            format!(
-                "GDepth:Data: the embedded depth image is {}x{} but the photo is {}x{} (a different aspect ratio)",
-                img.width, img.height, photo.0, photo.1
-            ),
-        ));
-    }
+    let image = DepthImage::decode(path, b, &bytes, &mime, "GDepth:Data", "GDepth:Mime", limits)?;
     let mut warnings = Vec::new();
-    if measure_type.as_deref().map(str::trim) == Some("OpticalRay") {
-        warnings.push(format!(
-            "{}: GDepth:MeasureType is OpticalRay (distances along each pixel's ray); it is used as depth along the optical axis",
-            path.display()
-        ));
-    }
     let original_image = packets.value(path, NS_GIMAGE, "Mime", "GImage:Mime")?;
     if original_image.is_some() {
         warnings.push(format!(
@@ -241,22 +267,132 @@ pub fn read_gdepth_bytes(path: &Path, b: &[u8], limits: &ReadLimits) -> Result<O
             path.display()
         ));
     }
-    let depth = to_depth(&img, format, near, far);
-    let info = GDepthInfo {
-        format,
-        near,
-        far,
+    let info = DepthInfo {
+        container: Container::GDepth,
+        format: range.format,
+        near: range.near,
+        far: range.far,
         units: units.map(|u| u.trim().to_owned()),
         measure_type: measure_type.map(|m| m.trim().to_owned()),
         mime,
-        width: img.width,
-        height: img.height,
-        bit_depth: decoded.bit_depth,
+        width: image.n.width,
+        height: image.n.height,
+        bit_depth: image.bit_depth,
         data_bytes: bytes.len(),
         confidence_mime: confidence_mime.map(|m| m.trim().to_owned()),
+        item: None,
         xmp: xmp.layout.clone(),
     };
-    Ok(Some(EmbeddedDepth { depth, info, original_image, warnings }))
+    Ok(Some(EmbeddedDepth::new(path, &image, info, original_image, warnings)))
+}
+
+/// `Format`, `Near` and `Far` of an embedded depth map, checked.
+pub(super) struct Range {
+    pub format: RangeFormat,
+    pub near: f64,
+    pub far: f64,
+}
+
+impl Range {
+    /// The fields as the XMP gives them (trimmed), checked: a known format, finite depths
+    /// 0 ≤ Near < Far, Near > 0 for RangeInverse. Errors name `container`'s fields.
+    pub fn checked(path: &Path, container: Container, format: &str, near: &str, far: &str) -> Result<Range> {
+        let prefix = container.prefix();
+        let format = RangeFormat::parse(path, format, &format!("{prefix}:Format"), container == Container::DynamicDepth)?;
+        let number = |v: &str, name: &str| -> Result<f64> {
+            let x: f64 = v.parse().map_err(|_| Error::input(path, format!("{prefix}:{name} is '{}', not a number", shorten(v))))?;
+            if !x.is_finite() || x < 0.0 {
+                return Err(Error::input(path, format!("{prefix}:{name} is {v}; it must be a finite depth ≥ 0")));
+            }
+            Ok(x)
+        };
+        let (near, far) = (number(near, "Near")?, number(far, "Far")?);
+        if near >= far {
+            return Err(Error::input(path, format!("{prefix}:Near ({near}) must be less than {prefix}:Far ({far})")));
+        }
+        if format == RangeFormat::RangeInverse && near <= 0.0 {
+            return Err(Error::input(
+                path,
+                format!("{prefix}:Near is 0; RangeInverse needs Near > 0 (its depths are far·near / (far − n·(far − near)))"),
+            ));
+        }
+        Ok(Range { format, near, far })
+    }
+}
+
+/// An embedded depth image, decoded: samples normalized to [0, 1].
+pub(super) struct DepthImage {
+    /// One grey channel, `q / (2^b − 1)`.
+    pub n: Image,
+    /// Bits per sample in the file.
+    pub bit_depth: u8,
+}
+
+impl DepthImage {
+    /// Decodes `bytes`, declared as the MIME type `mime` (`mime_field` names the declaration,
+    /// `field` the data, in errors), under `limits`, and checks it against the photo's aspect
+    /// ratio (the photo's size read from the JPEG bytes `photo`).
+    pub fn decode(
+        path: &Path,
+        photo: &[u8],
+        bytes: &[u8],
+        mime: &str,
+        field: &str,
+        mime_field: &str,
+        limits: &ReadLimits,
+    ) -> Result<DepthImage> {
+        let declared = match mime.to_ascii_lowercase().as_str() {
+            "image/png" => FileFormat::Png,
+            "image/jpeg" | "image/jpg" => FileFormat::Jpeg,
+            _ => return Err(Error::input(path, format!("{mime_field} is '{}'; expected image/png or image/jpeg", shorten(mime)))),
+        };
+        let found = FileFormat::from_magic(bytes);
+        if found != Some(declared) {
+            let what = found.map_or("neither a PNG nor a JPEG".to_owned(), |f| format!("a {}", f.name()));
+            return Err(Error::input(path, format!("{field} holds {what}, but {mime_field} says {mime}")));
+        }
+        let decoded = decode_image_bytes(path, declared, bytes, limits)
+            .map_err(|e| in_field(e, &format!("{field} (the embedded {mime} depth image)")))?;
+        let n = super::depth::single_grey_channel(path, decoded.image, &format!("{field} (the embedded depth image)"))?;
+        let photo = photo_size(path, photo)?;
+        if !same_aspect((n.width, n.height), photo) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "{field}: the embedded depth image is {}x{} but the photo is {}x{} (a different aspect ratio)",
+                    n.width, n.height, photo.0, photo.1
+                ),
+            ));
+        }
+        Ok(DepthImage { n, bit_depth: decoded.bit_depth })
+    }
+}
+
+impl EmbeddedDepth {
+    /// The depth map of `image` under `info`'s format and range (Dynamic Depth in diopters:
+    /// turned into metres), with the warnings every embedding shares added.
+    pub(super) fn new(
+        path: &Path,
+        image: &DepthImage,
+        info: DepthInfo,
+        original_image: Option<String>,
+        mut warnings: Vec<String>,
+    ) -> EmbeddedDepth {
+        if info.measure_type.as_deref().is_some_and(|m| m.eq_ignore_ascii_case("OpticalRay") || m.eq_ignore_ascii_case("OpticRay")) {
+            warnings.push(format!(
+                "{}: {}:MeasureType is {} (distances along each pixel's ray); it is used as depth along the optical axis",
+                path.display(),
+                info.container.prefix(),
+                info.measure_type.as_deref().unwrap_or_default()
+            ));
+        }
+        let mut depth = to_depth(&image.n, info.format, info.near, info.far);
+        if info.units.as_deref().is_some_and(|u| u.eq_ignore_ascii_case("Diopters")) {
+            // Diopters are inverse metres; 0 D is infinitely far (the largest finite depth).
+            depth.map_inplace(|d| if d > 0.0 { 1.0 / d } else { f32::MAX });
+        }
+        EmbeddedDepth { depth, info, original_image, warnings }
+    }
 }
 
 /// Metric depth of the normalized samples `n` (see [`RangeFormat::depth`]), in f64, stored as f32.
@@ -267,8 +403,8 @@ fn to_depth(n: &Image, format: RangeFormat, near: f64, far: f64) -> Image {
 }
 
 /// The parsed standard and extended packets of a file.
-struct Packets<'a> {
-    docs: Vec<Packet<'a>>,
+pub(super) struct Packets<'a> {
+    pub docs: Vec<Packet<'a>>,
 }
 
 impl<'a> Packets<'a> {
@@ -284,7 +420,7 @@ impl<'a> Packets<'a> {
     }
 
     /// The one value of `ns`:`name` over both packets (see [`single`]).
-    fn value(&self, path: &Path, ns: &str, name: &str, field: &str) -> Result<Option<String>> {
+    pub fn value(&self, path: &Path, ns: &str, name: &str, field: &str) -> Result<Option<String>> {
         single(path, self.docs.iter().flat_map(|d| d.values(ns, name)).collect(), field)
     }
 }
@@ -321,7 +457,7 @@ fn in_field(e: Error, field: &str) -> Error {
 }
 
 /// `s`, cut to 40 characters for a message.
-fn shorten(s: &str) -> String {
+pub(super) fn shorten(s: &str) -> String {
     if s.chars().count() > 40 { format!("{}…", s.chars().take(40).collect::<String>()) } else { s.to_owned() }
 }
 

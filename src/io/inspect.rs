@@ -5,16 +5,16 @@
 //! claims a depth map never inspects as one without); the photo's pixels are not, where the
 //! format's header says enough (PNG, JPEG, TIFF).
 
-use super::embedded_depth::{EmbeddedDepth, GDepthInfo, read_gdepth};
+use super::embedded_depth::{DepthInfo, EmbeddedDepth, read_embedded};
 use super::format::{FileFormat, detect_format, guarded};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use std::path::Path;
 
 /// The embedded formats that are read today, and those that are not yet.
-pub const EMBEDDED_READ: &[&str] = &["GDepth (XMP in JPEG)"];
+pub const EMBEDDED_READ: &[&str] = &["Dynamic Depth 1.0 (JPEG container items)", "GDepth (XMP in JPEG)"];
 /// Embedded depth and matte formats not read yet (named in reports).
-pub const EMBEDDED_NOT_READ: &[&str] = &["Dynamic Depth 1.0 (JPEG container items)", "HEIC/HEIF auxiliary depth and matte images"];
+pub const EMBEDDED_NOT_READ: &[&str] = &["HEIC/HEIF auxiliary depth and matte images"];
 
 /// What `inspect` reports of a photo (`--json` prints it as it is).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -33,7 +33,8 @@ pub struct Inspection {
     pub colour: &'static str,
     /// Bits per sample.
     pub bit_depth: u8,
-    /// The embedded depth map's parameters (`kind` "gdepth"), or null.
+    /// The embedded depth map's parameters (`kind` and `container`: "gdepth" or
+    /// "dynamic-depth"), or null.
     pub depth: Option<EmbeddedDepthReport>,
     /// An embedded matte (none of the formats read today carries one): always null for now.
     pub matte: Option<()>,
@@ -50,11 +51,11 @@ pub struct Inspection {
 /// An embedded depth map in [`Inspection`].
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct EmbeddedDepthReport {
-    /// "gdepth".
-    pub kind: &'static str,
+    /// "gdepth" or "dynamic-depth" (as `container`).
+    pub kind: super::embedded_depth::Container,
     /// Its parameters.
     #[serde(flatten)]
-    pub gdepth: GDepthInfo,
+    pub info: DepthInfo,
     /// Smallest depth in the map, in its units.
     pub depth_min: f32,
     /// Largest depth in the map, in its units.
@@ -66,10 +67,10 @@ pub struct EmbeddedDepthReport {
 pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Option<EmbeddedDepth>)> {
     let format = detect_format(path)?;
     let header = photo_header(path, format, limits)?;
-    let embedded = read_gdepth(path, limits)?;
+    let embedded = read_embedded(path, limits)?;
     let depth = embedded.as_ref().map(|e| {
         let (lo, hi) = e.depth.data.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-        EmbeddedDepthReport { kind: "gdepth", gdepth: e.info.clone(), depth_min: lo, depth_max: hi }
+        EmbeddedDepthReport { kind: e.info.container, info: e.info.clone(), depth_min: lo, depth_max: hi }
     });
     let colour = match header.channels {
         1 => "grey",

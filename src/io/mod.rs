@@ -5,7 +5,8 @@
 //! photo decoded row by row in `png_rows`; PNG encoded in parallel in `png_encode`),
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
 //! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads),
-//! [`xmp`] (a JPEG's XMP packets) and [`embedded_depth`] (the GDepth map inside a photo).
+//! [`xmp`] (a JPEG's XMP packets), [`embedded_depth`] and [`dynamic_depth`] (the depth map
+//! inside a photo: GDepth, Dynamic Depth).
 //!
 //! Every error names the file and says what is wrong. Only regular files are opened (a FIFO
 //! or a device would block: [`check_regular_file`]), and a truncated file is an error in every
@@ -17,6 +18,7 @@
 
 pub mod atomic;
 pub mod depth;
+pub mod dynamic_depth;
 pub mod embedded_depth;
 pub mod exr_file;
 pub mod format;

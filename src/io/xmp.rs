@@ -61,41 +61,86 @@ pub struct JpegXmp {
     pub layout: XmpLayout,
 }
 
+/// One marker of a JPEG stream: its code, its payload (empty for the markers that carry no
+/// length: SOI, EOI, RSTn, TEM) and where the next marker may start.
+struct Marker {
+    code: u8,
+    payload: std::ops::Range<usize>,
+    next: usize,
+}
+
+/// The marker at `i` (fill bytes `0xFF` before the code are skipped), or None where the
+/// stream is not at a marker, ends early or has a malformed segment length.
+fn marker_at(b: &[u8], mut i: usize) -> Option<Marker> {
+    if b.get(i) != Some(&0xFF) {
+        return None;
+    }
+    while b.get(i) == Some(&0xFF) {
+        i += 1;
+    }
+    let code = *b.get(i)?;
+    i += 1;
+    if matches!(code, 0x01 | 0xD0..=0xD9) {
+        return Some(Marker { code, payload: i..i, next: i });
+    }
+    let len = b.get(i..i + 2).map(|l| u16::from_be_bytes([l[0], l[1]]) as usize)?;
+    if len < 2 || i + len > b.len() {
+        return None;
+    }
+    Some(Marker { code, payload: i + 2..i + len, next: i + len })
+}
+
+const SOS: u8 = 0xDA;
+const EOI: u8 = 0xD9;
+
 /// The payloads of the APP1 segments of the JPEG stream `b`, in file order, up to the first
 /// start-of-scan (metadata comes before the image data). A stream that ends early or has a
 /// malformed segment length ends the walk: the photo's decoder reports the damage.
 pub fn app1_segments(b: &[u8]) -> Vec<&[u8]> {
     const APP1: u8 = 0xE1;
-    const SOS: u8 = 0xDA;
-    const EOI: u8 = 0xD9;
     let mut out = Vec::new();
     if !b.starts_with(&[0xFF, 0xD8]) {
         return out;
     }
     let mut i = 2;
-    loop {
-        // Fill bytes (0xFF repeated) before the marker code.
-        if b.get(i) != Some(&0xFF) {
-            return out;
-        }
-        while b.get(i) == Some(&0xFF) {
-            i += 1;
-        }
-        let Some(&marker) = b.get(i) else { return out };
-        i += 1;
-        match marker {
-            SOS | EOI => return out,
-            0x01 | 0xD0..=0xD8 => continue,
+    while let Some(m) = marker_at(b, i) {
+        match m.code {
+            SOS | EOI => break,
+            APP1 => out.push(&b[m.payload.clone()]),
             _ => {}
         }
-        let Some(len) = b.get(i..i + 2).map(|l| u16::from_be_bytes([l[0], l[1]]) as usize) else { return out };
-        if len < 2 || i + len > b.len() {
-            return out;
+        i = m.next;
+    }
+    out
+}
+
+/// The length of the first JPEG image of `b`: the offset just after its end-of-image marker,
+/// found by walking its segments and skipping each scan's entropy-coded data (where `0xFF` is
+/// followed by a stuffed `0x00`, a restart marker or fill bytes). An EXIF thumbnail inside an
+/// APP1 segment is skipped with its segment. None when `b` is not a JPEG or ends before its
+/// end-of-image marker. What follows it is a file's trailer (Dynamic Depth container items).
+pub fn jpeg_end(b: &[u8]) -> Option<usize> {
+    if !b.starts_with(&[0xFF, 0xD8]) {
+        return None;
+    }
+    let mut i = 2;
+    loop {
+        let m = marker_at(b, i)?;
+        if m.code == EOI {
+            return Some(m.next);
         }
-        if marker == APP1 {
-            out.push(&b[i + 2..i + len]);
+        i = m.next;
+        if m.code == SOS {
+            // Entropy-coded data up to the next marker that is not stuffing or a restart.
+            loop {
+                i += b.get(i..)?.iter().position(|&c| c == 0xFF)?;
+                match *b.get(i + 1)? {
+                    0x00 | 0xD0..=0xD7 => i += 2,
+                    0xFF => i += 1,
+                    _ => break,
+                }
+            }
         }
-        i += len;
     }
 }
 
@@ -250,22 +295,15 @@ impl<'a> Packet<'a> {
             .map_err(|e| Error::input(path, format!("{what} is not well-formed XML: {e}")))
     }
 
-    /// Every value of the property `ns`:`name`: attributes of that name on any element, and
-    /// the text of elements of that name (an element with child elements is a structure, not a
-    /// text value: its text is empty).
+    /// Every value of the property `ns`:`name` anywhere in the packet (see [`field_values`]).
     pub fn values(&self, ns: &str, name: &str) -> Vec<String> {
-        let mut out = Vec::new();
-        for node in self.doc.descendants().filter(|n| n.is_element()) {
-            if let Some(v) = node.attribute((ns, name)) {
-                out.push(v.to_owned());
-            }
-            let tag = node.tag_name();
-            if tag.namespace() == Some(ns) && tag.name() == name {
-                let text: String = node.children().filter(|c| c.is_text()).filter_map(|c| c.text()).collect();
-                out.push(text);
-            }
-        }
-        out
+        field_values(self.doc.root(), ns, name)
+    }
+
+    /// The elements `ns`:`name` (structures, as Dynamic Depth's `Container:Item`), in document
+    /// order; their fields are read with [`field_values`].
+    pub fn elements<'p>(&'p self, ns: &str, name: &str) -> Vec<roxmltree::Node<'p, 'a>> {
+        self.doc.descendants().filter(|n| n.is_element() && n.tag_name().namespace() == Some(ns) && n.tag_name().name() == name).collect()
     }
 
     /// The one value of `ns`:`name`, if any; the same value given several times is one value,
@@ -273,6 +311,24 @@ impl<'a> Packet<'a> {
     pub fn single_value(&self, path: &Path, ns: &str, name: &str, field: &str) -> Result<Option<String>> {
         single(path, self.values(ns, name), field)
     }
+}
+
+/// Every value of the property `ns`:`name` within `node` (the node and its descendants):
+/// attributes of that name on any element, and the text of elements of that name (an element
+/// with child elements is a structure, not a text value: its text is empty).
+pub fn field_values(node: roxmltree::Node, ns: &str, name: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for node in node.descendants().filter(|n| n.is_element()) {
+        if let Some(v) = node.attribute((ns, name)) {
+            out.push(v.to_owned());
+        }
+        let tag = node.tag_name();
+        if tag.namespace() == Some(ns) && tag.name() == name {
+            let text: String = node.children().filter(|c| c.is_text()).filter_map(|c| c.text()).collect();
+            out.push(text);
+        }
+    }
+    out
 }
 
 /// The one value of `values` (several equal ones count once), or an error naming `field`.
@@ -393,6 +449,38 @@ mod tests {
             let _ = read_jpeg_xmp(Path::new("p"), &b[..cut]);
         }
         assert!(read_jpeg_xmp(Path::new("p"), b"not a jpeg").unwrap().standard.is_none());
+    }
+
+    #[test]
+    fn the_end_of_a_jpeg_skips_segments_and_scan_data() {
+        // An APP1 holding an EXIF-like thumbnail with its own end marker, a scan whose data
+        // has stuffed bytes, restart markers and fill bytes, a second scan (progressive), then
+        // a trailer that itself looks like a JPEG.
+        let thumb = [0xFF, 0xD8, 0xFF, 0xD9];
+        let mut b = jpeg(&[thumb.to_vec()]);
+        b.truncate(b.len() - 6);
+        let sos = [0xFF, 0xDA, 0x00, 0x03, 0x01];
+        b.extend(sos);
+        b.extend([0x12, 0xFF, 0x00, 0x34, 0xFF, 0xD0, 0x56, 0xFF, 0xFF, 0xD1, 0x78]);
+        b.extend([0xFF, 0xC4, 0x00, 0x03, 0x00]);
+        b.extend(sos);
+        b.extend([0x9A, 0xFF, 0x00]);
+        b.extend([0xFF, 0xD9]);
+        let end = b.len();
+        b.extend([0xFF, 0xD8, 0xFF, 0xD9, 1, 2, 3]);
+        assert_eq!(jpeg_end(&b), Some(end));
+        // Every cut before the end has no end; the walk never panics.
+        for cut in 0..end {
+            assert_eq!(jpeg_end(&b[..cut]), None, "cut at {cut}");
+        }
+        assert_eq!(jpeg_end(b"not a jpeg"), None);
+        // A real encoder's stream ends where its bytes do.
+        let mut real = Vec::new();
+        let img = image::RgbImage::from_fn(37, 23, |x, y| image::Rgb([(x * 7) as u8, (y * 11) as u8, (x * y) as u8]));
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut real, 90).encode_image(&img).unwrap();
+        let n = real.len();
+        real.extend(b"trailer");
+        assert_eq!(jpeg_end(&real), Some(n));
     }
 
     #[test]
