@@ -5,6 +5,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup-test-env.sh
 # Form first (seconds): formatting and lints are part of passing.
-cargo fmt --check
-cargo clippy --release --all-targets --locked -- -D warnings
+cargo fmt --all --check
+cargo clippy --workspace --release --all-targets --locked -- -D warnings
 cargo test --release --locked "$@"
+# The Python package (python/): built into .venv from this checkout with the command README
+# gives (maturin, release; it reuses the build above), then its tests against the binary the
+# Rust tests built. Skipped when arguments narrow the Rust tests to a subset.
+if [ $# -eq 0 ]; then
+    PATH="$PWD/.venv/bin:$PATH" .venv/bin/python -m pip install --quiet --disable-pip-version-check --no-build-isolation ./python
+    .venv/bin/python -m pytest -q python/tests
+fi

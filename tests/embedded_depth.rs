@@ -538,7 +538,7 @@ fn dynamic_depth_renders_as_the_same_map_given_as_depth() {
         );
         assert_eq!(item["offset"].as_u64(), Some((photo_len + conf.len()) as u64), "{photo}: {item}");
         assert_eq!(item["confidence_uri"], "android/confidencemap");
-        assert_eq!((s["data_bytes"].as_u64(), item["padding"].as_u64()), (Some(png.len() as u64), Some(16 * camera as u64)), "{item}");
+        assert_eq!((s["data_bytes"].as_u64(), item["padding"].as_u64()), (Some(png.len() as u64), Some(16 * camera)), "{item}");
         let warned = j["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("camera 1"));
         assert_eq!(warned, camera == 1, "{photo}: {j}");
         let got = read_png8(&d.join(out));

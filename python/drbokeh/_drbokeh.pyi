@@ -1,0 +1,102 @@
+"""Type stubs of the native module (see the package docstring for the conventions)."""
+
+from os import PathLike
+from typing import List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.float32]
+Photo = Union[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16]]
+Path = Union[str, PathLike]
+
+__version__: str
+
+def render(
+    image: Photo,
+    depth: Array,
+    *,
+    matte: Optional[Array] = None,
+    focus: Optional[float] = None,
+    focus_at: Optional[Tuple[int, int]] = None,
+    focus_depth: Optional[float] = None,
+    blur: Optional[float] = None,
+    depth_kind: str = "depth",
+    profile: Optional[str] = None,
+    kernel: Optional[str] = None,
+    layers: Optional[Union[int, str]] = None,
+    config: Optional[Path] = None,
+    threads: Optional[int] = None,
+) -> Array:
+    """The whole pipeline, as ``drbokeh render``: H x W x 3 linear RGB float32.
+
+    image: H x W x 3 (or x 4, or H x W grey) uint8/uint16 sRGB or float32 linear.
+    depth: H' x W' float32 of the image's aspect ratio (resized to it); metric depth
+    (``depth_kind="depth"``, larger = farther) or disparity (``"disparity"``).
+    matte: optional H' x W' float32 in [0, 1], the foreground.
+    Exactly one of focus (normalized disparity, 0 far .. 1 near), focus_at=(x, y) (the
+    disparity under that pixel) and focus_depth (a metric depth).
+    blur: K, the CoC radius in pixels per unit of disparity (default 30 x sqrt(megapixels)).
+    profile: "physical" (default) or "official"; kernel: "auto", "fast" or "exact";
+    layers: 1..8 or "auto"; config: a pipeline.toml whose settings the keywords override;
+    threads: worker threads (default: every core).
+    """
+
+def build_layers(
+    image: Photo,
+    depth: Array,
+    *,
+    matte: Optional[Array] = None,
+    focus: Optional[float] = None,
+    focus_at: Optional[Tuple[int, int]] = None,
+    focus_depth: Optional[float] = None,
+    blur: Optional[float] = None,
+    depth_kind: str = "depth",
+    layers: Optional[Union[int, str]] = None,
+    config: Optional[Path] = None,
+    threads: Optional[int] = None,
+) -> List[Array]:
+    """The layers the pipeline renders, front first, each H x W x 5 float32 (R, G, B, A, D)."""
+
+def render_layers(
+    layers: Sequence[Array],
+    focus: float,
+    blur: float,
+    *,
+    profile: Optional[str] = None,
+    kernel: Optional[str] = None,
+    quality: Optional[int] = None,
+    occlusion: Optional[bool] = None,
+    lens: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> Array:
+    """Renders given layers as ``drbokeh render --layer``: H x W x 3 linear RGB float32."""
+
+def render_layers_differentiable(
+    layers: Sequence[Array],
+    focus: float,
+    blur: float,
+    *,
+    profile: Optional[str] = None,
+    occlusion: bool = True,
+    lens: Optional[int] = None,
+    edge_width: float = 1.0,
+    fill_width: float = 0.0,
+    threads: Optional[int] = None,
+) -> Array:
+    """The exact kernel's render that ``render_layers_vjp`` differentiates."""
+
+def render_layers_vjp(
+    layers: Sequence[Array],
+    focus: float,
+    blur: float,
+    cotangent: Array,
+    *,
+    profile: Optional[str] = None,
+    occlusion: bool = True,
+    lens: Optional[int] = None,
+    edge_width: float = 1.0,
+    fill_width: float = 0.0,
+    threads: Optional[int] = None,
+) -> Tuple[List[Array], float, float]:
+    """(layer_grads, d_focus, d_blur) for the cotangent dL/dimage (H x W x 3)."""

@@ -1,0 +1,451 @@
+//! `drbokeh._drbokeh`: the library's pipeline, renderer and backward pass for NumPy.
+//!
+//! The bindings only translate: arrays become [`Image`]s and [`Layer`]s (one copy in, checked
+//! as the CLI checks files), keyword arguments become a [`Config`] (parsed by the same serde
+//! definitions as `pipeline.toml`, so the same names and messages), and results go back to
+//! NumPy without a copy (the `Vec` becomes the array's buffer). The GIL is released while Rust
+//! works. Errors: usage and input problems raise `ValueError`, I/O `OSError`, each with the
+//! library's message. Conventions: images are H×W×C float32 (linear RGB unless said), layers
+//! H×W×5 (straight, not premultiplied, colour R, G, B; alpha A; normalized disparity D, 0 far
+//! … 1 near), front first.
+
+use drbokeh::config::Config;
+use drbokeh::pipeline::{BuildLayers, Focus, Pipeline, Scene};
+use drbokeh::render::backward::{Smoothing, Tape};
+use drbokeh::render::{Layer, RenderSettings};
+use drbokeh::stages::depth::{DepthKind, normalize};
+use drbokeh::{Error, Image, PhotoEncoding};
+use numpy::ndarray::Array3;
+use numpy::{IntoPyArray, PyArray3, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyOSError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use std::path::PathBuf;
+
+/// The library's error as the Python exception a user expects.
+fn py_err(e: Error) -> PyErr {
+    match e {
+        Error::Io { .. } => PyOSError::new_err(e.to_string()),
+        Error::Internal(_) => pyo3::exceptions::PyRuntimeError::new_err(e.to_string()),
+        _ => PyValueError::new_err(e.to_string()),
+    }
+}
+
+/// A float32 array of `name` as an image: H×W (one channel) or H×W×C, any strides, every
+/// value copied once. `channels`: the counts allowed.
+fn image_of(name: &str, a: &Bound<'_, PyAny>, channels: &[usize]) -> PyResult<Image> {
+    let arr = a.cast::<PyArrayDyn<f32>>().map_err(|_| {
+        let dtype = a.getattr("dtype").map(|d| d.to_string()).unwrap_or_else(|_| a.get_type().to_string());
+        PyTypeError::new_err(format!("{name} must be a float32 NumPy array, not {dtype}"))
+    })?;
+    let ro = arr.readonly();
+    let shape = ro.shape().to_vec();
+    let (h, w, c) = match shape[..] {
+        [h, w] => (h, w, 1),
+        [h, w, c] => (h, w, c),
+        _ => return Err(PyValueError::new_err(format!("{name} must be H x W or H x W x C, not of shape {shape:?}"))),
+    };
+    if !channels.contains(&c) {
+        return Err(PyValueError::new_err(format!("{name} has {c} channels (shape {shape:?}); expected {channels:?}")));
+    }
+    if h == 0 || w == 0 {
+        return Err(PyValueError::new_err(format!("{name} is empty (shape {shape:?})")));
+    }
+    // A C-ordered buffer is copied as it is; any other layout (Fortran order, strides) in
+    // logical row-major order.
+    let data: Vec<f32> = match ro.as_slice() {
+        Ok(s) if ro.is_c_contiguous() => s.to_vec(),
+        _ => ro.as_array().iter().copied().collect(),
+    };
+    Image::from_vec(w, h, c, data).ok_or_else(|| PyValueError::new_err(format!("{name}: {w}x{h}x{c} is too large")))
+}
+
+/// A photo: uint8 / uint16 (sRGB, as the CLI decodes 8/16-bit files) or float32 (linear),
+/// H×W×3 (or ×4, alpha dropped; or H×W grey).
+fn photo_of(a: &Bound<'_, PyAny>, gamma: Option<f32>) -> PyResult<(Image, PhotoEncoding)> {
+    use drbokeh::color::Transfer;
+    let transfer = gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
+    let integer = |bits: u8, values: Vec<f32>, shape: &[usize]| -> PyResult<(Image, PhotoEncoding)> {
+        let scale = ((1u32 << bits) - 1) as f32;
+        let raw = to_rgb("image", values.into_iter().map(|v| transfer.decode(v / scale)).collect(), shape)?;
+        Ok((raw, PhotoEncoding::Integer { bits, transfer }))
+    };
+    if let Ok(a8) = a.cast::<PyArrayDyn<u8>>() {
+        let ro = a8.readonly();
+        return integer(8, ro.as_array().iter().map(|&v| v as f32).collect(), ro.shape());
+    }
+    if let Ok(a16) = a.cast::<PyArrayDyn<u16>>() {
+        let ro = a16.readonly();
+        return integer(16, ro.as_array().iter().map(|&v| v as f32).collect(), ro.shape());
+    }
+    let img = image_of("image", a, &[1, 3, 4])?;
+    let shape = [img.height, img.width, img.channels];
+    let rgb = to_rgb("image", img.data, &shape)?;
+    if rgb.data.iter().any(|v| !v.is_finite()) {
+        return Err(PyValueError::new_err("image holds a non-finite value (NaN or infinity)"));
+    }
+    Ok((rgb, PhotoEncoding::Linear))
+}
+
+/// `values` of `shape` (H×W, H×W×1, ×3 or ×4) as three-channel RGB.
+fn to_rgb(name: &str, values: Vec<f32>, shape: &[usize]) -> PyResult<Image> {
+    let (h, w, c) = match shape[..] {
+        [h, w] => (h, w, 1),
+        [h, w, c] if [1, 3, 4].contains(&c) => (h, w, c),
+        _ => return Err(PyValueError::new_err(format!("{name} must be H x W, H x W x 3 or H x W x 4, not of shape {shape:?}"))),
+    };
+    if h == 0 || w == 0 {
+        return Err(PyValueError::new_err(format!("{name} is empty (shape {shape:?})")));
+    }
+    let data = match c {
+        3 => values,
+        1 => values.iter().flat_map(|&v| [v, v, v]).collect(),
+        _ => values.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+    };
+    Image::from_vec(w, h, 3, data).ok_or_else(|| PyValueError::new_err(format!("{name}: {w}x{h}x3 is too large")))
+}
+
+/// The layers of a Python list, checked as layer files are.
+fn layers_of(layers: &Bound<'_, PyAny>) -> PyResult<Vec<Layer>> {
+    let list: Vec<Bound<'_, PyAny>> = layers.try_iter()?.collect::<PyResult<_>>()?;
+    if list.is_empty() {
+        return Err(PyValueError::new_err("layers is empty: give at least one H x W x 5 layer"));
+    }
+    list.iter()
+        .enumerate()
+        .map(|(k, a)| {
+            let name = format!("layers[{k}]");
+            let img = image_of(&name, a, &[5])?;
+            Layer::new(img, &name).map_err(py_err)
+        })
+        .collect()
+}
+
+/// NumPy arrays handed back, one per layer.
+type Arrays<'py> = Vec<Bound<'py, PyArray3<f32>>>;
+
+/// An image as an H×W×C NumPy array, without a copy.
+fn to_numpy<'py>(py: Python<'py>, img: Image) -> Bound<'py, PyArray3<f32>> {
+    let (h, w, c) = (img.height, img.width, img.channels);
+    Array3::from_shape_vec((h, w, c), img.data).expect("an image's length is its shape").into_pyarray(py)
+}
+
+/// The settings of a call: a `pipeline.toml` (or defaults) with keyword arguments on top.
+#[derive(Default)]
+struct Settings {
+    config: Option<PathBuf>,
+    profile: Option<String>,
+    kernel: Option<String>,
+    quality: Option<u32>,
+    occlusion: Option<bool>,
+    lens: Option<usize>,
+    blur: Option<f32>,
+}
+
+/// One config value from a Python string through the serde definition `pipeline.toml` uses
+/// (same names, same messages).
+fn parse_value<T: serde::de::DeserializeOwned>(key: &str, value: &str) -> PyResult<T> {
+    let text = format!("v = {}", toml_string(value));
+    #[derive(serde::Deserialize)]
+    struct One<T> {
+        v: T,
+    }
+    toml::from_str::<One<T>>(&text).map(|o| o.v).map_err(|e| PyValueError::new_err(format!("{key} = {value:?}: {}", e.message())))
+}
+
+/// `s` as a TOML basic string.
+fn toml_string(s: &str) -> String {
+    let mut out = String::from("\"");
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c if c.is_control() => out.push_str(&format!("\\u{:04X}", c as u32)),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+impl Settings {
+    fn config(&self, py: Python<'_>, layer_count: Option<&Bound<'_, PyAny>>) -> PyResult<Config> {
+        let mut cfg = match &self.config {
+            Some(p) => py.detach(|| Config::load(p)).map_err(py_err)?,
+            None => Config::default(),
+        };
+        let r = &mut cfg.render;
+        if let Some(p) = &self.profile {
+            r.profile = parse_value("profile", p)?;
+        }
+        if let Some(k) = &self.kernel {
+            r.kernel = parse_value("kernel", k)?;
+        }
+        if let Some(q) = self.quality {
+            r.quality = q;
+        }
+        if let Some(o) = self.occlusion {
+            r.occlusion = o;
+        }
+        if self.lens.is_some() {
+            r.lens = self.lens;
+        }
+        if self.blur.is_some() {
+            r.blur = self.blur;
+        }
+        if let Some(n) = layer_count {
+            cfg.segment.layers = if let Ok(s) = n.extract::<String>() {
+                parse_value("layers", &s)?
+            } else {
+                let k: i64 = n.extract().map_err(|_| PyTypeError::new_err("layers must be an int or \"auto\""))?;
+                toml::from_str::<LayerCountOnly>(&format!("v = {k}"))
+                    .map(|o| o.v)
+                    .map_err(|e| PyValueError::new_err(format!("layers = {k}: {}", e.message())))?
+            };
+        }
+        cfg.validate().map_err(py_err)?;
+        Ok(cfg)
+    }
+}
+
+#[derive(serde::Deserialize)]
+struct LayerCountOnly {
+    v: drbokeh::stages::slices::LayerCount,
+}
+
+/// Runs `f` with the GIL released, on `threads` threads (None: every core).
+fn run<T: Send>(py: Python<'_>, threads: Option<usize>, f: impl FnOnce() -> drbokeh::Result<T> + Send) -> PyResult<T> {
+    py.detach(|| match threads {
+        None => f(),
+        Some(n) => {
+            let n = drbokeh::resources::check_threads(n, "threads")?;
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| Error::usage(format!("threads = {n}: cannot start the thread pool: {e}")))?;
+            pool.install(f)
+        }
+    })
+    .map_err(py_err)
+}
+
+/// The focus of the keyword arguments: exactly one of focus (normalized disparity), focus_at
+/// (x, y) and focus_depth (metric depth).
+fn focus_of(focus: Option<f32>, focus_at: Option<(i64, i64)>, focus_depth: Option<f64>) -> PyResult<Focus> {
+    match (focus, focus_at, focus_depth) {
+        (Some(f), None, None) => Ok(Focus::Disparity(f)),
+        (None, Some((x, y)), None) => Ok(Focus::At(x, y)),
+        (None, None, Some(z)) => Ok(Focus::Depth(z)),
+        _ => Err(PyValueError::new_err("give exactly one of focus (normalized disparity), focus_at=(x, y) and focus_depth")),
+    }
+}
+
+/// The scene of a photo, a depth map (any size of the photo's aspect ratio) and a matte.
+fn scene_of(
+    py: Python<'_>,
+    image: &Bound<'_, PyAny>,
+    depth: &Bound<'_, PyAny>,
+    matte: Option<&Bound<'_, PyAny>>,
+    depth_kind: &str,
+    cfg: &Config,
+) -> PyResult<Scene> {
+    let (rgb, encoding) = photo_of(image, cfg.render.gamma)?;
+    let raw = image_of("depth", depth, &[1])?;
+    let kind: DepthKind = parse_value("depth_kind", depth_kind)?;
+    let matte = matte.map(|m| image_of("matte", m, &[1])).transpose()?;
+    py.detach(move || -> drbokeh::Result<Scene> {
+        let (w, h) = (rgb.width, rgb.height);
+        let fits = |what: &str, img: &Image| -> drbokeh::Result<()> {
+            if drbokeh::io::embedded_depth::same_aspect((img.width, img.height), (w, h)) {
+                Ok(())
+            } else {
+                Err(Error::usage(format!("{what} is {}x{} but the image is {w}x{h} (a different aspect ratio)", img.width, img.height)))
+            }
+        };
+        fits("depth", &raw)?;
+        let mut disparity = normalize(&raw, kind, "depth".as_ref())?;
+        if (disparity.map.width, disparity.map.height) != (w, h) {
+            disparity.map = disparity.map.resized(w, h);
+        }
+        let matte = match matte {
+            Some(m) => {
+                fits("matte", &m)?;
+                if m.data.iter().any(|v| !v.is_finite() || *v < 0.0 || *v > 1.0) {
+                    return Err(Error::usage("matte must hold values in [0, 1]"));
+                }
+                Some(if (m.width, m.height) == (w, h) { m } else { m.resized(w, h) })
+            }
+            None => None,
+        };
+        Ok(Scene { rgb, disparity, matte, encoding })
+    })
+    .map_err(py_err)
+}
+
+/// Renders a photo with its depth map: the whole pipeline, the defaults and checks of
+/// `drbokeh render`. Returns H×W×3 linear RGB float32.
+#[pyfunction]
+#[pyo3(signature = (image, depth, *, matte=None, focus=None, focus_at=None, focus_depth=None, blur=None, depth_kind="depth", profile=None, kernel=None, layers=None, config=None, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn render<'py>(
+    py: Python<'py>,
+    image: &Bound<'py, PyAny>,
+    depth: &Bound<'py, PyAny>,
+    matte: Option<&Bound<'py, PyAny>>,
+    focus: Option<f32>,
+    focus_at: Option<(i64, i64)>,
+    focus_depth: Option<f64>,
+    blur: Option<f32>,
+    depth_kind: &str,
+    profile: Option<String>,
+    kernel: Option<String>,
+    layers: Option<&Bound<'py, PyAny>>,
+    config: Option<PathBuf>,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let f = focus_of(focus, focus_at, focus_depth)?;
+    let s = Settings { config, profile, kernel, blur, ..Settings::default() };
+    let cfg = s.config(py, layers)?;
+    let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
+    let gamma = cfg.render.gamma;
+    let mut out = run(py, threads, move || Pipeline::from_config(cfg)?.run(&scene, f))?.image;
+    if let Some(g) = gamma {
+        // As `drbokeh render` writes it: rendered on rgb^G, shown as out^(1/G).
+        out.map_inplace(|v| v.max(0.0).powf(1.0 / g));
+    }
+    Ok(to_numpy(py, out))
+}
+
+/// The layers the pipeline renders for a photo (front first, each H×W×5: R, G, B, A, D),
+/// built for the given focus and blur (what is hidden behind the foreground is filled as far
+/// as that blur reaches).
+#[pyfunction]
+#[pyo3(signature = (image, depth, *, matte=None, focus=None, focus_at=None, focus_depth=None, blur=None, depth_kind="depth", layers=None, config=None, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn build_layers<'py>(
+    py: Python<'py>,
+    image: &Bound<'py, PyAny>,
+    depth: &Bound<'py, PyAny>,
+    matte: Option<&Bound<'py, PyAny>>,
+    focus: Option<f32>,
+    focus_at: Option<(i64, i64)>,
+    focus_depth: Option<f64>,
+    blur: Option<f32>,
+    depth_kind: &str,
+    layers: Option<&Bound<'py, PyAny>>,
+    config: Option<PathBuf>,
+    threads: Option<usize>,
+) -> PyResult<Arrays<'py>> {
+    let f = focus_of(focus, focus_at, focus_depth)?;
+    let s = Settings { config, blur, ..Settings::default() };
+    let cfg = s.config(py, layers)?;
+    let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
+    let out = run(py, threads, move || Pipeline::from_config(cfg)?.run_with(&scene, f, BuildLayers::Always))?;
+    Ok(out.layers.into_iter().map(|l| to_numpy(py, l.into_image())).collect())
+}
+
+/// Renders given layers (front first, each H×W×5 float32: R, G, B, A, D) at `focus`
+/// (normalized disparity) and `blur` (K, CoC radius in pixels per unit of disparity), as
+/// `drbokeh render --layer`. Returns H×W×3 linear RGB float32.
+#[pyfunction]
+#[pyo3(signature = (layers, focus, blur, *, profile=None, kernel=None, quality=None, occlusion=None, lens=None, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn render_layers<'py>(
+    py: Python<'py>,
+    layers: &Bound<'py, PyAny>,
+    focus: f32,
+    blur: f32,
+    profile: Option<String>,
+    kernel: Option<String>,
+    quality: Option<u32>,
+    occlusion: Option<bool>,
+    lens: Option<usize>,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let layers = layers_of(layers)?;
+    let s = Settings { profile, kernel, quality, occlusion, lens, blur: Some(blur), ..Settings::default() };
+    let cfg = s.config(py, None)?;
+    let out = run(py, threads, move || Pipeline::from_config(cfg)?.render_layers(layers, Focus::Disparity(focus)))?;
+    Ok(to_numpy(py, out.image))
+}
+
+/// The differentiable render's settings from keyword arguments.
+fn diff_settings(
+    layers: &[Layer],
+    focus: f32,
+    blur: f32,
+    profile: Option<&str>,
+    occlusion: bool,
+    lens: Option<usize>,
+) -> PyResult<RenderSettings> {
+    let profile = match profile {
+        Some(p) => parse_value("profile", p)?,
+        None => drbokeh::render::Profile::default(),
+    };
+    drbokeh::render::check_blur("blur", blur).map_err(py_err)?;
+    let lens = lens.unwrap_or_else(|| drbokeh::render::auto_lens(layers, blur, focus));
+    Ok(RenderSettings { blur, focus, lens, occlusion, profile })
+}
+
+/// The function `render_layers_vjp` differentiates: the exact kernel's render of `layers`
+/// (the physical profile's disk edges rounded over `edge_width` pixels, its depth groups' fill
+/// rule over `fill_width`). H×W×3 linear RGB float32.
+#[pyfunction]
+#[pyo3(signature = (layers, focus, blur, *, profile=None, occlusion=true, lens=None, edge_width=1.0, fill_width=0.0, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn render_layers_differentiable<'py>(
+    py: Python<'py>,
+    layers: &Bound<'py, PyAny>,
+    focus: f32,
+    blur: f32,
+    profile: Option<String>,
+    occlusion: bool,
+    lens: Option<usize>,
+    edge_width: f32,
+    fill_width: f32,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let layers = layers_of(layers)?;
+    let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens)?;
+    let smoothing = Smoothing { edge_width, fill_width };
+    let image = run(py, threads, move || Tape::record(&layers, &s, smoothing).map(|t| t.image().clone()))?;
+    Ok(to_numpy(py, image))
+}
+
+/// The vector-Jacobian product of [`render_layers_differentiable`]: for the cotangent
+/// (H×W×3, ∂loss/∂image), returns `(layer_grads, d_focus, d_blur)`, `layer_grads` one H×W×5
+/// array per layer (∂loss/∂ R, G, B, A, D).
+#[pyfunction]
+#[pyo3(signature = (layers, focus, blur, cotangent, *, profile=None, occlusion=true, lens=None, edge_width=1.0, fill_width=0.0, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn render_layers_vjp<'py>(
+    py: Python<'py>,
+    layers: &Bound<'py, PyAny>,
+    focus: f32,
+    blur: f32,
+    cotangent: &Bound<'py, PyAny>,
+    profile: Option<String>,
+    occlusion: bool,
+    lens: Option<usize>,
+    edge_width: f32,
+    fill_width: f32,
+    threads: Option<usize>,
+) -> PyResult<(Arrays<'py>, f32, f32)> {
+    let layers = layers_of(layers)?;
+    let cot = image_of("cotangent", cotangent, &[3])?;
+    let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens)?;
+    let smoothing = Smoothing { edge_width, fill_width };
+    let g = run(py, threads, move || Tape::record(&layers, &s, smoothing)?.vjp(&cot))?;
+    Ok((g.layers.into_iter().map(|l| to_numpy(py, l)).collect(), g.focus, g.blur))
+}
+
+/// The native module.
+#[pymodule]
+fn _drbokeh(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(render, m)?)?;
+    m.add_function(wrap_pyfunction!(build_layers, m)?)?;
+    m.add_function(wrap_pyfunction!(render_layers, m)?)?;
+    m.add_function(wrap_pyfunction!(render_layers_differentiable, m)?)?;
+    m.add_function(wrap_pyfunction!(render_layers_vjp, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
