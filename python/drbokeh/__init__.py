@@ -10,7 +10,8 @@ to 1 near), front first. Every function releases the GIL while it works.
 - ``render_layers(layers, focus, blur, ...)``: as ``drbokeh render --layer``.
 - ``render_layers_differentiable`` and ``render_layers_vjp``: the exact kernel's render and its
   vector-Jacobian product (gradients for every layer value, the focus and the blur).
-- ``drbokeh.jax.render_layers``: the same render as a JAX function with a custom VJP.
+- ``drbokeh.torch.render_layers`` and ``drbokeh.jax.render_layers``: the same render as a
+  PyTorch autograd function and as a JAX function with a custom VJP (imported on demand).
 
 Errors raise ``ValueError`` (bad arguments or data, with the library's message), ``TypeError``
 (an array of the wrong dtype) or ``OSError`` (a config file that cannot be read).

@@ -276,3 +276,115 @@ def test_jax_example_recovers_a_disparity_map():
     print(f"loss {first:.3e} -> {final:.3e}, disparity error {err_start:.3f} -> {err_end:.3f}")
     assert err_end < 0.1 * err_start, (err_start, err_end)
     assert final < 0.1 * first, (first, final)
+
+
+def test_torch_gives_the_gradient_render_layers_vjp_gives():
+    import torch
+
+    import drbokeh.torch as dtorch
+
+    layers = random_layers(10, 12, n=2, seed=10)
+    other = random_layers(10, 12, n=2, seed=11)
+    cot = np.random.default_rng(10).normal(size=(10, 12, 3)).astype(np.float32)
+    opts = dict(lens=13, fill_width=0.3)
+    # One scene: autograd's gradients are the Rust VJP's.
+    ts = [torch.tensor(l, requires_grad=True) for l in layers]
+    focus, blur = torch.tensor(0.45, requires_grad=True), torch.tensor(4.0, requires_grad=True)
+    image = dtorch.render_layers(ts, focus, blur, **opts)
+    assert np.array_equal(image.detach().numpy(), drbokeh.render_layers_differentiable(layers, 0.45, 4.0, **opts))
+    (image * torch.from_numpy(cot)).sum().backward()
+    want, want_focus, want_blur = drbokeh.render_layers_vjp(layers, 0.45, 4.0, cot, **opts)
+    for t, w in zip(ts, want):
+        assert np.abs(t.grad.numpy() - w).max() <= 1e-4
+    assert abs(focus.grad.item() - want_focus) <= 1e-4 * max(1.0, abs(want_focus))
+    assert abs(blur.grad.item() - want_blur) <= 1e-4 * max(1.0, abs(want_blur))
+    # A batch of two scenes: each image and each gradient its own; focus and blur summed.
+    batch = [torch.tensor(np.stack([a, b]), requires_grad=True) for a, b in zip(layers, other)]
+    focus, blur = torch.tensor(0.45, requires_grad=True), torch.tensor(4.0, requires_grad=True)
+    images = dtorch.render_layers(batch, focus, blur, **opts)
+    assert images.shape == (2, 10, 12, 3)
+    assert np.array_equal(images[1].detach().numpy(), drbokeh.render_layers_differentiable(other, 0.45, 4.0, **opts))
+    (images * torch.from_numpy(cot)).sum().backward()
+    want_other, of, ob = drbokeh.render_layers_vjp(other, 0.45, 4.0, cot, **opts)
+    assert np.abs(batch[0].grad[1].numpy() - want_other[0]).max() <= 1e-4
+    assert np.abs(batch[1].grad[0].numpy() - want[1]).max() <= 1e-4
+    assert abs(focus.grad.item() - (want_focus + of)) <= 1e-4 * max(1.0, abs(want_focus + of))
+    assert abs(blur.grad.item() - (want_blur + ob)) <= 1e-4 * max(1.0, abs(want_blur + ob))
+
+
+def test_torch_gradients_match_differences_of_its_own_forward():
+    """gradcheck in float32: autograd's directional derivative against central differences of
+    the wrapper's forward, along random directions (relative 5%, float32 renders)."""
+    import torch
+
+    import drbokeh.torch as dtorch
+
+    rng = np.random.default_rng(12)
+    layers = [torch.tensor(l) for l in random_layers(9, 11, n=2, seed=12)]
+    cot = torch.from_numpy(rng.normal(size=(9, 11, 3)).astype(np.float32))
+    opts = dict(lens=11, fill_width=0.3)
+
+    def loss(ls, f, k):
+        return float((dtorch.render_layers(ls, f, k, **opts).double() * cot.double()).sum())
+
+    ts = [l.clone().requires_grad_(True) for l in layers]
+    f, k = torch.tensor(0.5, requires_grad=True), torch.tensor(3.0, requires_grad=True)
+    (dtorch.render_layers(ts, f, k, **opts) * cot).sum().backward()
+    for trial in range(3):
+        v = [torch.from_numpy(rng.uniform(-1, 1, size=l.shape).astype(np.float32)) for l in layers]
+        for x, l in zip(v, layers):
+            x[..., 3] *= ((l[..., 3] > 0.01) & (l[..., 3] < 0.99)).float()
+            x[..., 4] *= 0.1
+        df, dk = float(rng.uniform(-0.1, 0.1)), float(rng.uniform(-1, 1))
+        eps = 2e-3
+        fd = (loss([l + eps * x for l, x in zip(layers, v)], 0.5 + eps * df, 3.0 + eps * dk)
+              - loss([l - eps * x for l, x in zip(layers, v)], 0.5 - eps * df, 3.0 - eps * dk)) / (2 * eps)
+        an = sum(float((t.grad.double() * x.double()).sum()) for t, x in zip(ts, v)) + df * f.grad.item() + dk * k.grad.item()
+        assert abs(fd - an) <= 0.05 * max(abs(fd), abs(an)) + 1e-4, (trial, fd, an)
+
+
+def test_torch_example_recovers_a_disparity_map():
+    """The README's PyTorch example: torch.optim.Adam on a disparity map through the renderer."""
+    import torch
+
+    import drbokeh.torch as dtorch
+
+    rng = np.random.default_rng(9)
+    h, w = 12, 14
+    rgb = torch.from_numpy(rng.uniform(0.1, 1.0, (h, w, 3)).astype(np.float32))
+    true_d = torch.from_numpy((np.where(np.arange(w)[None, :] < w // 2, 0.8, 0.35) * np.ones((h, 1))).astype(np.float32))
+    layer = lambda d: torch.cat([rgb, torch.ones(h, w, 1), d[..., None]], dim=2)  # noqa: E731
+    opts = dict(lens=15, fill_width=0.3)
+    target = dtorch.render_layers([layer(true_d)], 0.1, 3.0, **opts).detach()
+    d = torch.full((h, w), 0.55, requires_grad=True)
+    opt = torch.optim.Adam([d], lr=0.02)
+    for _ in range(150):
+        opt.zero_grad()
+        loss = ((dtorch.render_layers([layer(d)], 0.1, 3.0, **opts) - target) ** 2).mean()
+        loss.backward()
+        opt.step()
+        with torch.no_grad():
+            d.clamp_(0.0, 1.0)
+    err_start, err_end = float((0.55 - true_d).abs().mean()), float((d.detach() - true_d).abs().mean())
+    print(f"disparity error {err_start:.3f} -> {err_end:.3f}")
+    assert err_end < 0.1 * err_start, (err_start, err_end)
+
+
+def test_torch_bad_tensors_raise():
+    import torch
+
+    import drbokeh.torch as dtorch
+
+    good = [torch.tensor(l) for l in random_layers(8, 8, n=2, seed=13)]
+    with pytest.raises(TypeError, match="float32"):
+        dtorch.render_layers([good[0].double(), good[1]], 0.5, 4.0)
+    with pytest.raises(ValueError, match="shape"):
+        dtorch.render_layers([good[0][None], good[1]], 0.5, 4.0)
+    with pytest.raises(ValueError, match="empty"):
+        dtorch.render_layers([], 0.5, 4.0)
+    with pytest.raises(TypeError, match="torch.Tensor"):
+        dtorch.render_layers([good[0].numpy(), good[1]], 0.5, 4.0)
+    bad = good[1].clone()
+    bad[2, 2, 0] = float("nan")
+    with pytest.raises(ValueError, match="layers\\[1\\]"):
+        dtorch.render_layers([good[0], bad], 0.5, 4.0)
