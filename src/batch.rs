@@ -686,6 +686,7 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
             focus: plan.focus,
             output: output.clone(),
             save_layers: None,
+            pull: None,
         };
         let fp = fingerprint.insert(Fingerprint::of(plan, &job, &opts.input_dir)).clone();
         let redo = match (output.exists(), opts.force) {

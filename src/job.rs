@@ -5,6 +5,7 @@
 use crate::color::Transfer;
 use crate::config::Config;
 use crate::error::{Error, Result};
+use crate::focus_pull::{FocusPull, FramePattern};
 use crate::image::Image;
 use crate::io::{self, ReadLimits};
 use crate::pipeline::{BuildLayers, DepthSource, Focus, Outcome, Pipeline, Report, Scene, StageReport};
@@ -33,6 +34,9 @@ pub struct Job {
     pub output: PathBuf,
     /// Folder to write the rendered layers to (see [`save_layers`]), if any.
     pub save_layers: Option<PathBuf>,
+    /// A focus pull instead of one render: `output` is then the frames' pattern
+    /// ([`crate::focus_pull`]) and `focus` is not used.
+    pub pull: Option<FocusPull>,
 }
 
 impl Job {
@@ -46,13 +50,42 @@ impl Job {
 /// report (stages, timings, warnings, output path).
 pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     let t0 = Instant::now();
+    // A focus pull builds its layers once, at the frame that reveals most ([`FocusPull::build_settings`]).
+    let pull = match &job.pull {
+        Some(p) => {
+            p.check()?;
+            Some((p, FramePattern::parse(&job.output)?))
+        }
+        None => None,
+    };
+    let build_pipeline;
+    let (pipeline, mut focus) = match &pull {
+        Some((p, _)) => {
+            // Without a blur range every frame has the configured blur (the size default when
+            // unset): only the focus decides, and any K ranks the frames alike.
+            let mut cfg = pipeline.config().clone();
+            let (f, k) = p.build_settings(cfg.render.blur.unwrap_or(1.0));
+            if p.blur.is_some() {
+                cfg.render.blur = Some(k);
+            }
+            build_pipeline = Pipeline::from_config(cfg)?;
+            (&build_pipeline, Focus::Disparity(f))
+        }
+        None => (pipeline, job.focus),
+    };
     let cfg: &Config = pipeline.config();
     let limits = ReadLimits { max_pixels: cfg.input.max_pixels };
     let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
-    let mut focus = job.focus;
     let output = &job.output;
     let inputs = io::InputFiles::new(job.inputs());
-    inputs.check_write(output, "output")?;
+    match &pull {
+        Some((p, pattern)) => {
+            for i in 0..p.frames {
+                inputs.check_write(&pattern.path(i), "output")?;
+            }
+        }
+        None => inputs.check_write(output, "output")?,
+    }
     if let Some(dir) = &job.save_layers {
         check_layer_folder(dir)?;
         // Every name the layers may get (the pipeline makes one up to `[segment] layers`),
@@ -195,7 +228,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             _ => None,
         };
         let read_ms = ms_since(t_read);
-        let build = if job.save_layers.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
+        let build = if job.save_layers.is_some() || pull.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
         let mut out = pipeline.run_with(&Scene { rgb, disparity, matte, encoding }, focus, build)?;
         if let Some(s) = depth_stage {
             out.report.stages.insert(0, s);
@@ -220,7 +253,23 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         report.stages.push(StageReport::ran("save_layers", ms_since(t), None));
     }
 
+    if let Some((p, pattern)) = &pull {
+        report.frames = render_frames(cfg, p, pattern, layers, format, &mut report.warnings)?;
+        report.stages.push(StageReport::ran("frames", report.frames.iter().map(|f| f.ms).sum(), None));
+        report.total_ms = ms_since(t0);
+        return Ok(report);
+    }
     let t_write = Instant::now();
+    write_image(output, &mut image, cfg, format)?;
+    report.stages.push(StageReport::ran("write", ms_since(t_write), None));
+    report.output = Some(output.display().to_string());
+    report.total_ms = ms_since(t0);
+    Ok(report)
+}
+
+/// Writes a rendered `image` (linear RGB) to `output` as `drbokeh render` does: in gamma mode
+/// (`render.gamma`) the inverse gamma first, and the PNG then stores those values as they are.
+fn write_image(output: &Path, image: &mut Image, cfg: &Config, _format: io::OutputFormat) -> Result<()> {
     let png_transfer = match cfg.render.gamma {
         Some(g) => {
             image.map_inplace(|v| v.max(0.0).powf(1.0 / g));
@@ -228,11 +277,41 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         }
         None => Transfer::Srgb,
     };
-    io::write_output(output, &image, cfg.output.bit_depth.bits(), png_transfer)?;
-    report.stages.push(StageReport::ran("write", ms_since(t_write), None));
-    report.output = Some(output.display().to_string());
-    report.total_ms = ms_since(t0);
-    Ok(report)
+    io::write_output(output, image, cfg.output.bit_depth.bits(), png_transfer)
+}
+
+/// The frames of a focus pull from `layers` (built once), each rendered by a
+/// [`crate::pipeline::Refocuser`] and written atomically to its file of `pattern`; the frames'
+/// warnings (each once) go to `warnings`.
+fn render_frames(
+    cfg: &Config,
+    pull: &FocusPull,
+    pattern: &FramePattern,
+    layers: Vec<Layer>,
+    format: io::OutputFormat,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<crate::pipeline::FrameReport>> {
+    if layers.is_empty() {
+        return Err(Error::Internal("a focus pull's layers were not built".into()));
+    }
+    let (w, h) = (layers[0].width(), layers[0].height());
+    let blur = cfg.render.blur.unwrap_or_else(|| crate::pipeline::default_blur(w, h));
+    let refocuser = crate::pipeline::Refocuser::new(Pipeline::from_config(cfg.clone())?, layers)?;
+    let mut frames = Vec::with_capacity(pull.frames);
+    for i in 0..pull.frames {
+        let t = Instant::now();
+        let (focus, k) = pull.frame(i, blur);
+        let (mut image, r) = refocuser.render_with_blur(Focus::Disparity(focus), k)?;
+        for m in r.warnings {
+            if !warnings.contains(&m) {
+                warnings.push(m);
+            }
+        }
+        let path = pattern.path(i);
+        write_image(&path, &mut image, cfg, format)?;
+        frames.push(crate::pipeline::FrameReport { output: path.display().to_string(), focus, blur: k, ms: ms_since(t) });
+    }
+    Ok(frames)
 }
 
 /// What was read for a photo's depth.

@@ -16,6 +16,7 @@ pub mod config;
 pub mod cpu;
 pub mod diff;
 pub mod error;
+pub mod focus_pull;
 pub mod image;
 pub mod io;
 pub mod job;

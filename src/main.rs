@@ -134,6 +134,15 @@ impl From<HighlightsArg> for HighlightMode {
     }
 }
 
+/// `--easing`.
+#[derive(Clone, Copy, ValueEnum)]
+enum EasingArg {
+    /// Evenly spaced frames.
+    Linear,
+    /// Smoothstep: slow at both ends.
+    Smooth,
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum DepthKindArg {
     Depth,
@@ -141,7 +150,7 @@ enum DepthKindArg {
 }
 
 #[derive(Args)]
-#[command(group = clap::ArgGroup::new("focus_spec").required(true).args(["focus", "focus_at", "focus_depth"]))]
+#[command(group = clap::ArgGroup::new("focus_spec").required(true).args(["focus", "focus_at", "focus_depth", "focus_from"]))]
 struct RenderArgs {
     /// The photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR (linear).
     #[arg(required_unless_present = "layer", conflicts_with = "layer")]
@@ -168,7 +177,27 @@ struct RenderArgs {
     /// Focus at metric depth Z (with --depth-kind depth).
     #[arg(long, value_name = "Z", allow_negative_numbers = true)]
     focus_depth: Option<f64>,
-    /// Output: .png (8/16-bit sRGB), .exr or .npy (linear float32) [default: IMAGE_bokeh.png].
+    /// Focus pull: the first frame's focus (normalized disparity); with --focus-to, --frames
+    /// and -o holding %d or %04d (frames/%04d.png). The layers are built once.
+    #[arg(long, value_name = "F", allow_hyphen_values = true, requires_all = ["focus_to", "frames", "output"])]
+    focus_from: Option<f32>,
+    /// Focus pull: the last frame's focus (normalized disparity).
+    #[arg(long, value_name = "F", allow_hyphen_values = true, requires = "focus_from")]
+    focus_to: Option<f32>,
+    /// Focus pull: how many frames.
+    #[arg(long, value_name = "N", requires = "focus_from")]
+    frames: Option<usize>,
+    /// Focus pull: the first frame's blur K (with --blur-to) [default: --blur for every frame].
+    #[arg(long, value_name = "K", allow_hyphen_values = true, requires_all = ["focus_from", "blur_to"])]
+    blur_from: Option<f32>,
+    /// Focus pull: the last frame's blur K.
+    #[arg(long, value_name = "K", allow_hyphen_values = true, requires = "blur_from")]
+    blur_to: Option<f32>,
+    /// Focus pull: how focus and blur move between the ends [default: smooth].
+    #[arg(long, value_enum, requires = "focus_from")]
+    easing: Option<EasingArg>,
+    /// Output: .png (8/16-bit sRGB), .exr or .npy (linear float32) [default: IMAGE_bokeh.png];
+    /// for a focus pull, a pattern with %d or %04d.
     #[arg(short, long, value_name = "OUT")]
     output: Option<PathBuf>,
     /// Write the layers (EXR R,G,B,A,D, usable with --layer) and PNG previews to DIR.
@@ -473,12 +502,22 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     if args.no_embedded_depth {
         cfg.input.embedded_depth = false;
     }
-    let focus = match (args.focus, args.focus_at, args.focus_depth) {
-        (Some(f), _, _) => Focus::Disparity(f),
-        (_, Some((x, y)), _) => Focus::At(x, y),
-        (_, _, Some(z)) => Focus::Depth(z),
+    let focus = match (args.focus, args.focus_at, args.focus_depth, args.focus_from) {
+        (Some(f), ..) | (_, _, _, Some(f)) => Focus::Disparity(f),
+        (_, Some((x, y)), ..) => Focus::At(x, y),
+        (_, _, Some(z), _) => Focus::Depth(z),
         _ => unreachable!("clap requires one focus flag"),
     };
+    let pull = args.focus_from.map(|from| drbokeh::focus_pull::FocusPull {
+        from,
+        to: args.focus_to.expect("clap requires --focus-to"),
+        frames: args.frames.expect("clap requires --frames"),
+        blur: args.blur_from.zip(args.blur_to),
+        easing: match args.easing {
+            Some(EasingArg::Linear) => drbokeh::focus_pull::Easing::Linear,
+            Some(EasingArg::Smooth) | None => drbokeh::focus_pull::Easing::Smooth,
+        },
+    });
 
     let job = Job {
         image: args.image.clone(),
@@ -492,6 +531,7 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
             PathBuf::from(format!("{stem}_bokeh.png"))
         }),
         save_layers: args.save_layers.clone(),
+        pull,
     };
     // Warnings that matter before the run ends (a long exact render) are printed at once;
     // the rest after the run.
@@ -535,6 +575,8 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     }
     if args.json {
         print_json(&report)?;
+    } else if let (Some(first), Some(last)) = (report.frames.first(), report.frames.last()) {
+        eprintln!("wrote {} frames: {} … {}", report.frames.len(), first.output, last.output);
     } else {
         eprintln!("wrote {}", output.display());
     }

@@ -159,6 +159,19 @@ impl DepthSource {
     }
 }
 
+/// One frame of a focus pull ([`crate::focus_pull`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    /// The written file.
+    pub output: String,
+    /// The frame's focus (normalized disparity).
+    pub focus: f32,
+    /// The frame's blur K.
+    pub blur: f32,
+    /// Render and write, milliseconds.
+    pub ms: f64,
+}
+
 /// Machine-readable summary of a run (`--json`).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Report {
@@ -175,6 +188,9 @@ pub struct Report {
     /// The written file (set by [`crate::job::run`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub output: Option<String>,
+    /// A focus pull's frames, in order (set by [`crate::job::run`]; empty otherwise).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub frames: Vec<FrameReport>,
     /// Wall-clock time of the whole run, milliseconds.
     pub total_ms: f64,
 }
@@ -764,7 +780,7 @@ impl Pipeline {
     /// caller has already raised them to the gamma. To render the same layers at several foci,
     /// see [`Refocuser`].
     pub fn render_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
-        let (image, report) = self.render_given(&layers, focus)?;
+        let (image, report) = self.render_given(&layers, focus, None)?;
         let layers = if self.renders_back_only(&layers) { vec![layers.into_iter().next_back().expect("non-empty")] } else { layers };
         Ok(Outcome { image, layers, report })
     }
@@ -774,8 +790,9 @@ impl Pipeline {
         !self.config.render.occlusion && layers.len() > 1
     }
 
-    /// [`Pipeline::render_layers`] on borrowed layers: the image and the report.
-    fn render_given(&self, layers: &[Layer], focus: Focus) -> Result<(Image, Report)> {
+    /// [`Pipeline::render_layers`] on borrowed layers (at `blur`, else the configured blur):
+    /// the image and the report.
+    fn render_given(&self, layers: &[Layer], focus: Focus, blur: Option<f32>) -> Result<(Image, Report)> {
         let t0 = Instant::now();
         let Some(first) = layers.first() else {
             return Err(Error::usage("no layers given"));
@@ -795,7 +812,10 @@ impl Pipeline {
         for name in ["segment", "fill_depth", "inpaint", "slice"] {
             report.skipped(name, "layers were given");
         }
-        let blur = self.blur_for(w, h);
+        let blur = match blur {
+            Some(k) => render::check_blur("render.blur", k)?,
+            None => self.blur_for(w, h),
+        };
         let shown = if self.renders_back_only(layers) {
             report.warnings.push("render.occlusion = false renders only the back layer of the given layers".into());
             &layers[layers.len() - 1..]
@@ -944,7 +964,13 @@ impl Refocuser {
 
     /// Renders the layers focused at `focus`: the linear RGB image and what ran.
     pub fn render(&self, focus: Focus) -> Result<(Image, Report)> {
-        self.pipeline.render_given(&self.layers, focus)
+        self.pipeline.render_given(&self.layers, focus, None)
+    }
+
+    /// [`Refocuser::render`] with the blur `blur` (K) instead of the configured one: equal to
+    /// a pipeline configured with that blur (a focus pull's frames, [`crate::focus_pull`]).
+    pub fn render_with_blur(&self, focus: Focus, blur: f32) -> Result<(Image, Report)> {
+        self.pipeline.render_given(&self.layers, focus, Some(blur))
     }
 
     /// The layers, front first.

@@ -1870,3 +1870,103 @@ fn dropped_alpha_and_ignored_options_are_said() {
     let w = warnings(&["--layer", "bg.npy", "--layers", "auto", "--focus", "0", "--blur", "2", "-o", "o.png"]);
     assert!(w.contains("--layers is ignored") && w.contains("--layer)"), "{w}");
 }
+
+/// Issue 40's focus pull: the layers built once, every frame equal (bit for bit) to a single
+/// render of those layers at the frame's focus and blur, for given layers (24 frames) and for
+/// a photo (its layers written by --save-layers, a blur range, linear easing).
+#[test]
+fn a_focus_pull_equals_single_renders_of_its_layers() {
+    let s = Scene::new();
+    s.ok(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus",
+        "1",
+        "--blur",
+        "5",
+        "--save-layers",
+        "L",
+        "-o",
+        "o.npy",
+    ]);
+    let layers = ["--layer", "L/0_fg.exr", "--layer", "L/1_bg.exr"];
+    // As for one render, the frames' folder must exist (it is named when it does not).
+    s.bad(&[layers.as_slice(), &["--focus-from", "0", "--focus-to", "1", "--frames", "2", "-o", "pull/%04d.npy"]].concat(), &["pull"]);
+    std::fs::create_dir(s.path("pull")).unwrap();
+    let mut a = layers.to_vec();
+    a.extend(["--focus-from", "0.05", "--focus-to", "1", "--frames", "24", "--blur", "6", "-o", "pull/%04d.npy"]);
+    let j = s.json(&a);
+    let frames = j["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 24, "{j}");
+    let foci: Vec<f64> = frames.iter().map(|f| f["focus"].as_f64().unwrap()).collect();
+    assert!((foci[0] - 0.05).abs() < 1e-7 && foci[23] == 1.0, "{foci:?}");
+    assert!(foci.windows(2).all(|w| w[1] > w[0]), "the focus moves one way: {foci:?}");
+    // Smooth easing (the default): the first and last steps are the smallest.
+    let steps: Vec<f64> = foci.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(steps[0] < steps[11] && steps[22] < steps[11], "{steps:?}");
+    let mut distinct = 0;
+    for (i, f) in frames.iter().enumerate() {
+        let file = format!("pull/{i:04}.npy");
+        assert_eq!(f["output"].as_str(), Some(file.as_str()));
+        let mut one = layers.to_vec();
+        let focus = f["focus"].as_f64().unwrap().to_string();
+        one.extend(["--focus", &focus, "--blur", "6", "-o", "one.npy"]);
+        s.ok(&one);
+        let (got, want) = (read_npy(&s.path(&file)), read_npy(&s.path("one.npy")));
+        assert!(got.data == want.data, "frame {i} (focus {focus}) differs from a single render");
+        if i > 0 && read_npy(&s.path(&format!("pull/{:04}.npy", i - 1))).data != got.data {
+            distinct += 1;
+        }
+    }
+    assert!(distinct >= 20, "the frames barely change: {distinct} of 23 steps");
+
+    // From the photo: built once (--save-layers writes what the frames render), a blur range.
+    let j = s.json(&[
+        "image.exr",
+        "--depth",
+        "depth.exr",
+        "--matte",
+        "matte.png",
+        "--focus-from",
+        "1",
+        "--focus-to",
+        "0.2",
+        "--frames",
+        "3",
+        "--blur-from",
+        "3",
+        "--blur-to",
+        "9",
+        "--easing",
+        "linear",
+        "--save-layers",
+        "P",
+        "-o",
+        "f%d.png",
+    ]);
+    let frames = j["frames"].as_array().unwrap();
+    let got: Vec<(f64, f64)> = frames.iter().map(|f| (f["focus"].as_f64().unwrap(), f["blur"].as_f64().unwrap())).collect();
+    for (g, w) in got.iter().zip([(1.0, 3.0), (0.6, 6.0), (0.2, 9.0)]) {
+        assert!((g.0 - w.0).abs() < 1e-6 && (g.1 - w.1).abs() < 1e-5, "{got:?}");
+    }
+    for (i, f) in frames.iter().enumerate() {
+        let (focus, blur) = (f["focus"].as_f64().unwrap().to_string(), f["blur"].as_f64().unwrap().to_string());
+        s.ok(&["--layer", "P/0_fg.exr", "--layer", "P/1_bg.exr", "--focus", &focus, "--blur", &blur, "-o", "one.png"]);
+        let (a, b) = (image::open(s.path(&format!("f{i}.png"))).unwrap(), image::open(s.path("one.png")).unwrap());
+        assert!(a.to_rgb8() == b.to_rgb8(), "photo frame {i} differs from a single render of the saved layers");
+    }
+    // Bad pulls: exit 2 naming the flag, nothing written.
+    s.bad(
+        &["image.exr", "--depth", "depth.exr", "--focus-from", "0", "--focus-to", "1", "--frames", "3", "-o", "x.png"],
+        &["--output", "%04d"],
+    );
+    s.bad(&["image.exr", "--depth", "depth.exr", "--focus-from", "0", "--focus-to", "1", "--frames", "0", "-o", "x%d.png"], &["--frames"]);
+    s.bad(
+        &["image.exr", "--depth", "depth.exr", "--focus-from", "0", "--focus-to", "1", "--frames", "2", "--focus", "1", "-o", "x%d.png"],
+        &["--focus"],
+    );
+    s.bad(&["image.exr", "--depth", "depth.exr", "--focus-from", "0", "--frames", "2", "-o", "x%d.png"], &["--focus-to"]);
+}

@@ -10,9 +10,11 @@ to 1 near), front first. Every function releases the GIL while it works.
 - ``render_layers(layers, focus, blur, ...)``: as ``drbokeh render --layer``.
 - ``render_layers_differentiable`` and ``render_layers_vjp``: the exact kernel's render and its
   vector-Jacobian product (gradients for every layer value, the focus and the blur).
+- ``dfd(aif, bokeh, focus, blur, ...)``: depth from defocus, as ``drbokeh dfd``.
 - ``drbokeh.torch.render_layers`` and ``drbokeh.jax.render_layers``: the same render as a
   PyTorch autograd function and as a JAX function with a custom VJP (imported on demand).
 
+The library's warnings (a focus clamped into [0, 1], an ignored setting) are ``UserWarning``s.
 Errors raise ``ValueError`` (bad arguments or data, with the library's message), ``TypeError``
 (an array of the wrong dtype) or ``OSError`` (a config file that cannot be read).
 """
@@ -20,6 +22,7 @@ Errors raise ``ValueError`` (bad arguments or data, with the library's message),
 from ._drbokeh import (  # noqa: F401
     __version__,
     build_layers,
+    dfd,
     render,
     render_layers,
     render_layers_differentiable,
@@ -28,6 +31,7 @@ from ._drbokeh import (  # noqa: F401
 
 __all__ = [
     "build_layers",
+    "dfd",
     "render",
     "render_layers",
     "render_layers_differentiable",

@@ -100,3 +100,24 @@ def render_layers_vjp(
     threads: Optional[int] = None,
 ) -> Tuple[List[Array], float, float]:
     """(layer_grads, d_focus, d_blur) for the cotangent dL/dimage (H x W x 3)."""
+
+def dfd(
+    aif: Photo,
+    bokeh: Photo,
+    focus: float,
+    blur: float,
+    *,
+    iters: Optional[int] = None,
+    levels: Optional[int] = None,
+    learning_rate: Optional[float] = None,
+    init: Optional[float] = None,
+    loss: Optional[str] = None,
+    kernel: Optional[str] = None,
+    profile: Optional[str] = None,
+    occlusion: bool = True,
+    threads: Optional[int] = None,
+) -> npt.NDArray[np.float32]:
+    """Depth from defocus, as ``drbokeh dfd``: the H x W disparity map in [0, 1] that turns the
+    all-in-focus photo into ``bokeh`` (focused at ``focus`` with blur ``blur``).
+    loss: "l1-grad", "l1-grad-ssim" or "l1-grad-hssim" (default); kernel: "auto" (default),
+    "fast", "exact" or "ray"; iters per level (default 100), levels (default 3)."""

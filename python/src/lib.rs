@@ -120,6 +120,16 @@ fn layers_of(layers: &Bound<'_, PyAny>) -> PyResult<Vec<Layer>> {
         .collect()
 }
 
+/// The library's warnings (a clamped focus, an ignored setting...) as Python `UserWarning`s.
+fn warn_all(py: Python<'_>, warnings: &[String]) -> PyResult<()> {
+    let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+    for w in warnings {
+        let msg = std::ffi::CString::new(w.replace('\0', " ")).expect("no NUL left");
+        PyErr::warn(py, &category, &msg, 1)?;
+    }
+    Ok(())
+}
+
 /// NumPy arrays handed back, one per layer.
 type Arrays<'py> = Vec<Bound<'py, PyArray3<f32>>>;
 
@@ -307,7 +317,9 @@ fn render<'py>(
     let cfg = s.config(py, layers)?;
     let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
     let gamma = cfg.render.gamma;
-    let mut out = run(py, threads, move || Pipeline::from_config(cfg)?.run(&scene, f))?.image;
+    let outcome = run(py, threads, move || Pipeline::from_config(cfg)?.run(&scene, f))?;
+    warn_all(py, &outcome.report.warnings)?;
+    let mut out = outcome.image;
     if let Some(g) = gamma {
         // As `drbokeh render` writes it: rendered on rgb^G, shown as out^(1/G).
         out.map_inplace(|v| v.max(0.0).powf(1.0 / g));
@@ -340,6 +352,7 @@ fn build_layers<'py>(
     let cfg = s.config(py, layers)?;
     let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
     let out = run(py, threads, move || Pipeline::from_config(cfg)?.run_with(&scene, f, BuildLayers::Always))?;
+    warn_all(py, &out.report.warnings)?;
     Ok(out.layers.into_iter().map(|l| to_numpy(py, l.into_image())).collect())
 }
 
@@ -365,6 +378,7 @@ fn render_layers<'py>(
     let s = Settings { profile, kernel, quality, occlusion, lens, blur: Some(blur), ..Settings::default() };
     let cfg = s.config(py, None)?;
     let out = run(py, threads, move || Pipeline::from_config(cfg)?.render_layers(layers, Focus::Disparity(focus)))?;
+    warn_all(py, &out.report.warnings)?;
     Ok(to_numpy(py, out.image))
 }
 
@@ -438,6 +452,59 @@ fn render_layers_vjp<'py>(
     Ok((g.layers.into_iter().map(|l| to_numpy(py, l)).collect(), g.focus, g.blur))
 }
 
+/// Depth from defocus, as `drbokeh dfd`: the disparity map (H×W float32 in [0, 1], the
+/// units of `focus` and `blur`) that turns the all-in-focus photo `aif` into `bokeh`, the same
+/// view focused at `focus` with blur `blur` (Adam through the differentiable renderer, coarse
+/// to fine). Photos: uint8/uint16 sRGB or float32 linear, H×W×3. `loss`: "l1-grad",
+/// "l1-grad-ssim" or "l1-grad-hssim"; `kernel`: "auto", "fast", "exact" or "ray".
+#[pyfunction]
+#[pyo3(signature = (aif, bokeh, focus, blur, *, iters=None, levels=None, learning_rate=None, init=None, loss=None, kernel=None, profile=None, occlusion=true, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn dfd<'py>(
+    py: Python<'py>,
+    aif: &Bound<'py, PyAny>,
+    bokeh: &Bound<'py, PyAny>,
+    focus: f32,
+    blur: f32,
+    iters: Option<i64>,
+    levels: Option<i64>,
+    learning_rate: Option<f32>,
+    init: Option<f32>,
+    loss: Option<String>,
+    kernel: Option<String>,
+    profile: Option<String>,
+    occlusion: bool,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
+    use drbokeh::diff::dfd::{self as d, DfdOptions, LossVariant};
+    let (aif, _) = photo_of(aif, None)?;
+    let (bokeh, _) = photo_of(bokeh, None)?;
+    let defaults = DfdOptions::default();
+    let mut opts = DfdOptions {
+        iters: d::check_iters("iters", iters.unwrap_or(defaults.iters as i64)).map_err(py_err)?,
+        levels: d::check_levels("levels", levels.unwrap_or(defaults.levels as i64)).map_err(py_err)?,
+        learning_rate: learning_rate.unwrap_or(defaults.learning_rate),
+        init: init.unwrap_or(defaults.init),
+        ..defaults
+    };
+    if let Some(l) = &loss {
+        opts.weights = parse_value::<LossVariant>("loss", l)?.weights();
+    }
+    if let Some(k) = &kernel {
+        opts.kernel = parse_value("kernel", k)?;
+    }
+    let profile = match &profile {
+        Some(p) => parse_value("profile", p)?,
+        None => drbokeh::render::Profile::default(),
+    };
+    let s = RenderSettings { blur, focus, lens: 1, occlusion, profile };
+    let est = run(py, threads, move || d::estimate_with(&aif, &bokeh, &s, &opts, |_| {}))?;
+    warn_all(py, &est.warnings)?;
+    let (h, w) = (est.disparity.height, est.disparity.width);
+    let arr = numpy::ndarray::Array2::from_shape_vec((h, w), est.disparity.data).expect("a map's length is its shape");
+    Ok(arr.into_pyarray(py))
+}
+
 /// The native module.
 #[pymodule]
 fn _drbokeh(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -446,6 +513,7 @@ fn _drbokeh(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_layers, m)?)?;
     m.add_function(wrap_pyfunction!(render_layers_differentiable, m)?)?;
     m.add_function(wrap_pyfunction!(render_layers_vjp, m)?)?;
+    m.add_function(wrap_pyfunction!(dfd, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -133,6 +133,37 @@ def test_vjp_matches_central_differences(seed):
         assert abs(fd - an) <= 0.05 * max(abs(fd), abs(an)) + 1e-3, (name, fd, an)
 
 
+def test_dfd_equals_the_command_line(tmp_path):
+    """Depth from defocus from Python: the map `drbokeh dfd` writes for the same photos."""
+    h, w = 24, 32
+    rng = np.random.default_rng(14)
+    aif = rng.uniform(0.05, 1.0, (h, w, 3)).astype(np.float32)
+    d = np.where(np.arange(w)[None, :] < w // 2, 0.8, 0.4) * np.ones((h, 1))
+    layer = np.concatenate([aif, np.ones((h, w, 1)), d[..., None]], axis=2).astype(np.float32)
+    bokeh = drbokeh.render_layers([layer], 0.2, 5.0)
+    np.save(tmp_path / "aif.npy", aif)
+    np.save(tmp_path / "bokeh.npy", bokeh)
+    cli("dfd", "aif.npy", "bokeh.npy", "--focus", "0.2", "--blur", "5", "--iters", "15", "--levels", "2", "-o", "d.npy", cwd=tmp_path)
+    want = np.load(tmp_path / "d.npy")
+    # Focus 0.2 lies inside the disparity range: the library says which side the map keeps.
+    with pytest.warns(UserWarning, match="which side|side it started"):
+        got = drbokeh.dfd(aif, bokeh, 0.2, 5.0, iters=15, levels=2)
+    assert got.shape == (h, w) and got.dtype == np.float32
+    assert np.abs(got - want).max() <= 1e-6
+    # It moved towards the truth from its start (0.5 everywhere).
+    assert np.abs(got - d).mean() < 0.5 * np.abs(0.5 - d).mean()
+    with pytest.raises(ValueError, match="iters"):
+        drbokeh.dfd(aif, bokeh, 0.2, 5.0, iters=0)
+    with pytest.raises(ValueError, match="loss"):
+        drbokeh.dfd(aif, bokeh, 0.2, 5.0, loss="l2")
+
+
+def test_library_warnings_are_python_warnings():
+    layers = random_layers(8, 8, n=2, seed=15)
+    with pytest.warns(UserWarning, match="focus"):
+        drbokeh.render_layers(layers, 1.7, 3.0)
+
+
 def test_the_gil_is_released_while_rust_works():
     layers = random_layers(300, 400, n=2, seed=4)
     count = [0]

@@ -45,8 +45,9 @@ pub struct LossWeights {
     pub windows: &'static [usize],
 }
 
-/// The objectives of the paper's loss ablation (Table 2), by their command-line names.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+/// The objectives of the paper's loss ablation (Table 2), by their command-line names (also
+/// their serialized ones, both ways: the Python binding parses them).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 // The shared prefix is the point: every variant adds a term to L1 + gradient smoothness.
 #[allow(clippy::enum_variant_names)]
@@ -105,7 +106,7 @@ impl DfdRenderer {
 }
 
 /// Which differentiable Dr.Bokeh render [`estimate`] inverts (with [`DfdRenderer::DrBokeh`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DfdKernel {
     /// [`DfdKernel::Ray`] where it applies (physical profile, occlusion on) and its estimated
