@@ -59,7 +59,7 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         None => None,
     };
     let build_pipeline;
-    let (pipeline, mut focus) = match &pull {
+    let (pipeline, focus) = match &pull {
         Some((p, _)) => {
             // Without a blur range every frame has the configured blur (the size default when
             // unset): only the focus decides, and any K ranks the frames alike.
@@ -74,8 +74,6 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         None => (pipeline, job.focus),
     };
     let cfg: &Config = pipeline.config();
-    let limits = ReadLimits { max_pixels: cfg.input.max_pixels };
-    let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
     let output = &job.output;
     let inputs = io::InputFiles::new(job.inputs());
     match &pull {
@@ -99,6 +97,45 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     }
     let format = io::OutputFormat::from_path(output)?;
     preflight(job, cfg)?;
+    let build = if job.save_layers.is_some() || pull.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
+    let (outcome, read_warnings) = read_and_run(pipeline, job, focus, build)?;
+    let Outcome { mut image, layers, mut report } = outcome;
+    report.warnings.splice(0..0, read_warnings);
+    if cfg.output.bit_depth != io::BitDepth::Eight && format != io::OutputFormat::Png {
+        report.warnings.push(format!(
+            "a bit depth of {} (output.bit_depth) applies to PNG outputs only; {} is written as 32-bit float",
+            cfg.output.bit_depth.bits(),
+            output.display()
+        ));
+    }
+
+    if let Some(dir) = &job.save_layers {
+        let t = Instant::now();
+        report.warnings.extend(save_layers(dir, &layers, &inputs)?);
+        report.stages.push(StageReport::ran("save_layers", ms_since(t), None));
+    }
+
+    if let Some((p, pattern)) = &pull {
+        report.frames = render_frames(cfg, p, pattern, layers, &mut report.warnings)?;
+        report.stages.push(StageReport::ran("frames", report.frames.iter().map(|f| f.ms).sum(), None));
+        report.total_ms = ms_since(t0);
+        return Ok(report);
+    }
+    let t_write = Instant::now();
+    write_image(output, &mut image, cfg)?;
+    report.stages.push(StageReport::ran("write", ms_since(t_write), None));
+    report.output = Some(output.display().to_string());
+    report.total_ms = ms_since(t0);
+    Ok(report)
+}
+
+/// Reads the job's inputs (photo, depth map or the photo's own, matte; or layers) and runs
+/// `pipeline` on them at `focus`, the layers built as `build` says: the outcome and what the
+/// reading found worth a warning (ignored options first). The output is not written.
+fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLayers) -> Result<(Outcome, Vec<String>)> {
+    let cfg: &Config = pipeline.config();
+    let limits = ReadLimits { max_pixels: cfg.input.max_pixels };
+    let transfer = cfg.render.gamma.map(Transfer::Gamma).unwrap_or(Transfer::Srgb);
     let mut read_warnings = ignored_options(job, cfg);
     let t_read = Instant::now();
     let outcome: Outcome = if !job.layers.is_empty() {
@@ -228,7 +265,6 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
             _ => None,
         };
         let read_ms = ms_since(t_read);
-        let build = if job.save_layers.is_some() || pull.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
         let mut out = pipeline.run_with(&Scene { rgb, disparity, matte, encoding }, focus, build)?;
         if let Some(s) = depth_stage {
             out.report.stages.insert(0, s);
@@ -237,47 +273,39 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
         out.report.stages.insert(0, StageReport::ran("read", read_ms, None));
         out
     };
-    let Outcome { mut image, layers, mut report } = outcome;
-    report.warnings.splice(0..0, read_warnings);
-    if cfg.output.bit_depth != io::BitDepth::Eight && format != io::OutputFormat::Png {
-        report.warnings.push(format!(
-            "a bit depth of {} (output.bit_depth) applies to PNG outputs only; {} is written as 32-bit float",
-            cfg.output.bit_depth.bits(),
-            output.display()
-        ));
-    }
-
-    if let Some(dir) = &job.save_layers {
-        let t = Instant::now();
-        report.warnings.extend(save_layers(dir, &layers, &inputs)?);
-        report.stages.push(StageReport::ran("save_layers", ms_since(t), None));
-    }
-
-    if let Some((p, pattern)) = &pull {
-        report.frames = render_frames(cfg, p, pattern, layers, format, &mut report.warnings)?;
-        report.stages.push(StageReport::ran("frames", report.frames.iter().map(|f| f.ms).sum(), None));
-        report.total_ms = ms_since(t0);
-        return Ok(report);
-    }
-    let t_write = Instant::now();
-    write_image(output, &mut image, cfg, format)?;
-    report.stages.push(StageReport::ran("write", ms_since(t_write), None));
-    report.output = Some(output.display().to_string());
-    report.total_ms = ms_since(t0);
-    Ok(report)
+    Ok((outcome, read_warnings))
 }
 
-/// Writes a rendered `image` (linear RGB) to `output` as `drbokeh render` does: in gamma mode
-/// (`render.gamma`) the inverse gamma first, and the PNG then stores those values as they are.
-fn write_image(output: &Path, image: &mut Image, cfg: &Config, _format: io::OutputFormat) -> Result<()> {
-    let png_transfer = match cfg.render.gamma {
+/// The layers of a job's scene (front first), built for `focus` with `pipeline`'s settings,
+/// and the report of their making (stages, warnings, depth source). Nothing is written: what
+/// `drbokeh view` serves from, and what `--save-layers` of a render at that focus writes.
+pub fn build_layers(pipeline: &Pipeline, job: &Job, focus: Focus) -> Result<(Vec<Layer>, Report)> {
+    preflight(job, pipeline.config())?;
+    let (outcome, warnings) = read_and_run(pipeline, job, focus, BuildLayers::Always)?;
+    let Outcome { layers, mut report, .. } = outcome;
+    report.warnings.splice(0..0, warnings);
+    Ok((layers, report))
+}
+
+/// Prepares a rendered `image` (linear RGB) for display as `drbokeh render` writes it: in
+/// gamma mode (`render.gamma`) the inverse gamma is applied and the PNG stores the values as
+/// they are (`Transfer::Linear`); otherwise the image stays and the PNG encodes sRGB. Returns
+/// the transfer a PNG of it uses.
+pub fn display_transfer(image: &mut Image, cfg: &Config) -> Transfer {
+    match cfg.render.gamma {
         Some(g) => {
             image.map_inplace(|v| v.max(0.0).powf(1.0 / g));
             Transfer::Linear
         }
         None => Transfer::Srgb,
-    };
-    io::write_output(output, image, cfg.output.bit_depth.bits(), png_transfer)
+    }
+}
+
+/// Writes a rendered `image` (linear RGB) to `output`, atomically, as `drbokeh render` does
+/// ([`display_transfer`], `output.bit_depth` for a PNG).
+pub fn write_image(output: &Path, image: &mut Image, cfg: &Config) -> Result<()> {
+    let transfer = display_transfer(image, cfg);
+    io::write_output(output, image, cfg.output.bit_depth.bits(), transfer)
 }
 
 /// The frames of a focus pull from `layers` (built once), each rendered by a
@@ -288,7 +316,6 @@ fn render_frames(
     pull: &FocusPull,
     pattern: &FramePattern,
     layers: Vec<Layer>,
-    format: io::OutputFormat,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<crate::pipeline::FrameReport>> {
     if layers.is_empty() {
@@ -308,7 +335,7 @@ fn render_frames(
             }
         }
         let path = pattern.path(i);
-        write_image(&path, &mut image, cfg, format)?;
+        write_image(&path, &mut image, cfg)?;
         frames.push(crate::pipeline::FrameReport { output: path.display().to_string(), focus, blur: k, ms: ms_since(t) });
     }
     Ok(frames)
@@ -470,7 +497,7 @@ pub fn layer_file_names(dir: &Path, n: usize) -> Vec<LayerFiles> {
 
 /// Refuses a `--save-layers` destination that exists and is not a folder (the layers are
 /// several files).
-fn check_layer_folder(dir: &Path) -> Result<()> {
+pub fn check_layer_folder(dir: &Path) -> Result<()> {
     match std::fs::metadata(dir) {
         Ok(m) if !m.is_dir() => Err(Error::usage(format!(
             "job.save_layers {} is a file: it must be a folder (created if missing) to write the layers into",

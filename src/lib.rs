@@ -26,6 +26,7 @@ pub mod render;
 pub mod resources;
 pub mod stages;
 pub mod timing;
+pub mod view;
 
 pub use color::PhotoEncoding;
 pub use config::Config;

@@ -20,6 +20,7 @@ mod cli_batch;
 mod cli_bench;
 mod cli_dfd;
 mod cli_inspect;
+mod cli_view;
 
 #[derive(Parser)]
 #[command(name = "drbokeh", version, about = "Occlusion-aware lens blur (Dr.Bokeh) from one photo and its depth")]
@@ -45,6 +46,9 @@ enum Command {
     /// GDepth) and its parameters;
     /// --extract-depth writes that map for other tools.
     Inspect(cli_inspect::InspectArgs),
+    /// Interactive refocus: builds the layers once and serves a page on 127.0.0.1 (click to
+    /// focus, sliders for the blur and the look, save full size) and its HTTP API.
+    View(cli_view::ViewArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -328,6 +332,7 @@ fn main() -> ExitCode {
         Command::Batch(args) => cli_batch::batch(args),
         Command::Dfd(args) => cli_dfd::dfd(args).map(|()| ExitCode::SUCCESS),
         Command::Inspect(args) => cli_inspect::run(args).map(|()| ExitCode::SUCCESS),
+        Command::View(args) => cli_view::view(args).map(|()| ExitCode::SUCCESS),
     });
     match result {
         Ok(Ok(code)) => code,

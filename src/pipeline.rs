@@ -305,6 +305,19 @@ fn nothing_out_of_focus(kernel: KernelChoice, max_coc: f32) -> Option<String> {
         .then(|| format!("no pixel's circle of confusion reaches half a pixel (largest radius {max_coc:.3} px)"))
 }
 
+/// The disparity a click at pixel (`x`, `y`) of `layers` (front first, non-empty) focuses on:
+/// the front-most layer that is mostly opaque there (alpha > 0.5), else the back layer. A
+/// pixel outside the layers is a usage error naming `render.focus_at`.
+pub fn disparity_at(layers: &[Layer], x: i64, y: i64) -> Result<f32> {
+    let (w, h) = (layers[0].width(), layers[0].height());
+    if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+        return Err(Error::usage(format!("render.focus_at {x},{y} is outside the {w}x{h} layers")));
+    }
+    let i = y as usize * w + x as usize;
+    let l = layers.iter().find(|l| l.alpha(i) > 0.5).unwrap_or(layers.last().expect("non-empty"));
+    Ok(l.disparity(i))
+}
+
 /// Whether [`Pipeline::run_with`] builds the layers when nothing is out of focus.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BuildLayers {
@@ -785,6 +798,13 @@ impl Pipeline {
         Ok(Outcome { image, layers, report })
     }
 
+    /// Renders borrowed `layers` (front first) at `focus` and `blur` (None: the configured
+    /// blur): [`Pipeline::render_layers`] without giving the layers away (an interactive
+    /// refocus, [`crate::view`]). The image (linear RGB) and the report.
+    pub fn refocus(&self, layers: &[Layer], focus: Focus, blur: Option<f32>) -> Result<(Image, Report)> {
+        self.render_given(layers, focus, blur)
+    }
+
     /// Whether only the back layer of given `layers` is rendered (occlusion off).
     fn renders_back_only(&self, layers: &[Layer]) -> bool {
         !self.config.render.occlusion && layers.len() > 1
@@ -799,16 +819,7 @@ impl Pipeline {
         };
         let (w, h) = (first.width(), first.height());
         let mut report = Report::default();
-        let at = |x: i64, y: i64| -> Result<f32> {
-            if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-                return Err(Error::usage(format!("render.focus_at {x},{y} is outside the {w}x{h} layers")));
-            }
-            let i = y as usize * w + x as usize;
-            // The front-most layer that is mostly opaque there is what the user clicked on.
-            let l = layers.iter().find(|l| l.alpha(i) > 0.5).unwrap_or(layers.last().expect("non-empty"));
-            Ok(l.disparity(i))
-        };
-        let focus = Self::resolve_focus(focus, at, None, &mut report)?;
+        let focus = Self::resolve_focus(focus, |x, y| disparity_at(layers, x, y), None, &mut report)?;
         for name in ["segment", "fill_depth", "inpaint", "slice"] {
             report.skipped(name, "layers were given");
         }

@@ -1,0 +1,204 @@
+//! `drbokeh view` (issue 40): the server and its HTTP API, from outside, as a browser or a
+//! script uses them. The binary runs with `--port 0 --no-browser`; requests are plain
+//! HTTP/1.0 over a TcpStream.
+
+mod common;
+
+use drbokeh::Image;
+use drbokeh::color::Transfer;
+use drbokeh::io;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::process::{Child, Stdio};
+use std::time::Duration;
+
+/// The server process, killed when dropped.
+struct Server {
+    child: Child,
+    addr: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Server {
+    fn start(dir: &Path, args: &[&str]) -> Server {
+        let mut c = common::drbokeh(dir);
+        c.arg("view").args(args).args(["--port", "0", "--no-browser"]).stdout(Stdio::piped()).stderr(Stdio::piped());
+        let mut child = c.spawn().expect("drbokeh view starts");
+        let stdout = child.stdout.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = BufReader::new(stdout).read_line(&mut line);
+            let _ = tx.send(line);
+        });
+        let line = rx.recv_timeout(Duration::from_secs(120)).expect("the server prints its URL");
+        let url = line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("first line: {line:?}"));
+        // Loopback only.
+        let addr = url.strip_prefix("http://127.0.0.1:").and_then(|r| r.strip_suffix('/')).unwrap_or_else(|| panic!("{url}"));
+        Server { child, addr: format!("127.0.0.1:{addr}") }
+    }
+
+    /// `METHOD path` → (status, body).
+    fn request(&self, method: &str, path: &str) -> (u16, Vec<u8>) {
+        let mut s = TcpStream::connect(&self.addr).expect("connect");
+        s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+        write!(s, "{method} {path} HTTP/1.0\r\nHost: localhost\r\nContent-Length: 0\r\n\r\n").unwrap();
+        let mut all = Vec::new();
+        s.read_to_end(&mut all).unwrap();
+        let end = all.windows(4).position(|w| w == b"\r\n\r\n").expect("headers end");
+        let head = String::from_utf8_lossy(&all[..end]).into_owned();
+        let status = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or_else(|| panic!("{head}"));
+        (status, all[end + 4..].to_vec())
+    }
+
+    fn json(&self, method: &str, path: &str) -> (u16, serde_json::Value) {
+        let (status, body) = self.request(method, path);
+        (status, serde_json::from_slice(&body).unwrap_or_else(|e| panic!("{path}: not JSON ({e}): {}", String::from_utf8_lossy(&body))))
+    }
+}
+
+fn scene(dir: &Path) {
+    let (w, h) = (64usize, 48usize);
+    let mut rng = common::Rng::new(40);
+    let rgb = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| 0.05 + 0.9 * rng.next_f32()).collect()).unwrap();
+    let fg = |x: usize, y: usize| (x as f32 - 24.0).powi(2) + (y as f32 - 22.0).powi(2) < 121.0;
+    let z =
+        Image::from_vec(w, h, 1, (0..w * h).map(|i| if fg(i % w, i / w) { 1.0 } else { 3.0 + (i % w) as f32 / 32.0 }).collect()).unwrap();
+    let m = Image::from_vec(w, h, 1, (0..w * h).map(|i| if fg(i % w, i / w) { 1.0 } else { 0.0 }).collect()).unwrap();
+    io::write_exr(&dir.join("image.exr"), &rgb, &["R", "G", "B"]).unwrap();
+    io::write_exr(&dir.join("depth.exr"), &z, &["Z"]).unwrap();
+    io::write_png(&dir.join("matte.png"), &m, 8, Transfer::Linear).unwrap();
+}
+
+fn render_layers(dir: &Path, extra: &[&str]) -> Vec<u8> {
+    let mut c = common::drbokeh(dir);
+    c.args(["render", "--layer", "L/0_fg.exr", "--layer", "L/1_bg.exr", "-o", "one.png"]).args(extra);
+    let out = common::run(c);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::read(dir.join("one.png")).unwrap()
+}
+
+fn png_size(b: &[u8]) -> (u32, u32) {
+    let img = image::load_from_memory(b).expect("a PNG");
+    (img.width(), img.height())
+}
+
+#[test]
+fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
+    let t = tempfile::tempdir().unwrap();
+    let d = t.path();
+    scene(d);
+    let server = Server::start(d, &["image.exr", "--depth", "depth.exr", "--matte", "matte.png", "--save-layers", "L", "-o", "saved.png"]);
+    // The page and its settings.
+    let (status, page) = server.request("GET", "/");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&page).contains("/render?"), "the page uses the API");
+    let (status, info) = server.json("GET", "/info");
+    assert_eq!(status, 200);
+    assert_eq!((info["width"].as_u64(), info["height"].as_u64(), info["layers"].as_u64()), (Some(64), Some(48), Some(2)), "{info}");
+
+    // /render at full size is `drbokeh render --layer` of the served layers, byte for byte,
+    // for a click and for a focus value, with a profile and a quality.
+    for (query, flags) in [
+        ("focus_at=24,22&blur=6", vec!["--focus-at", "24,22", "--blur", "6"]),
+        ("focus=0.1&blur=9&profile=official", vec!["--focus", "0.1", "--blur", "9", "--profile", "official"]),
+        ("focus_at=60,5&blur=4&quality=5", vec!["--focus-at", "60,5", "--blur", "4", "--quality", "5"]),
+    ] {
+        let (status, png) = server.request("GET", &format!("/render?{query}"));
+        assert_eq!(status, 200, "{query}: {}", String::from_utf8_lossy(&png));
+        assert!(png == render_layers(d, &flags), "{query}: /render differs from drbokeh render --layer {flags:?}");
+    }
+    // A preview: the width asked for, the aspect ratio kept.
+    let (status, png) = server.request("GET", "/render?focus_at=24,22&blur=6&width=32");
+    assert_eq!((status, png_size(&png)), (200, (32, 24)));
+    // The disparity a click picks: the subject's (near, 1) and the background's.
+    let (_, j) = server.json("GET", "/depth?x=24&y=22");
+    assert_eq!(j["disparity"].as_f64(), Some(1.0), "{j}");
+    let (_, j) = server.json("GET", "/depth?x=63&y=0");
+    assert!(j["disparity"].as_f64().unwrap() < 0.5, "{j}");
+    let (status, png) = server.request("GET", "/overlay?kind=depth&width=16");
+    assert_eq!((status, png_size(&png)), (200, (16, 12)));
+
+    // Bad requests: 400 naming the parameter; unknown paths 404; wrong methods 405.
+    for (path, needle) in [
+        ("/render?focus=0.5&blur=3&bogus=1", "bogus"),
+        ("/render?blur=3", "focus"),
+        ("/render?focus=0.5&focus_at=1,1", "focus_at"),
+        ("/render?focus_at=64,1", "outside"),
+        ("/render?focus_at=a,b", "focus_at"),
+        ("/render?focus=nan", "focus"),
+        ("/render?focus=0.5&blur=-1", "blur"),
+        ("/render?focus=0.5&blur=1e9", "blur"),
+        ("/render?focus=0.5&width=0", "width"),
+        ("/render?focus=0.5&width=65", "width"),
+        ("/render?focus=0.5&profile=fancy", "profile"),
+        ("/render?focus=0.5&quality=9", "quality"),
+        ("/depth?x=99&y=0", "outside"),
+        ("/depth?x=1", "y"),
+        ("/overlay?kind=colour", "kind"),
+    ] {
+        let (status, j) = server.json("GET", path);
+        assert_eq!(status, 400, "{path}: {j}");
+        assert!(j["error"].as_str().is_some_and(|e| e.contains(needle)), "{path}: {j}");
+    }
+    assert_eq!(server.request("GET", "/etc/passwd").0, 404);
+    assert_eq!(server.request("GET", "/save?focus=0.5").0, 405);
+    assert_eq!(server.request("DELETE", "/render?focus=0.5").0, 405);
+
+    // Concurrent requests: each answer is its own focus's, as asked one at a time.
+    let want: Vec<Vec<u8>> = (0..6).map(|k| server.request("GET", &format!("/render?focus={}&blur=7", k as f32 / 5.0)).1).collect();
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..6)
+            .map(|k| {
+                s.spawn({
+                    let server = &server;
+                    move || server.request("GET", &format!("/render?focus={}&blur=7", k as f32 / 5.0))
+                })
+            })
+            .collect();
+        for (k, h) in handles.into_iter().enumerate() {
+            let (status, body) = h.join().unwrap();
+            assert!(status == 200 && body == want[k], "concurrent request {k}");
+        }
+    });
+    assert!(want.windows(2).all(|p| p[0] != p[1]), "the foci render differently");
+
+    // Save: the output chosen at start, the render of those settings, and the command line.
+    assert!(!d.join("saved.png").exists());
+    let (status, j) = server.json("POST", "/save?focus_at=24,22&blur=6");
+    assert_eq!(status, 200, "{j}");
+    assert_eq!(j["path"], "saved.png");
+    let cmd = j["command"].as_str().unwrap();
+    assert!(
+        cmd.starts_with("drbokeh render image.exr --depth depth.exr --matte matte.png")
+            && cmd.contains("--focus-at 24,22 --blur 6 -o saved.png"),
+        "{cmd}"
+    );
+    assert!(std::fs::read(d.join("saved.png")).unwrap() == render_layers(d, &["--focus-at", "24,22", "--blur", "6"]));
+}
+
+#[test]
+fn view_refuses_bad_setups() {
+    let t = tempfile::tempdir().unwrap();
+    let d = t.path();
+    scene(d);
+    // The output may not be an input; a missing depth file is named.
+    for (args, needle) in [
+        (vec!["image.exr", "--depth", "depth.exr", "-o", "depth.exr"], "depth.exr"),
+        (vec!["image.exr", "--depth", "missing.exr"], "missing.exr"),
+    ] {
+        let mut c = common::drbokeh(d);
+        c.arg("view").args(&args).args(["--no-browser", "--port", "0"]);
+        let out = common::run(c);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+}
