@@ -137,12 +137,11 @@ pub(crate) fn view(args: ViewArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The photo's (or first layer's) size from its header, for the default blur.
+/// The photo's (or first layer's) size, from its header where it has one, for the default blur.
 fn layer_size(job: &Job, cfg: &drbokeh::Config) -> anyhow::Result<(usize, usize)> {
     let path = job.image.as_ref().or(job.layers.first()).context("a photo or a layer is needed")?;
     let limits = drbokeh::io::ReadLimits { max_pixels: cfg.input.max_pixels };
-    let d = drbokeh::io::read_decoded(path, &limits).map_err(as_flags)?;
-    Ok((d.image.width, d.image.height))
+    Ok(drbokeh::io::inspect::raster_size(path, &limits).map_err(as_flags)?)
 }
 
 /// Opens `url` in the desktop's browser, if there is one (failure is not an error: the URL

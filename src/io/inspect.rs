@@ -96,6 +96,14 @@ pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Option<E
     Ok((inspection, embedded))
 }
 
+/// The size (width, height) of the raster `path`, from its header where the format has one
+/// the `image` crate reads (PNG, JPEG, TIFF: no pixels decoded), else decoded in full; checked
+/// against `limits`.
+pub fn raster_size(path: &Path, limits: &ReadLimits) -> Result<(usize, usize)> {
+    let h = photo_header(path, detect_format(path)?, limits)?;
+    Ok((h.width, h.height))
+}
+
 /// A raster's size and sample layout.
 struct Header {
     width: usize,
