@@ -18,6 +18,22 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     echo "$want" > "$stamp"
 fi
 
+# Debian packages, unpacked without root: `deb_unpack DIR PACKAGE...` downloads them with
+# `apt-get download` and unpacks each with `dpkg -x` into DIR.
+deb_unpack() {
+    local dir=$1
+    shift
+    local tmp
+    tmp=$(mktemp -d)
+    chmod a+rwx "$tmp" # apt's download user, when run as root
+    (cd "$tmp" && apt-get download -qq "$@")
+    mkdir -p "$dir"
+    for deb in "$tmp"/*.deb; do
+        dpkg -x "$deb" "$dir"
+    done
+    rm -rf "$tmp"
+}
+
 # ExifTool, the independent reader and writer of GDepth XMP (tests/embedded_depth.rs): Debian's
 # libimage-exiftool-perl (pure Perl, runs with the system perl), downloaded with
 # `apt-get download` (no root) and unpacked with `dpkg -x` into .tools/exiftool/. Where apt is
@@ -26,14 +42,25 @@ fi
 exiftool_dir=.tools/exiftool
 if [ ! -f "$exiftool_dir/usr/bin/exiftool" ]; then
     if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
-        tmp=$(mktemp -d)
-        chmod a+rwx "$tmp" # apt's download user, when run as root
-        (cd "$tmp" && apt-get download -qq libimage-exiftool-perl)
-        mkdir -p "$exiftool_dir"
-        dpkg -x "$tmp"/libimage-exiftool-perl_*.deb "$exiftool_dir"
-        rm -rf "$tmp"
+        deb_unpack "$exiftool_dir" libimage-exiftool-perl
         echo "ExifTool $(perl -I "$exiftool_dir/usr/share/perl5" "$exiftool_dir/usr/bin/exiftool" -ver) unpacked into $exiftool_dir"
     else
         echo "warning: apt-get/dpkg not found: ExifTool not installed ($exiftool_dir); tests/embedded_depth.rs's ExifTool tests need it or \$DRBOKEH_EXIFTOOL" >&2
+    fi
+fi
+
+# Chromium's headless shell, the browser tests/view.rs drives `drbokeh view`'s page with
+# (Debian's chromium-headless-shell, with the libraries it needs that a server image lacks),
+# unpacked into .tools/chromium/ and run with LD_LIBRARY_PATH pointing there ($DRBOKEH_CHROMIUM:
+# a headless Chromium of your own).
+chromium_dir=.tools/chromium
+if [ ! -x "$chromium_dir/usr/lib/chromium/chromium-headless-shell" ] && [ -z "${DRBOKEH_CHROMIUM:-}" ]; then
+    if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
+        deb_unpack "$chromium_dir" chromium-headless-shell chromium-common libopenh264-7 libdouble-conversion3 libopus0 \
+            libharfbuzz-subset0 libxnvctrl0 libpulse0 libflac12 libminizip1 libogg0 libsndfile1 libasyncns0 libvorbis0a \
+            libvorbisenc2 libmpg123-0 libmp3lame0
+        echo "Chromium's headless shell unpacked into $chromium_dir"
+    else
+        echo "warning: apt-get/dpkg not found: Chromium not installed ($chromium_dir); tests/view.rs's page test needs it or \$DRBOKEH_CHROMIUM" >&2
     fi
 fi

@@ -202,3 +202,69 @@ fn view_refuses_bad_setups() {
         assert!(err.contains(needle), "{args:?}: {err}");
     }
 }
+
+/// FNV-1a (32 bits), as the page computes it over a preview's bytes.
+fn fnv1a(bytes: &[u8]) -> u32 {
+    bytes.iter().fold(0x811c9dc5u32, |h, &b| (h ^ b as u32).wrapping_mul(0x01000193))
+}
+
+/// Chromium's headless shell: `$DRBOKEH_CHROMIUM`, else the one `scripts/setup-test-env.sh`
+/// unpacks into `.tools/chromium` (run with its libraries on LD_LIBRARY_PATH).
+fn chromium() -> std::process::Command {
+    if let Ok(p) = std::env::var("DRBOKEH_CHROMIUM") {
+        return std::process::Command::new(p);
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/chromium/usr");
+    let bin = root.join("lib/chromium/chromium-headless-shell");
+    assert!(bin.exists(), "{} is missing: run scripts/setup-test-env.sh (or set DRBOKEH_CHROMIUM)", bin.display());
+    let libs = [root.join("lib/x86_64-linux-gnu"), root.join("lib/x86_64-linux-gnu/pulseaudio")];
+    let mut path = std::env::join_paths(libs).unwrap();
+    if let Some(old) = std::env::var_os("LD_LIBRARY_PATH") {
+        path = std::env::join_paths(std::env::split_paths(&path).chain(std::env::split_paths(&old))).unwrap();
+    }
+    let mut c = std::process::Command::new(bin);
+    c.env("LD_LIBRARY_PATH", path);
+    c
+}
+
+/// The page in a real (headless) browser: it loads, shows a first preview (focused on the
+/// subject at the centre), a mouse click on the background refocuses there, and the preview it shows is byte for byte what `/render`
+/// answers for that click's query (checked through the FNV-1a the page keeps of its bytes).
+#[test]
+fn the_page_refocuses_where_clicked_in_a_browser() {
+    let t = tempfile::tempdir().unwrap();
+    let d = t.path();
+    scene(d);
+    let server = Server::start(d, &["image.exr", "--depth", "depth.exr", "--matte", "matte.png"]);
+    // The first preview focuses at the centre (on the subject); then a click on the background
+    // at pixel (55, 40) of the 64x48 photo, given as fractions of the shown image.
+    let url = format!("http://{}/#click={},{}", server.addr, 55.5 / 64.0, 40.5 / 48.0);
+    let profile = tempfile::tempdir().unwrap();
+    let out = chromium()
+        .args(["--no-sandbox", "--disable-gpu", "--window-size=900,700", "--dump-dom", "--virtual-time-budget=60000"])
+        .arg(format!("--user-data-dir={}", profile.path().display()))
+        .arg(&url)
+        .output()
+        .expect("Chromium runs");
+    let dom = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success() && dom.contains("id=\"status\""), "Chromium failed: {}\n{dom}", String::from_utf8_lossy(&out.stderr));
+    let attr = |name: &str| -> String {
+        let key = format!("{name}=\"");
+        let at = dom.find(&key).unwrap_or_else(|| panic!("no {name} on the page:\n{dom}")) + key.len();
+        dom[at..at + dom[at..].find('"').unwrap()].replace("&amp;", "&")
+    };
+    let (query, renders) = (attr("data-query"), attr("data-renders"));
+    assert_eq!(renders, "2", "a first preview, then the click's: {dom}");
+    // The browser places the click within a pixel of (55, 40) (the shown image's position is
+    // fractional): on the background either way.
+    let xy = query.split('&').find_map(|kv| kv.strip_prefix("focus_at=")).unwrap_or_else(|| panic!("{query}")).replace("%2C", ",");
+    let (x, y) = xy.split_once(',').map(|(x, y)| (x.parse::<i64>().unwrap(), y.parse::<i64>().unwrap())).unwrap();
+    assert!((x - 55).abs() <= 1 && (y - 40).abs() <= 1, "the click focuses near 55,40: {query}");
+    let (_, j) = server.json("GET", &format!("/depth?x={x}&y={y}"));
+    assert!(j["disparity"].as_f64().unwrap() < 0.5, "the click is on the background: {j}");
+    let (status, png) = server.request("GET", &format!("/render?{query}"));
+    assert_eq!(status, 200);
+    assert_eq!(attr("data-bytes"), png.len().to_string());
+    assert_eq!(attr("data-sum"), fnv1a(&png).to_string(), "the preview shown is /render's answer");
+    assert_ne!(attr("data-first-sum"), attr("data-sum"), "the click changed the preview");
+}
