@@ -51,6 +51,13 @@ pub struct BatchOptions {
     pub focus: Option<Focus>,
     /// Per-image overrides (see [`read_manifest`]), if any.
     pub manifest: Option<PathBuf>,
+    /// The manifest's `focus` values are keyframes: an image without its own focus gets one
+    /// interpolated in the batch's order ([`interpolate_keyframes`]).
+    pub keyframes: bool,
+    /// `(seconds, frames per second)`: the images' focus values, in the batch's order, smoothed
+    /// over time by a Gaussian of that width ([`smooth_foci`]), so a video's focus does not
+    /// jitter from frame to frame.
+    pub focus_smoothing: Option<(f32, f32)>,
 }
 
 /// Per-image overrides from a manifest (CSV with a header row, or TOML `[[image]]` tables).
@@ -288,6 +295,10 @@ pub struct ItemResult {
     pub output: String,
     /// Wall-clock time spent on the item, seconds (0 for cancelled items).
     pub seconds: f64,
+    /// The focus as normalized disparity, when it was given as one (by `--focus`, the
+    /// manifest, keyframes or smoothing); absent for a focus given by `focus_at`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub focus: Option<f32>,
     /// The fingerprint the output was (or is) made with: 16 hex digits of the inputs' hash,
     /// then 16 of the parameters' hash (see [`Fingerprint`]); absent when the item did not get
     /// that far.
@@ -428,7 +439,9 @@ fn drop_outputs(items: Vec<Item>) -> Result<Vec<Item>> {
 }
 
 /// Resolves focus, blur and matte of every item and checks them: a non-finite focus, a bad
-/// manifest value or an image without any focus is an error before anything renders.
+/// manifest value or an image without any focus is an error before anything renders. With
+/// `keyframes`, an image the manifest does not focus gets its focus from the manifest's focus
+/// values around it; with `focus_smoothing`, every focus is then smoothed over the sequence.
 fn plan(
     cfg: &Config,
     opts: &BatchOptions,
@@ -464,9 +477,43 @@ fn plan(
                 focus = Some(Focus::At(x, y));
             }
         }
+        if opts.keyframes && !manifest.get(&item.rel).is_some_and(|e| e.focus.is_some() || e.focus_at.is_some()) {
+            // Filled in below from the keyframes around it.
+            focus = Some(Focus::Disparity(f32::NAN));
+        }
         match focus {
             Some(focus) => plans.push(Plan { item, cfg, focus }),
             None => unfocused.push(item.rel),
+        }
+    }
+    if opts.keyframes {
+        let keys: Vec<Option<f32>> = plans.iter().map(|p| manifest.get(&p.item.rel).and_then(|e| e.focus)).collect();
+        let foci = interpolate_keyframes(&keys).ok_or_else(|| {
+            Error::usage("--keyframes: the manifest gives no image a focus value to interpolate from (focus_at entries are not keyframes)")
+        })?;
+        for (p, f) in plans.iter_mut().zip(foci) {
+            // An image the manifest focuses (a keyframe, or by focus_at) keeps its own.
+            if !manifest.get(&p.item.rel).is_some_and(|e| e.focus.is_some() || e.focus_at.is_some()) {
+                p.focus = Focus::Disparity(f);
+            }
+        }
+    }
+    if let Some((seconds, fps)) = opts.focus_smoothing {
+        if !(seconds.is_finite() && seconds >= 0.0 && fps.is_finite() && fps > 0.0) {
+            return Err(Error::usage(format!("--focus-smoothing {seconds} at --fps {fps}: give seconds >= 0 and frames per second > 0")));
+        }
+        let foci: Vec<f32> = plans
+            .iter()
+            .map(|p| match p.focus {
+                Focus::Disparity(f) => Ok(f),
+                _ => Err(Error::usage(format!(
+                    "--focus-smoothing smooths focus values; image '{}' is focused by focus_at (give focus values, or --keyframes)",
+                    p.item.rel
+                ))),
+            })
+            .collect::<Result<_>>()?;
+        for (p, f) in plans.iter_mut().zip(smooth_foci(&foci, seconds * fps)) {
+            p.focus = Focus::Disparity(f);
         }
     }
     if !unfocused.is_empty() {
@@ -477,6 +524,53 @@ fn plan(
         )));
     }
     Ok(plans)
+}
+
+/// The focus of every image from the keyframes among them (`Some(focus)` where the manifest
+/// gives one, in the batch's order): linear between the keyframes around an image, the
+/// nearest keyframe's before the first and after the last. None without any keyframe.
+pub fn interpolate_keyframes(keys: &[Option<f32>]) -> Option<Vec<f32>> {
+    let known: Vec<(usize, f32)> = keys.iter().enumerate().filter_map(|(i, k)| k.map(|f| (i, f))).collect();
+    let (&(first_i, first_f), &(last_i, last_f)) = (known.first()?, known.last()?);
+    let mut next = 0;
+    Some(
+        (0..keys.len())
+            .map(|i| {
+                if i <= first_i {
+                    return first_f;
+                }
+                if i >= last_i {
+                    return last_f;
+                }
+                while known[next + 1].0 < i {
+                    next += 1;
+                }
+                let ((a, fa), (b, fb)) = (known[next], known[next + 1]);
+                fa + (fb - fa) * (i - a) as f32 / (b - a) as f32
+            })
+            .collect(),
+    )
+}
+
+/// `foci` (one per frame, in order) smoothed by a Gaussian of `sigma` frames, its weights
+/// renormalized at the ends (a still focus stays as it is; `sigma` 0 changes nothing). The
+/// kernel reaches 3σ.
+pub fn smooth_foci(foci: &[f32], sigma: f32) -> Vec<f32> {
+    if sigma <= 0.0 || foci.len() < 2 {
+        return foci.to_vec();
+    }
+    let reach = (3.0 * sigma).ceil() as usize;
+    let w: Vec<f64> = (0..=reach).map(|d| (-0.5 * (d as f64 / sigma as f64).powi(2)).exp()).collect();
+    (0..foci.len())
+        .map(|i| {
+            let (lo, hi) = (i.saturating_sub(reach), (i + reach).min(foci.len() - 1));
+            let (sum, norm) = (lo..=hi).fold((0.0f64, 0.0f64), |(s, n), j| {
+                let k = w[i.abs_diff(j)];
+                (s + k * foci[j] as f64, n + k)
+            });
+            (sum / norm) as f32
+        })
+        .collect()
 }
 
 /// Runs the batch. `progress` is called after each item with (done, total, result).
@@ -548,6 +642,12 @@ pub fn run(
         all.sort_by_key(|(i, _)| *i);
         all.into_iter().map(|(_, r)| r).collect()
     });
+    let mut results = results;
+    for (r, p) in results.iter_mut().zip(&plans) {
+        if let Focus::Disparity(f) = p.focus {
+            r.focus = Some(f);
+        }
+    }
     let mut summary = Summary { shard: opts.shard.map(|(i, n)| format!("{i}/{n}")), ..Default::default() };
     for r in &results {
         match r.status {
@@ -580,6 +680,7 @@ fn result(item: &Item, status: Status, reason: Option<String>, seconds: f64, fin
         reason,
         output: item.output.display().to_string(),
         seconds,
+        focus: None,
         fingerprint: fingerprint.map(Fingerprint::hex),
     }
 }
@@ -753,6 +854,30 @@ mod tests {
             }
         });
         most.into_inner()
+    }
+
+    #[test]
+    fn keyframes_interpolate_and_hold_at_the_ends() {
+        assert_eq!(interpolate_keyframes(&[None, None]), None);
+        let f = interpolate_keyframes(&[None, Some(0.2), None, None, Some(0.8), None]).unwrap();
+        let want = [0.2, 0.2, 0.4, 0.6, 0.8, 0.8];
+        assert!(f.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{f:?}");
+        assert_eq!(interpolate_keyframes(&[Some(0.5), None, None]).unwrap(), vec![0.5; 3]);
+        let f = interpolate_keyframes(&[Some(0.0), None, Some(1.0), None, Some(0.0)]).unwrap();
+        assert_eq!(f, vec![0.0, 0.5, 1.0, 0.5, 0.0]);
+    }
+
+    #[test]
+    fn smoothing_removes_jitter_and_keeps_a_still_focus() {
+        assert_eq!(smooth_foci(&[0.3; 10], 4.0), vec![0.3; 10]);
+        assert_eq!(smooth_foci(&[0.1, 0.9, 0.1], 0.0), vec![0.1, 0.9, 0.1]);
+        // Frame-to-frame jitter of ±0.05 around a slow ramp: the smoothed steps are far smaller.
+        let jittery: Vec<f32> = (0..60).map(|i| 0.2 + 0.01 * i as f32 + if i % 2 == 0 { 0.05 } else { -0.05 }).collect();
+        let s = smooth_foci(&jittery, 3.0);
+        let worst = |v: &[f32]| v.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0f32, f32::max);
+        assert!(worst(&jittery) > 0.08 && worst(&s[5..55]) < 0.02, "{} -> {}", worst(&jittery), worst(&s[5..55]));
+        // The ramp itself is kept in the middle.
+        assert!((s[30] - (0.2 + 0.30)).abs() < 0.02, "{}", s[30]);
     }
 
     /// `[batch] memory_budget_mb`: images whose estimates together exceed the budget never run

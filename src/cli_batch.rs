@@ -29,6 +29,18 @@ pub struct BatchArgs {
     /// ([[image]] tables with the same keys); image paths relative to INPUT_DIR.
     #[arg(long, value_name = "FILE")]
     manifest: Option<PathBuf>,
+    /// The manifest's focus values are keyframes: images it does not focus get a focus
+    /// interpolated between the keyframes around them (in sorted order; held before the first
+    /// and after the last), as for the frames of a video.
+    #[arg(long, requires = "manifest")]
+    keyframes: bool,
+    /// Smooth the images' focus values over the sequence (a Gaussian of this many seconds at
+    /// --fps), so a video's focus does not jitter from frame to frame.
+    #[arg(long, value_name = "SECONDS")]
+    focus_smoothing: Option<f32>,
+    /// Frames per second of the sequence, for --focus-smoothing.
+    #[arg(long, value_name = "FPS", default_value_t = 30.0, requires = "focus_smoothing")]
+    fps: f32,
     /// Also process subfolders (mirrored in the output folder).
     #[arg(long)]
     recursive: bool,
@@ -63,6 +75,8 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         jobs: parse_jobs(&args.jobs)?,
         focus: args.focus.map(Focus::Disparity).or(args.focus_at.map(|(x, y)| Focus::At(x, y))),
         manifest: args.manifest.clone(),
+        keyframes: args.keyframes,
+        focus_smoothing: args.focus_smoothing.map(|s| (s, args.fps)),
     };
     // SIGINT/SIGTERM: stop starting images; those in flight finish (their writes are atomic).
     let cancel = Arc::new(AtomicBool::new(false));

@@ -580,3 +580,55 @@ fn signals_stop_a_batch_cleanly() {
         assert_eq!(done, pngs.len(), "{s}");
     }
 }
+
+/// Issue 40: the manifest's focus values as keyframes of a frame sequence (interpolated in
+/// sorted order, held at the ends), and the focus smoothed over time; each frame equals a
+/// single render at the focus the summary reports.
+#[test]
+fn keyframes_interpolate_the_focus_and_smoothing_steadies_it() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    for k in 0..6 {
+        scene(&inp, &format!("f{k}"), Some(&format!("f{k}.depth.exr")), None);
+    }
+    let m = t.path().join("keys.csv");
+    std::fs::write(&m, "image,focus\nf1.png,0.2\nf4.png,0.8\n").unwrap();
+    let foci =
+        |s: &serde_json::Value| -> Vec<f64> { s["items"].as_array().unwrap().iter().map(|i| i["focus"].as_f64().unwrap()).collect() };
+    let (code, s, err) = batch_json(&inp, &out, &["--manifest", m.to_str().unwrap(), "--keyframes", "--blur", "4"]);
+    assert_eq!(code, Some(0), "{err}");
+    let got = foci(&s);
+    let want = [0.2, 0.2, 0.4, 0.6, 0.8, 0.8];
+    assert!(got.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{got:?}");
+    // Each frame is the render at its focus.
+    for (k, f) in got.iter().enumerate() {
+        let one = t.path().join("one.png");
+        let o = bin()
+            .current_dir(&inp)
+            .args(["render", &format!("f{k}.png"), "--depth", &format!("f{k}.depth.exr"), "--focus", &f.to_string(), "--blur", "4", "-o"])
+            .arg(&one)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(std::fs::read(&one).unwrap() == std::fs::read(out.join(format!("f{k}_bokeh.png"))).unwrap(), "frame {k}");
+    }
+    // Smoothing over 0.1 s at 30 fps (σ = 3 frames): the same sequence, steadier, as the
+    // library's smoothing of the interpolated foci.
+    let (code, s, err) =
+        batch_json(&inp, &out, &["--manifest", m.to_str().unwrap(), "--keyframes", "--blur", "4", "--focus-smoothing", "0.1"]);
+    assert_eq!(code, Some(0), "{err}");
+    let smooth = foci(&s);
+    let lib = drbokeh::batch::smooth_foci(&want.map(|v| v as f32), 3.0);
+    assert!(smooth.iter().zip(&lib).all(|(a, b)| (a - *b as f64).abs() < 1e-6), "{smooth:?} vs {lib:?}");
+    assert!(smooth[0] > 0.2 && smooth[5] < 0.8 && smooth.windows(2).all(|w| w[1] >= w[0]), "{smooth:?}");
+    // Without a focus value to interpolate from, or smoothing focus_at: exit 2 naming why.
+    let bad = t.path().join("bad.csv");
+    std::fs::write(&bad, "image,focus_at\nf1.png,\"3,4\"\n").unwrap();
+    let o = batch_json_output(&inp, &out, &["--manifest", bad.to_str().unwrap(), "--keyframes"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--keyframes"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = batch_json_output(&inp, &out, &["--focus-at", "3,4", "--focus-smoothing", "0.5"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("focus_at"), "{}", String::from_utf8_lossy(&o.stderr));
+}
