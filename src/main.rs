@@ -49,6 +49,14 @@ enum Command {
     /// Interactive refocus: builds the layers once and serves a page on 127.0.0.1 (click to
     /// focus, sliders for the blur and the look, save full size) and its HTTP API.
     View(cli_view::ViewArgs),
+    /// Shell completions on stdout: `source <(drbokeh completions bash)`.
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// The manual page (roff) on stdout: `drbokeh man > drbokeh.1; man ./drbokeh.1`.
+    Man,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -333,6 +341,18 @@ fn main() -> ExitCode {
         Command::Dfd(args) => cli_dfd::dfd(args).map(|()| ExitCode::SUCCESS),
         Command::Inspect(args) => cli_inspect::run(args).map(|()| ExitCode::SUCCESS),
         Command::View(args) => cli_view::view(args).map(|()| ExitCode::SUCCESS),
+        Command::Completions { shell } => {
+            use clap::CommandFactory;
+            let mut text = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "drbokeh", &mut text);
+            print_bytes(&text).map(|()| ExitCode::SUCCESS)
+        }
+        Command::Man => {
+            use clap::CommandFactory;
+            let mut text = Vec::new();
+            clap_mangen::Man::new(Cli::command()).render(&mut text).context("cannot render the manual page")?;
+            print_bytes(&text).map(|()| ExitCode::SUCCESS)
+        }
     });
     match result {
         Ok(Ok(code)) => code,
@@ -470,6 +490,16 @@ const FLAGS: [(&str, &str); 40] = [
 ];
 
 /// `msg` with every library parameter name replaced by its flag (see [`FLAGS`]).
+/// Writes `bytes` to stdout; a reader that went away (`drbokeh man | head`) is not an error.
+fn print_bytes(bytes: &[u8]) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(bytes).and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("cannot write to standard output"),
+        _ => Ok(()),
+    }
+}
+
 pub(crate) fn flag_names(msg: &str) -> String {
     FLAGS.iter().fold(msg.to_owned(), |m, (key, flag)| m.replace(key, flag))
 }

@@ -1970,3 +1970,33 @@ fn a_focus_pull_equals_single_renders_of_its_layers() {
     );
     s.bad(&["image.exr", "--depth", "depth.exr", "--focus-from", "0", "--frames", "2", "-o", "x%d.png"], &["--focus-to"]);
 }
+
+/// Issue 41: shell completions and the manual page, generated from the argument definitions;
+/// the bash script sources cleanly and registers the completion.
+#[test]
+fn completions_and_the_manual_page() {
+    let d = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let mut c = common::drbokeh(d.path());
+        c.args(args);
+        let out = common::run(c);
+        assert!(out.status.success(), "drbokeh {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8(out.stdout).unwrap()
+    };
+    for shell in ["bash", "zsh", "fish", "powershell", "elvish"] {
+        let text = run(&["completions", shell]);
+        assert!(text.contains("render") && text.contains("focus-at") && text.contains("view"), "{shell}: {}", &text[..text.len().min(300)]);
+    }
+    let bash = d.path().join("drbokeh.bash");
+    std::fs::write(&bash, run(&["completions", "bash"])).unwrap();
+    let out = Command::new("bash").arg("-c").arg(format!("source '{}' && complete -p drbokeh", bash.display())).output().unwrap();
+    assert!(out.status.success() && String::from_utf8_lossy(&out.stdout).contains("drbokeh"), "{}", String::from_utf8_lossy(&out.stderr));
+    let man = run(&["man"]);
+    assert!(man.contains(".TH drbokeh 1") && man.contains("render") && man.contains("batch") && man.contains("inspect"), "{man}");
+    let out = common::run({
+        let mut c = common::drbokeh(d.path());
+        c.args(["completions", "tcsh"]);
+        c
+    });
+    assert_eq!(out.status.code(), Some(2), "an unknown shell is a usage error");
+}
