@@ -18,7 +18,7 @@ Builds the release binaries, then times, one after the other:
 - batch throughput (`scripts/batch_throughput.sh N`, default 100 photos of 2.1 MP).
 
 Prints the table and writes it to docs/perf/round2.md; `--readme` also copies it into
-README.md between its `<!-- perf-round2 -->` anchors. Needs `.venv` (scripts/setup-test-env.sh)
+docs/performance.md between its `<!-- perf-round2 -->` anchors. Needs `.venv` (scripts/setup-test-env.sh)
 for OpenCV. The machine is shared: the figures are medians of this run's window only.
 """
 import argparse
@@ -75,7 +75,7 @@ def main():
     ap.add_argument("--runs", type=int, default=5, help="end-to-end runs (per build with --start)")
     ap.add_argument("--start", help="folder with the issue's start build: drbokeh and examples/io_timing")
     ap.add_argument("--batch", type=int, default=100, help="photos in the batch run (0: skip)")
-    ap.add_argument("--readme", action="store_true", help="copy the table into README.md")
+    ap.add_argument("--readme", action="store_true", help="copy the table into docs/performance.md")
     a = ap.parse_args()
 
     sh(["cargo", "build", "--release", "--quiet", "--bin", "drbokeh", "--example", "make_scene", "--example", "timing",
@@ -177,7 +177,7 @@ def main():
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("# Issue 14: performance round 2, measured\n\n" + table)
     if a.readme:
-        readme = pathlib.Path("README.md")
+        readme = pathlib.Path("docs/performance.md")
         text = readme.read_text()
         start, end = "<!-- perf-round2 -->\n", "<!-- /perf-round2 -->"
         i = text.index(start) + len(start)

@@ -1,16 +1,24 @@
 #!/usr/bin/env python3
 """Copies the tables of docs/bench/report.md (made by `drbokeh bench ... --out docs/bench`)
-into README.md between their anchors, and computes the pipeline tables (issue 12: the tool's
+into the documentation pages (README.md's headline table, docs/guide.md, docs/dfd.md,
+docs/benchmarks.md) between their anchors, and computes the pipeline tables (issue 12: the tool's
 defaults from photo + depth + matte against the baselines fed the same inputs, exact and
 realistic depth, per category, seeds 1 and 2) from docs/bench*/report.csv, and copies the depth-from-defocus means and acceptance checks of
 docs/dfd-bench*/report.md and docs/dfd-heldout*/report.md (`drbokeh bench --dfd`), so the README's bench tables are never
-typed by hand."""
+typed by hand.
+
+`--check` writes nothing: it exits 1 (naming the pages) when a committed table differs from
+what the reports give, so a stale table fails the test script."""
 import collections, csv, pathlib, sys
 
 root = pathlib.Path(__file__).resolve().parent.parent
 report = (root / "docs/bench/report.md").read_text()
-readme_path = root / "README.md"
-readme = readme_path.read_text()
+# The pages with anchors, read as one text (a separator between them) so each replacement
+# finds its anchor wherever it lives; split back at the end.
+PAGES = ["README.md", "docs/guide.md", "docs/dfd.md", "docs/benchmarks.md"]
+SEP = "\n<!-- drbokeh: page boundary -->\n"
+originals = [(root / p).read_text() for p in PAGES]
+readme = SEP.join(originals)
 
 
 def section(md, head):
@@ -167,5 +175,42 @@ def highlights_table():
 
 if "<!-- highlights-bench -->\n" in readme:
     readme = replace_between(readme, "<!-- highlights-bench -->\n", "<!-- /highlights-bench -->", highlights_table() + "\n")
-readme_path.write_text(readme)
-print("README bench tables updated from docs/bench/report.md and docs/dfd-bench*/report.md", file=sys.stderr)
+
+
+def headline_table():
+    """README's few headline figures, each from the same data as the table it links to."""
+    def all_cases(depth):
+        rows = [l for l in pipeline_table(depth).split("\n")[2:] if "| all cases |" in l]
+        return [[c.strip() for c in r.strip("|").split("|")] for r in rows]
+    out = ["| question | answer | measured in |", "| --- | --- | --- |"]
+    for depth, what in [("exact", "the exact depth map and matte"), ("realistic", "a depth map as an estimator gives it (smoothed, 1/4 resolution) and a matte")]:
+        for seed, _, n, pipe, scatter, gather, margin, _oracle in all_cases(depth):
+            out.append(f"| Lens blur from a linear photo with {what}, against physically rendered ground truth (bench seed {seed}, {n} scenes) | "
+                       f"{pipe.split(' / ')[0]} dB PSNR (sRGB), {margin} dB over the best naive baseline (scatter {scatter.split(' / ')[0]}, gather {gather.split(' / ')[0]}) | "
+                       f"[benchmarks](docs/benchmarks.md#the-pipeline-against-the-baselines) |")
+    held = [l for l in highlights_table().split("\n")[2:] if l.startswith("| seed 4")]
+    for r in held:
+        c = [x.strip() for x in r.strip("|").split("|")]
+        out.append(f"| What users mostly have: an 8-bit photo (`{c[1].strip('`')}` input), a depth map as an estimator gives it, no matte (held-out seed 4, {c[2]} scenes): the pipeline against the best naive baseline | "
+                   f"{c[7]} dB (sRGB / linear) | [guide](docs/guide.md#clipped-highlights---highlights-autooffboost) |")
+    hl = [l for l in highlights_table().split("\n")[2:] if l.startswith("| Mitsuba")]
+    for r in hl:
+        c = [x.strip() for x in r.strip("|").split("|")]
+        out.append(f"| The same from an 8-bit photo whose lights are clipped (`{c[1].strip('`')}` input, Mitsuba scenes): `--highlights auto` against `off` | "
+                   f"{c[5]} dB (sRGB / linear) | [guide](docs/guide.md#clipped-highlights---highlights-autooffboost) |")
+    return "\n".join(out)
+
+
+if "<!-- headline -->\n" in readme:
+    readme = replace_between(readme, "<!-- headline -->\n", "<!-- /headline -->", headline_table() + "\n")
+pages = readme.split(SEP)
+assert len(pages) == len(PAGES), "a page boundary was lost"
+stale = [p for p, old, new in zip(PAGES, originals, pages) if old != new]
+if "--check" in sys.argv[1:]:
+    if stale:
+        sys.exit(f"stale generated tables in {', '.join(stale)}: run python3 scripts/readme_bench_tables.py")
+    print("generated tables up to date", file=sys.stderr)
+else:
+    for p, new in zip(PAGES, pages):
+        (root / p).write_text(new)
+    print(f"tables updated ({', '.join(stale) or 'no change'}) from docs/bench*/report.* and docs/dfd-*/report.md", file=sys.stderr)

@@ -18,7 +18,7 @@ T1/(N TN), and the serial fraction that Amdahl's law gives from the 1- and 2-thr
 s = 2 T2/T1 - 1 (so a 2-core machine still tells where the serial time is). It also checks
 that the output PNG is byte-identical at every thread count.
 
-With `--out FILE` the table is written there; `--readme ANCHOR` also copies it into README.md
+With `--out FILE` the table is written there; `--readme ANCHOR` also copies it into docs/performance.md
 between `<!-- ANCHOR -->` anchors (`--paste FILE --readme ANCHOR` copies a table measured
 elsewhere, e.g. on a lent many-core machine, without measuring). `--bin DIR` takes `drbokeh` and `make_scene` from DIR (a
 machine without cargo: build here, carry the two binaries). Figures are medians of this run's
@@ -100,7 +100,7 @@ def main():
     ap.add_argument("--no-build", action="store_true")
     ap.add_argument("--label", default=None, help="the machine's description in the table's heading")
     ap.add_argument("--out", help="write the table (markdown) to this file")
-    ap.add_argument("--readme", help="copy the table into README.md between <!-- ANCHOR --> anchors")
+    ap.add_argument("--readme", help="copy the table into docs/performance.md between <!-- ANCHOR --> anchors")
     ap.add_argument("--work", default=None, help="scene folder (default out/e2e-WxH)")
     ap.add_argument("--no-gaussian", action="store_true", help="skip the OpenCV reference")
     ap.add_argument("--paste", help="with --readme: copy this table file into README.md, measure nothing")
@@ -196,13 +196,13 @@ def main():
 
 
 def to_readme(table, anchor):
-    """Puts `table` between README.md's two `<!-- anchor -->` lines."""
-    readme = pathlib.Path("README.md").read_text()
+    """Puts `table` between docs/performance.md's two `<!-- anchor -->` lines."""
+    readme = pathlib.Path("docs/performance.md").read_text()
     tag = f"<!-- {anchor} -->"
     parts = readme.split(tag)
     if len(parts) != 3:
-        sys.exit(f"README.md needs two {tag} anchors")
-    pathlib.Path("README.md").write_text(parts[0] + tag + "\n" + table + "\n" + tag + parts[2])
+        sys.exit(f"docs/performance.md needs two {tag} anchors")
+    pathlib.Path("docs/performance.md").write_text(parts[0] + tag + "\n" + table + "\n" + tag + parts[2])
 
 
 if __name__ == "__main__":

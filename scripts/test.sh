@@ -6,6 +6,8 @@ cd "$(dirname "$0")/.."
 ./scripts/setup-test-env.sh
 # Form first (seconds): formatting and lints are part of passing.
 cargo fmt --all --check
+# Every generated table (README's headline, docs/) matches the reports it is made from.
+python3 scripts/readme_bench_tables.py --check
 cargo clippy --workspace --release --all-targets --locked -- -D warnings
 cargo test --release --locked "$@"
 # The Python package (python/): built into .venv from this checkout with the command README

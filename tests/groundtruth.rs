@@ -16,7 +16,7 @@ use drbokeh::render::{self, Kernel, RenderSettings};
 /// rounding; README must then be updated with the change (or the change is a regression).
 const README_MARGIN_DB: f64 = 1.0;
 
-/// README's table "Against the physical answer" and the physical-profile table (sRGB PSNR,
+/// The table "Against the physical answer" (docs/renderer.md) and the physical-profile table (sRGB PSNR,
 /// dB): scene, setting, physical, physical one group, official, no occlusion.
 const README_PSNR: [(&str, &str, [f64; 4]); 6] = [
     ("portrait", "focus_fg", [55.25, 55.25, 46.00, 25.08]),
