@@ -8,7 +8,9 @@ use crate::color::PhotoEncoding;
 use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
+pub use crate::refocus::Refocuser;
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
+pub use crate::report::{DepthSource, FrameReport, Report, StageReport, StageStatus, UsedParams};
 use crate::stages::background::{BandReach, EdgeBand, ForegroundColour, InpaintOptions, Reach, fill_background, prepare_background};
 use crate::stages::depth::Disparity;
 use crate::stages::depth_edges;
@@ -21,7 +23,6 @@ use crate::stages::slices::{self, LayerCount};
 use crate::stages::work_box;
 use crate::timing::ms_since;
 use rayon::prelude::*;
-use serde::Serialize;
 use std::time::Instant;
 
 /// A decoded input scene.
@@ -46,162 +47,6 @@ pub enum Focus {
     At(i64, i64),
     /// A metric depth (depth maps only).
     Depth(f64),
-}
-
-/// Whether a stage ran (serialized lowercase: "ran", "skipped").
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum StageStatus {
-    /// The stage did its work; `ms` is how long it took.
-    Ran,
-    /// The stage was not needed; `reason` says why and `ms` is 0.
-    Skipped,
-}
-
-/// What happened in one stage.
-#[derive(Clone, Debug, Serialize)]
-pub struct StageReport {
-    /// The stage: "read", "depth_model", "highlights", "segment", "fill_depth", "inpaint", "slice", "render",
-    /// "save_layers" or "write".
-    pub name: &'static str,
-    /// Whether it ran.
-    pub status: StageStatus,
-    /// Why it was skipped (absent when it ran).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub reason: Option<String>,
-    /// Wall-clock time it took, milliseconds (0 when skipped).
-    pub ms: f64,
-    /// Stage-specific numbers (pixels filled, kernel used, model report...), as JSON.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub detail: Option<serde_json::Value>,
-}
-
-impl StageReport {
-    /// A stage that ran for `ms` milliseconds, with optional `detail`.
-    pub fn ran(name: &'static str, ms: f64, detail: Option<serde_json::Value>) -> Self {
-        StageReport { name, status: StageStatus::Ran, reason: None, ms, detail }
-    }
-
-    /// A stage that was skipped, and why.
-    pub fn skipped(name: &'static str, reason: impl Into<String>) -> Self {
-        StageReport { name, status: StageStatus::Skipped, reason: Some(reason.into()), ms: 0.0, detail: None }
-    }
-}
-
-/// The parameters a render actually used.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct UsedParams {
-    /// Image width, pixels.
-    pub width: usize,
-    /// Image height, pixels.
-    pub height: usize,
-    /// Blur strength K used: pixels of CoC radius per unit of normalized disparity.
-    pub blur: f32,
-    /// Focal plane used, normalized disparity in [0, 1] (after clamping).
-    pub focus: f32,
-    /// Lens window side, pixels (odd); 0 when nothing was rendered.
-    pub lens: usize,
-    /// The kernel: "exact", "fast (quality Q)", or "none" when nothing was rendered.
-    pub kernel: String,
-    /// False for the classical scatter baseline (no occlusion terms).
-    pub occlusion: bool,
-    /// The naive gamma G when used; None: exact sRGB transfer.
-    pub gamma: Option<f32>,
-    /// Number of layers (1, 2 or `[segment] layers` from the pipeline; as given otherwise).
-    pub layers: usize,
-    /// Largest circle-of-confusion radius in the scene, pixels.
-    pub max_coc_radius_px: f32,
-    /// Worker threads the render used.
-    pub threads: usize,
-}
-
-/// Where a render's depth came from (`depth_source` in `--json`; tagged by `kind`).
-#[derive(Clone, Debug, Serialize)]
-#[serde(tag = "kind", rename_all = "lowercase")]
-pub enum DepthSource {
-    /// A depth file (`--depth`).
-    File {
-        /// The file.
-        path: String,
-        /// Its size, pixels.
-        width: usize,
-        /// Its size, pixels.
-        height: usize,
-        /// Bits per sample in the file.
-        bit_depth: u8,
-    },
-    /// A depth map embedded in the photo.
-    Embedded {
-        /// The photo.
-        path: String,
-        /// Its parameters (the embedding as `container`: "gdepth" or "dynamic-depth"; format,
-        /// near, far, mime, size...).
-        #[serde(flatten)]
-        info: Box<crate::io::embedded_depth::DepthInfo>,
-    },
-    /// A depth model (`[depth.onnx]` or `onnx.model_dir`).
-    Model {
-        /// The model file.
-        model: String,
-        /// The preset its contract started from.
-        preset: String,
-    },
-}
-
-impl DepthSource {
-    /// One line for people (`-v`).
-    pub fn describe(&self) -> String {
-        match self {
-            DepthSource::File { path, width, height, bit_depth } => format!("file {path} ({width}x{height}, {bit_depth}-bit)"),
-            DepthSource::Embedded { path, info } => format!("embedded in {path}: {}", info.describe()),
-            DepthSource::Model { model, preset } => format!("model {model} (preset {preset})"),
-        }
-    }
-}
-
-/// One frame of a focus pull ([`crate::focus_pull`]).
-#[derive(Clone, Debug, Serialize)]
-pub struct FrameReport {
-    /// The written file.
-    pub output: String,
-    /// The frame's focus (normalized disparity).
-    pub focus: f32,
-    /// The frame's blur K.
-    pub blur: f32,
-    /// Render and write, milliseconds.
-    pub ms: f64,
-}
-
-/// Machine-readable summary of a run (`--json`).
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct Report {
-    /// Every stage, in order, ran or skipped.
-    pub stages: Vec<StageReport>,
-    /// The parameters the render actually used.
-    pub params: UsedParams,
-    /// What the user should know (filled depth, clamped focus, long renders...).
-    pub warnings: Vec<String>,
-    /// Where the scene's depth came from (set by [`crate::job::run`] for a photo; absent for
-    /// given layers).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub depth_source: Option<DepthSource>,
-    /// The written file (set by [`crate::job::run`]).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub output: Option<String>,
-    /// A focus pull's frames, in order (set by [`crate::job::run`]; empty otherwise).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub frames: Vec<FrameReport>,
-    /// Wall-clock time of the whole run, milliseconds.
-    pub total_ms: f64,
-}
-
-impl Report {
-    fn ran(&mut self, name: &'static str, t: Instant, detail: Option<serde_json::Value>) {
-        self.stages.push(StageReport::ran(name, ms_since(t), detail));
-    }
-    fn skipped(&mut self, name: &'static str, reason: impl Into<String>) {
-        self.stages.push(StageReport::skipped(name, reason));
-    }
 }
 
 /// The result of a run.
@@ -928,70 +773,6 @@ impl Pipeline {
             max_coc_radius_px: max_coc,
             threads: rayon::current_num_threads(),
         }
-    }
-}
-
-/// Ready-made layers kept in memory and rendered at one focus after another: a focus sweep,
-/// or an app's focus control, reads or estimates the layers once. Each [`Refocuser::render`]
-/// gives exactly what [`Pipeline::render_layers`] gives for the same layers and focus; the
-/// layers are borrowed, never copied, and stay usable after an error.
-///
-/// ```
-/// use drbokeh::{Config, Focus, Image, Pipeline, pipeline::Refocuser, render::Layer};
-/// // One 32x32 layer: a grey ramp, opaque, its disparity rising from 0 to 1 across.
-/// let mut px = Vec::new();
-/// for _y in 0..32 {
-///     for x in 0..32 {
-///         let v = x as f32 / 31.0;
-///         px.extend_from_slice(&[v, v, v, 1.0, v]);
-///     }
-/// }
-/// let layer = Layer::new(Image::from_vec(32, 32, 5, px).expect("32x32x5 values"), "ramp")?;
-/// let refocuser = Refocuser::new(Pipeline::from_config(Config::default())?, vec![layer])?;
-/// for focus in [0.0, 0.5, 1.0] {
-///     let (image, _report) = refocuser.render(Focus::Disparity(focus))?;
-///     assert_eq!((image.width, image.height, image.channels), (32, 32, 3));
-/// }
-/// # Ok::<(), drbokeh::Error>(())
-/// ```
-pub struct Refocuser {
-    pipeline: Pipeline,
-    layers: Vec<Layer>,
-}
-
-impl Refocuser {
-    /// Keeps `layers` (front first, linear colours, all one size) for rendering with
-    /// `pipeline`'s render settings (blur, kernel, quality, profile, occlusion, lens).
-    pub fn new(pipeline: Pipeline, layers: Vec<Layer>) -> Result<Self> {
-        let Some(first) = layers.first() else {
-            return Err(Error::usage("no layers given"));
-        };
-        let size = (first.width(), first.height());
-        if let Some(other) = layers.iter().find(|l| (l.width(), l.height()) != size) {
-            return Err(Error::usage(format!("the layers differ in size: {}x{} and {}x{}", size.0, size.1, other.width(), other.height())));
-        }
-        Ok(Refocuser { pipeline, layers })
-    }
-
-    /// Renders the layers focused at `focus`: the linear RGB image and what ran.
-    pub fn render(&self, focus: Focus) -> Result<(Image, Report)> {
-        self.pipeline.render_given(&self.layers, focus, None)
-    }
-
-    /// [`Refocuser::render`] with the blur `blur` (K) instead of the configured one: equal to
-    /// a pipeline configured with that blur (a focus pull's frames, [`crate::focus_pull`]).
-    pub fn render_with_blur(&self, focus: Focus, blur: f32) -> Result<(Image, Report)> {
-        self.pipeline.render_given(&self.layers, focus, Some(blur))
-    }
-
-    /// The layers, front first.
-    pub fn layers(&self) -> &[Layer] {
-        &self.layers
-    }
-
-    /// Gives the layers back.
-    pub fn into_layers(self) -> Vec<Layer> {
-        self.layers
     }
 }
 
