@@ -11,7 +11,10 @@ rounds, the sides alternated; medians. The render stage `drbokeh render --json` 
 printed too (the kernels alone, in a fresh process).
 
     cargo build --release --example refocus
-    .venv/bin/python scripts/python_overhead.py [N]
+    .venv/bin/python scripts/python_overhead.py [N] [--reuse]
+
+`--reuse` calls `drbokeh.reuse_large_allocations()` first (the allocator tuning the binary
+applies to itself; opt-in for a Python program).
 """
 
 import json
@@ -31,7 +34,10 @@ REFOCUS = ROOT / "target" / "release" / "examples" / "refocus"
 
 
 def main():
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 5
+    args = [a for a in sys.argv[1:] if a != "--reuse"]
+    n = int(args[0]) if args else 5
+    if "--reuse" in sys.argv[1:]:
+        drbokeh.reuse_large_allocations()
     h, w = 1000, 1000
     rng = np.random.default_rng(0)
     yy, xx = np.mgrid[0:h, 0:w]
@@ -60,7 +66,8 @@ def main():
             stage.append(next(s["ms"] for s in rep["stages"] if s["name"] == "render"))
     mp, ml, ms = (float(np.median(v)) for v in (py, lib, stage))
     runs = lambda v: ", ".join(f"{x:.0f}" for x in v)  # noqa: E731
-    print(f"1 MP, 2 layers, K = {blur}, focus {focus}: 3 rounds of {n} warm renders per side, the sides alternated")
+    reuse = " (drbokeh.reuse_large_allocations() called)" if "--reuse" in sys.argv[1:] else ""
+    print(f"1 MP, 2 layers, K = {blur}, focus {focus}: 3 rounds of {n} warm renders per side, the sides alternated{reuse}")
     print(f"drbokeh.render_layers (Python, whole call): median {mp:.1f} ms  ({runs(py)})")
     print(f"library call (Refocuser::render):            median {ml:.1f} ms  ({runs(lib)})")
     print(f"render stage alone (drbokeh render --json):  median {ms:.1f} ms  ({runs(stage)})")

@@ -27,6 +27,7 @@ from ._drbokeh import (  # noqa: F401
     render_layers,
     render_layers_differentiable,
     render_layers_vjp,
+    reuse_large_allocations,
 )
 
 __all__ = [
@@ -36,4 +37,5 @@ __all__ = [
     "render_layers",
     "render_layers_differentiable",
     "render_layers_vjp",
+    "reuse_large_allocations",
 ]

@@ -121,3 +121,8 @@ def dfd(
     all-in-focus photo into ``bokeh`` (focused at ``focus`` with blur ``blur``).
     loss: "l1-grad", "l1-grad-ssim" or "l1-grad-hssim" (default); kernel: "auto" (default),
     "fast", "exact" or "ray"; iters per level (default 100), levels (default 3)."""
+
+def reuse_large_allocations() -> None:
+    """Opt-in for the program that owns the process: freed frame-sized buffers are reused
+    (glibc) instead of mapped afresh each render; faster repeated renders, the process keeps its
+    largest footprint mapped."""

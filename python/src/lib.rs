@@ -505,6 +505,16 @@ fn dfd<'py>(
     Ok(arr.into_pyarray(py))
 }
 
+/// Opt-in, for the program that owns the process (a library leaves the allocator to its host):
+/// freed frame-sized buffers are kept on glibc's heap and reused instead of being mapped from
+/// the kernel afresh each render (the tuning `drbokeh render` applies to itself). Renders
+/// repeated in one process get faster (1 MP, two layers, here: about 190 → 165 ms a call);
+/// the price is that the process keeps its largest footprint mapped. Does nothing off glibc.
+#[pyfunction]
+fn reuse_large_allocations() {
+    drbokeh::resources::reuse_large_allocations();
+}
+
 /// The native module.
 #[pymodule]
 fn _drbokeh(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -514,6 +524,7 @@ fn _drbokeh(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_layers_differentiable, m)?)?;
     m.add_function(wrap_pyfunction!(render_layers_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(dfd, m)?)?;
+    m.add_function(wrap_pyfunction!(reuse_large_allocations, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

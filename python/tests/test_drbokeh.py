@@ -164,6 +164,13 @@ def test_library_warnings_are_python_warnings():
         drbokeh.render_layers(layers, 1.7, 3.0)
 
 
+def test_reusing_large_allocations_changes_no_result():
+    layers = random_layers(40, 50, n=2, seed=16)
+    before = drbokeh.render_layers(layers, 0.7, 8.0)
+    drbokeh.reuse_large_allocations()
+    assert np.array_equal(drbokeh.render_layers(layers, 0.7, 8.0), before)
+
+
 def test_the_gil_is_released_while_rust_works():
     layers = random_layers(300, 400, n=2, seed=4)
     count = [0]
