@@ -113,6 +113,11 @@ pub struct DfdArgs {
     /// Write a plot of the loss per step (one curve per level) to this PNG.
     #[arg(long, value_name = "PNG")]
     plot: Option<PathBuf>,
+    /// Also write where the map can be trusted, in [0, 1] (.npy, .exr or 16-bit .png): low
+    /// where the all-in-focus photo has no texture at the blur's scale, and within half a pixel
+    /// of blur of the focal plane (where any depth looks the same).
+    #[arg(long, value_name = "OUT")]
+    confidence: Option<PathBuf>,
     /// Worker threads [default: all cores].
     #[arg(long, value_name = "N", allow_negative_numbers = true)]
     threads: Option<i64>,
@@ -147,6 +152,7 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
         output: args.output,
         log: args.log,
         plot: args.plot,
+        confidence: args.confidence,
         settings: RenderSettings {
             blur: args.blur,
             focus: args.focus,

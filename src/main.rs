@@ -446,7 +446,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 40] = [
+const FLAGS: [(&str, &str); 41] = [
     ("highlights.mode", "--highlights"),
     ("highlights.threshold", "--highlight-threshold"),
     ("highlights.gain", "--highlight-gain"),
@@ -487,6 +487,7 @@ const FLAGS: [(&str, &str); 40] = [
     ("dfd.init", "--init"),
     ("dfd.log", "--log"),
     ("dfd.plot", "--plot"),
+    ("dfd.confidence", "--confidence"),
 ];
 
 /// `msg` with every library parameter name replaced by its flag (see [`FLAGS`]).

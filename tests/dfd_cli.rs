@@ -368,3 +368,53 @@ fn a_default_run_on_a_tiny_photo_is_quick() {
     let budget = drbokeh::diff::dfd::AUTO_CPU_BUDGET;
     assert!(report["plan"]["cpu_seconds"].as_f64().is_some_and(|c| c <= budget), "{}", report["plan"]);
 }
+
+/// Issue 38: `--confidence` flags where the map is a guess: a textureless patch and the part of
+/// the scene on the focal plane (within half a pixel of blur any depth looks the same) are
+/// low; the textured, blurred part is high. Values in [0, 1], the photo's size.
+#[test]
+fn confidence_is_low_on_flat_and_in_focus_regions() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rng = Rng::new(10);
+    // Noise everywhere but a flat square in the blurred right half.
+    let flat = |x: usize, y: usize| (20..30).contains(&x) && (8..24).contains(&y);
+    let aif = Image::from_vec(
+        W,
+        H,
+        3,
+        (0..W * H)
+            .flat_map(|i| {
+                let v = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+                if flat(i % W, i / W) { [0.5; 3] } else { v }
+            })
+            .collect(),
+    )
+    .unwrap();
+    io::write_exr(&d.join("aif.exr"), &aif, &["R", "G", "B"]).unwrap();
+    let lens = 2 * ((BLUR * FOCUS.max(1.0 - FOCUS)).ceil() as usize + 3) + 1;
+    let s = RenderSettings { blur: BLUR, focus: FOCUS, lens, occlusion: true, profile: Profile::Physical };
+    let layer = Layer::from_parts(&aif, &Image::filled(W, H, 1, 1.0), &truth(), "truth").unwrap();
+    io::write_output(&d.join("bokeh.exr"), &render(&[layer], &s, Kernel::Exact).unwrap(), 8, Transfer::Linear).unwrap();
+    let (report, _) = dfd_json(
+        d,
+        &["aif.exr", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "30", "--levels", "2", "-o", "d.npy", "--confidence", "c.npy"],
+        Duration::from_secs(300),
+    );
+    let c = io::read_npy(&d.join("c.npy"), u64::MAX).unwrap();
+    assert_eq!((c.width, c.height, c.channels), (W, H, 1));
+    assert!(c.data.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
+    let mean = |f: &dyn Fn(usize, usize) -> bool| {
+        let v: Vec<f32> = (0..W * H).filter(|&i| f(i % W, i / W)).map(|i| c.data[i]).collect();
+        v.iter().sum::<f32>() / v.len() as f32
+    };
+    let textured_blurred = mean(&|x, y| x >= 19 && !((17..33).contains(&x) && (5..27).contains(&y)));
+    let flat_patch = mean(&|x, y| (23..27).contains(&x) && (12..20).contains(&y));
+    let in_focus = mean(&|x, _| x < 12);
+    assert!(textured_blurred > 0.7, "textured, blurred: {textured_blurred}");
+    assert!(flat_patch < 0.1, "flat patch: {flat_patch}");
+    assert!(in_focus < 0.3, "on the focal plane: {in_focus}");
+    let (path, m) = (&report["confidence"][0], report["confidence"][1].as_f64().unwrap());
+    assert_eq!(path, "c.npy");
+    assert!((m - c.data.iter().map(|&v| v as f64).sum::<f64>() / (W * H) as f64).abs() < 1e-4, "{report}");
+}

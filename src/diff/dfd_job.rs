@@ -34,6 +34,9 @@ pub struct DfdJob {
     pub log: Option<PathBuf>,
     /// The loss plot to write (PNG), if any.
     pub plot: Option<PathBuf>,
+    /// The confidence map to write ([`crate::diff::dfd_confidence`]; `.npy`, `.exr` or a
+    /// 16-bit `.png`), if any.
+    pub confidence: Option<PathBuf>,
     /// Focus, blur K, profile and occlusion of the render being inverted (`lens` is ignored:
     /// see [`dfd::estimate`]).
     pub settings: RenderSettings,
@@ -67,6 +70,9 @@ pub struct DfdReport {
     pub log: Option<PathBuf>,
     /// The loss plot written, if any.
     pub plot: Option<PathBuf>,
+    /// The confidence map written, if any, and its mean.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub confidence: Option<(PathBuf, f32)>,
     /// Photo width, pixels.
     pub width: usize,
     /// Photo height, pixels.
@@ -148,6 +154,14 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
             &loss_series(&steps, w, h),
         )?;
     }
+    let confidence = match &job.confidence {
+        Some(path) => {
+            let c = crate::diff::dfd_confidence::confidence(&aif, disparity, &job.settings);
+            io::write_output(path, &c, 16, Transfer::Linear)?;
+            Some((path.clone(), (c.sum() / c.data.len().max(1) as f64) as f32))
+        }
+        None => None,
+    };
     let n = disparity.data.len().max(1) as f64;
     Ok(DfdReport {
         aif: job.aif.clone(),
@@ -155,6 +169,7 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
         output: job.output.clone(),
         log: job.log.clone(),
         plot: job.plot.clone(),
+        confidence,
         width: w,
         height: h,
         focus: crate::render::focus_in_range("render.focus", job.settings.focus).0,
@@ -186,10 +201,15 @@ fn check_destinations(job: &DfdJob) -> Result<()> {
             "a disparity map is written as float32 .npy or .exr (PNG would quantize it): use .npy or .exr",
         ));
     }
-    let dests: Vec<(&Path, &str)> = [(Some(&job.output), "output"), (job.log.as_ref(), "dfd.log"), (job.plot.as_ref(), "dfd.plot")]
-        .into_iter()
-        .filter_map(|(p, what)| p.map(|p| (p.as_path(), what)))
-        .collect();
+    let dests: Vec<(&Path, &str)> = [
+        (Some(&job.output), "output"),
+        (job.log.as_ref(), "dfd.log"),
+        (job.plot.as_ref(), "dfd.plot"),
+        (job.confidence.as_ref(), "dfd.confidence"),
+    ]
+    .into_iter()
+    .filter_map(|(p, what)| p.map(|p| (p.as_path(), what)))
+    .collect();
     // As files, not spellings: `o/al.npy` and `./o/al.npy` are one destination.
     io::check_distinct(&dests)?;
     let inputs = io::InputFiles::new([&job.aif, &job.bokeh]);

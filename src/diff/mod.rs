@@ -5,6 +5,7 @@
 //! [`crate::render::backward`].
 
 pub mod dfd;
+pub mod dfd_confidence;
 pub mod dfd_job;
 pub mod dfd_plan;
 pub mod dfd_start;
