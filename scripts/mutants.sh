@@ -35,7 +35,8 @@ done
 if [ ${#files[@]} -eq 0 ]; then
     for f in src/stages/highlight_completion.rs src/stages/fill_depth.rs src/stages/contamination.rs \
         src/stages/highlights.rs src/stages/background.rs src/render/lens.rs src/render/composite.rs \
-        src/diff/loss.rs src/batch.rs src/io/atomic.rs src/io/guard.rs; do
+        src/diff/loss.rs src/batch.rs src/io/atomic.rs src/io/guard.rs src/io/dynamic_depth.rs src/io/xmp.rs \
+        src/focus_pull.rs src/view.rs src/diff/dfd_confidence.rs; do
         files+=(--file "$f")
     done
 fi
