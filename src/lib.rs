@@ -22,6 +22,7 @@ pub mod io;
 pub mod job;
 pub mod onnx;
 pub mod pipeline;
+pub mod plot;
 pub mod refocus;
 pub mod render;
 pub mod report;

@@ -9,7 +9,6 @@ pub mod input_report;
 pub mod inputs;
 pub mod metrics;
 pub mod outline;
-pub mod plot;
 pub mod report;
 pub mod run;
 pub mod scenes;

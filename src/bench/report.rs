@@ -5,10 +5,10 @@
 //! and side-by-side crops in `crops/`.
 
 use super::inputs::Input;
-use super::plot::{self, draw_text, text_width};
 use super::run::{BenchOptions, BenchResult, Case, Method, Row, Variant, srgb};
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::plot::{self, draw_text, text_width};
 use crate::render::Profile;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

@@ -6,10 +6,10 @@
 //! Cost: the optimisation's (see [`dfd`]); the log and plot are O(steps).
 
 use super::dfd::{self, DfdOptions, Event, Step, level_size};
-use crate::bench::plot::{self, Point, Series, Ticks, XAxis};
 use crate::color::Transfer;
 use crate::error::{Error, Result};
 use crate::io::{self, OutputFormat, ReadLimits};
+use crate::plot::{self, Point, Series, Ticks, XAxis};
 use crate::render::{Profile, RenderSettings};
 use crate::timing::ms_since;
 use std::fmt::Write as _;
