@@ -74,7 +74,7 @@ fn read_depth_map_raw(path: &Path, limits: &ReadLimits) -> Result<DepthMap> {
             Ok(DepthMap { image, bit_depth, format: FileFormat::Exr, warnings })
         }
         FileFormat::Npy => {
-            let image = super::format::read_npy_guarded(path, limits)?;
+            let image = super::npy::read_npy_guarded(path, limits)?;
             if image.channels != 1 {
                 return Err(Error::input(
                     path,

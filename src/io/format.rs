@@ -173,12 +173,6 @@ pub fn read_input_text(path: &Path) -> Result<String> {
     std::fs::read_to_string(path).map_err(|e| read_error(path, e))
 }
 
-/// Reads an NPY file ([`super::npy::read_npy`]) behind the same panic guard as the other
-/// decoders.
-pub(crate) fn read_npy_guarded(path: &Path, limits: &super::limits::ReadLimits) -> Result<crate::image::Image> {
-    guarded(path, FileFormat::Npy, || super::npy::read_npy(path, limits.max_pixels))
-}
-
 /// Runs a third-party decoder call behind `catch_unwind`.
 ///
 /// Defence in depth: the image, tiff and exr decoders are meant to return errors on malformed

@@ -72,7 +72,7 @@ fn read_layer_image(path: &Path, limits: &ReadLimits) -> Result<Image> {
             .0
         }
         FileFormat::Npy => {
-            let image = super::format::read_npy_guarded(path, limits)?;
+            let image = super::npy::read_npy_guarded(path, limits)?;
             if image.channels != 5 {
                 return Err(Error::input(
                     path,

@@ -39,7 +39,7 @@ pub fn read_matte(path: &Path, limits: &ReadLimits) -> Result<Image> {
             .0
         }
         FileFormat::Npy => {
-            let image = super::format::read_npy_guarded(path, limits)?;
+            let image = super::npy::read_npy_guarded(path, limits)?;
             if image.channels != 1 {
                 return Err(Error::input(path, format!("NPY matte has {} channels; expected shape H x W or H x W x 1", image.channels)));
             }

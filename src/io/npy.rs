@@ -165,6 +165,12 @@ pub fn save_npy(path: &Path, img: &Image) -> Result<()> {
     super::atomic::write_atomic(path, |w| write_npy(w, img).map_err(|e| Error::io(path, e)))
 }
 
+/// Reads an NPY file ([`read_npy`]) behind the same panic guard as the other decoders
+/// ([`super::format::guarded`]).
+pub(crate) fn read_npy_guarded(path: &Path, limits: &super::limits::ReadLimits) -> Result<Image> {
+    super::format::guarded(path, super::format::FileFormat::Npy, || read_npy(path, limits.max_pixels))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
