@@ -300,12 +300,9 @@ impl Viewer {
 
     fn save(&self, params: &[(String, String)]) -> Result<Reply> {
         let a = self.ask(params, false)?;
-        let (image, _) = {
-            let pipeline = self.pipeline(&a)?;
-            pipeline.refocus(&self.layers, a.focus, Some(a.blur))?
-        };
-        let mut image = image;
-        crate::job::write_image(&self.output, &mut image, self.pipeline(&a)?.config())?;
+        let pipeline = self.pipeline(&a)?;
+        let (mut image, _) = pipeline.refocus(&self.layers, a.focus, Some(a.blur))?;
+        crate::job::write_image(&self.output, &mut image, pipeline.config())?;
         let mut cmd = self.command.clone();
         match a.focus {
             Focus::At(x, y) => cmd.extend(["--focus-at".into(), format!("{x},{y}")]),

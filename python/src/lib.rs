@@ -154,12 +154,19 @@ struct Settings {
 /// One config value from a Python string through the serde definition `pipeline.toml` uses
 /// (same names, same messages).
 fn parse_value<T: serde::de::DeserializeOwned>(key: &str, value: &str) -> PyResult<T> {
-    let text = format!("v = {}", toml_string(value));
+    parse_literal(key, &toml_string(value), &format!("{value:?}"))
+}
+
+/// A TOML literal (`"auto"`, `3`) as the value of `key`, through the same definitions;
+/// `shown` is the value as the user gave it, for the message.
+fn parse_literal<T: serde::de::DeserializeOwned>(key: &str, literal: &str, shown: &str) -> PyResult<T> {
     #[derive(serde::Deserialize)]
     struct One<T> {
         v: T,
     }
-    toml::from_str::<One<T>>(&text).map(|o| o.v).map_err(|e| PyValueError::new_err(format!("{key} = {value:?}: {}", e.message())))
+    toml::from_str::<One<T>>(&format!("v = {literal}"))
+        .map(|o| o.v)
+        .map_err(|e| PyValueError::new_err(format!("{key} = {shown}: {}", e.message())))
 }
 
 /// `s` as a TOML basic string.
@@ -207,19 +214,12 @@ impl Settings {
                 parse_value("layers", &s)?
             } else {
                 let k: i64 = n.extract().map_err(|_| PyTypeError::new_err("layers must be an int or \"auto\""))?;
-                toml::from_str::<LayerCountOnly>(&format!("v = {k}"))
-                    .map(|o| o.v)
-                    .map_err(|e| PyValueError::new_err(format!("layers = {k}: {}", e.message())))?
+                parse_literal("layers", &k.to_string(), &k.to_string())?
             };
         }
         cfg.validate().map_err(py_err)?;
         Ok(cfg)
     }
-}
-
-#[derive(serde::Deserialize)]
-struct LayerCountOnly {
-    v: drbokeh::stages::slices::LayerCount,
 }
 
 /// Runs `f` with the GIL released, on `threads` threads (None: every core).
@@ -291,6 +291,22 @@ fn scene_of(
     .map_err(py_err)
 }
 
+/// What `render` and `build_layers` share: the focus, the configuration and the scene.
+#[allow(clippy::too_many_arguments)]
+fn photo_job(
+    py: Python<'_>,
+    (image, depth, matte): (&Bound<'_, PyAny>, &Bound<'_, PyAny>, Option<&Bound<'_, PyAny>>),
+    (focus, focus_at, focus_depth): (Option<f32>, Option<(i64, i64)>, Option<f64>),
+    depth_kind: &str,
+    settings: Settings,
+    layers: Option<&Bound<'_, PyAny>>,
+) -> PyResult<(Focus, Config, Scene)> {
+    let f = focus_of(focus, focus_at, focus_depth)?;
+    let cfg = settings.config(py, layers)?;
+    let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
+    Ok((f, cfg, scene))
+}
+
 /// Renders a photo with its depth map: the whole pipeline, the defaults and checks of
 /// `drbokeh render`. Returns H×W×3 linear RGB float32.
 #[pyfunction]
@@ -312,18 +328,14 @@ fn render<'py>(
     config: Option<PathBuf>,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let f = focus_of(focus, focus_at, focus_depth)?;
-    let s = Settings { config, profile, kernel, blur, ..Settings::default() };
-    let cfg = s.config(py, layers)?;
-    let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
-    let gamma = cfg.render.gamma;
-    let outcome = run(py, threads, move || Pipeline::from_config(cfg)?.run(&scene, f))?;
+    let settings = Settings { config, profile, kernel, blur, ..Settings::default() };
+    let (f, cfg, scene) = photo_job(py, (image, depth, matte), (focus, focus_at, focus_depth), depth_kind, settings, layers)?;
+    let pipeline = Pipeline::from_config(cfg).map_err(py_err)?;
+    let outcome = run(py, threads, || pipeline.run(&scene, f))?;
     warn_all(py, &outcome.report.warnings)?;
     let mut out = outcome.image;
-    if let Some(g) = gamma {
-        // As `drbokeh render` writes it: rendered on rgb^G, shown as out^(1/G).
-        out.map_inplace(|v| v.max(0.0).powf(1.0 / g));
-    }
+    // As `drbokeh render` writes it (in gamma mode, shown as out^(1/G)).
+    drbokeh::job::display_transfer(&mut out, pipeline.config());
     Ok(to_numpy(py, out))
 }
 
@@ -347,10 +359,8 @@ fn build_layers<'py>(
     config: Option<PathBuf>,
     threads: Option<usize>,
 ) -> PyResult<Arrays<'py>> {
-    let f = focus_of(focus, focus_at, focus_depth)?;
-    let s = Settings { config, blur, ..Settings::default() };
-    let cfg = s.config(py, layers)?;
-    let scene = scene_of(py, image, depth, matte, depth_kind, &cfg)?;
+    let settings = Settings { config, blur, ..Settings::default() };
+    let (f, cfg, scene) = photo_job(py, (image, depth, matte), (focus, focus_at, focus_depth), depth_kind, settings, layers)?;
     let out = run(py, threads, move || Pipeline::from_config(cfg)?.run_with(&scene, f, BuildLayers::Always))?;
     warn_all(py, &out.report.warnings)?;
     Ok(out.layers.into_iter().map(|l| to_numpy(py, l.into_image())).collect())

@@ -225,15 +225,16 @@ pub fn read_embedded(path: &Path, limits: &ReadLimits) -> Result<Option<Embedded
 pub fn read_embedded_bytes(path: &Path, b: &[u8], limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
     let xmp = read_jpeg_xmp(path, b)?;
     let packets = Packets::parse(path, &xmp)?;
-    let gdepth = read_gdepth(path, b, &xmp, &packets, limits);
     match dynamic_depth::read(path, b, &xmp, &packets, limits)? {
         Some(mut dd) => {
-            if matches!(gdepth, Ok(Some(_)) | Err(_)) {
+            // Named, not decoded: the GDepth map is not used.
+            let gdepth = ["Format", "Data"].iter().any(|n| packets.docs.iter().any(|d| !d.values(NS_GDEPTH, n).is_empty()));
+            if gdepth {
                 dd.warnings.push(format!("{} also has GDepth depth metadata; the Dynamic Depth map is the one used", path.display()));
             }
             Ok(Some(dd))
         }
-        None => gdepth,
+        None => read_gdepth(path, b, &xmp, &packets, limits),
     }
 }
 
