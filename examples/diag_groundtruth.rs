@@ -36,7 +36,14 @@ fn main() -> drbokeh::Result<()> {
             let (blur, focus) = (s.blur, s.focus);
             let rend = |layers: &[Layer]| -> drbokeh::Result<Image> {
                 let lens = render::auto_lens(layers, blur, focus);
-                let rs = RenderSettings { blur, focus, lens, occlusion: true, profile: Profile::Physical };
+                let rs = RenderSettings {
+                    blur,
+                    focus,
+                    lens,
+                    occlusion: true,
+                    profile: Profile::Physical,
+                    aperture: drbokeh::render::Aperture::DISC,
+                };
                 render::render(layers, &rs, Kernel::Fast { quality: 2 })
             };
             let mut cfg = Config::default();

@@ -44,7 +44,14 @@ fn main() -> drbokeh::Result<()> {
             let lens = render::auto_lens(layers, blur, focus);
             render::render(
                 layers,
-                &RenderSettings { blur, focus, lens, occlusion: occ, profile: Profile::Physical },
+                &RenderSettings {
+                    blur,
+                    focus,
+                    lens,
+                    occlusion: occ,
+                    profile: Profile::Physical,
+                    aperture: drbokeh::render::Aperture::DISC,
+                },
                 Kernel::Fast { quality: 2 },
             )
         };

@@ -159,6 +159,7 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
             lens: 1,
             occlusion: !args.no_occlusion,
             profile: args.profile.into(),
+            aperture: drbokeh::render::Aperture::DISC,
         },
         options,
         limits: ReadLimits::default(),

@@ -699,7 +699,7 @@ impl Pipeline {
             return Ok((render::alpha_composite(layers), report));
         }
         let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur, focus));
-        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile };
+        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile, aperture: crate::render::Aperture::DISC };
         let (kernel, kernel_name) = match rc.kernel {
             KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),
             KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),
@@ -837,7 +837,14 @@ mod tests {
                 let (bg_box, bg_whole) =
                     (boxed.behind.into_layer(&rgb, &disp, "bg").unwrap(), whole.behind.into_layer(&rgb, &disp, "bg").unwrap());
                 assert!(bg_box.image().data == bg_whole.image().data, "{case}: background layers differ");
-                let s = RenderSettings { blur, focus, lens: 2 * blur as usize + 5, occlusion: true, profile: lens::Profile::Physical };
+                let s = RenderSettings {
+                    blur,
+                    focus,
+                    lens: 2 * blur as usize + 5,
+                    occlusion: true,
+                    profile: lens::Profile::Physical,
+                    aperture: crate::render::Aperture::DISC,
+                };
                 for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }] {
                     let a = render(&[boxed.layer.clone(), bg_box.clone()], &s, kernel).unwrap();
                     let b = render(&[whole.layer.clone(), bg_whole.clone()], &s, kernel).unwrap();

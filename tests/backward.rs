@@ -222,6 +222,7 @@ impl Scene {
             lens: self.lens,
             occlusion: self.occlusion,
             profile: self.profile,
+            aperture: drbokeh::render::Aperture::DISC,
         }
     }
 }
@@ -605,7 +606,7 @@ fn gradients_are_finite_on_the_extreme_grid() {
         for (lens, blurs) in [(9usize, &[0.0f32, 1.0, 1e4][..]), (71, &[0.0, 30.0, 1e4][..])] {
             for &blur in blurs {
                 for (focus, occlusion, fill) in [(1.0f32, true, 0.0f32), (0.0, false, 0.5), (0.5, true, 0.1), (-3.0, true, 0.0)] {
-                    let s = RenderSettings { blur, focus, lens, occlusion, profile };
+                    let s = RenderSettings { blur, focus, lens, occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
                     let sm = Smoothing { edge_width: 1.0, fill_width: fill };
                     let scale = if cases % 3 == 0 { 1e20 } else { 1.0 };
                     let cot = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| (rng.next_f32() * 2.0 - 1.0) * scale).collect()).unwrap();
@@ -654,7 +655,7 @@ fn tiny_images_and_lens_one() {
                     Layer::new(Image::from_vec(w, h, 5, px).unwrap(), "tiny").unwrap()
                 })
                 .collect();
-            let s = RenderSettings { blur: 10.0, focus: 0.25, lens, occlusion: true, profile };
+            let s = RenderSettings { blur: 10.0, focus: 0.25, lens, occlusion: true, profile, aperture: drbokeh::render::Aperture::DISC };
             let tape = Tape::record(&layers, &s, Smoothing::default()).unwrap();
             if profile == Profile::Official {
                 assert_eq!(tape.image(), &render(&layers, &s, Kernel::Exact).unwrap());

@@ -394,6 +394,7 @@ fn gamma_renders_on_powered_colours() {
         lens: render::auto_lens(&layers, 5.0, 0.0),
         occlusion: true,
         profile: drbokeh::render::Profile::Official,
+        aperture: drbokeh::render::Aperture::DISC,
     };
     let mut want = render::render(&layers, &st, Kernel::Exact).unwrap();
     want.map_inplace(|v| v.max(0.0).powf(1.0 / 2.2));
@@ -479,6 +480,7 @@ fn no_occlusion_renders_one_layer() {
         lens: render::auto_lens(&layers, 3.0, 0.0),
         occlusion: false,
         profile: drbokeh::render::Profile::Official,
+        aperture: drbokeh::render::Aperture::DISC,
     };
     let want = render::render(&layers, &st, Kernel::Exact).unwrap();
     assert!(max_abs_diff(&read_npy(&s.path("nl.npy")).data, &want.data) < 1e-6);
@@ -873,6 +875,7 @@ fn npy_output_of_layers_equals_the_library_render() {
             lens: render::auto_lens(&layers, blur, focus),
             occlusion: true,
             profile: drbokeh::render::Profile::Official,
+            aperture: drbokeh::render::Aperture::DISC,
         };
         let want = render::render(&layers, &st, Kernel::Exact).unwrap();
         let e = max_abs_diff(&got.data, &want.data);

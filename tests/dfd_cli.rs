@@ -39,7 +39,7 @@ fn write_scene_with(dir: &Path, truth: &Image, focus: f32, blur: f32, bokeh: &st
     io::write_png(&dir.join("aif.png"), &aif, 16, Transfer::Srgb).unwrap();
     let aif = io::read_photo(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
     let lens = 2 * ((blur * focus.max(1.0 - focus)).ceil() as usize + 3) + 1;
-    let s = RenderSettings { blur, focus, lens, occlusion: true, profile: Profile::Physical };
+    let s = RenderSettings { blur, focus, lens, occlusion: true, profile: Profile::Physical, aperture: drbokeh::render::Aperture::DISC };
     let layer = Layer::from_parts(&aif, &Image::filled(w, h, 1, 1.0), truth, "truth").unwrap();
     let out = render(&[layer], &s, Kernel::Exact).unwrap();
     io::write_output(&dir.join(bokeh), &out, 8, Transfer::Linear).unwrap();
@@ -284,7 +284,14 @@ fn last_loss_is_the_returned_maps() {
     let d = io::read_npy(&dir.join("d.npy"), u64::MAX).unwrap();
     let aif = io::read_photo(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
     let target = io::read_photo(&dir.join("bokeh.exr"), Transfer::Srgb, &ReadLimits::default()).unwrap();
-    let mut s = RenderSettings { blur: BLUR, focus: FOCUS, lens: 0, occlusion: true, profile: Profile::Physical };
+    let mut s = RenderSettings {
+        blur: BLUR,
+        focus: FOCUS,
+        lens: 0,
+        occlusion: true,
+        profile: Profile::Physical,
+        aperture: drbokeh::render::Aperture::DISC,
+    };
     s.lens = level_blur_lens(&s, W, W, H).1;
     let o = DfdOptions::default();
     let layers = [Layer::from_parts(&aif, &Image::filled(W, H, 1, 1.0), &d, "estimate").unwrap()];
@@ -393,7 +400,14 @@ fn confidence_is_low_on_flat_and_in_focus_regions() {
     .unwrap();
     io::write_exr(&d.join("aif.exr"), &aif, &["R", "G", "B"]).unwrap();
     let lens = 2 * ((BLUR * FOCUS.max(1.0 - FOCUS)).ceil() as usize + 3) + 1;
-    let s = RenderSettings { blur: BLUR, focus: FOCUS, lens, occlusion: true, profile: Profile::Physical };
+    let s = RenderSettings {
+        blur: BLUR,
+        focus: FOCUS,
+        lens,
+        occlusion: true,
+        profile: Profile::Physical,
+        aperture: drbokeh::render::Aperture::DISC,
+    };
     let layer = Layer::from_parts(&aif, &Image::filled(W, H, 1, 1.0), &truth(), "truth").unwrap();
     io::write_output(&d.join("bokeh.exr"), &render(&[layer], &s, Kernel::Exact).unwrap(), 8, Transfer::Linear).unwrap();
     let (report, _) = dfd_json(

@@ -100,6 +100,7 @@ fn fast_matches_exact_on_groundtruth_scenes() {
                 lens: render::auto_lens(&layers, st.blur, st.focus),
                 occlusion: true,
                 profile: drbokeh::render::Profile::Official,
+                aperture: drbokeh::render::Aperture::DISC,
             };
             let name = format!("{} {}", scene.name, st.name);
             hdr.check(&name, &compare(&name, &layers, &s, 2), Q2_BOUNDS);
@@ -195,6 +196,7 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
             lens: render::auto_lens(&layers, k, f),
             occlusion: true,
             profile: drbokeh::render::Profile::Official,
+            aperture: drbokeh::render::Aperture::DISC,
         };
         let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
         check_uniform(&out, colour, &format!("fast-uniform-K{k}-f{f}"), &mut failures);
@@ -213,6 +215,7 @@ fn fast_kernel_keeps_uniform_colour_and_hdr_finite() {
         lens: render::auto_lens(&layers, 40.0, 1.0),
         occlusion: true,
         profile: drbokeh::render::Profile::Official,
+        aperture: drbokeh::render::Aperture::DISC,
     };
     assert!(render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap().all_finite());
 }
@@ -348,7 +351,14 @@ fn physical_fast_matches_exact_on_groundtruth_scenes() {
         let layers = scene.exact_layers().unwrap();
         for st in &scene.settings {
             let lens = render::auto_lens(&layers, st.blur, st.focus);
-            let s = RenderSettings { blur: st.blur, focus: st.focus, lens, occlusion: true, profile: drbokeh::render::Profile::Physical };
+            let s = RenderSettings {
+                blur: st.blur,
+                focus: st.focus,
+                lens,
+                occlusion: true,
+                profile: drbokeh::render::Profile::Physical,
+                aperture: drbokeh::render::Aperture::DISC,
+            };
             check_physical(&mut one, &mut groups, &format!("physical {} {}", scene.name, st.name), &layers, &s);
         }
     }
@@ -390,6 +400,7 @@ fn physical_fast_uniform_in_focus_and_flux() {
                 lens: render::auto_lens(&layers, k, f),
                 occlusion,
                 profile: drbokeh::render::Profile::Physical,
+                aperture: drbokeh::render::Aperture::DISC,
             };
             let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
             check_uniform(&out, colour, &format!("fast-physical-uniform-K{k}-f{f}-occ{occlusion}"), &mut failures);
@@ -402,7 +413,14 @@ fn physical_fast_uniform_in_focus_and_flux() {
     let textured: Vec<f32> = (0..w * h).flat_map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32(), 1.0, rng.next_f32()]).collect();
     let one = vec![Layer::new(Image::from_vec(w, h, 5, textured.clone()).unwrap(), "one").unwrap()];
     for occlusion in [false, true] {
-        let s = RenderSettings { blur: 0.0, focus: 0.5, lens: 9, occlusion, profile: drbokeh::render::Profile::Physical };
+        let s = RenderSettings {
+            blur: 0.0,
+            focus: 0.5,
+            lens: 9,
+            occlusion,
+            profile: drbokeh::render::Profile::Physical,
+            aperture: drbokeh::render::Aperture::DISC,
+        };
         let fast = render::render(&one, &s, Kernel::Fast { quality: 2 }).unwrap();
         let exact = render::render(&one, &s, Kernel::Exact).unwrap();
         assert!(fast.data == exact.data, "occlusion={occlusion}: the fast in-focus render is not the exact one bit for bit");
@@ -427,7 +445,14 @@ fn physical_fast_uniform_in_focus_and_flux() {
     }
     let layer = Layer::new(Image::from_vec(w, h, 5, data).unwrap(), "points").unwrap();
     // K = 60: radii 1.2, 6, 21 and 36 px (the last two on coarse grids at quality 2).
-    let s = RenderSettings { blur: 60.0, focus: 0.0, lens: 101, occlusion: false, profile: drbokeh::render::Profile::Physical };
+    let s = RenderSettings {
+        blur: 60.0,
+        focus: 0.0,
+        lens: 101,
+        occlusion: false,
+        profile: drbokeh::render::Profile::Physical,
+        aperture: drbokeh::render::Aperture::DISC,
+    };
     for quality in [2, 8] {
         let (raw, _) = scatter_layer(&layer, &s, FastParams::from_quality(quality), Role::Front);
         let mut got = [0f64; 4];
@@ -467,6 +492,7 @@ fn opaque_blurred_layer_hides_the_backdrop_at_every_coarse_radius() {
             lens: render::auto_lens(&layers, blur, 0.0),
             occlusion: true,
             profile: drbokeh::render::Profile::Physical,
+            aperture: drbokeh::render::Aperture::DISC,
         };
         for quality in [2, 8] {
             let both = render::render(&layers, &s, Kernel::Fast { quality }).unwrap();
@@ -509,7 +535,14 @@ fn one_visible_pixel_in_a_corner() {
     let (blur, focus) = (27.25f32, 0.526f32);
     let mean = |img: &Image| img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64;
     for profile in [Profile::Physical, Profile::Official] {
-        let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true, profile };
+        let s = RenderSettings {
+            blur,
+            focus,
+            lens: render::auto_lens(&layers, blur, focus),
+            occlusion: true,
+            profile,
+            aperture: drbokeh::render::Aperture::DISC,
+        };
         let exact = render::render(&layers, &s, Kernel::Exact).unwrap();
         for quality in [1, 2, 8] {
             let fast = render::render(&layers, &s, Kernel::Fast { quality }).unwrap();
@@ -536,7 +569,14 @@ fn one_visible_pixel_in_a_corner() {
     }
     one[..5].copy_from_slice(&[2.09, 2.09, 2.09, 1.0, 0.52]);
     let single = vec![Layer::new(Image::from_vec(w, h, 5, one).unwrap(), "one").unwrap()];
-    let s = RenderSettings { blur, focus, lens: render::auto_lens(&single, blur, focus), occlusion: true, profile: Profile::Physical };
+    let s = RenderSettings {
+        blur,
+        focus,
+        lens: render::auto_lens(&single, blur, focus),
+        occlusion: true,
+        profile: Profile::Physical,
+        aperture: drbokeh::render::Aperture::DISC,
+    };
     let exact = render::render(&single, &s, Kernel::Exact).unwrap();
     assert!((exact.pixel(0, 0)[0] - 2.09).abs() < 1e-3, "{:?}", exact.pixel(0, 0));
     for quality in [1, 2, 8] {

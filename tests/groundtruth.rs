@@ -44,7 +44,14 @@ fn drbokeh_beats_classical_scatter_against_thin_lens_ground_truth() {
         let (mut ours_sum, mut base_sum) = (0f64, 0f64);
         for s in &scene.settings {
             let lens = render::auto_lens(&layers, s.blur, s.focus);
-            let rs = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: true, profile: drbokeh::render::Profile::Official };
+            let rs = RenderSettings {
+                blur: s.blur,
+                focus: s.focus,
+                lens,
+                occlusion: true,
+                profile: drbokeh::render::Profile::Official,
+                aperture: drbokeh::render::Aperture::DISC,
+            };
             let ours = render::render(&layers, &rs, Kernel::Exact).unwrap();
             let base = render::render(&single, &RenderSettings { occlusion: false, ..rs }, Kernel::Exact).unwrap();
             let border = s.coc_max.ceil() as usize;
@@ -87,7 +94,14 @@ fn physical_profile_against_thin_lens_ground_truth() {
         let single = vec![scene.single_layer().unwrap()];
         for s in &scene.settings {
             let lens = render::auto_lens(&layers, s.blur, s.focus);
-            let off = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: true, profile: Profile::Official };
+            let off = RenderSettings {
+                blur: s.blur,
+                focus: s.focus,
+                lens,
+                occlusion: true,
+                profile: Profile::Official,
+                aperture: drbokeh::render::Aperture::DISC,
+            };
             let phys = RenderSettings { profile: Profile::Physical, ..off };
             let border = s.coc_max.ceil() as usize;
             let score = |img: &Image| psnr(&srgb(img), &srgb(&s.gt), 1.0, border);
@@ -151,7 +165,14 @@ fn pipeline_beats_the_baselines_from_photo_depth_and_matte() {
             assert!(ours.all_finite());
             let lens = render::auto_lens(std::slice::from_ref(&single), s.blur, s.focus);
             let scatter = |profile| {
-                let rs = RenderSettings { blur: s.blur, focus: s.focus, lens, occlusion: false, profile };
+                let rs = RenderSettings {
+                    blur: s.blur,
+                    focus: s.focus,
+                    lens,
+                    occlusion: false,
+                    profile,
+                    aperture: drbokeh::render::Aperture::DISC,
+                };
                 score(&render::render(std::slice::from_ref(&single), &rs, Kernel::Exact).unwrap())
             };
             let (o, sp, so, g) = (

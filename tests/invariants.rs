@@ -51,7 +51,14 @@ fn layer(w: usize, h: usize, rgb: impl Fn(usize, usize) -> [f32; 3], alpha: &Ima
 }
 
 fn settings(layers: &[Layer], blur: f32, focus: f32) -> RenderSettings {
-    RenderSettings { blur, focus, lens: auto_lens(layers, blur, focus), occlusion: true, profile: drbokeh::render::Profile::Official }
+    RenderSettings {
+        blur,
+        focus,
+        lens: auto_lens(layers, blur, focus),
+        occlusion: true,
+        profile: drbokeh::render::Profile::Official,
+        aperture: drbokeh::render::Aperture::DISC,
+    }
 }
 
 fn exact(layers: &[Layer], s: &RenderSettings) -> Image {
@@ -588,10 +595,18 @@ fn tiny_images_render_finite_output() {
                         lens: widest + 2,
                         occlusion: true,
                         profile: drbokeh::render::Profile::Official,
+                        aperture: drbokeh::render::Aperture::DISC,
                     };
                     assert!(matches!(render::render(&layers, &too_wide, Kernel::Exact), Err(drbokeh::Error::Usage(_))));
                     for lens in [1, 3, auto_lens(&layers, k, f), widest] {
-                        let s = RenderSettings { blur: k, focus: f, lens, occlusion: true, profile: drbokeh::render::Profile::Official };
+                        let s = RenderSettings {
+                            blur: k,
+                            focus: f,
+                            lens,
+                            occlusion: true,
+                            profile: drbokeh::render::Profile::Official,
+                            aperture: drbokeh::render::Aperture::DISC,
+                        };
                         let out = exact(&layers, &s);
                         assert_eq!((out.width, out.height, out.channels), (w, h, 3));
                         assert!(out.all_finite(), "{w}x{h}, focus {f}, K {k}, lens {lens}: {:?}", out.data);
@@ -675,7 +690,14 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
         cfg.render.kernel = if kernel == "exact" { drbokeh::config::KernelChoice::Exact } else { drbokeh::config::KernelChoice::Fast };
         let out = Pipeline::from_config(cfg).unwrap().run(&scene, Focus::Disparity(focus)).unwrap();
         let p = &out.report.params;
-        let s = RenderSettings { blur: p.blur, focus: p.focus, lens: p.lens, occlusion: true, profile: drbokeh::render::Profile::Official };
+        let s = RenderSettings {
+            blur: p.blur,
+            focus: p.focus,
+            lens: p.lens,
+            occlusion: true,
+            profile: drbokeh::render::Profile::Official,
+            aperture: drbokeh::render::Aperture::DISC,
+        };
         let k = if kernel == "exact" { Kernel::Exact } else { Kernel::Fast { quality: 2 } };
         assert_eq!(out.layers.len(), 2);
         let fg = out.layers[0].image();

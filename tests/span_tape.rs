@@ -50,7 +50,7 @@ fn scenes() -> Vec<(&'static str, Layer, f32, f32)> {
 /// The settings of a scene: a lens window that holds every disk (as `drbokeh dfd` sizes it).
 fn settings(blur: f32, focus: f32, occlusion: bool) -> RenderSettings {
     let reach = (blur * focus.max(1.0 - focus)).ceil() as usize + 3;
-    RenderSettings { blur, focus, lens: 2 * reach + 1, occlusion, profile: Profile::Physical }
+    RenderSettings { blur, focus, lens: 2 * reach + 1, occlusion, profile: Profile::Physical, aperture: drbokeh::render::Aperture::DISC }
 }
 
 /// A scene's settings from its blur, focus and whether occlusion is on.
@@ -340,7 +340,7 @@ fn extreme_inputs_give_finite_gradients() {
             for focus in [1.0f32, 0.0, -3.0] {
                 for (occlusion, profile) in [true, false].into_iter().flat_map(|o| [(o, Profile::Physical), (o, Profile::Official)]) {
                     let l = layer(w, h, 21, gain, |x, y| if (x / 3 + y / 3) % 2 == 0 { 1.0 } else { 0.0 });
-                    let s = RenderSettings { blur, focus, lens: 15, occlusion, profile };
+                    let s = RenderSettings { blur, focus, lens: 15, occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
                     let span = SpanTape::record(&l, &s, SMOOTH).unwrap();
                     assert!(span.image().all_finite());
                     let mut cot = cotangent(w, h, 5);

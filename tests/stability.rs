@@ -157,7 +157,7 @@ proptest! {
         let (blur, focus) = (BLURS[k], FOCI[f]);
         let lens = render::auto_lens(&layers, blur, focus);
         for profile in PROFILES {
-            let s = RenderSettings { blur, focus, lens, occlusion: true, profile };
+            let s = RenderSettings { blur, focus, lens, occlusion: true, profile, aperture: drbokeh::render::Aperture::DISC };
             check(&layers, &s, Kernel::Exact, Expect::InRange)?;
             check(&layers, &s, Kernel::Fast { quality: 2 }, Expect::InRange)?;
             check(&layers, &RenderSettings { occlusion: false, ..s }, Kernel::Fast { quality: 2 }, Expect::InRange)?;
@@ -174,7 +174,7 @@ proptest! {
         let (blur, focus) = (BLURS[k], FOCI[f]);
         let want = Expect::Uniform(uniform_colour(hdr));
         for profile in PROFILES {
-            let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true, profile };
+            let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion: true, profile, aperture: drbokeh::render::Aperture::DISC };
             check(&layers, &s, Kernel::Exact, want)?;
             check(&layers, &s, Kernel::Fast { quality: 2 }, want)?;
         }
@@ -186,7 +186,14 @@ fn long_thin_image_with_huge_blur_is_finite() {
     let layers = make_layers(1000, 3, DispKind::Random, AlphaKind::Random, true, 7, false);
     for profile in PROFILES {
         for k in [1e3f32, 1e6] {
-            let s = RenderSettings { blur: k, focus: 0.5, lens: render::auto_lens(&layers, k, 0.5), occlusion: true, profile };
+            let s = RenderSettings {
+                blur: k,
+                focus: 0.5,
+                lens: render::auto_lens(&layers, k, 0.5),
+                occlusion: true,
+                profile,
+                aperture: drbokeh::render::Aperture::DISC,
+            };
             let out = render::render(&layers, &s, Kernel::Fast { quality: 2 }).unwrap();
             assert!(out.all_finite(), "{profile:?}, K {k}");
         }
@@ -281,7 +288,7 @@ proptest! {
         for coc in [0.0f32, 0.4, 1.0, 3.0, 8.0, 20.0, 35.0, 60.0, 150.0, 1e3, 5e3, 1e5, 1e8] {
             let blur = coc / 0.85;
             for (occlusion, profile) in [true, false].into_iter().flat_map(|o| PROFILES.map(|p| (o, p))) {
-                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion, profile };
+                let s = RenderSettings { blur, focus, lens: render::auto_lens(&layers, blur, focus), occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
                 let exact = render::render(&layers, &s, Kernel::Exact).unwrap();
                 prop_assert!(exact.all_finite(), "{profile:?} exact: non-finite output at CoC {coc}");
                 let me = channel_means(&exact);

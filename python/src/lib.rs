@@ -407,7 +407,7 @@ fn diff_settings(
     };
     drbokeh::render::check_blur("blur", blur).map_err(py_err)?;
     let lens = lens.unwrap_or_else(|| drbokeh::render::auto_lens(layers, blur, focus));
-    Ok(RenderSettings { blur, focus, lens, occlusion, profile })
+    Ok(RenderSettings { blur, focus, lens, occlusion, profile, aperture: drbokeh::render::Aperture::DISC })
 }
 
 /// The function `render_layers_vjp` differentiates: the exact kernel's render of `layers`
@@ -507,7 +507,7 @@ fn dfd<'py>(
         Some(p) => parse_value("profile", p)?,
         None => drbokeh::render::Profile::default(),
     };
-    let s = RenderSettings { blur, focus, lens: 1, occlusion, profile };
+    let s = RenderSettings { blur, focus, lens: 1, occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
     let est = run(py, threads, move || d::estimate_with(&aif, &bokeh, &s, &opts, |_| {}))?;
     warn_all(py, &est.warnings)?;
     let (h, w) = (est.disparity.height, est.disparity.width);

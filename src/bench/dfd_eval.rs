@@ -115,7 +115,8 @@ impl DfdMethod {
 
     /// The render settings (at `blur`, `focus`), loss and renderer that the method inverts.
     pub fn setup(self, blur: f32, focus: f32) -> (RenderSettings, LossVariant, DfdRenderer) {
-        let s = RenderSettings { blur, focus, lens: 0, occlusion: true, profile: Profile::Physical };
+        let s =
+            RenderSettings { blur, focus, lens: 0, occlusion: true, profile: Profile::Physical, aperture: crate::render::Aperture::DISC };
         match self {
             DfdMethod::Physical | DfdMethod::PhysicalSpan => (s, LossVariant::L1GradHssim, DfdRenderer::DrBokeh),
             DfdMethod::Official => (RenderSettings { profile: Profile::Official, ..s }, LossVariant::L1GradHssim, DfdRenderer::DrBokeh),

@@ -607,7 +607,11 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
     let plain = |image: Result<Image>| image.map(|image| Rendered { image, light_added: None, alpha: None });
     let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
         let lens = render::auto_lens(layers, blur, focus);
-        render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile() }, v.kernel())
+        render::render(
+            layers,
+            &RenderSettings { blur, focus, lens, occlusion, profile: v.profile(), aperture: crate::render::Aperture::DISC },
+            v.kernel(),
+        )
     };
     // The depth map the photo-based methods read.
     let disparity = if v.realistic() { &inp.realistic_disparity } else { &inp.disparity };

@@ -35,7 +35,17 @@ pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool
     let (focus, dmax) = if focus_fg { (1.0, 1.0) } else { (0.5, 0.5) };
     let blur = (max_coc / dmax).max(0.0);
     let lens = auto_lens(&layers, blur, focus);
-    (layers, RenderSettings { blur, focus, lens, occlusion: true, profile: crate::render::Profile::Official })
+    (
+        layers,
+        RenderSettings {
+            blur,
+            focus,
+            lens,
+            occlusion: true,
+            profile: crate::render::Profile::Official,
+            aperture: crate::render::Aperture::DISC,
+        },
+    )
 }
 
 /// One opaque `width × height` layer: a textured ground in focus (disparity 1) with 2-pixel
@@ -55,7 +65,17 @@ pub fn bars_in_one_layer(width: usize, height: usize, max_coc: f32) -> (Vec<Laye
     let layers = vec![Layer::new(Image::from_vec(w, h, 5, px).expect("size"), "bars in one layer").expect("finite")];
     let blur = (max_coc / 0.5).max(0.0);
     let lens = auto_lens(&layers, blur, 1.0);
-    (layers, RenderSettings { blur, focus: 1.0, lens, occlusion: true, profile: crate::render::Profile::Official })
+    (
+        layers,
+        RenderSettings {
+            blur,
+            focus: 1.0,
+            lens,
+            occlusion: true,
+            profile: crate::render::Profile::Official,
+            aperture: crate::render::Aperture::DISC,
+        },
+    )
 }
 
 /// A depth-from-defocus scene of `n × n` pixels: a seeded noise texture over blocks of 32 px
@@ -86,5 +106,12 @@ pub fn dfd_scene(n: usize) -> (Layer, Image) {
 /// `k`, the window the disparity range [0, 1] needs.
 pub fn dfd_settings(k: f32, occlusion: bool) -> RenderSettings {
     let reach = k.ceil() as usize + 3;
-    RenderSettings { blur: k, focus: 1.0, lens: 2 * reach + 1, occlusion, profile: Profile::Physical }
+    RenderSettings {
+        blur: k,
+        focus: 1.0,
+        lens: 2 * reach + 1,
+        occlusion,
+        profile: Profile::Physical,
+        aperture: crate::render::Aperture::DISC,
+    }
 }

@@ -534,7 +534,14 @@ mod tests {
         };
         let aif = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| rnd()).collect()).unwrap();
         let truth = Image::from_vec(w, h, 1, (0..w * h).map(|i| if i % w < w / 2 { 1.0 } else { 0.4 }).collect()).unwrap();
-        let s = RenderSettings { blur: 4.0, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
+        let s = RenderSettings {
+            blur: 4.0,
+            focus: 1.0,
+            lens: 0,
+            occlusion: true,
+            profile: Profile::Physical,
+            aperture: crate::render::Aperture::DISC,
+        };
         let opts = DfdOptions { iters: 40, levels: 2, ..DfdOptions::default() };
         let mut rs = s;
         rs.lens = 2 * ((s.blur * 1.0).ceil() as usize + 3) + 1;
@@ -568,7 +575,14 @@ mod tests {
     /// error naming the kernel. A reduced plan's map comes back at the photo's size.
     #[test]
     fn auto_plan_and_ray_checks() {
-        let s = RenderSettings { blur: 6.4, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
+        let s = RenderSettings {
+            blur: 6.4,
+            focus: 1.0,
+            lens: 0,
+            occlusion: true,
+            profile: Profile::Physical,
+            aperture: crate::render::Aperture::DISC,
+        };
         let o = DfdOptions::default();
         let p = |w, h, s: &RenderSettings, o: &DfdOptions| {
             let p = plan(w, h, s, o);
@@ -614,7 +628,14 @@ mod tests {
     fn huge_blur_is_accepted_at_every_level() {
         let aif = Image::from_vec(8, 6, 3, (0..8 * 6 * 3).map(|v| (v % 7) as f32 / 7.0).collect()).unwrap();
         for blur in [3e38f32, 1e30, 1e-30] {
-            let s = RenderSettings { blur, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
+            let s = RenderSettings {
+                blur,
+                focus: 1.0,
+                lens: 0,
+                occlusion: true,
+                profile: Profile::Physical,
+                aperture: crate::render::Aperture::DISC,
+            };
             let opts = DfdOptions { iters: 2, levels: 2, ..DfdOptions::default() };
             let d = estimate(&aif, &aif, &s, &opts, |_| {}).unwrap_or_else(|e| panic!("K {blur}: {e}"));
             assert!(d.data.iter().all(|v| (0.0..=1.0).contains(v)), "K {blur}");
@@ -634,7 +655,14 @@ mod tests {
         };
         let aif = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| rnd()).collect()).unwrap();
         let truth = Image::from_vec(w, h, 1, (0..w * h).map(|i| if i % w < w / 2 { 1.0 } else { 0.3 }).collect()).unwrap();
-        let s = RenderSettings { blur: 4.0, focus: 1.0, lens: 0, occlusion: true, profile: Profile::Physical };
+        let s = RenderSettings {
+            blur: 4.0,
+            focus: 1.0,
+            lens: 0,
+            occlusion: true,
+            profile: Profile::Physical,
+            aperture: crate::render::Aperture::DISC,
+        };
         let bokeh = GaussTape::record(&aif, &truth, 1.0, 4.0, window_radius(4.0, 1.0)).unwrap().image().clone();
         let opts = DfdOptions { iters: 30, levels: 2, renderer: DfdRenderer::GaussPsf, ..DfdOptions::default() };
         let d = estimate(&aif, &bokeh, &s, &opts, |_| {}).unwrap();

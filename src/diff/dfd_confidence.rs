@@ -74,7 +74,14 @@ mod tests {
     use super::*;
 
     fn settings(focus: f32, blur: f32) -> RenderSettings {
-        RenderSettings { blur, focus, lens: 1, occlusion: true, profile: crate::render::Profile::Physical }
+        RenderSettings {
+            blur,
+            focus,
+            lens: 1,
+            occlusion: true,
+            profile: crate::render::Profile::Physical,
+            aperture: crate::render::Aperture::DISC,
+        }
     }
 
     #[test]

@@ -266,7 +266,7 @@ mod tests {
     use crate::render::Profile;
 
     fn settings(blur: f32, focus: f32) -> RenderSettings {
-        RenderSettings { blur, focus, lens: 0, occlusion: true, profile: Profile::Physical }
+        RenderSettings { blur, focus, lens: 0, occlusion: true, profile: Profile::Physical, aperture: crate::render::Aperture::DISC }
     }
 
     /// Levels stop where the photo is under 8 px a side or the blur under a pixel; a request

@@ -2,6 +2,12 @@
 //!
 //! The official mask is a disk with a strict inequality, `sqrt(i² + j²) < lens/2` (integer
 //! half-size), so the outermost ring of the window is never used and `lens = 1` has no taps.
+//!
+//! What the aperture looks like inside that window (blades, an image, an anamorphic squeeze)
+//! is [`shape`]'s.
+
+pub mod shape;
+pub use shape::{Aperture, ShapeSpec};
 
 /// One tap of the lens window: row offset `di`, column offset `dj`, distance `r` in pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -70,7 +70,8 @@ fn scatter_layer_official(layer: &Layer, s: &RenderSettings, taps: &[Tap]) -> Ra
 
 /// The physical profile, tap by tap: every visible source spreads its premultiplied colour
 /// and its alpha over a uniform disk of radius `K·|d|` with a one-pixel ramp edge, normalized
-/// to unit flux ([`lens::disk_coverage`] / [`lens::disk_norm`]). At each target the sources
+/// to unit flux ([`lens::disk_coverage`] / [`lens::disk_norm`]), or over the aperture's shape
+/// of that circumradius ([`super::aperture::shape::Geometry::coverage`] / `norm`). At each target the sources
 /// are split by depth relative to the target ([`lens::depth_groups`]: in front, the same
 /// surface, behind; with occlusion off, all one group) and the groups are composited front to
 /// back ([`lens::over_groups`]). The raw pixel is `[P_r, P_g, P_b, A, V]`: the colour
@@ -83,7 +84,9 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     let d: Vec<f32> = img.data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
     // The thin lens's CoC, capped far beyond any image so ratios stay finite.
     let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
-    let norm: Vec<f32> = radius.iter().map(|&r| lens::disk_norm(r)).collect();
+    // The disc's own ramp, or the aperture's pixel-integrated shape (`aperture::shape`).
+    let shape = s.aperture.geometry();
+    let norm: Vec<f32> = radius.iter().map(|&r| shape.map_or_else(|| lens::disk_norm(r), |g| g.norm(r))).collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];
     out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each(|(y, row)| {
         for x in 0..w {
@@ -95,7 +98,12 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
                 let j = yy * w + xx;
                 let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
-                let cov = lens::disk_coverage(radius[j], t.r);
+                let cov = match shape {
+                    None => lens::disk_coverage(radius[j], t.r),
+                    // The target sits (-dj, -di) from the source, (-dj, di) with y up; a source
+                    // in front of the focal plane (d > 0) shows the shape point-reflected.
+                    Some(g) => g.coverage(radius[j], -t.dj as f32, t.di as f32, d[j] > 0.0),
+                };
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;
                 }

@@ -15,6 +15,7 @@ pub mod splat;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+pub use aperture::{Aperture, ShapeSpec};
 pub use backward::{Gradients, Smoothing, SpanGradients, SpanTape, Tape, render_differentiable, vjp};
 pub use layer::Layer;
 pub use lens::Profile;
@@ -77,6 +78,9 @@ pub struct RenderSettings {
     pub occlusion: bool,
     /// Which calibration of the lens terms (see [`lens::Profile`]).
     pub profile: lens::Profile,
+    /// The aperture's shape (see [`aperture::shape`]); anything but the disc needs the
+    /// physical profile.
+    pub aperture: aperture::Aperture,
 }
 
 /// A layer's raw render: per pixel `[ΣR, ΣG, ΣB, W, o]` (weighted colour sums, total weight,
@@ -182,6 +186,12 @@ pub fn validate<L: Borrow<Layer>>(layers: &[L], s: &RenderSettings) -> Result<()
             s.lens,
             first.width(),
             first.height()
+        )));
+    }
+    if s.profile == Profile::Official && !s.aperture.is_disc() {
+        return Err(Error::usage(format!(
+            "aperture {}: the official profile renders the disc only (its soft-step footprint is radial); use the physical profile",
+            s.aperture.label()
         )));
     }
     Ok(())

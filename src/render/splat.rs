@@ -99,7 +99,7 @@ pub enum Window {
 impl Window {
     /// Largest |dx| (continuous, edge-inclusive) allowed on row offset `dy`; `None` = row excluded.
     #[inline]
-    fn half_width(self, dy: f32) -> Option<f32> {
+    pub(crate) fn half_width(self, dy: f32) -> Option<f32> {
         match self {
             // The last pixel of the row extends to m + 0.5.
             Window::Lattice(p) => lattice_row_reach(p, dy.round() as i64).map(|m| m as f32 + 0.5),

@@ -70,6 +70,7 @@ pub fn golden_case(dir: &std::path::Path) -> (Vec<drbokeh::render::Layer>, drbok
         lens: params["lens"].as_u64().unwrap() as usize,
         occlusion: true,
         profile: drbokeh::render::Profile::Official,
+        aperture: drbokeh::render::Aperture::DISC,
     };
     (layers, s, names, gamma)
 }

@@ -303,7 +303,14 @@ mod tests {
 
     #[test]
     fn band_threshold_is_where_one_minus_q_reaches_eps() {
-        let s = RenderSettings { blur: 10.0, focus: 0.0, lens: 3, occlusion: true, profile: crate::render::Profile::Official };
+        let s = RenderSettings {
+            blur: 10.0,
+            focus: 0.0,
+            lens: 3,
+            occlusion: true,
+            profile: crate::render::Profile::Official,
+            aperture: crate::render::Aperture::DISC,
+        };
         let bc = band_coc();
         for i in 0..2000 {
             let d = i as f32 * 1e-4;

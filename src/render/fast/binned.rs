@@ -18,8 +18,9 @@
 //! scaled by the ratio of its disk's area to the bin's.
 
 use super::footprint::{EDGE, HARD_EDGE, SOFT_EDGE, equivalent_radius, rim_row_taps};
+use crate::render::aperture::shape::Geometry;
 use crate::render::lens::{disk_coverage, disk_norm};
-use crate::render::splat::{Stripe, Window, disk_chord, flux_scale, span_edges};
+use crate::render::splat::{Stripe, Window, disk_chord, flux_scale, lattice_row_reach, span_edges};
 use std::collections::HashMap;
 use std::f32::consts::PI;
 
@@ -41,12 +42,27 @@ pub(super) enum Shape {
     /// radius `ρ` (grid pixels) at a centre off the grid's lattice, rounded to `1/PHASES` of a
     /// grid pixel, clipped to a disk window of radius `window` (as `Stripe::disk` draws it).
     Coarse { window: f32 },
+    /// The physical footprint of a non-disc aperture ([`Geometry::coverage`] over
+    /// [`Geometry::norm`]) of CoC `r`, its plateau as spans and its outline as taps, clipped
+    /// to the lens window; keys carry whether the shape is point-reflected (a source in front
+    /// of the focal plane).
+    Aperture(&'static Geometry),
+    /// A coarse grid's aggregate of a non-disc aperture: its coverage at circumradius `ρ`
+    /// (grid pixels) at a centre rounded to `1/SHAPE_PHASES` of a grid pixel, clipped to a
+    /// disk window of radius `window`; the aggregate's value is a density (see
+    /// `coarse::aggregate`), so the template is not normalized.
+    CoarseAperture { shape: &'static Geometry, window: f32 },
 }
 
 /// Coarse shape: centre positions per grid pixel along each axis (a centre moves by at most
 /// 1/32 of a grid pixel; a uniform cell's centroid lies on a position exactly). See
 /// `coarse::COARSE_BIN` for the measurement that chose it.
 pub(super) const PHASES: usize = 16;
+
+/// Centre positions per grid pixel of a coarse aperture's template: a shape's template costs
+/// O(ρ²) coverages to build, not a disk's O(ρ) chords, so fewer positions (a centre moves by
+/// at most 1/8 of a grid pixel, before the bilinear upsampling blurs it).
+pub(super) const SHAPE_PHASES: usize = 4;
 
 impl Shape {
     /// The hard disks (radius offset, weight) a source of radius `r` is drawn as, around its
@@ -71,7 +87,16 @@ impl Shape {
     fn phases(self) -> usize {
         match self {
             Shape::Coarse { .. } => PHASES,
+            Shape::CoarseAperture { .. } => SHAPE_PHASES,
             _ => 1,
+        }
+    }
+
+    /// Whether keys carry the point reflection (an aperture that is not point-symmetric).
+    fn flips(self) -> bool {
+        match self {
+            Shape::Aperture(g) | Shape::CoarseAperture { shape: g, .. } => !g.symmetric(),
+            _ => false,
         }
     }
 
@@ -107,7 +132,8 @@ impl Template {
     /// The footprint of radius `r` (CoC, scatter radius or disk radius, per `shape`) in a
     /// window of half-size `p`, centred `phase` (x, y; in `[0, 1)`, coarse shape only) past a
     /// lattice point: the rows, spans and taps the one-by-one draw of such a source makes.
-    fn new(shape: Shape, r: f32, phase: (f32, f32), p: i64) -> Self {
+    /// An aperture's shape is point-reflected when `flip`.
+    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, p: i64) -> Self {
         let mut t = Template { scale: 1.0, rr: 0, rows: Vec::new(), diffs: Vec::new(), taps: Vec::new() };
         match shape {
             Shape::Physical => {
@@ -153,6 +179,12 @@ impl Template {
                     t.push_row(&diffs, &[]);
                 }
             }
+            // The lens window's taps (|offset| < p, as the exact kernel's), or the coarse
+            // window's disk around the off-lattice centre.
+            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
+            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, |j| {
+                Window::Disk(window).half_width(j as f32 - phase.1).map(|hw| (phase.0 - hw, phase.0 + hw))
+            }),
         }
         // The physical disk's unit flux folded into the weights: a source's own factor is
         // then 1, with no norm per source (`disk_norm` per source was 7% of a CoC-16 render).
@@ -164,6 +196,8 @@ impl Template {
         // `Bins::place` scales that to the source's own radius).
         t.scale = match shape {
             Shape::Physical => 1.0 / disk_norm(r),
+            Shape::Aperture(g) => 1.0 / g.norm(r),
+            Shape::CoarseAperture { .. } => 1.0,
             Shape::Coarse { .. } => flux_scale(r, phase.1),
             Shape::Official { .. } => 1.0,
         };
@@ -172,6 +206,42 @@ impl Template {
             t.taps.iter_mut().for_each(|c| c.1 *= t.scale);
         }
         t
+    }
+
+    /// The rows of an aperture's footprint of circumradius `r` centred `(fx, fy)` past the
+    /// lattice point: per row `j`, the pixels wholly inside as spans (runs of coverage 1) and
+    /// the others with some coverage as taps, where `window(j)` bounds `|dx|` (pixels whose
+    /// centre column lies in it). O(r²) coverages.
+    fn shape_rows(&mut self, g: &Geometry, r: f32, (fx, fy): (f32, f32), flip: bool, window: impl Fn(i64) -> Option<(f32, f32)>) {
+        // Pixel squares reach half a pixel past the outline.
+        let reach = r + 1.0;
+        self.rr = (reach + fy).ceil() as i64;
+        let (mut diffs, mut taps) = (Vec::new(), Vec::new());
+        for j in -self.rr..=self.rr {
+            diffs.clear();
+            taps.clear();
+            let dy = j as f32 - fy;
+            if let Some((a, b)) = window(j).filter(|_| dy.abs() < reach) {
+                let (lo, hi) = (((fx - reach).floor() as i64).max(a.ceil() as i64), ((fx + reach).ceil() as i64).min(b.floor() as i64));
+                let mut run: Option<i64> = None;
+                for dx in lo..=hi + 1 {
+                    // Output coordinates, y up.
+                    let c = if dx <= hi { g.coverage(r, dx as f32 - fx, -dy, flip) } else { 0.0 };
+                    match (c == 1.0, run) {
+                        (true, None) => run = Some(dx),
+                        (false, Some(a)) => {
+                            diffs.extend([(a, 1.0), (dx, -1.0)]);
+                            run = None;
+                        }
+                        _ => {}
+                    }
+                    if c > 0.0 && c < 1.0 {
+                        taps.push((dx, c));
+                    }
+                }
+            }
+            self.push_row(&diffs, &taps);
+        }
     }
 
     fn push_row(&mut self, diffs: &[(i64, f64)], taps: &[(i64, f32)]) {
@@ -229,14 +299,23 @@ impl Bins {
         (k, self.factor(k, r))
     }
 
+    /// [`Bins::bin`] for an aperture's shape, point-reflected when `flip` (a source in front
+    /// of the focal plane).
+    #[inline]
+    pub(super) fn bin_flipped(&self, r: f32, flip: bool) -> (u64, f32) {
+        let k = self.bin_index(r);
+        (k * 2 + u64::from(flip && self.shape.flips()), self.factor(k, r))
+    }
+
     /// Coarse shape: the template of a disk of radius `rho` centred at `(cx, cy)` (grid
     /// pixels), the lattice point `(x, y)` it is placed at, and its value's factor. O(1).
     #[inline]
-    pub(super) fn place(&self, cx: f32, cy: f32, rho: f32) -> (u64, i64, i64, f32) {
+    pub(super) fn place(&self, cx: f32, cy: f32, rho: f32, flip: bool) -> (u64, i64, i64, f32) {
         let n = self.shape.phases() as i64;
         let (qx, qy) = ((cx * n as f32).round() as i64, (cy * n as f32).round() as i64);
         let k = self.bin_index(rho);
-        let key = (k * n as u64 + qy.rem_euclid(n) as u64) * n as u64 + qx.rem_euclid(n) as u64;
+        let kf = if self.shape.flips() { k * 2 + u64::from(flip) } else { k };
+        let key = (kf * n as u64 + qy.rem_euclid(n) as u64) * n as u64 + qx.rem_euclid(n) as u64;
         (key, qx.div_euclid(n), qy.div_euclid(n), self.factor(k, rho))
     }
 
@@ -251,7 +330,12 @@ impl Bins {
     #[inline]
     fn factor(&self, k: u64, r: f32) -> f32 {
         match self.shape {
-            Shape::Physical => 1.0,
+            Shape::Physical | Shape::Aperture(_) => 1.0,
+            // Coverage areas scale as ρ².
+            Shape::CoarseAperture { .. } => {
+                let rk = self.radius(k);
+                if rk > 0.0 { (r / rk) * (r / rk) } else { 1.0 }
+            }
             shape => {
                 let (rk, edge) = (self.radius(k), shape.edge(self.radius(k)));
                 Shape::area(edge, shape.disk_radius(r)) / Shape::area(edge, shape.disk_radius(rk))
@@ -268,7 +352,8 @@ impl Bins {
     fn template(&self, key: u64) -> Template {
         let n = self.shape.phases() as u64;
         let (k, py, px) = (key / (n * n), key / n % n, key % n);
-        Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), self.p)
+        let (k, flip) = if self.shape.flips() || matches!(self.shape, Shape::Aperture(_)) { (k / 2, k % 2 == 1) } else { (k, false) };
+        Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), flip, self.p)
     }
 }
 
@@ -389,7 +474,7 @@ mod tests {
             for x in (-6i64..46).filter(|x| x % 7 != 3) {
                 let v = [0.1 * (x as f32).sin().abs(), 0.5, 0.2 + 0.01 * x as f32, 0.7];
                 let (k, x0, y0, factor) = match shape {
-                    Shape::Coarse { .. } => bins.place(x as f32 + fx, sy as f32 + fy, r),
+                    Shape::Coarse { .. } => bins.place(x as f32 + fx, sy as f32 + fy, r, false),
                     _ => (k, x, sy, factor),
                 };
                 assert_eq!((x0, y0), (x, sy));
@@ -407,6 +492,8 @@ mod tests {
                             one.disk(x as f32, sy as f32, equivalent_radius(r) + off, Window::Lattice(p as i64), v.map(|c| c * wt));
                         }
                     }
+                    // Apertures are checked against the exact kernel (tests/aperture.rs).
+                    Shape::Aperture(_) | Shape::CoarseAperture { .. } => unreachable!("not among this test's shapes"),
                 }
             }
             assert!(flush(&bins, &mut Templates::default(), &mut sc.bins, &mut sc.accs) > 0);
@@ -457,7 +544,7 @@ mod tests {
         let n = PHASES as f32;
         for (cx, cy) in [(0.0f32, 0.0f32), (3.49, -2.51), (-0.03, 7.97), (-5.2, -0.7), (12.0625, 3.9374)] {
             for rho in [7.0f32, 9.3, 16.96] {
-                let (key, x, y, factor) = bins.place(cx, cy, rho);
+                let (key, x, y, factor) = bins.place(cx, cy, rho, false);
                 let n2 = PHASES as u64;
                 let (k, py, px) = (key / n2 / n2, key / n2 % n2, key % n2);
                 let (qx, qy) = (x as f32 + px as f32 / n, y as f32 + py as f32 / n);

@@ -30,6 +30,10 @@ pub(super) fn level_of(sigma: f32, r0: f32) -> Option<usize> {
 /// drawn one by one).
 const COARSE_BIN: f32 = 1.0 / 8.0;
 
+/// The radius bins of a non-disc aperture's coarse templates, grid pixels (see
+/// `binned::SHAPE_PHASES`).
+const COARSE_SHAPE_BIN: f32 = 1.0 / 8.0;
+
 /// One coarse level of a pass: a grid `factor` times coarser than the image.
 pub(super) struct Coarse {
     /// `2^ℓ`.
@@ -46,6 +50,9 @@ struct Agg {
     cy: f32,
     rho: f32,
     v: [f32; 4],
+    /// A non-disc aperture's sources in front of the focal plane (the shape point-reflected)
+    /// aggregate apart from those behind it.
+    flip: bool,
 }
 
 /// The coarse levels of every pass, indexed by slot (0 = `A`, 1 = `F`, `2 + k` = `U_k`); a
@@ -90,7 +97,12 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
         // range [r0, 2·r0) (equivalent radius, grid pixels), centres to 1/PHASES of a cell.
         let radius = ctx.p as f32 / f;
         let window = Window::Disk(radius);
-        let bins = Bins::new(Shape::Coarse { window: radius }, ctx.params.radius_bin * COARSE_BIN, 0);
+        let shape = ctx.s.aperture.geometry();
+        let bins = match shape {
+            None => Bins::new(Shape::Coarse { window: radius }, ctx.params.radius_bin * COARSE_BIN, 0),
+            // A shape's template costs O(ρ²) to build: bins of 1/8 grid pixel.
+            Some(g) => Bins::new(Shape::CoarseAperture { shape: g, window: radius }, COARSE_SHAPE_BIN, 0),
+        };
         let reach = 2.0 * r0 + 2.0;
         let pad = ctx.pad(ctx.sigma_max + 3.0) as f32;
         let writes = AtomicU64::new(0);
@@ -105,14 +117,15 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
                     continue;
                 }
                 places.clear();
-                places.extend(row.iter().map(|a| bins.place(a.cx, a.cy, a.rho)));
+                places.extend(row.iter().map(|a| bins.place(a.cx, a.cy, a.rho, a.flip)));
                 for (k, (a, &(key, x, y, factor))) in row.iter().zip(&places).enumerate() {
                     // A template pays where a run forms (its neighbours in the row share it);
                     // an aggregate alone, or of bright light (the rounding errs in proportion
                     // to it; the bright sources' lowest level), is drawn at its own centre and
                     // radius.
                     let shared = |j: Option<usize>| j.and_then(|j| places.get(j)).is_some_and(|p| p.0 == key);
-                    if !(shared(k.checked_sub(1)) || shared(Some(k + 1))) || is_bright(max_rgb(&a.v), a.v[3], BRIGHT_MIN) {
+                    let alone = !(shared(k.checked_sub(1)) || shared(Some(k + 1))) || is_bright(max_rgb(&a.v), a.v[3], BRIGHT_MIN);
+                    if alone && shape.is_none() {
                         // The value stands for the flux of a disk of area π·ρ².
                         let norm = flux_scale(a.rho, a.cy - a.cy.floor());
                         st.disk(a.cx, a.cy, a.rho, window, a.v.map(|c| c * norm));
@@ -139,6 +152,10 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
     let ff = f as f32;
     let (lo, hi) = (ctx.params.r0 * ff, ctx.params.r0 * 2.0 * ff);
     let bins = ctx.params.r0 as usize;
+    // A shape that is not point-symmetric: the sources in front of the focal plane in a second
+    // set of bins.
+    let shape = ctx.s.aperture.geometry();
+    let sides = if shape.is_some_and(|g| !g.symmetric()) { 2 } else { 1 };
     let pad = ctx.pad(ctx.sigma_max + 3.0);
     let (x0, x1) = (-pad, ctx.w as i64 + pad);
     let (y0, y1) = (-pad, ctx.h as i64 + pad);
@@ -149,7 +166,7 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
         .map(|ci| {
             let mut out = Vec::new();
             // Per radius bin: Σ value·density (4), Σ weight·centre x, y, Σ weight·radius.
-            let mut acc = vec![[0f64; 7]; bins];
+            let mut acc = vec![[0f64; 7]; bins * sides];
             for cj in 0..cols {
                 let mut any = false;
                 for sy in (y0 + ci * f)..(y0 + (ci + 1) * f).min(y1) {
@@ -170,27 +187,31 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
                         if wgt <= 0.0 {
                             continue;
                         }
-                        let b = (((drawn - lo) / ff) as usize).min(bins - 1);
+                        let front = sides == 2 && ctx.d(j) > 0.0;
+                        let b = (((drawn - lo) / ff) as usize).min(bins - 1) + if front { bins } else { 0 };
                         let a = &mut acc[b];
                         for c in 0..4 {
                             a[c] += (v[c] * dens) as f64;
                         }
                         a[4] += wgt * ((sx as f32 + 0.5) / ff - 0.5) as f64;
                         a[5] += wgt * ((sy as f32 + 0.5) / ff - 0.5) as f64;
-                        a[6] += wgt * (equivalent(ctx.s.profile, drawn) / ff) as f64;
+                        // A shape's coverage has its exact area: its own radius.
+                        let rho = if shape.is_some() { drawn } else { equivalent(ctx.s.profile, drawn) };
+                        a[6] += wgt * (rho / ff) as f64;
                         any = true;
                     }
                 }
                 if !any {
                     continue;
                 }
-                for a in acc.iter_mut() {
+                for (b, a) in acc.iter_mut().enumerate() {
                     if a[3] > 0.0 {
                         out.push(Agg {
                             cx: (a[4] / a[3]) as f32,
                             cy: (a[5] / a[3]) as f32,
                             rho: (a[6] / a[3]) as f32,
                             v: [a[0] as f32, a[1] as f32, a[2] as f32, a[3] as f32],
+                            flip: b >= bins,
                         });
                     }
                     *a = [0.0; 7];

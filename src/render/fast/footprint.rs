@@ -6,6 +6,7 @@
 //! Radii are in pixels. A source's footprint is the model's soft step `S(σ, r)` times the
 //! energy density `1/σ²` (see [`super::super::lens::energy`]), clipped to the lens window.
 
+use super::super::RenderSettings;
 use super::super::aperture::Tap;
 use super::super::lens::{
     FACTORED_STEP_MAX, MAX_RADIUS, Profile, STEP_GAIN, STEP_LN_OFFSET, coc_radius, disk_coverage, disk_coverage_smooth, scatter_radius,
@@ -67,11 +68,17 @@ pub(super) fn source_radius(profile: Profile, d: f32, k: f32) -> f32 {
 /// `p`: [`drawn_radius`] for the official footprint; for the physical disk, `r` capped at
 /// `p + 2·EDGE`: every tap of the window (`ρ < p`) is fully covered from `r = p + EDGE` on, so
 /// beyond the footprint is the window itself and only the norm still depends on `r`.
+///
+/// A non-disc aperture is capped where its own shape stops changing inside the window
+/// ([`Geometry::drawn_cap`]).
+///
+/// [`Geometry::drawn_cap`]: super::super::aperture::shape::Geometry::drawn_cap
 #[inline]
-pub(super) fn drawn(profile: Profile, radius: f32, p: usize) -> f32 {
-    match profile {
-        Profile::Official => drawn_radius(radius, p),
-        Profile::Physical => radius.min(p as f32 + 2.0 * EDGE),
+pub(super) fn drawn(s: &RenderSettings, radius: f32, p: usize) -> f32 {
+    match (s.profile, s.aperture.geometry()) {
+        (Profile::Official, _) => drawn_radius(radius, p),
+        (Profile::Physical, None) => radius.min(p as f32 + 2.0 * EDGE),
+        (Profile::Physical, Some(g)) => radius.min(g.drawn_cap(p)),
     }
 }
 

@@ -181,7 +181,7 @@ impl<'a> Ctx<'a> {
         let p = s.lens / 2;
         let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
         let (bright_level, bright_max) =
-            bright::bright_sources(img, survey.visible, survey.bright_max, |i| footprint::drawn(s.profile, sigma[i], p));
+            bright::bright_sources(img, survey.visible, survey.bright_max, |i| footprint::drawn(s, sigma[i], p));
         let band = match s.profile {
             Profile::Official => survey.band(params.node_step),
             Profile::Physical => physical::groups_wanted(s, p, survey).then(|| survey.band(params.node_step)).flatten(),
@@ -208,11 +208,13 @@ impl<'a> Ctx<'a> {
             band,
             sides: [SidePresence::default(); 2],
             reach,
-            bins: (params.stencil_max < 2.0 * params.r0).then(|| {
-                let shape = match s.profile {
-                    Profile::Physical => binned::Shape::Physical,
-                    Profile::Official if params.soft_edge => binned::Shape::Official { soft_below: f32::INFINITY },
-                    Profile::Official => binned::Shape::Official { soft_below: 2.0 * params.stencil_max },
+            // A non-disc aperture draws every full-resolution source through its templates.
+            bins: (params.stencil_max < 2.0 * params.r0 || !s.aperture.is_disc()).then(|| {
+                let shape = match (s.profile, s.aperture.geometry()) {
+                    (Profile::Physical, Some(g)) => binned::Shape::Aperture(g),
+                    (Profile::Physical, None) => binned::Shape::Physical,
+                    (Profile::Official, _) if params.soft_edge => binned::Shape::Official { soft_below: f32::INFINITY },
+                    (Profile::Official, _) => binned::Shape::Official { soft_below: 2.0 * params.stencil_max },
                 };
                 binned::Bins::new(shape, params.radius_bin, p)
             }),
@@ -222,16 +224,18 @@ impl<'a> Ctx<'a> {
     /// The radius a source of footprint radius `radius` is drawn with (see [`footprint::drawn`]).
     #[inline]
     fn drawn(&self, radius: f32) -> f32 {
-        footprint::drawn(self.s.profile, radius, self.p)
+        footprint::drawn(self.s, radius, self.p)
     }
 
     /// A source's flux per unit of footprint, from its true footprint radius: the energy
-    /// density `1/σ²` in weight units (official) or `1/disk_norm(r)` (physical).
+    /// density `1/σ²` in weight units (official) or `1/disk_norm(r)` (physical; the shape's
+    /// `1/norm(r)` for a non-disc aperture).
     #[inline]
     fn density(&self, radius: f32) -> f32 {
-        match self.s.profile {
-            Profile::Official => density(radius, self.unit),
-            Profile::Physical => 1.0 / disk_norm(radius),
+        match (self.s.profile, self.s.aperture.geometry()) {
+            (Profile::Official, _) => density(radius, self.unit),
+            (Profile::Physical, None) => 1.0 / disk_norm(radius),
+            (Profile::Physical, Some(g)) => 1.0 / g.norm(radius),
         }
     }
 

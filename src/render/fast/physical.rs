@@ -76,6 +76,25 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                 continue;
             }
             ctx.dests(nodes, j, &mut sc.dests);
+            if let (Some(g), Some(bins)) = (ctx.s.aperture.geometry(), ctx.bins.as_ref()) {
+                // A non-disc aperture: every full-resolution source through its shape's
+                // templates (per radius bin, point-reflected in front of the focal plane).
+                n_sp += own;
+                if true_r < lens::SHARP_COC_PX {
+                    for &(slot, f) in &sc.dests {
+                        sc.accs[slot].pixels(sy, sx, sx, v.map(|c| c * f));
+                    }
+                    ops += sc.dests.len() as u64;
+                } else {
+                    let (key, _) = bins.bin_flipped(r, ctx.d(j) > 0.0);
+                    // Capped at the window: the flux of the true radius.
+                    let factor = if r == true_r { 1.0 } else { g.norm(r) / g.norm(true_r) };
+                    for &(slot, f) in &sc.dests {
+                        sc.bins.push(slot, key, (sx, sy), v.map(|c| c * f * factor));
+                    }
+                }
+                continue;
+            }
             if r < pr.stencil_max {
                 n_st += own;
                 if true_r != sc.stencil_sigma || sc.stencil_w.is_empty() {

@@ -97,7 +97,7 @@ pub(super) fn survey(img: &Image, s: &RenderSettings, params: FastParams) -> (Ve
                     sv.sigma_min = sv.sigma_min.min(*sg);
                     sv.d_lo = sv.d_lo.min(d);
                     sv.d_hi = sv.d_hi.max(d);
-                    let drawn = drawn(s.profile, *sg, p);
+                    let drawn = drawn(s, *sg, p);
                     sv.sigma_max = sv.sigma_max.max(drawn);
                     if drawn < 2.0 * params.r0 {
                         sv.full_max = sv.full_max.max(drawn);

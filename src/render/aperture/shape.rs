@@ -1,0 +1,685 @@
+//! The aperture's shape: what a point source's bokeh looks like, defined once for every kernel.
+//!
+//! Conventions (README "Aperture shapes", `--help`):
+//! - The shape's circumradius is the circle of confusion `r = K·|d - f|` (pixels); with an
+//!   anamorphic aspect `A` the shape is squeezed horizontally by `1/A` (`A > 1`, taller than
+//!   wide) or vertically by `A` (`A < 1`), so it still fits the CoC's circle.
+//! - Coordinates are the output's, y up: `rotation` puts a blade's vertex at that many degrees
+//!   counterclockwise from +x; an aperture image is read with its top row up.
+//! - A source behind the focal plane shows the shape as specified, one in front of it the
+//!   shape point-reflected, as a thin lens images its aperture.
+//! - Every shape carries unit flux: a pixel's weight is the area of the pixel square the
+//!   shape covers ([`Geometry::coverage`], the pixel-integrated aperture) over the shape's
+//!   whole area ([`Geometry::norm`]), which is also the exact lattice sum of the coverages
+//!   (the pixel squares tile the plane). A CoC below half a pixel leaves a source in place,
+//!   as the disc does.
+//!
+//! The disc is not a [`Geometry`]: the kernels keep their own radial-ramp disc
+//! (`lens::disk_coverage`), so a disc render is unchanged by this module. Every other shape
+//! is a convex polygon (blades, rounded blades, an anamorphic disc) or a grey mask (an image),
+//! both evaluated here as areas; the exact kernel calls [`Geometry::coverage`] tap by tap and
+//! the fast kernel builds its per-row spans and rim taps from it (`fast::binned`).
+//!
+//! A [`Geometry`] is interned (built once per distinct shape, kept for the process's life), so
+//! [`Aperture`] is a `Copy` handle that render settings can carry.
+
+use crate::error::{Error, Result};
+use std::f64::consts::PI;
+use std::path::Path;
+use std::sync::Mutex;
+
+/// Fewest and most blades `--aperture blades:N` accepts.
+pub const BLADES: std::ops::RangeInclusive<u32> = 3..=64;
+/// Largest side of an aperture image, pixels.
+pub const MAX_IMAGE_SIDE: usize = 1024;
+/// Accepted anamorphic aspect ratios.
+pub const ANAMORPHIC: std::ops::RangeInclusive<f32> = 0.1..=10.0;
+/// Vertices of a polygonized curve per full turn (an anamorphic disc, rounded blades): the
+/// area of a 256-gon is 1e-4 below its circle's.
+const CURVE_VERTICES: usize = 256;
+
+/// What the user asked for, as they spelled it (also what reports print).
+#[derive(Clone, Debug, PartialEq)]
+pub enum ShapeSpec {
+    /// The uniform disc (the default).
+    Disc,
+    /// `n` straight (curvature 0) or rounded blades, a vertex at `rotation` degrees.
+    Blades {
+        /// Number of blades, [`BLADES`].
+        n: u32,
+        /// Degrees counterclockwise from +x (y up) of a vertex.
+        rotation: f32,
+        /// 0 = straight blades, 1 = a circle.
+        curvature: f32,
+    },
+    /// A grey mask read from an image (bright = open), its longer side spanning the diameter.
+    Image {
+        /// The file, as given.
+        path: String,
+    },
+}
+
+impl ShapeSpec {
+    /// Parses `disc`, `blades:N[,rotation=DEG][,curvature=C]` or `image:PATH`; `what` names
+    /// the flag or key in the message.
+    pub fn parse(spec: &str, what: &str) -> Result<ShapeSpec> {
+        let bad = |msg: String| Error::usage(format!("{what} {spec:?}: {msg}"));
+        let s = spec.trim();
+        if s.eq_ignore_ascii_case("disc") || s.eq_ignore_ascii_case("disk") {
+            return Ok(ShapeSpec::Disc);
+        }
+        if let Some(path) = s.strip_prefix("image:") {
+            if path.is_empty() {
+                return Err(bad("image: needs a file, e.g. image:star.png".into()));
+            }
+            return Ok(ShapeSpec::Image { path: path.to_string() });
+        }
+        let Some(rest) = s.strip_prefix("blades:") else {
+            return Err(bad("expected disc, blades:N[,rotation=DEG][,curvature=C] or image:PATH".into()));
+        };
+        let mut parts = rest.split(',');
+        let n_str = parts.next().unwrap_or("").trim();
+        let n: u32 = n_str.parse().map_err(|_| bad(format!("the blade count {n_str:?} is not a whole number")))?;
+        if !BLADES.contains(&n) {
+            return Err(bad(format!("{n} blades: a lens has {} to {}", BLADES.start(), BLADES.end())));
+        }
+        let (mut rotation, mut curvature) = (0f32, 0f32);
+        for part in parts {
+            let (key, value) = part.split_once('=').ok_or_else(|| bad(format!("{part:?} is not key=value")))?;
+            let v: f32 = value.trim().parse().map_err(|_| bad(format!("{} {value:?} is not a number", key.trim())))?;
+            if !v.is_finite() {
+                return Err(bad(format!("{} must be finite", key.trim())));
+            }
+            match key.trim() {
+                "rotation" => rotation = v,
+                "curvature" => {
+                    if !(0.0..=1.0).contains(&v) {
+                        return Err(bad(format!("curvature {v} is outside [0, 1] (0 straight blades, 1 a circle)")));
+                    }
+                    curvature = v;
+                }
+                other => return Err(bad(format!("unknown blade option {other:?} (rotation, curvature)"))),
+            }
+        }
+        Ok(ShapeSpec::Blades { n, rotation, curvature })
+    }
+
+    /// The spec as `--aperture` spells it.
+    pub fn label(&self) -> String {
+        match self {
+            ShapeSpec::Disc => "disc".into(),
+            ShapeSpec::Blades { n, rotation, curvature } => format!("blades:{n},rotation={rotation},curvature={curvature}"),
+            ShapeSpec::Image { path } => format!("image:{path}"),
+        }
+    }
+}
+
+/// The aperture a render uses: the disc (`Aperture::DISC`, the default) or a [`Geometry`].
+/// A `Copy` handle; equal handles are equal shapes (geometries are interned).
+#[derive(Clone, Copy, Default)]
+pub struct Aperture(Option<&'static Geometry>);
+
+impl PartialEq for Aperture {
+    fn eq(&self, other: &Self) -> bool {
+        match (self.0, other.0) {
+            (None, None) => true,
+            (Some(a), Some(b)) => std::ptr::eq(a, b),
+            _ => false,
+        }
+    }
+}
+
+impl std::fmt::Debug for Aperture {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.label())
+    }
+}
+
+impl Aperture {
+    /// The uniform disc.
+    pub const DISC: Aperture = Aperture(None);
+
+    /// The aperture of `spec` with anamorphic aspect `anamorphic` (1 = none); an image is read
+    /// from its path (relative to the working directory). Errors name `what` (the flag or
+    /// key) or the file.
+    pub fn new(spec: &ShapeSpec, anamorphic: f32, what: &str) -> Result<Aperture> {
+        if !anamorphic.is_finite() || !ANAMORPHIC.contains(&anamorphic) {
+            return Err(Error::usage(format!(
+                "anamorphic aspect {anamorphic} is outside [{}, {}] (1 = round bokeh, 1.5 = taller than wide)",
+                ANAMORPHIC.start(),
+                ANAMORPHIC.end()
+            )));
+        }
+        let kind = match spec {
+            ShapeSpec::Disc if anamorphic == 1.0 => return Ok(Aperture::DISC),
+            ShapeSpec::Disc => Kind::polygon(circle(CURVE_VERTICES)),
+            ShapeSpec::Blades { n, rotation, curvature } => {
+                if !BLADES.contains(n) || !(0.0..=1.0).contains(curvature) || !rotation.is_finite() {
+                    return Err(Error::usage(format!("{what}: invalid blades {}", spec.label())));
+                }
+                Kind::polygon(blades(*n, *rotation as f64, *curvature as f64))
+            }
+            ShapeSpec::Image { path } => Kind::Mask(Mask::read(Path::new(path))?),
+        };
+        Ok(Aperture::from_kind(spec.clone(), anamorphic, kind))
+    }
+
+    /// An image aperture from grey values (row-major, top row first, bright = open), for the
+    /// library and tests; checked as an image file is (`name` in messages).
+    pub fn from_mask(width: usize, height: usize, values: &[f32], anamorphic: f32, name: &str) -> Result<Aperture> {
+        let mask = Mask::new(width, height, values).map_err(|msg| Error::usage(format!("aperture image {name}: {msg}")))?;
+        if !anamorphic.is_finite() || !ANAMORPHIC.contains(&anamorphic) {
+            return Err(Error::usage(format!("anamorphic aspect {anamorphic} is outside [0.1, 10]")));
+        }
+        Ok(Aperture::from_kind(ShapeSpec::Image { path: name.to_string() }, anamorphic, Kind::Mask(mask)))
+    }
+
+    fn from_kind(spec: ShapeSpec, anamorphic: f32, kind: Kind) -> Aperture {
+        let g = Geometry::new(spec, anamorphic, kind);
+        static INTERNED: Mutex<Vec<&'static Geometry>> = Mutex::new(Vec::new());
+        let mut all = INTERNED.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(&old) = all.iter().find(|old| ***old == g) {
+            return Aperture(Some(old));
+        }
+        // Leaked on purpose: a handful per process (one per distinct shape asked for).
+        let g: &'static Geometry = Box::leak(Box::new(g));
+        all.push(g);
+        Aperture(Some(g))
+    }
+
+    /// The geometry; None for the disc, which the kernels draw themselves.
+    pub fn geometry(self) -> Option<&'static Geometry> {
+        self.0
+    }
+
+    /// Whether this is the plain disc.
+    pub fn is_disc(self) -> bool {
+        self.0.is_none()
+    }
+
+    /// How reports name it: `disc`, `blades:6,rotation=0,curvature=0`, `image:star.png`, with
+    /// `,anamorphic=A` when set.
+    pub fn label(self) -> String {
+        match self.0 {
+            None => "disc".into(),
+            Some(g) if g.anamorphic != 1.0 => format!("{},anamorphic={}", g.spec.label(), g.anamorphic),
+            Some(g) => g.spec.label(),
+        }
+    }
+}
+
+/// A non-disc aperture: its outline (unit circumradius, centred, y up, the anamorphic squeeze
+/// applied) and the figures the kernels need.
+#[derive(Debug, PartialEq)]
+pub struct Geometry {
+    spec: ShapeSpec,
+    anamorphic: f32,
+    kind: Kind,
+    /// The outline's area in the unit frame.
+    area: f64,
+    /// Radius of the largest centred disc inside the outline (unit frame).
+    inradius: f64,
+    /// Whether the outline equals its point reflection (then foreground and background bokeh
+    /// are the same and the fast kernel shares their templates).
+    symmetric: bool,
+}
+
+#[derive(Debug, PartialEq)]
+enum Kind {
+    /// A convex polygon, counterclockwise, and its edges' half-planes `n·p ≤ c` (unit `n`).
+    Polygon { pts: Vec<[f64; 2]>, planes: Vec<[f64; 3]>, bbox: [f64; 4] },
+    /// A grey mask: the unit frame's rectangle `[-hw, hw] × [-hh, hh]` holds `w × h` cells.
+    Mask(Mask),
+}
+
+impl Kind {
+    fn polygon(pts: Vec<[f64; 2]>) -> Kind {
+        let n = pts.len();
+        let planes = (0..n)
+            .map(|i| {
+                let (a, b) = (pts[i], pts[(i + 1) % n]);
+                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                let len = (ex * ex + ey * ey).sqrt();
+                let (nx, ny) = (ey / len, -ex / len);
+                [nx, ny, nx * a[0] + ny * a[1]]
+            })
+            .collect();
+        let fold = |f: fn(f64, f64) -> f64, init: f64, k: usize| pts.iter().map(|p| p[k]).fold(init, f);
+        let bbox = [
+            fold(f64::min, f64::INFINITY, 0),
+            fold(f64::max, f64::NEG_INFINITY, 0),
+            fold(f64::min, f64::INFINITY, 1),
+            fold(f64::max, f64::NEG_INFINITY, 1),
+        ];
+        Kind::Polygon { pts, planes, bbox }
+    }
+}
+
+impl Geometry {
+    fn new(spec: ShapeSpec, anamorphic: f32, kind: Kind) -> Geometry {
+        let (sx, sy) = squeeze(anamorphic);
+        let kind = match kind {
+            Kind::Polygon { pts, .. } => Kind::polygon(pts.iter().map(|p| [p[0] * sx, p[1] * sy]).collect()),
+            Kind::Mask(mut m) => {
+                m.hw *= sx;
+                m.hh *= sy;
+                Kind::Mask(m)
+            }
+        };
+        let (area, inradius, symmetric) = match &kind {
+            Kind::Polygon { pts, planes, .. } => {
+                let area = shoelace(pts);
+                let inradius = planes.iter().map(|p| p[2]).fold(f64::INFINITY, f64::min).max(0.0);
+                let symmetric = pts.iter().all(|p| pts.iter().any(|q| (p[0] + q[0]).abs() < 1e-9 && (p[1] + q[1]).abs() < 1e-9));
+                (area, inradius, symmetric)
+            }
+            Kind::Mask(m) => (m.total() * (4.0 * m.hw * m.hh) / (m.w * m.h) as f64, 0.0, m.symmetric()),
+        };
+        Geometry { spec, anamorphic, kind, area, inradius, symmetric }
+    }
+
+    /// Whether foreground and background bokeh are the same shape.
+    pub fn symmetric(&self) -> bool {
+        self.symmetric
+    }
+
+    /// The flux of a source of CoC `r` (pixels) spread by coverage: the shape's area
+    /// `area·r²` in pixels, the lattice sum of [`Geometry::coverage`]; 1 below
+    /// [`super::super::lens::SHARP_COC_PX`] (the source stays in its pixel).
+    pub fn norm(&self, r: f32) -> f32 {
+        if r < super::super::lens::SHARP_COC_PX { 1.0 } else { (self.area * r as f64 * r as f64) as f32 }
+    }
+
+    /// The fraction of the pixel square centred `(x, y)` pixels from a source (output
+    /// coordinates, y up) that the source's bokeh of CoC `r` covers; `flip` for a source in
+    /// front of the focal plane (the shape point-reflected). Exactly 1 for a pixel wholly
+    /// inside; below [`super::super::lens::SHARP_COC_PX`] the source's own pixel alone (1) .
+    /// O(1) inside and outside, O(vertices) on the outline.
+    pub fn coverage(&self, r: f32, x: f32, y: f32, flip: bool) -> f32 {
+        if r < super::super::lens::SHARP_COC_PX {
+            return if x == 0.0 && y == 0.0 { 1.0 } else { 0.0 };
+        }
+        let s = 1.0 / r as f64;
+        let (x, y) = if flip { (-x as f64, -y as f64) } else { (x as f64, y as f64) };
+        let rect = [(x - 0.5) * s, (x + 0.5) * s, (y - 0.5) * s, (y + 0.5) * s];
+        let a = match &self.kind {
+            Kind::Polygon { planes, bbox, .. } => polygon_rect_area(planes, bbox, rect),
+            Kind::Mask(m) => m.integral(rect),
+        };
+        match a {
+            Area::Inside => 1.0,
+            Area::Part(a) => ((a * r as f64 * r as f64) as f32).clamp(0.0, 1.0),
+        }
+    }
+
+    /// The radius up to which a CoC changes what a window of half-size `p` shows: beyond it
+    /// the window lies inside the shape (polygons), or spans at most a quarter of one of the
+    /// mask's cells (images). The fast kernel draws larger CoCs at this radius.
+    pub fn drawn_cap(&self, p: usize) -> f32 {
+        let p = p as f64 + 1.0;
+        let cap = match &self.kind {
+            Kind::Polygon { .. } => p / self.inradius.max(1e-3) + 1.0,
+            Kind::Mask(m) => 4.0 * p * (m.w as f64 / (2.0 * m.hw)).max(m.h as f64 / (2.0 * m.hh)),
+        };
+        cap.min(1e7) as f32
+    }
+}
+
+/// What a pixel's rectangle covers of a shape (unit frame areas).
+enum Area {
+    /// Wholly inside (coverage exactly 1).
+    Inside,
+    /// This much area.
+    Part(f64),
+}
+
+/// `(sx, sy)`: the anamorphic squeeze of the unit frame.
+fn squeeze(anamorphic: f32) -> (f64, f64) {
+    let a = anamorphic as f64;
+    if a >= 1.0 { (1.0 / a, 1.0) } else { (1.0, a) }
+}
+
+/// A unit circle as a counterclockwise polygon of `n` vertices.
+fn circle(n: usize) -> Vec<[f64; 2]> {
+    (0..n).map(|k| 2.0 * PI * k as f64 / n as f64).map(|t| [t.cos(), t.sin()]).collect()
+}
+
+/// `n` blades, a vertex at `rotation` degrees, curvature `c`: the outline's radius at angle
+/// θ is `(1 - c)·polygon(θ) + c` (straight sides at 0, the circle at 1), polygonized with
+/// [`CURVE_VERTICES`] vertices (the corners kept exactly) when curved.
+fn blades(n: u32, rotation: f64, c: f64) -> Vec<[f64; 2]> {
+    let rot = rotation.to_radians();
+    let step = 2.0 * PI / n as f64;
+    if c == 0.0 {
+        return (0..n).map(|k| rot + step * k as f64).map(|t| [t.cos(), t.sin()]).collect();
+    }
+    let per_side = CURVE_VERTICES.div_ceil(n as usize).max(4);
+    let apothem = (PI / n as f64).cos();
+    let mut pts = Vec::with_capacity(n as usize * per_side);
+    for k in 0..n {
+        for i in 0..per_side {
+            let u = i as f64 / per_side as f64;
+            let t = step * u;
+            let polygon = apothem / (t - step / 2.0).cos();
+            let radius = (1.0 - c) * polygon + c;
+            let a = rot + step * k as f64 + t;
+            pts.push([radius * a.cos(), radius * a.sin()]);
+        }
+    }
+    pts
+}
+
+/// Area of a polygon given counterclockwise.
+fn shoelace(pts: &[[f64; 2]]) -> f64 {
+    let n = pts.len();
+    0.5 * (0..n).map(|i| pts[i][0] * pts[(i + 1) % n][1] - pts[(i + 1) % n][0] * pts[i][1]).sum::<f64>()
+}
+
+/// Area of `rect = [x0, x1, y0, y1]` inside the convex polygon of half-planes `planes`: the
+/// rectangle clipped by each plane that cuts it (most pixels meet none or one edge).
+fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], rect: [f64; 4]) -> Area {
+    let [x0, x1, y0, y1] = rect;
+    if x1 <= bbox[0] || x0 >= bbox[1] || y1 <= bbox[2] || y0 >= bbox[3] {
+        return Area::Part(0.0);
+    }
+    let mut poly: Vec<[f64; 2]> = vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+    let mut cut = false;
+    let mut next = Vec::with_capacity(8);
+    for &[nx, ny, c] in planes {
+        // The rectangle's corner farthest along n, and the nearest.
+        let far = nx * if nx > 0.0 { x1 } else { x0 } + ny * if ny > 0.0 { y1 } else { y0 };
+        if far <= c {
+            continue;
+        }
+        let near = nx * if nx > 0.0 { x0 } else { x1 } + ny * if ny > 0.0 { y0 } else { y1 };
+        if near >= c {
+            return Area::Part(0.0);
+        }
+        cut = true;
+        next.clear();
+        let m = poly.len();
+        for i in 0..m {
+            let (a, b) = (poly[i], poly[(i + 1) % m]);
+            let (da, db) = (nx * a[0] + ny * a[1] - c, nx * b[0] + ny * b[1] - c);
+            if da <= 0.0 {
+                next.push(a);
+            }
+            if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
+                let t = da / (da - db);
+                next.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+            }
+        }
+        std::mem::swap(&mut poly, &mut next);
+        if poly.len() < 3 {
+            return Area::Part(0.0);
+        }
+    }
+    if cut { Area::Part(shoelace(&poly).max(0.0)) } else { Area::Inside }
+}
+
+/// A grey aperture mask with its summed-area tables.
+#[derive(Debug, PartialEq)]
+struct Mask {
+    w: usize,
+    h: usize,
+    /// Half-extents of the mask's rectangle in the unit frame (the longer one 1 before the
+    /// anamorphic squeeze).
+    hw: f64,
+    hh: f64,
+    /// Summed-area tables, `(w + 1) × (h + 1)`, of the values and of `1 - value` (the
+    /// latter tells a rectangle wholly open: its sum is exactly 0).
+    sat: Vec<f64>,
+    holes: Vec<f64>,
+    values: Vec<f32>,
+}
+
+impl Mask {
+    fn read(path: &Path) -> Result<Mask> {
+        let decoded = crate::io::image_file::read_decoded(path, &crate::io::ReadLimits::default())?;
+        let img = decoded.image;
+        let colour = if decoded.has_alpha { img.channels - 1 } else { img.channels };
+        if img.width > MAX_IMAGE_SIDE || img.height > MAX_IMAGE_SIDE {
+            return Err(Error::input(
+                path,
+                format!("aperture image is {}x{}; at most {MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE} is accepted", img.width, img.height),
+            ));
+        }
+        let grey: Vec<f32> = img.data.chunks_exact(img.channels).map(|px| px[..colour].iter().sum::<f32>() / colour as f32).collect();
+        Mask::new(img.width, img.height, &grey).map_err(|msg| Error::input(path, format!("aperture image: {msg}")))
+    }
+
+    fn new(w: usize, h: usize, values: &[f32]) -> std::result::Result<Mask, String> {
+        if w == 0 || h == 0 || values.len() != w * h {
+            return Err(format!("empty ({w}x{h}, {} values)", values.len()));
+        }
+        if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+            return Err(format!("{w}x{h}; at most {MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE} is accepted"));
+        }
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(format!("the value at ({}, {}) is not finite", i % w, i / w));
+        }
+        let values: Vec<f32> = values.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        if values.iter().all(|&v| v == 0.0) {
+            return Err("all black: no light passes (bright = open)".into());
+        }
+        let table = |f: &dyn Fn(f32) -> f64| {
+            let mut sat = vec![0f64; (w + 1) * (h + 1)];
+            for y in 0..h {
+                let mut row = 0f64;
+                for x in 0..w {
+                    row += f(values[y * w + x]);
+                    sat[(y + 1) * (w + 1) + x + 1] = sat[y * (w + 1) + x + 1] + row;
+                }
+            }
+            sat
+        };
+        let side = w.max(h) as f64;
+        Ok(Mask { w, h, hw: w as f64 / side, hh: h as f64 / side, sat: table(&|v| v as f64), holes: table(&|v| 1.0 - v as f64), values })
+    }
+
+    /// The sum of all values.
+    fn total(&self) -> f64 {
+        self.sat[self.sat.len() - 1]
+    }
+
+    fn symmetric(&self) -> bool {
+        let n = self.values.len();
+        (0..n).all(|i| self.values[i] == self.values[n - 1 - i])
+    }
+
+    /// `∫` of the summed-area table `t` from the mask's top-left corner to cell coordinates
+    /// `(u, v)` (columns right, rows down), bilinear inside a cell (exact for cells of
+    /// constant value).
+    fn sat_at(&self, t: &[f64], u: f64, v: f64) -> f64 {
+        let (u, v) = (u.clamp(0.0, self.w as f64), v.clamp(0.0, self.h as f64));
+        let (i, j) = ((u.floor() as usize).min(self.w - 1), (v.floor() as usize).min(self.h - 1));
+        let (fu, fv) = (u - i as f64, v - j as f64);
+        let at = |a: usize, b: usize| t[b * (self.w + 1) + a];
+        let top = at(i, j) * (1.0 - fu) + at(i + 1, j) * fu;
+        let bottom = at(i, j + 1) * (1.0 - fu) + at(i + 1, j + 1) * fu;
+        top * (1.0 - fv) + bottom * fv
+    }
+
+    /// The mask's integral over the unit-frame rectangle `rect`, in unit-frame area.
+    fn integral(&self, [x0, x1, y0, y1]: [f64; 4]) -> Area {
+        if x1 <= -self.hw || x0 >= self.hw || y1 <= -self.hh || y0 >= self.hh {
+            return Area::Part(0.0);
+        }
+        // Cells per unit along each axis; rows run down.
+        let (ku, kv) = (self.w as f64 / (2.0 * self.hw), self.h as f64 / (2.0 * self.hh));
+        let (u0, u1) = ((x0 + self.hw) * ku, (x1 + self.hw) * ku);
+        let (v0, v1) = ((self.hh - y1) * kv, (self.hh - y0) * kv);
+        let sum = |t: &[f64]| self.sat_at(t, u1, v1) - self.sat_at(t, u0, v1) - self.sat_at(t, u1, v0) + self.sat_at(t, u0, v0);
+        let inside_frame = x0 >= -self.hw && x1 <= self.hw && y0 >= -self.hh && y1 <= self.hh;
+        if inside_frame && sum(&self.holes) == 0.0 {
+            return Area::Inside;
+        }
+        Area::Part(sum(&self.sat).max(0.0) / (ku * kv))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn aperture(spec: &str, anamorphic: f32) -> &'static Geometry {
+        Aperture::new(&ShapeSpec::parse(spec, "--aperture").unwrap(), anamorphic, "--aperture").unwrap().geometry().unwrap()
+    }
+
+    /// The coverage of a pixel by supersampling the outline (an independent truth).
+    fn supersampled(inside: impl Fn(f64, f64) -> bool, r: f64, x: f64, y: f64, n: usize) -> f64 {
+        let mut hit = 0;
+        for i in 0..n {
+            for j in 0..n {
+                let (px, py) = (x - 0.5 + (i as f64 + 0.5) / n as f64, y - 0.5 + (j as f64 + 0.5) / n as f64);
+                hit += inside(px / r, py / r) as usize;
+            }
+        }
+        hit as f64 / (n * n) as f64
+    }
+
+    fn in_hexagon(x: f64, y: f64, rot: f64) -> bool {
+        (0..6).all(|k| {
+            let t = (rot + 60.0 * k as f64 + 30.0).to_radians();
+            x * t.cos() + y * t.sin() <= (PI / 6.0).cos()
+        })
+    }
+
+    #[test]
+    fn parse_and_reject() {
+        assert_eq!(ShapeSpec::parse("disc", "a").unwrap(), ShapeSpec::Disc);
+        assert_eq!(
+            ShapeSpec::parse("blades:6,rotation=30,curvature=0.5", "a").unwrap(),
+            ShapeSpec::Blades { n: 6, rotation: 30.0, curvature: 0.5 }
+        );
+        for bad in [
+            "blades:2",
+            "blades:65",
+            "blades:6,curvature=1.5",
+            "blades:6,curvature=-0.1",
+            "blades:x",
+            "blades:6,rotation=nan",
+            "hexagon",
+            "image:",
+            "blades:6,size=2",
+        ] {
+            let e = ShapeSpec::parse(bad, "--aperture").unwrap_err().to_string();
+            assert!(e.contains("--aperture"), "{bad}: {e}");
+        }
+        assert!(Aperture::new(&ShapeSpec::Disc, 0.0, "a").is_err());
+        assert!(Aperture::new(&ShapeSpec::Disc, f32::NAN, "a").is_err());
+        assert!(Aperture::new(&ShapeSpec::Disc, 1.0, "a").unwrap().is_disc());
+    }
+
+    #[test]
+    fn masks_that_pass_no_light_or_are_too_large_are_refused() {
+        assert!(Aperture::from_mask(0, 0, &[], 1.0, "m").is_err());
+        assert!(Aperture::from_mask(2, 2, &[0.0; 4], 1.0, "m").unwrap_err().to_string().contains("all black"));
+        assert!(Aperture::from_mask(2, 1, &[1.0, f32::NAN], 1.0, "m").unwrap_err().to_string().contains("not finite"));
+        assert!(Aperture::from_mask(1025, 1, &[1.0; 1025], 1.0, "m").is_err());
+    }
+
+    #[test]
+    fn geometries_are_interned() {
+        let a = Aperture::new(&ShapeSpec::parse("blades:7,rotation=10", "a").unwrap(), 1.0, "a").unwrap();
+        let b = Aperture::new(&ShapeSpec::parse("blades:7,rotation=10", "a").unwrap(), 1.0, "a").unwrap();
+        let c = Aperture::new(&ShapeSpec::parse("blades:7,rotation=11", "a").unwrap(), 1.0, "a").unwrap();
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        assert_ne!(a, Aperture::DISC);
+    }
+
+    #[test]
+    fn hexagon_coverage_is_the_pixel_area_inside_it() {
+        for rot in [0.0, 30.0, 17.0] {
+            let g = aperture(&format!("blades:6,rotation={rot}"), 1.0);
+            let r = 6.3f32;
+            let mut worst = 0f64;
+            let mut sum = 0f64;
+            for y in -8..=8 {
+                for x in -8..=8 {
+                    let c = g.coverage(r, x as f32, y as f32, false) as f64;
+                    sum += c;
+                    let truth = supersampled(|u, v| in_hexagon(u, v, rot), r as f64, x as f64, y as f64, 64);
+                    worst = worst.max((c - truth).abs());
+                }
+            }
+            // Supersampling's own error on an edge pixel is about 1/64.
+            assert!(worst < 0.02, "rotation {rot}: worst {worst}");
+            assert!((sum / g.norm(r) as f64 - 1.0).abs() < 1e-5, "rotation {rot}: flux {sum}");
+        }
+    }
+
+    #[test]
+    fn a_vertex_points_at_the_rotation() {
+        let g = aperture("blades:5,rotation=90", 1.0);
+        let r = 20.0;
+        // Straight up (y up) the vertex reaches r; straight down an edge stops at the apothem.
+        assert!(g.coverage(r, 0.0, 19.0, false) > 0.0);
+        assert_eq!(g.coverage(r, 0.0, -18.0, false), 0.0);
+        // In front of the focal plane the pentagon is point-reflected.
+        assert_eq!(g.coverage(r, 0.0, 18.0, true), 0.0);
+        assert!(g.coverage(r, 0.0, -19.0, true) > 0.0);
+        assert!(!g.symmetric());
+        assert!(aperture("blades:6", 1.0).symmetric());
+    }
+
+    #[test]
+    fn curvature_runs_from_the_polygon_to_the_circle() {
+        let area = |c: f32| aperture(&format!("blades:5,curvature={c}"), 1.0).area;
+        let pentagon = 2.5 * (2.0 * PI / 5.0).sin();
+        assert!((area(0.0) - pentagon).abs() < 1e-9);
+        assert!((area(1.0) - PI).abs() < 1e-3);
+        assert!(area(0.0) < area(0.5) && area(0.5) < area(1.0));
+        // The rounded outline stays convex: every vertex inside every edge's half-plane.
+        let g = aperture("blades:5,curvature=0.5", 1.0);
+        let Kind::Polygon { pts, planes, .. } = &g.kind else { panic!() };
+        assert!(planes.iter().all(|&[nx, ny, c]| pts.iter().all(|p| nx * p[0] + ny * p[1] <= c + 1e-9)));
+    }
+
+    #[test]
+    fn anamorphic_disc_is_an_ellipse_inside_the_coc() {
+        let g = aperture("disc", 1.5);
+        assert!((g.area - PI / 1.5).abs() < 1e-3);
+        let r = 10.0;
+        assert!(g.coverage(r, 0.0, 9.0, false) > 0.99);
+        assert_eq!(g.coverage(r, 9.0, 0.0, false), 0.0);
+        assert!(g.coverage(r, 6.0, 0.0, false) > 0.99);
+    }
+
+    #[test]
+    fn mask_coverage_integrates_the_image() {
+        // A 4x4 mask, open in its left half and its top-right cell quarter.
+        let mut v = vec![0f32; 16];
+        for y in 0..4 {
+            v[y * 4] = 1.0;
+            v[y * 4 + 1] = 1.0;
+        }
+        v[3] = 0.5;
+        let a = Aperture::from_mask(4, 4, &v, 1.0, "m").unwrap().geometry().unwrap();
+        assert!((a.area - (8.5 * 0.25)).abs() < 1e-12);
+        // r = 2: one cell per pixel; pixel centres at ±0.5, ±1.5.
+        assert_eq!(a.coverage(2.0, -1.5, 1.5, false), 1.0);
+        assert_eq!(a.coverage(2.0, 0.5, 0.5, false), 0.0);
+        assert!((a.coverage(2.0, 1.5, 1.5, false) - 0.5).abs() < 1e-6);
+        // Reflected: the open half is on the right, the half-open cell bottom left.
+        assert_eq!(a.coverage(2.0, 1.5, -0.5, true), 1.0);
+        assert!((a.coverage(2.0, -1.5, -1.5, true) - 0.5).abs() < 1e-6);
+        // A pixel straddling two cells takes their mean.
+        assert!((a.coverage(2.0, 0.0, 0.5, false) - 0.5).abs() < 1e-6);
+        let sum: f64 =
+            (-3..=3).flat_map(|y| (-3..=3).map(move |x| (x, y))).map(|(x, y)| a.coverage(2.7, x as f32, y as f32, false) as f64).sum();
+        assert!((sum / a.norm(2.7) as f64 - 1.0).abs() < 1e-5, "{sum}");
+    }
+
+    #[test]
+    fn in_focus_sources_stay_in_their_pixel() {
+        let g = aperture("blades:6", 2.0);
+        assert_eq!(g.norm(0.3), 1.0);
+        assert_eq!(g.coverage(0.3, 0.0, 0.0, false), 1.0);
+        assert_eq!(g.coverage(0.3, 1.0, 0.0, false), 0.0);
+        // At half a pixel the whole shape fits the source's pixel: the same weight, 1.
+        let r = 0.5;
+        assert!((g.coverage(r, 0.0, 0.0, false) / g.norm(r) - 1.0).abs() < 1e-6);
+    }
+}
