@@ -30,6 +30,10 @@ pub struct Config {
     pub inpaint: InpaintOptions,
     /// `[render]`: kernel, blur strength, lens window, gamma, occlusion.
     pub render: RenderConfig,
+    /// `[aperture]`: the shape of the bokeh. Left out of the config's JSON at its default
+    /// (the disc), so batch fingerprints made before the table existed stay valid.
+    #[serde(skip_serializing_if = "ApertureConfig::is_disc")]
+    pub aperture: ApertureConfig,
     /// `[output]`: PNG bit depth.
     pub output: OutputConfig,
     /// `[depth]`: the optional depth-estimation model (used when no depth map is given).
@@ -92,6 +96,35 @@ fn is_true(b: &bool) -> bool {
 impl Default for InputConfig {
     fn default() -> Self {
         InputConfig { depth_kind: DepthKind::Depth, max_pixels: 200_000_000, embedded_depth: true }
+    }
+}
+
+/// `[aperture]`: the shape of the bokeh (see `render::aperture::shape`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ApertureConfig {
+    /// `disc`, `blades:N[,rotation=DEG][,curvature=C]` or `image:PATH` (a grey mask, bright =
+    /// open; a relative path is read from the working directory).
+    pub shape: String,
+    /// Aspect ratio of the bokeh: > 1 taller than wide, < 1 wider; 1 = none.
+    pub anamorphic: f32,
+}
+
+impl Default for ApertureConfig {
+    fn default() -> Self {
+        ApertureConfig { shape: "disc".into(), anamorphic: 1.0 }
+    }
+}
+
+impl ApertureConfig {
+    /// The plain disc (the default).
+    pub fn is_disc(&self) -> bool {
+        *self == ApertureConfig::default()
+    }
+
+    /// The aperture it names; reads an image aperture's file.
+    pub fn resolve(&self) -> Result<render::Aperture> {
+        render::Aperture::new(&render::ShapeSpec::parse(&self.shape, "aperture.shape")?, self.anamorphic, "aperture.shape")
     }
 }
 
@@ -205,6 +238,18 @@ impl Config {
             return Err(Error::usage("batch.depth_patterns must list at least one pattern (e.g. \"{stem}.depth\")"));
         }
         self.highlights.validate("highlights")?;
+        // The shape's syntax and ranges; an image is read when the pipeline is built.
+        render::ShapeSpec::parse(&self.aperture.shape, "aperture.shape")?;
+        let a = self.aperture.anamorphic;
+        if !(a.is_finite() && render::aperture::shape::ANAMORPHIC.contains(&a)) {
+            return Err(Error::usage(format!("aperture.anamorphic must be in [0.1, 10] (1 = round bokeh), got {a}")));
+        }
+        if !self.aperture.is_disc() && self.render.profile == render::Profile::Official {
+            return Err(Error::usage(format!(
+                "aperture.shape {}: render.profile official renders the disc only; use the physical profile",
+                self.aperture.shape
+            )));
+        }
         if self.input.max_pixels == 0 {
             return Err(Error::usage("input.max_pixels must be > 0"));
         }

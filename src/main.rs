@@ -288,6 +288,16 @@ pub(crate) struct PipelineArgs {
     /// boost: the brightness factor at stored value 1, in [1, 100] [default: 4].
     #[arg(long, value_name = "G")]
     highlight_gain: Option<f32>,
+    /// The aperture's shape: disc, blades:N[,rotation=DEG][,curvature=C] (3..=64 blades, a
+    /// vertex at DEG counterclockwise from +x, y up; curvature 0 straight … 1 round) or
+    /// image:PATH (a grey mask, bright = open, its longer side spanning the bokeh's diameter).
+    /// The circumradius is the circle of confusion; bokeh in front of the focal plane shows
+    /// the shape point-reflected [default: disc].
+    #[arg(long, value_name = "SHAPE")]
+    aperture: Option<String>,
+    /// Aspect ratio of the bokeh: > 1 taller than wide (anamorphic), < 1 wider [default: 1].
+    #[arg(long, value_name = "A", allow_negative_numbers = true)]
+    anamorphic: Option<f32>,
 }
 
 pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
@@ -431,6 +441,10 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     if let Some(m) = args.highlights {
         cfg.highlights.mode = m.into();
     }
+    if let Some(a) = &args.aperture {
+        cfg.aperture.shape = a.clone();
+    }
+    cfg.aperture.anamorphic = args.anamorphic.unwrap_or(cfg.aperture.anamorphic);
     cfg.highlights.threshold = args.highlight_threshold.unwrap_or(cfg.highlights.threshold);
     cfg.highlights.gain = args.highlight_gain.unwrap_or(cfg.highlights.gain);
     if let Some(k) = args.depth_kind {
@@ -446,7 +460,9 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 41] = [
+const FLAGS: [(&str, &str); 43] = [
+    ("aperture.shape", "--aperture"),
+    ("aperture.anamorphic", "--anamorphic"),
     ("highlights.mode", "--highlights"),
     ("highlights.threshold", "--highlight-threshold"),
     ("highlights.gain", "--highlight-gain"),

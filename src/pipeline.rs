@@ -133,6 +133,8 @@ impl Behind {
 pub struct Pipeline {
     config: Config,
     notice: Option<Notice>,
+    /// `[aperture]`, resolved once (an image aperture read).
+    aperture: render::Aperture,
 }
 
 /// An exact-kernel render estimated to take longer than this (seconds) is announced.
@@ -193,7 +195,8 @@ impl Pipeline {
     /// A pipeline running `config`, after [`Config::validate`] (a bad value is a usage error naming its key).
     pub fn from_config(config: Config) -> Result<Self> {
         config.validate()?;
-        Ok(Pipeline { config, notice: None })
+        let aperture = config.aperture.resolve()?;
+        Ok(Pipeline { config, notice: None, aperture })
     }
 
     /// Calls `notice` with warnings that matter before a stage ends (they are in the
@@ -699,7 +702,7 @@ impl Pipeline {
             return Ok((render::alpha_composite(layers), report));
         }
         let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur, focus));
-        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile, aperture: crate::render::Aperture::DISC };
+        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile, aperture: self.aperture };
         let (kernel, kernel_name) = match rc.kernel {
             KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),
             KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),
@@ -772,6 +775,7 @@ impl Pipeline {
             layers,
             max_coc_radius_px: max_coc,
             threads: rayon::current_num_threads(),
+            aperture: self.aperture.label(),
         }
     }
 }

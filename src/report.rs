@@ -71,6 +71,8 @@ pub struct UsedParams {
     pub max_coc_radius_px: f32,
     /// Worker threads the render used.
     pub threads: usize,
+    /// The aperture's shape as `--aperture` spells it (`disc`, `blades:6,rotation=0,...`).
+    pub aperture: String,
 }
 
 /// Where a render's depth came from (`depth_source` in `--json`; tagged by `kind`).

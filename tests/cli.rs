@@ -2003,3 +2003,54 @@ fn completions_and_the_manual_page() {
     });
     assert_eq!(out.status.code(), Some(2), "an unknown shell is a usage error");
 }
+
+/// `--aperture` / `--anamorphic` / `[aperture]`: the JSON names the shape, the shape changes
+/// the picture, and every bad value exits 2 naming the flag or the file, writing nothing.
+#[test]
+fn aperture_shapes_and_their_bad_values() {
+    let s = Scene::new();
+    let base = ["image.png", "--depth", "depth.exr", "--focus", "1", "--blur", "12"];
+    let with = |extra: &[&str], out: &str| -> Vec<String> { base.iter().chain(extra).chain(&["-o", out]).map(|a| a.to_string()).collect() };
+    let args = with(&["--aperture", "blades:5,rotation=90,curvature=0.2"], "penta.png");
+    let j = s.json(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(j["params"]["aperture"], "blades:5,rotation=90,curvature=0.2");
+    let disc = with(&[], "disc.png");
+    assert_eq!(s.json(&disc.iter().map(String::as_str).collect::<Vec<_>>())["params"]["aperture"], "disc");
+    std::fs::write(s.path("ap.toml"), "[aperture]\nshape = \"blades:6\"\nanamorphic = 1.5\n").unwrap();
+    let cfg = with(&["--config", "ap.toml"], "hexa.png");
+    assert_eq!(
+        s.json(&cfg.iter().map(String::as_str).collect::<Vec<_>>())["params"]["aperture"],
+        "blades:6,rotation=0,curvature=0,anamorphic=1.5"
+    );
+    let read = |n: &str| io::read_decoded(&s.path(n), &drbokeh::io::ReadLimits::default()).unwrap().image;
+    assert_ne!(read("penta.png").data, read("disc.png").data, "the aperture changed nothing");
+
+    // Aperture images that cannot be one.
+    let mut black = Image::new(8, 8, 1);
+    io::write_png(&s.path("black.png"), &black, 8, Transfer::Linear).unwrap();
+    black.data[5] = f32::NAN;
+    io::write_exr(&s.path("nan.exr"), &black, &["Y"]).unwrap();
+    io::write_png(&s.path("huge.png"), &Image::from_vec(1100, 2, 1, vec![1.0; 2200]).unwrap(), 8, Transfer::Linear).unwrap();
+    std::fs::write(s.path("empty.png"), b"").unwrap();
+    for (value, needle) in [
+        ("blades:2", "--aperture"),
+        ("blades:65", "--aperture"),
+        ("blades:6,curvature=1.5", "--aperture"),
+        ("blades:6,curvature=-0.5", "--aperture"),
+        ("hexagon", "--aperture"),
+        ("image:black.png", "black.png"),
+        ("image:nan.exr", "nan.exr"),
+        ("image:huge.png", "huge.png"),
+        ("image:empty.png", "empty.png"),
+        ("image:missing.png", "missing.png"),
+    ] {
+        let a = with(&["--aperture", value], "bad.png");
+        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &[needle]);
+    }
+    for value in ["0", "-1", "20", "nan"] {
+        let a = with(&["--anamorphic", value], "bad.png");
+        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--anamorphic"]);
+    }
+    let a = with(&["--aperture", "blades:6", "--profile", "official"], "bad.png");
+    s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--aperture", "official"]);
+}

@@ -145,7 +145,7 @@ impl Aperture {
     pub fn new(spec: &ShapeSpec, anamorphic: f32, what: &str) -> Result<Aperture> {
         if !anamorphic.is_finite() || !ANAMORPHIC.contains(&anamorphic) {
             return Err(Error::usage(format!(
-                "anamorphic aspect {anamorphic} is outside [{}, {}] (1 = round bokeh, 1.5 = taller than wide)",
+                "aperture.anamorphic {anamorphic} is outside [{}, {}] (1 = round bokeh, 1.5 = taller than wide)",
                 ANAMORPHIC.start(),
                 ANAMORPHIC.end()
             )));
@@ -169,7 +169,7 @@ impl Aperture {
     pub fn from_mask(width: usize, height: usize, values: &[f32], anamorphic: f32, name: &str) -> Result<Aperture> {
         let mask = Mask::new(width, height, values).map_err(|msg| Error::usage(format!("aperture image {name}: {msg}")))?;
         if !anamorphic.is_finite() || !ANAMORPHIC.contains(&anamorphic) {
-            return Err(Error::usage(format!("anamorphic aspect {anamorphic} is outside [0.1, 10]")));
+            return Err(Error::usage(format!("aperture.anamorphic {anamorphic} is outside [0.1, 10]")));
         }
         Ok(Aperture::from_kind(ShapeSpec::Image { path: name.to_string() }, anamorphic, Kind::Mask(mask)))
     }

@@ -177,6 +177,7 @@ impl<'a> Tape<'a> {
     /// [`Tape::record`]; a usage error if `ray_test` is asked of the official profile.
     pub fn record_with(layers: &'a [Layer], s: &RenderSettings, smoothing: Smoothing, ray_test: bool) -> Result<Self> {
         validate(layers, s)?;
+        check_differentiable_aperture(s)?;
         smoothing.validate()?;
         if ray_test && s.profile != Profile::Physical {
             return Err(Error::usage("the ray test is a term of the physical profile's depth groups: use the physical profile"));
@@ -326,6 +327,18 @@ fn finish(layer: &Layer, s: &RenderSettings, grads: &mut [PixelGrad]) -> (Image,
 /// step size; the caller's optimiser clips it).
 fn saturate(v: f64) -> f32 {
     v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32
+}
+
+/// The backward pass differentiates the disc only: a render with another aperture is refused
+/// here rather than differentiated as a disc (a wrong gradient with no error).
+pub(crate) fn check_differentiable_aperture(s: &RenderSettings) -> Result<()> {
+    if s.aperture.is_disc() {
+        return Ok(());
+    }
+    Err(crate::error::Error::usage(format!(
+        "aperture {}: the differentiable renders (and depth from defocus) support the disc only so far",
+        s.aperture.label()
+    )))
 }
 
 /// Renders like [`Tape::record`] and returns the image and `Jᵀ·cotangent` (see [`Tape::vjp`]).

@@ -128,6 +128,7 @@ impl<'a> SpanTape<'a> {
     /// the module notes.
     pub fn record(layer: &'a Layer, s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
         validate(std::slice::from_ref(layer), s)?;
+        crate::render::backward::check_differentiable_aperture(s)?;
         smoothing.validate()?;
         if !layer.is_opaque() {
             return Err(Error::usage("the span render takes one opaque layer (alpha 1 everywhere)"));
