@@ -81,6 +81,13 @@ impl From<MethodArg> for Method {
 
 #[derive(Args)]
 pub struct TraceArgs {
+    /// The aperture's shape (as `render --aperture`): disc, blades:N[,rotation=DEG][,curvature=C]
+    /// or image:PATH [default: disc].
+    #[arg(long, value_name = "SHAPE")]
+    aperture: Option<String>,
+    /// Aspect ratio of the bokeh (as `render --anamorphic`) [default: 1].
+    #[arg(long, value_name = "A", allow_negative_numbers = true)]
+    anamorphic: Option<f32>,
     /// A layer (5-channel EXR R,G,B,A,D or NPY H x W x 5, linear radiance), one fronto-parallel
     /// plane: D must be constant where A > 0. Repeat, front first.
     #[arg(long, value_name = "PATH", required = true)]
@@ -130,6 +137,12 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
         })
         .collect::<Result<Vec<_>, Error>>()?;
     let mut s = TraceSettings::new(args.blur, args.focus, args.spp, args.seed);
+    s.aperture = drbokeh::config::ApertureConfig {
+        shape: args.aperture.clone().unwrap_or_else(|| "disc".into()),
+        anamorphic: args.anamorphic.unwrap_or(1.0),
+    }
+    .resolve()
+    .map_err(as_flags)?;
     s.footprint = match args.footprint {
         FootprintArg::Analytic => Footprint::Analytic,
         FootprintArg::Sampled => Footprint::Sampled,
@@ -160,6 +173,13 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
 
 #[derive(Args)]
 pub struct BenchArgs {
+    /// The aperture's shape (as `render --aperture`): disc, blades:N[,rotation=DEG][,curvature=C]
+    /// or image:PATH [default: disc].
+    #[arg(long, value_name = "SHAPE")]
+    aperture: Option<String>,
+    /// Aspect ratio of the bokeh (as `render --anamorphic`) [default: 1].
+    #[arg(long, value_name = "A", allow_negative_numbers = true)]
+    anamorphic: Option<f32>,
     /// Evaluate depth from defocus instead of rendering methods (the paper's Table 2): each
     /// method estimates the disparity from the all-in-focus photo and a traced render focused
     /// on the nearest plane; scored on disparity error and on a re-render at the farthest
@@ -270,6 +290,10 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         repeats: args.repeats.max(1),
         crops: args.crops,
         command: command_line(),
+        aperture: drbokeh::config::ApertureConfig {
+            shape: args.aperture.clone().unwrap_or_else(|| "disc".into()),
+            anamorphic: args.anamorphic.unwrap_or(1.0),
+        },
     };
     let t0 = Instant::now();
     let bar = if opts.groundtruth.is_some() { ProgressBar::new_spinner() } else { ProgressBar::new(opts.scenes as u64) };

@@ -76,6 +76,7 @@ fn cases() -> Vec<Case> {
     let (n, star) = star_mask();
     let star_cells = star.clone();
     vec![
+        Case { name: "disc", aperture: Aperture::DISC, inside: Box::new(|x: f64, y: f64| x * x + y * y <= 1.0) },
         Case { name: "hexagon 0", aperture: aperture("blades:6", 1.0), inside: Box::new(blades(6, 0.0)) },
         Case { name: "hexagon 30", aperture: aperture("blades:6,rotation=30", 1.0), inside: Box::new(blades(6, 30.0)) },
         Case { name: "pentagon 90", aperture: aperture("blades:5,rotation=90", 1.0), inside: Box::new(blades(5, 90.0)) },
@@ -318,4 +319,31 @@ fn flux_is_conserved_and_front_bokeh_is_reflected() {
         }
     }
     common::assert_no_failures("flux and reflection", &failures);
+}
+
+/// The thin-lens tracer samples the same aperture: one textured plane with HDR dots, out of
+/// focus behind and in front of the focal plane, traced and rendered agree to the tracer's
+/// noise for every shape (linear PSNR on x/(1+x)).
+#[test]
+fn tracer_and_renderer_agree_on_one_plane() {
+    use drbokeh::bench::trace::{Plane, TraceSettings, Window, trace};
+    let img = photo();
+    let mut failures = Vec::new();
+    for case in cases() {
+        for (d, focus) in [(0.25f32, 0.75f32), (0.75, 0.25)] {
+            let layer = one_layer(&img, d);
+            let plane = Plane::from_layer(&layer, "plane").unwrap();
+            let mut ts = TraceSettings::new(24.0, focus, 512, 7);
+            ts.aperture = case.aperture;
+            let traced = trace(&[plane], &ts, Window { x0: 0, y0: 0, width: W, height: H }, &|_| {}).unwrap();
+            let s = settings(case.aperture, 24.0, focus, 31);
+            let rendered = render::render(std::slice::from_ref(&layer), &s, Kernel::Exact).unwrap();
+            let p = psnr_compressed(&rendered, &traced);
+            println!("{:24} d {d}: tracer vs exact {p:6.2} dB", case.name);
+            if p < 45.0 {
+                failures.push(format!("{} d {d}: {p:.2} dB (at least 45)", case.name));
+            }
+        }
+    }
+    common::assert_no_failures("tracer against renderer per shape", &failures);
 }

@@ -284,6 +284,9 @@ pub struct BenchOptions {
     pub crops: usize,
     /// The command line, for the report.
     pub command: String,
+    /// The aperture every method renders with and the generated scenes are traced with (the
+    /// shared ground-truth folders were rendered with a disc: they refuse another shape).
+    pub aperture: crate::config::ApertureConfig,
 }
 
 impl Default for BenchOptions {
@@ -302,6 +305,7 @@ impl Default for BenchOptions {
             repeats: 3,
             crops: 4,
             command: String::new(),
+            aperture: crate::config::ApertureConfig::default(),
         }
     }
 }
@@ -330,6 +334,8 @@ pub struct Case {
     /// What every method renders from (layers, photo, disparity, matte), linear HDR: the
     /// other inputs are made from it ([`inputs::prepare`]).
     pub inputs: SceneInputs,
+    /// The aperture traced and rendered (see [`BenchOptions::aperture`]).
+    pub aperture: crate::config::ApertureConfig,
 }
 
 /// The scores of one render against the ground truth.
@@ -468,7 +474,14 @@ pub fn load_textures(dir: &Path) -> Result<Vec<Image>> {
 
 /// Traces (or loads) the cases of a run, one at a time, handing each to `f`.
 fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnMut(Case) -> Result<()>) -> Result<usize> {
+    let aperture = opts.aperture.resolve()?;
     if let Some(dir) = &opts.groundtruth {
+        if !aperture.is_disc() {
+            return Err(Error::usage(format!(
+                "aperture.shape {}: the ground-truth folders were rendered with a disc; bench other shapes on generated scenes",
+                aperture.label()
+            )));
+        }
         let dirs = super::groundtruth::scene_dirs(dir)?;
         let mut n = 0;
         for d in dirs {
@@ -506,6 +519,7 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
                     gt: s.gt.clone(),
                     gt_noise: None,
                     inputs: inputs.clone(),
+                    aperture: opts.aperture.clone(),
                 })?;
                 n += 1;
             }
@@ -520,7 +534,8 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
         let sc = generate(opts.seed, i, opts.width, opts.height, &photos);
         log(&format!("{}: tracing {} planes, {} spp", sc.name, sc.planes.len(), opts.spp));
         let planes: Vec<Plane> = sc.trace_planes();
-        let ts = TraceSettings::new(sc.blur, sc.focus, opts.spp, opts.seed ^ (i as u64) << 20);
+        let mut ts = TraceSettings::new(sc.blur, sc.focus, opts.spp, opts.seed ^ (i as u64) << 20);
+        ts.aperture = aperture;
         let (gt, half) = trace_split(&planes, &ts, sc.window(), &|_| {})?;
         let border = sc.max_coc.ceil() as usize;
         // Noise of the mean of all samples: half the RMS difference of the two halves.
@@ -549,6 +564,7 @@ fn for_each_case(opts: &BenchOptions, log: &mut dyn FnMut(&str), f: &mut dyn FnM
             gt,
             gt_noise: Some(noise),
             inputs: sc.inputs()?,
+            aperture: opts.aperture.clone(),
         })?;
     }
     Ok(opts.scenes)
@@ -605,13 +621,10 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
     let inp: &SceneInputs = &photo.scene;
     let (blur, focus) = (case.blur, case.focus);
     let plain = |image: Result<Image>| image.map(|image| Rendered { image, light_added: None, alpha: None });
+    let aperture = case.aperture.resolve()?;
     let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
         let lens = render::auto_lens(layers, blur, focus);
-        render::render(
-            layers,
-            &RenderSettings { blur, focus, lens, occlusion, profile: v.profile(), aperture: crate::render::Aperture::DISC },
-            v.kernel(),
-        )
+        render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile(), aperture }, v.kernel())
     };
     // The depth map the photo-based methods read.
     let disparity = if v.realistic() { &inp.realistic_disparity } else { &inp.disparity };
@@ -635,6 +648,7 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
                 Kernel::Exact => cfg.render.kernel = KernelChoice::Exact,
             }
             cfg.render.profile = v.profile();
+            cfg.aperture = case.aperture.clone();
             if matches!(v, Variant::LayersAuto | Variant::RealisticLayersAuto) {
                 cfg.segment.layers = crate::stages::slices::LayerCount::Auto;
             }
@@ -716,7 +730,14 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
         for &input in &opts.inputs {
             let photo = inputs::prepare(&case.inputs, input)?;
             for &m in &methods {
-                for v in m.variants(input) {
+                // The official profile draws the disc only: with another aperture only the
+                // physical settings (and the gather, a disc whatever the aperture) run.
+                let shaped = !case.aperture.is_disc();
+                for v in m
+                    .variants(input)
+                    .into_iter()
+                    .filter(|v| !shaped || m == Method::Gather || v.profile() == crate::render::Profile::Physical)
+                {
                     let (out, ms, runs) = timed(opts.repeats, || render_method(&case, &photo, m, v))?;
                     let img = out.image;
                     if !img.all_finite() {

@@ -173,12 +173,15 @@ pub struct TraceSettings {
     pub seed: u64,
     /// How the pixel footprint is integrated.
     pub footprint: Footprint,
+    /// The aperture's shape: lens samples are weighted by its transmission (see
+    /// [`crate::render::aperture::shape`]).
+    pub aperture: crate::render::Aperture,
 }
 
 impl TraceSettings {
     /// Settings with the analytic footprint.
     pub fn new(blur: f32, focus: f32, spp: u32, seed: u64) -> Self {
-        TraceSettings { blur, focus, spp, seed, footprint: Footprint::Analytic }
+        TraceSettings { blur, focus, spp, seed, footprint: Footprint::Analytic, aperture: crate::render::Aperture::DISC }
     }
 }
 
@@ -266,6 +269,9 @@ const TABLES: usize = 32;
 struct SampleTables {
     n: usize,
     lens: Vec<[f32; 2]>,
+    /// The lens points before the map to the disk (unit square), for a polygonal aperture's
+    /// own map ([`crate::render::aperture::shape::Geometry::sample`]).
+    square: Vec<[f32; 2]>,
     foot: Vec<[f32; 2]>,
 }
 
@@ -277,6 +283,7 @@ impl SampleTables {
             h
         };
         let (mut lens, mut foot) = (Vec::with_capacity(TABLES * n as usize), Vec::with_capacity(TABLES * n as usize));
+        let mut square = Vec::with_capacity(TABLES * n as usize);
         for _ in 0..TABLES {
             let (lx, ly, fx, fy) = (next() as u32, next() as u32, next() as u32, next() as u32);
             // Footprint points pair with lens points through a random permutation (padding):
@@ -289,11 +296,12 @@ impl SampleTables {
                 let (x, y) = sobol02(i);
                 let (ax, ay) = concentric_disk(unit(x ^ lx), unit(y ^ ly));
                 lens.push([ax, ay]);
+                square.push([unit(x ^ lx), unit(y ^ ly)]);
                 let (x, y) = sobol02(perm[i as usize]);
                 foot.push([unit(x ^ fx), unit(y ^ fy)]);
             }
         }
-        SampleTables { n: n as usize, lens, foot }
+        SampleTables { n: n as usize, lens, square, foot }
     }
 }
 
@@ -309,14 +317,37 @@ fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTabl
     let lens = &tab.lens[t * n..(t + 1) * n];
     let foot = &tab.foot[t * n..(t + 1) * n];
     let sampled = s.footprint == Footprint::Sampled;
+    let shape = s.aperture.geometry();
+    let square = &tab.square[t * n..(t + 1) * n];
+    // A polygon is sampled by its own map, the square shifted per pixel (a rotation would
+    // turn the shape).
+    let h3 = splitmix(h2);
+    let (lens_x, lens_y) = (unit(h3 as u32), unit((h3 >> 32) as u32));
     let mut acc = [0f64; 3];
     let mut half = [0f64; 3];
+    // Sums of the lens samples' transmission (all 1 for the disc).
+    let (mut wsum, mut whalf) = (0f64, 0f64);
     for i in 0..n {
         if i == n / 2 {
             half = acc;
+            whalf = wsum;
         }
         let [lx, ly] = lens[i];
-        let (ax, ay) = (cos * lx - sin * ly, sin * lx + cos * ly);
+        let (mut ax, mut ay) = (cos * lx - sin * ly, sin * lx + cos * ly);
+        // A point behind the focal plane paints `K·|d|·a` around itself (rows down): the
+        // shape's y, up, is -ay.
+        let polygon = shape.and_then(|g| g.sample((square[i][0] + lens_x).fract(), (square[i][1] + lens_y).fract()));
+        if let Some((x, y)) = polygon {
+            (ax, ay) = (x, -y);
+        }
+        let wt = match (shape, polygon) {
+            (Some(g), None) => g.transmission(ax, -ay),
+            _ => 1.0,
+        };
+        wsum += wt as f64;
+        if wt == 0.0 {
+            continue;
+        }
         let (sx, sy) = if sampled {
             let [fx, fy] = foot[i];
             (px + (fx + shift_x).fract(), py + (fy + shift_y).fract())
@@ -336,10 +367,10 @@ fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTabl
             }
         }
         for ch in 0..3 {
-            acc[ch] += c[ch] as f64;
+            acc[ch] += (wt * c[ch]) as f64;
         }
     }
-    let (inv, inv_half) = (1.0 / n as f64, 2.0 / n as f64);
+    let (inv, inv_half) = (1.0 / wsum.max(1e-12), 1.0 / whalf.max(1e-12));
     [
         (acc[0] * inv) as f32,
         (acc[1] * inv) as f32,

@@ -226,8 +226,10 @@ pub struct Geometry {
 
 #[derive(Debug, PartialEq)]
 enum Kind {
-    /// A convex polygon, counterclockwise, and its edges' half-planes `n·p ≤ c` (unit `n`).
-    Polygon { pts: Vec<[f64; 2]>, planes: Vec<[f64; 3]>, bbox: [f64; 4] },
+    /// A convex polygon, counterclockwise, its edges' half-planes `n·p ≤ c` (unit `n`), its
+    /// bounding box and the radii of its inscribed and circumscribed centred circles (a
+    /// rectangle inside the one or outside the other needs no plane: most pixels).
+    Polygon { pts: Vec<[f64; 2]>, planes: Vec<[f64; 3]>, bbox: [f64; 4], radii: [f64; 2] },
     /// A grey mask: the unit frame's rectangle `[-hw, hw] × [-hh, hh]` holds `w × h` cells.
     Mask(Mask),
 }
@@ -235,7 +237,7 @@ enum Kind {
 impl Kind {
     fn polygon(pts: Vec<[f64; 2]>) -> Kind {
         let n = pts.len();
-        let planes = (0..n)
+        let planes: Vec<[f64; 3]> = (0..n)
             .map(|i| {
                 let (a, b) = (pts[i], pts[(i + 1) % n]);
                 let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
@@ -251,7 +253,9 @@ impl Kind {
             fold(f64::min, f64::INFINITY, 1),
             fold(f64::max, f64::NEG_INFINITY, 1),
         ];
-        Kind::Polygon { pts, planes, bbox }
+        let inner = planes.iter().map(|p: &[f64; 3]| p[2]).fold(f64::INFINITY, f64::min);
+        let outer = pts.iter().map(|p| (p[0] * p[0] + p[1] * p[1]).sqrt()).fold(0.0, f64::max);
+        Kind::Polygon { pts, planes, bbox, radii: [inner, outer] }
     }
 }
 
@@ -303,12 +307,54 @@ impl Geometry {
         let (x, y) = if flip { (-x as f64, -y as f64) } else { (x as f64, y as f64) };
         let rect = [(x - 0.5) * s, (x + 0.5) * s, (y - 0.5) * s, (y + 0.5) * s];
         let a = match &self.kind {
-            Kind::Polygon { planes, bbox, .. } => polygon_rect_area(planes, bbox, rect),
+            Kind::Polygon { planes, bbox, radii, .. } => polygon_rect_area(planes, bbox, *radii, rect),
             Kind::Mask(m) => m.integral(rect),
         };
         match a {
             Area::Inside => 1.0,
             Area::Part(a) => ((a * r as f64 * r as f64) as f32).clamp(0.0, 1.0),
+        }
+    }
+
+    /// An area-preserving map from the unit square to a polygon's inside (unit frame, y up),
+    /// continuous (so stratified samples stay stratified): the thin-lens tracer samples the
+    /// shape with it. None for an image aperture (sample a disc and weight by
+    /// [`Geometry::transmission`]).
+    pub fn sample(&self, u: f32, v: f32) -> Option<(f32, f32)> {
+        let Kind::Polygon { pts, .. } = &self.kind else { return None };
+        let n = pts.len();
+        let total = self.area;
+        // `v` walks the outline by swept area (the fan's triangle from the centre to a point
+        // of an edge grows linearly along it), `u` the radius as √u: uniform, and continuous
+        // in `v` from one edge to the next.
+        let mut target = v as f64 * total;
+        let t = (u as f64).sqrt();
+        for k in 0..n {
+            let (a, b) = (pts[k], pts[(k + 1) % n]);
+            let tri = 0.5 * (a[0] * b[1] - a[1] * b[0]);
+            if target < tri || k + 1 == n {
+                let s = (target / tri).clamp(0.0, 1.0);
+                return Some(((t * ((1.0 - s) * a[0] + s * b[0])) as f32, (t * ((1.0 - s) * a[1] + s * b[1])) as f32));
+            }
+            target -= tri;
+        }
+        None
+    }
+
+    /// The aperture's transmission at the unit-frame point `(x, y)` (circumradius 1, y up,
+    /// the shape as a source behind the focal plane shows it): 0 or 1 for a polygon, the
+    /// cell's grey value for an image. What the thin-lens tracer weights its lens samples by.
+    pub fn transmission(&self, x: f32, y: f32) -> f32 {
+        let (x, y) = (x as f64, y as f64);
+        match &self.kind {
+            Kind::Polygon { planes, .. } => planes.iter().all(|&[nx, ny, c]| nx * x + ny * y <= c) as u8 as f32,
+            Kind::Mask(m) => {
+                let (u, v) = ((x + m.hw) / (2.0 * m.hw) * m.w as f64, (m.hh - y) / (2.0 * m.hh) * m.h as f64);
+                if u < 0.0 || v < 0.0 || u >= m.w as f64 || v >= m.h as f64 {
+                    return 0.0;
+                }
+                m.values[v as usize * m.w + u as usize]
+            }
         }
     }
 
@@ -377,9 +423,19 @@ fn shoelace(pts: &[[f64; 2]]) -> f64 {
 
 /// Area of `rect = [x0, x1, y0, y1]` inside the convex polygon of half-planes `planes`: the
 /// rectangle clipped by each plane that cuts it (most pixels meet none or one edge).
-fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], rect: [f64; 4]) -> Area {
+fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], [inner, outer]: [f64; 2], rect: [f64; 4]) -> Area {
     let [x0, x1, y0, y1] = rect;
     if x1 <= bbox[0] || x0 >= bbox[1] || y1 <= bbox[2] || y0 >= bbox[3] {
+        return Area::Part(0.0);
+    }
+    // The rectangle's farthest and nearest points from the centre.
+    let far = |a: f64, b: f64| a.abs().max(b.abs());
+    let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
+    let (fx, fy, nx, ny) = (far(x0, x1), far(y0, y1), near(x0, x1), near(y0, y1));
+    if fx * fx + fy * fy < inner * inner * (1.0 - 1e-12) {
+        return Area::Inside;
+    }
+    if nx * nx + ny * ny >= outer * outer {
         return Area::Part(0.0);
     }
     let mut poly: Vec<[f64; 2]> = vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
@@ -670,6 +726,34 @@ mod tests {
         let sum: f64 =
             (-3..=3).flat_map(|y| (-3..=3).map(move |x| (x, y))).map(|(x, y)| a.coverage(2.7, x as f32, y as f32, false) as f64).sum();
         assert!((sum / a.norm(2.7) as f64 - 1.0).abs() < 1e-5, "{sum}");
+    }
+
+    #[test]
+    fn the_sample_map_covers_the_polygon_uniformly() {
+        let g = aperture("blades:5,rotation=90,curvature=0.3", 1.3);
+        let n = 200;
+        let mut upper = 0usize;
+        for i in 0..n {
+            for j in 0..n {
+                let (x, y) = g.sample((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32).unwrap();
+                assert_eq!(g.transmission(x * 0.999, y * 0.999), 1.0, "({x}, {y}) outside");
+                upper += (y > 0.2) as usize;
+            }
+        }
+        // The share above y = 0.2 is that of the area (by supersampled coverage).
+        let mut above = 0f64;
+        for y in 0..400 {
+            for x in 0..400 {
+                let (px, py) = (-1.0 + (x as f32 + 0.5) / 200.0, -1.0 + (y as f32 + 0.5) / 200.0);
+                if py > 0.2 {
+                    above += g.transmission(px, py) as f64;
+                }
+            }
+        }
+        let want = above / 40000.0 / g.area;
+        let got = upper as f64 / (n * n) as f64;
+        assert!((got - want).abs() < 0.01, "{got} vs {want}");
+        assert!(aperture("blades:6", 1.0).sample(0.3, 0.3).is_some());
     }
 
     #[test]
