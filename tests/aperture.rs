@@ -12,12 +12,17 @@ use std::f64::consts::PI;
 const W: usize = 56;
 const H: usize = 48;
 
-/// A shape as the test sees it: an inside test in the unit frame (circumradius 1, y up) for a
-/// source behind the focal plane.
+/// A shape as the test sees it: its transmission at a unit-frame point (circumradius 1, y
+/// up) for a source behind the focal plane.
 struct Case {
     name: &'static str,
     aperture: Aperture,
-    inside: Box<dyn Fn(f64, f64) -> bool>,
+    inside: Box<dyn Fn(f64, f64) -> f64>,
+}
+
+/// An outline's inside test as a transmission.
+fn open(inside: impl Fn(f64, f64) -> bool + 'static) -> Box<dyn Fn(f64, f64) -> f64> {
+    Box::new(move |x, y| inside(x, y) as u8 as f64)
 }
 
 fn blades(n: u32, rot: f64) -> impl Fn(f64, f64) -> bool {
@@ -76,14 +81,14 @@ fn cases() -> Vec<Case> {
     let (n, star) = star_mask();
     let star_cells = star.clone();
     vec![
-        Case { name: "disc", aperture: Aperture::DISC, inside: Box::new(|x: f64, y: f64| x * x + y * y <= 1.0) },
-        Case { name: "hexagon 0", aperture: aperture("blades:6", 1.0), inside: Box::new(blades(6, 0.0)) },
-        Case { name: "hexagon 30", aperture: aperture("blades:6,rotation=30", 1.0), inside: Box::new(blades(6, 30.0)) },
-        Case { name: "pentagon 90", aperture: aperture("blades:5,rotation=90", 1.0), inside: Box::new(blades(5, 90.0)) },
+        Case { name: "disc", aperture: Aperture::DISC, inside: open(|x: f64, y: f64| x * x + y * y <= 1.0) },
+        Case { name: "hexagon 0", aperture: aperture("blades:6", 1.0), inside: open(blades(6, 0.0)) },
+        Case { name: "hexagon 30", aperture: aperture("blades:6,rotation=30", 1.0), inside: open(blades(6, 30.0)) },
+        Case { name: "pentagon 90", aperture: aperture("blades:5,rotation=90", 1.0), inside: open(blades(5, 90.0)) },
         Case {
             name: "6 blades curvature 0.5",
             aperture: aperture("blades:6,curvature=0.5", 1.0),
-            inside: Box::new(|x: f64, y: f64| {
+            inside: open(|x: f64, y: f64| {
                 let (r, a) = ((x * x + y * y).sqrt(), y.atan2(x).rem_euclid(PI / 3.0));
                 let polygon = (PI / 6.0).cos() / (a - PI / 6.0).cos();
                 r <= 0.5 * polygon + 0.5
@@ -92,21 +97,18 @@ fn cases() -> Vec<Case> {
         Case {
             name: "anamorphic 1.5",
             aperture: aperture("disc", 1.5),
-            inside: Box::new(|x: f64, y: f64| (1.5 * x) * (1.5 * x) + y * y <= 1.0),
+            inside: open(|x: f64, y: f64| (1.5 * x) * (1.5 * x) + y * y <= 1.0),
         },
         Case {
             name: "star image",
             aperture: Aperture::from_mask(n, n, &star, 1.0, "star").unwrap(),
-            // The image's own cells (grey = the fraction open), nearest cell.
+            // The image's own cells (grey = transmission).
             inside: Box::new(move |x: f64, y: f64| {
                 let (col, row) = (((x + 1.0) / 2.0 * n as f64).floor(), ((1.0 - y) / 2.0 * n as f64).floor());
                 if col < 0.0 || row < 0.0 || col >= n as f64 || row >= n as f64 {
-                    return false;
+                    return 0.0;
                 }
-                let v = star_cells[row as usize * n + col as usize];
-                // A grey cell: open over that fraction of it (left part), so areas agree.
-                let fx = (x + 1.0) / 2.0 * n as f64 - col;
-                fx < v as f64
+                star_cells[row as usize * n + col as usize] as f64
             }),
         },
     ]
@@ -145,25 +147,26 @@ fn one_layer(img: &Image, disparity: f32) -> Layer {
 }
 
 /// The photo convolved with the shape of circumradius `coc` (reflected when `front`),
-/// pixel-integrated by 24 × 24 supersampling, normalized to unit flux, replicate-padded.
-fn convolve(img: &Image, inside: &dyn Fn(f64, f64) -> bool, coc: f64, front: bool) -> Image {
-    let reach = coc.ceil() as i64 + 1;
-    let n = 24;
+/// integrated over the source's and the target's pixel squares (the tent `box ⊗ box`, by
+/// 32 × 32 weighted samples over 2 × 2 px), normalized to unit flux, replicate-padded.
+fn convolve(img: &Image, inside: &dyn Fn(f64, f64) -> f64, coc: f64, front: bool) -> Image {
+    let reach = coc.ceil() as i64 + 2;
+    let n = 32;
     let mut kernel = Vec::new();
     for dy in -reach..=reach {
         for dx in -reach..=reach {
-            let mut hit = 0;
+            let mut acc = 0.0;
             for i in 0..n {
                 for j in 0..n {
+                    let (u, v) = (-1.0 + 2.0 * (i as f64 + 0.5) / n as f64, -1.0 + 2.0 * (j as f64 + 0.5) / n as f64);
                     // Offset of the target from the source in output coordinates (y up).
-                    let x = dx as f64 - 0.5 + (i as f64 + 0.5) / n as f64;
-                    let y = -(dy as f64) - 0.5 + (j as f64 + 0.5) / n as f64;
+                    let (x, y) = (dx as f64 + u, -(dy as f64) + v);
                     let (x, y) = if front { (-x, -y) } else { (x, y) };
-                    hit += inside(x / coc, y / coc) as usize;
+                    acc += inside(x / coc, y / coc) * (1.0 - u.abs()) * (1.0 - v.abs());
                 }
             }
-            if hit > 0 {
-                kernel.push((dx, dy, hit as f64 / (n * n) as f64));
+            if acc > 0.0 {
+                kernel.push((dx, dy, acc));
             }
         }
     }

@@ -9,6 +9,7 @@
 //! Cost: O(W·H·taps) with taps ≈ π·(lens/2)²; one transcendental pair (exp, tanh) per tap.
 
 use super::aperture::Tap;
+use super::aperture::shape::Geometry;
 use super::layer::{A, CHANNELS, D, Layer};
 use super::lens::{self, Profile, energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
 use super::{RawLayer, RenderSettings, Role, raw};
@@ -88,7 +89,8 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     let shape = s.aperture.geometry();
     let norm: Vec<f32> = radius.iter().map(|&r| shape.map_or_else(|| lens::disk_norm(r), |g| g.norm(r))).collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];
-    out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each(|(y, row)| {
+    let p = (s.lens / 2) as i64;
+    out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each_init(ShapeTables::default, |tables, (y, row)| {
         for x in 0..w {
             let dx = d[y * w + x];
             // [in front, same surface, behind] × [P_r, P_g, P_b, A], f64 as in the official kernel.
@@ -102,7 +104,7 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                     None => lens::disk_coverage(radius[j], t.r),
                     // The target sits (-dj, -di) from the source, (-dj, di) with y up; a source
                     // in front of the focal plane (d > 0) shows the shape point-reflected.
-                    Some(g) => g.coverage(radius[j], -t.dj as f32, t.di as f32, d[j] > 0.0),
+                    Some(g) => tables.coverage(g, radius[j], d[j] > 0.0, p, t),
                 };
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;
@@ -122,6 +124,33 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
         }
     });
     RawLayer::new(w, h, out, layer)
+}
+
+/// A worker's tables of a shape's coverage over the lens window, one per CoC and side of the
+/// focal plane met (a layer's planes share a few): [`Geometry::coverage`] costs up to 16 area
+/// clips on the outline, a table look-up one index. Past [`ShapeTables::MAX`] tables, new CoCs
+/// (a slanted surface has one per pixel) are evaluated tap by tap; the values are the same.
+#[derive(Default)]
+struct ShapeTables {
+    tables: std::collections::HashMap<(u32, bool), Vec<f32>>,
+}
+
+impl ShapeTables {
+    const MAX: usize = 64;
+
+    /// The coverage of tap `t` by a source of CoC `r` (point-reflected when `flip`) in a
+    /// window of half-size `p`: the target sits `(-dj, di)` from the source (y up).
+    fn coverage(&mut self, g: &Geometry, r: f32, flip: bool, p: i64, t: &Tap) -> f32 {
+        let side = 2 * p + 1;
+        let index = ((t.di as i64 + p) * side + t.dj as i64 + p) as usize;
+        let key = (r.to_bits(), flip);
+        if !self.tables.contains_key(&key) && self.tables.len() >= Self::MAX {
+            return g.coverage(r, -t.dj as f32, t.di as f32, flip);
+        }
+        self.tables.entry(key).or_insert_with(|| {
+            (-p..=p).flat_map(|di| (-p..=p).map(move |dj| (di, dj))).map(|(di, dj)| g.coverage(r, -dj as f32, di as f32, flip)).collect()
+        })[index]
+    }
 }
 
 /// Mean alpha over the `(2n+1)²` box centred on (x, y), replicate-padded (eq. 4), summed in

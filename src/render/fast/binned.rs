@@ -213,7 +213,7 @@ impl Template {
     /// the others with some coverage as taps, where `window(j)` bounds `|dx|` (pixels whose
     /// centre column lies in it). O(r²) coverages.
     fn shape_rows(&mut self, g: &Geometry, r: f32, (fx, fy): (f32, f32), flip: bool, window: impl Fn(i64) -> Option<(f32, f32)>) {
-        // Pixel squares reach half a pixel past the outline.
+        // A pixel's tent (its square and the source's) reaches a pixel past the outline.
         let reach = r + 1.0;
         self.rr = (reach + fy).ceil() as i64;
         let (mut diffs, mut taps) = (Vec::new(), Vec::new());

@@ -187,8 +187,13 @@ impl<'a> Ctx<'a> {
             Profile::Physical => physical::groups_wanted(s, p, survey).then(|| survey.band(params.node_step)).flatten(),
         };
         // Taps lie strictly inside the window (r < p); a physical source reaches r < radius + ½.
-        let reach = (s.profile == Profile::Physical && band.is_some())
-            .then(|| physical::DepthReach::new(img, s.focus, (survey.sigma_max + footprint::EDGE).min(p as f32 - 1.0)));
+        let reach = (s.profile == Profile::Physical && band.is_some()).then(|| {
+            physical::DepthReach::new(
+                img,
+                s.focus,
+                (survey.sigma_max + if s.aperture.is_disc() { footprint::EDGE } else { 1.0 }).min(p as f32 - 1.0),
+            )
+        });
         Ctx {
             img,
             s,

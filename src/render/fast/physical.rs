@@ -53,8 +53,10 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
     if !ctx.has_full && ctx.bright_max <= 0.0 {
         return;
     }
-    // The widest full-resolution footprint: a disk (or bright disk) and its ramp.
-    let pad0 = ctx.pad(ctx.full_max.max(ctx.bright_max) + EDGE);
+    // The widest full-resolution footprint: a disk (or bright disk) and its ramp; a shape's
+    // tent reaches a pixel further.
+    let edge = if ctx.s.aperture.is_disc() { EDGE } else { 1.0 };
+    let pad0 = ctx.pad(ctx.full_max.max(ctx.bright_max) + edge);
     let stencil_p = ctx.stencil.p;
     let (y0i, y1i) = (y0 as i64, y1 as i64);
     let (mut n_st, mut n_sp, mut n_br, mut ops) = (0u64, 0u64, 0u64, 0u64);
@@ -80,7 +82,7 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                 // A non-disc aperture: every full-resolution source through its shape's
                 // templates (per radius bin, point-reflected in front of the focal plane).
                 n_sp += own;
-                if true_r < lens::SHARP_COC_PX {
+                if true_r < crate::render::aperture::shape::POINT_COC_PX {
                     for &(slot, f) in &sc.dests {
                         sc.accs[slot].pixels(sy, sx, sx, v.map(|c| c * f));
                     }
