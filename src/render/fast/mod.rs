@@ -221,7 +221,7 @@ impl<'a> Ctx<'a> {
                     (Profile::Official, _) if params.soft_edge => binned::Shape::Official { soft_below: f32::INFINITY },
                     (Profile::Official, _) => binned::Shape::Official { soft_below: 2.0 * params.stencil_max },
                 };
-                binned::Bins::new(shape, params.radius_bin, p)
+                binned::Bins::new(shape, if s.aperture.is_disc() { params.radius_bin } else { params.radius_bin / 8.0 }, p)
             }),
         }
     }
