@@ -84,6 +84,9 @@ struct Ask {
     width: Option<usize>,
     profile: Option<crate::render::Profile>,
     quality: Option<u32>,
+    /// `--aperture` and `--anamorphic`, as given (checked when the pipeline is built).
+    aperture: Option<String>,
+    anamorphic: Option<f32>,
 }
 
 impl Viewer {
@@ -135,6 +138,7 @@ impl Viewer {
                 "width": w, "height": h, "layers": self.layers.len(), "blur": self.blur,
                 "blur_max": self.blur * BLUR_RANGE, "output": self.output.display().to_string(),
                 "profile": self.config.render.profile, "quality": self.config.render.quality,
+                "aperture": self.config.aperture.shape, "anamorphic": self.config.aperture.anamorphic,
             }),
         )
     }
@@ -144,6 +148,7 @@ impl Viewer {
         let (w, h) = self.size();
         let mut focus = None;
         let (mut blur, mut width, mut profile, mut quality) = (None, None, None, None);
+        let (mut aperture, mut anamorphic) = (None, None);
         for (k, v) in params {
             let dup = || Error::usage(format!("{k} is given twice"));
             let number = |what: &str| -> Result<f64> {
@@ -186,11 +191,16 @@ impl Viewer {
                     let q = v.trim().parse::<u32>().ok().filter(|q| (1..=8).contains(q));
                     quality = Some(q.ok_or_else(|| Error::usage(format!("quality = {v:?}: give 1 ..= 8")))?);
                 }
+                "aperture" => {
+                    crate::render::ShapeSpec::parse(v, "aperture")?;
+                    aperture = Some(v.clone());
+                }
+                "anamorphic" => anamorphic = Some(number("an aspect ratio in [0.1, 10]")? as f32),
                 _ => return Err(Error::usage(format!("unknown parameter {k:?}"))),
             }
         }
         let focus = focus.ok_or_else(|| Error::usage("give focus (normalized disparity) or focus_at (X,Y)"))?;
-        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality })
+        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic })
     }
 
     /// The pipeline of one request: the configuration with its profile and quality.
@@ -202,6 +212,10 @@ impl Viewer {
         if let Some(q) = a.quality {
             cfg.render.quality = q;
         }
+        if let Some(s) = &a.aperture {
+            cfg.aperture.shape = s.clone();
+        }
+        cfg.aperture.anamorphic = a.anamorphic.unwrap_or(cfg.aperture.anamorphic);
         Pipeline::from_config(cfg)
     }
 
@@ -315,6 +329,12 @@ impl Viewer {
         }
         if let Some(q) = a.quality {
             cmd.extend(["--quality".into(), q.to_string()]);
+        }
+        if let Some(s) = a.aperture.as_ref().filter(|s| s.as_str() != "disc") {
+            cmd.extend(["--aperture".into(), s.clone()]);
+        }
+        if let Some(x) = a.anamorphic.filter(|&x| x != 1.0) {
+            cmd.extend(["--anamorphic".into(), x.to_string()]);
         }
         cmd.extend(["-o".into(), self.output.display().to_string()]);
         let line = cmd.iter().map(|s| shell_quote(s)).collect::<Vec<_>>().join(" ");

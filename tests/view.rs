@@ -110,6 +110,10 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
         ("focus_at=24,22&blur=6", vec!["--focus-at", "24,22", "--blur", "6"]),
         ("focus=0.1&blur=9&profile=official", vec!["--focus", "0.1", "--blur", "9", "--profile", "official"]),
         ("focus_at=60,5&blur=4&quality=5", vec!["--focus-at", "60,5", "--blur", "4", "--quality", "5"]),
+        (
+            "focus=0.2&blur=8&aperture=blades:5,rotation=90&anamorphic=1.3",
+            vec!["--focus", "0.2", "--blur", "8", "--aperture", "blades:5,rotation=90", "--anamorphic", "1.3"],
+        ),
     ] {
         let (status, png) = server.request("GET", &format!("/render?{query}"));
         assert_eq!(status, 200, "{query}: {}", String::from_utf8_lossy(&png));
@@ -130,6 +134,7 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
     for (path, needle) in [
         ("/render?focus=0.5&blur=3&bogus=1", "bogus"),
         ("/render?blur=3", "focus"),
+        ("/render?focus=0.5&aperture=blades:2", "aperture"),
         ("/render?focus=0.5&focus_at=1,1", "focus_at"),
         ("/render?focus_at=64,1", "outside"),
         ("/render?focus_at=a,b", "focus_at"),
