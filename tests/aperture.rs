@@ -350,3 +350,38 @@ fn tracer_and_renderer_agree_on_one_plane() {
     }
     common::assert_no_failures("tracer against renderer per shape", &failures);
 }
+
+/// Fast (quality 2) against exact on the bench's stress scenes (two layers with HDR
+/// highlights behind a blurred edge, and bars inside the ground's own layer where the
+/// in-layer depth groups decide), physical profile: every shape at least 45 dB.
+#[test]
+fn fast_matches_exact_on_stress_scenes() {
+    use drbokeh::bench::metrics::psnr;
+    use drbokeh::bench::stress::{bars_in_one_layer, two_layer_scene};
+    let mut scenes = Vec::new();
+    for (focus_fg, coc) in [(true, 12.0), (false, 9.0)] {
+        let (layers, s) = two_layer_scene(72, 60, coc, focus_fg);
+        scenes.push((format!("two layers fg={focus_fg} coc={coc}"), layers.clone(), s));
+        scenes.push((format!("two layers between coc={coc}"), layers, RenderSettings { focus: 0.75, ..s }));
+    }
+    let (layers, s) = bars_in_one_layer(72, 60, 10.0);
+    scenes.push(("bars in one layer".into(), layers, s));
+    let mut failures = Vec::new();
+    for (n, case) in cases().into_iter().enumerate() {
+        for (m, (name, layers, s)) in scenes.iter().enumerate() {
+            if (n + m) % 2 != 0 && case.name != "pentagon 90" {
+                continue;
+            }
+            let s = RenderSettings { profile: Profile::Physical, aperture: case.aperture, ..*s };
+            let exact = render::render(layers, &s, Kernel::Exact).unwrap();
+            let fast = render::render(layers, &s, Kernel::Fast { quality: 2 }).unwrap();
+            assert!(fast.all_finite() && exact.all_finite());
+            let p = psnr(&fast, &exact, 1.0, 0);
+            println!("{:24} {name:32} fast vs exact {p:6.2} dB", case.name);
+            if !(p >= 45.0) {
+                failures.push(format!("{} {name}: {p:.2} dB (at least 45)", case.name));
+            }
+        }
+    }
+    common::assert_no_failures("shapes, fast against exact on the stress scenes", &failures);
+}
