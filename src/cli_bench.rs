@@ -88,6 +88,9 @@ pub struct TraceArgs {
     /// Aspect ratio of the bokeh (as `render --anamorphic`) [default: 1].
     #[arg(long, value_name = "A", allow_negative_numbers = true)]
     anamorphic: Option<f32>,
+    /// Radial intensity of the bokeh (as `render --bubble`) [default: 0].
+    #[arg(long, value_name = "B", allow_negative_numbers = true)]
+    bubble: Option<f32>,
     /// A layer (5-channel EXR R,G,B,A,D or NPY H x W x 5, linear radiance), one fronto-parallel
     /// plane: D must be constant where A > 0. Repeat, front first.
     #[arg(long, value_name = "PATH", required = true)]
@@ -140,6 +143,7 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
     s.aperture = drbokeh::config::ApertureConfig {
         shape: args.aperture.clone().unwrap_or_else(|| "disc".into()),
         anamorphic: args.anamorphic.unwrap_or(1.0),
+        bubble: args.bubble.unwrap_or(0.0),
     }
     .resolve()
     .map_err(as_flags)?;
@@ -180,6 +184,9 @@ pub struct BenchArgs {
     /// Aspect ratio of the bokeh (as `render --anamorphic`) [default: 1].
     #[arg(long, value_name = "A", allow_negative_numbers = true)]
     anamorphic: Option<f32>,
+    /// Radial intensity of the bokeh (as `render --bubble`) [default: 0].
+    #[arg(long, value_name = "B", allow_negative_numbers = true)]
+    bubble: Option<f32>,
     /// Evaluate depth from defocus instead of rendering methods (the paper's Table 2): each
     /// method estimates the disparity from the all-in-focus photo and a traced render focused
     /// on the nearest plane; scored on disparity error and on a re-render at the farthest
@@ -293,6 +300,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         aperture: drbokeh::config::ApertureConfig {
             shape: args.aperture.clone().unwrap_or_else(|| "disc".into()),
             anamorphic: args.anamorphic.unwrap_or(1.0),
+            bubble: args.bubble.unwrap_or(0.0),
         },
     };
     let t0 = Instant::now();

@@ -108,11 +108,14 @@ pub struct ApertureConfig {
     pub shape: String,
     /// Aspect ratio of the bokeh: > 1 taller than wide, < 1 wider; 1 = none.
     pub anamorphic: f32,
+    /// Radial intensity profile in [-1, 1]: > 0 a bright rim ("soap bubble"), < 0 a bright
+    /// centre, 0 uniform.
+    pub bubble: f32,
 }
 
 impl Default for ApertureConfig {
     fn default() -> Self {
-        ApertureConfig { shape: "disc".into(), anamorphic: 1.0 }
+        ApertureConfig { shape: "disc".into(), anamorphic: 1.0, bubble: 0.0 }
     }
 }
 
@@ -124,7 +127,12 @@ impl ApertureConfig {
 
     /// The aperture it names; reads an image aperture's file.
     pub fn resolve(&self) -> Result<render::Aperture> {
-        render::Aperture::new(&render::ShapeSpec::parse(&self.shape, "aperture.shape")?, self.anamorphic, "aperture.shape")
+        render::Aperture::with_bubble(
+            &render::ShapeSpec::parse(&self.shape, "aperture.shape")?,
+            self.anamorphic,
+            self.bubble,
+            "aperture.shape",
+        )
     }
 }
 
@@ -243,6 +251,10 @@ impl Config {
         let a = self.aperture.anamorphic;
         if !(a.is_finite() && render::aperture::shape::ANAMORPHIC.contains(&a)) {
             return Err(Error::usage(format!("aperture.anamorphic must be in [0.1, 10] (1 = round bokeh), got {a}")));
+        }
+        let b = self.aperture.bubble;
+        if !(b.is_finite() && render::aperture::shape::BUBBLE.contains(&b)) {
+            return Err(Error::usage(format!("aperture.bubble must be in [-1, 1] (0 = uniform, > 0 a bright rim), got {b}")));
         }
         if !self.aperture.is_disc() && self.render.profile == render::Profile::Official {
             return Err(Error::usage(format!(

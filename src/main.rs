@@ -298,6 +298,10 @@ pub(crate) struct PipelineArgs {
     /// Aspect ratio of the bokeh: > 1 taller than wide (anamorphic), < 1 wider [default: 1].
     #[arg(long, value_name = "A", allow_negative_numbers = true)]
     anamorphic: Option<f32>,
+    /// Radial intensity of the bokeh in [-1, 1]: > 0 a bright rim (an over-corrected lens's
+    /// "soap bubble"), < 0 a bright centre [default: 0, uniform].
+    #[arg(long, value_name = "B", allow_negative_numbers = true)]
+    bubble: Option<f32>,
 }
 
 pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
@@ -445,6 +449,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
         cfg.aperture.shape = a.clone();
     }
     cfg.aperture.anamorphic = args.anamorphic.unwrap_or(cfg.aperture.anamorphic);
+    cfg.aperture.bubble = args.bubble.unwrap_or(cfg.aperture.bubble);
     cfg.highlights.threshold = args.highlight_threshold.unwrap_or(cfg.highlights.threshold);
     cfg.highlights.gain = args.highlight_gain.unwrap_or(cfg.highlights.gain);
     if let Some(k) = args.depth_kind {
@@ -460,8 +465,9 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 43] = [
+const FLAGS: [(&str, &str); 44] = [
     ("aperture.shape", "--aperture"),
+    ("aperture.bubble", "--bubble"),
     ("aperture.anamorphic", "--anamorphic"),
     ("highlights.mode", "--highlights"),
     ("highlights.threshold", "--highlight-threshold"),

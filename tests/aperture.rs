@@ -100,6 +100,26 @@ fn cases() -> Vec<Case> {
             inside: open(|x: f64, y: f64| (1.5 * x) * (1.5 * x) + y * y <= 1.0),
         },
         Case {
+            name: "hexagon bubble 0.5",
+            aperture: Aperture::with_bubble(&ShapeSpec::parse("blades:6", "a").unwrap(), 1.0, 0.5, "a").unwrap(),
+            inside: Box::new(|x: f64, y: f64| {
+                // The hexagon's gauge: the largest edge distance over the apothem.
+                let t = (0..6)
+                    .map(|k| (30.0 + 60.0 * k as f64).to_radians())
+                    .map(|a| (x * a.cos() + y * a.sin()) / (PI / 6.0).cos())
+                    .fold(0.0, f64::max);
+                if t <= 1.0 { 1.0 + 0.5 * (2.0 * t * t - 1.0) } else { 0.0 }
+            }),
+        },
+        Case {
+            name: "disc bubble -0.5",
+            aperture: Aperture::with_bubble(&ShapeSpec::Disc, 1.0, -0.5, "a").unwrap(),
+            inside: Box::new(|x: f64, y: f64| {
+                let t2 = x * x + y * y;
+                if t2 <= 1.0 { 1.0 - 0.5 * (2.0 * t2 - 1.0) } else { 0.0 }
+            }),
+        },
+        Case {
             name: "star image",
             aperture: Aperture::from_mask(n, n, &star, 1.0, "star").unwrap(),
             // The image's own cells (grey = transmission).

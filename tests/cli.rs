@@ -2051,6 +2051,10 @@ fn aperture_shapes_and_their_bad_values() {
         let a = with(&["--anamorphic", value], "bad.png");
         s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--anamorphic"]);
     }
+    for value in ["1.5", "-2", "nan"] {
+        let a = with(&["--bubble", value], "bad.png");
+        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--bubble"]);
+    }
     let a = with(&["--aperture", "blades:6", "--profile", "official"], "bad.png");
     s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--aperture", "official"]);
 }

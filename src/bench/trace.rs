@@ -342,6 +342,8 @@ fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTabl
         }
         let wt = match (shape, polygon) {
             (Some(g), None) => g.transmission(ax, -ay),
+            // A bubble's radial profile (1 without one).
+            (Some(g), Some((x, y))) => g.intensity(x, y),
             _ => 1.0,
         };
         wsum += wt as f64;

@@ -32,6 +32,15 @@ use std::sync::Mutex;
 /// Below this CoC (pixels) a shape is a point: its source stays in its pixel.
 pub const POINT_COC_PX: f32 = 1e-3;
 
+/// Accepted radial intensity profiles (`--bubble`).
+pub const BUBBLE: std::ops::RangeInclusive<f32> = -1.0..=1.0;
+
+/// The bubble profile `1 + B·(2t² − 1)` at relative radius `t` (clamped to the outline).
+fn profile(bubble: f32, t: f64) -> f64 {
+    let t = t.min(1.0);
+    1.0 + bubble as f64 * (2.0 * t * t - 1.0)
+}
+
 /// Fewest and most blades `--aperture blades:N` accepts.
 pub const BLADES: std::ops::RangeInclusive<u32> = 3..=64;
 /// Largest side of an aperture image, pixels.
@@ -147,6 +156,21 @@ impl Aperture {
     /// from its path (relative to the working directory). Errors name `what` (the flag or
     /// key) or the file.
     pub fn new(spec: &ShapeSpec, anamorphic: f32, what: &str) -> Result<Aperture> {
+        Aperture::with_bubble(spec, anamorphic, 0.0, what)
+    }
+
+    /// [`Aperture::new`] with a radial intensity profile `bubble` in [`BUBBLE`]: `I(t) = 1 +
+    /// B·(2t² − 1)` at relative radius `t` (0 at the centre, 1 on the outline), so B > 0
+    /// brightens the rim (an over-corrected lens's "soap bubble"), B < 0 the centre, 0 is
+    /// uniform; the flux stays one (`I` averages to 1 over any shape scaled from the centre).
+    pub fn with_bubble(spec: &ShapeSpec, anamorphic: f32, bubble: f32, what: &str) -> Result<Aperture> {
+        if !bubble.is_finite() || !BUBBLE.contains(&bubble) {
+            return Err(Error::usage(format!(
+                "aperture.bubble {bubble} is outside [{}, {}] (0 = uniform, > 0 a bright rim, < 0 a bright centre)",
+                BUBBLE.start(),
+                BUBBLE.end()
+            )));
+        }
         if !anamorphic.is_finite() || !ANAMORPHIC.contains(&anamorphic) {
             return Err(Error::usage(format!(
                 "aperture.anamorphic {anamorphic} is outside [{}, {}] (1 = round bokeh, 1.5 = taller than wide)",
@@ -155,7 +179,7 @@ impl Aperture {
             )));
         }
         let kind = match spec {
-            ShapeSpec::Disc if anamorphic == 1.0 => return Ok(Aperture::DISC),
+            ShapeSpec::Disc if anamorphic == 1.0 && bubble == 0.0 => return Ok(Aperture::DISC),
             ShapeSpec::Disc => Kind::polygon(circle(CURVE_VERTICES)),
             ShapeSpec::Blades { n, rotation, curvature } => {
                 if !BLADES.contains(n) || !(0.0..=1.0).contains(curvature) || !rotation.is_finite() {
@@ -165,7 +189,7 @@ impl Aperture {
             }
             ShapeSpec::Image { path } => Kind::Mask(Mask::read(Path::new(path))?),
         };
-        Ok(Aperture::from_kind(spec.clone(), anamorphic, kind))
+        Ok(Aperture::from_kind(spec.clone(), anamorphic, bubble, kind))
     }
 
     /// An image aperture from grey values (row-major, top row first, bright = open), for the
@@ -175,11 +199,11 @@ impl Aperture {
         if !anamorphic.is_finite() || !ANAMORPHIC.contains(&anamorphic) {
             return Err(Error::usage(format!("aperture.anamorphic {anamorphic} is outside [0.1, 10]")));
         }
-        Ok(Aperture::from_kind(ShapeSpec::Image { path: name.to_string() }, anamorphic, Kind::Mask(mask)))
+        Ok(Aperture::from_kind(ShapeSpec::Image { path: name.to_string() }, anamorphic, 0.0, Kind::Mask(mask)))
     }
 
-    fn from_kind(spec: ShapeSpec, anamorphic: f32, kind: Kind) -> Aperture {
-        let g = Geometry::new(spec, anamorphic, kind);
+    fn from_kind(spec: ShapeSpec, anamorphic: f32, bubble: f32, kind: Kind) -> Aperture {
+        let g = Geometry::new(spec, anamorphic, bubble, kind);
         static INTERNED: Mutex<Vec<&'static Geometry>> = Mutex::new(Vec::new());
         let mut all = INTERNED.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(&old) = all.iter().find(|old| ***old == g) {
@@ -202,13 +226,17 @@ impl Aperture {
     }
 
     /// How reports name it: `disc`, `blades:6,rotation=0,curvature=0`, `image:star.png`, with
-    /// `,anamorphic=A` when set.
+    /// `,anamorphic=A` and `,bubble=B` when set.
     pub fn label(self) -> String {
-        match self.0 {
-            None => "disc".into(),
-            Some(g) if g.anamorphic != 1.0 => format!("{},anamorphic={}", g.spec.label(), g.anamorphic),
-            Some(g) => g.spec.label(),
+        let Some(g) = self.0 else { return "disc".into() };
+        let mut s = g.spec.label();
+        if g.anamorphic != 1.0 {
+            s += &format!(",anamorphic={}", g.anamorphic);
         }
+        if g.bubble != 0.0 {
+            s += &format!(",bubble={}", g.bubble);
+        }
+        s
     }
 }
 
@@ -218,6 +246,8 @@ impl Aperture {
 pub struct Geometry {
     spec: ShapeSpec,
     anamorphic: f32,
+    /// The radial intensity profile's `B` (see [`Aperture::with_bubble`]).
+    bubble: f32,
     kind: Kind,
     /// The outline's area in the unit frame.
     area: f64,
@@ -265,7 +295,7 @@ impl Kind {
 }
 
 impl Geometry {
-    fn new(spec: ShapeSpec, anamorphic: f32, kind: Kind) -> Geometry {
+    fn new(spec: ShapeSpec, anamorphic: f32, bubble: f32, kind: Kind) -> Geometry {
         let (sx, sy) = squeeze(anamorphic);
         let kind = match kind {
             Kind::Polygon { pts, .. } => Kind::polygon(pts.iter().map(|p| [p[0] * sx, p[1] * sy]).collect()),
@@ -282,9 +312,15 @@ impl Geometry {
                 let symmetric = pts.iter().all(|p| pts.iter().any(|q| (p[0] + q[0]).abs() < 1e-9 && (p[1] + q[1]).abs() < 1e-9));
                 (area, inradius, symmetric)
             }
-            Kind::Mask(m) => (m.total() * (4.0 * m.hw * m.hh) / (m.w * m.h) as f64, 0.0, m.symmetric()),
+            // A mask's radial profile is by distance from the centre (the circumscribed circle's
+            // radius is 1): its flux is the profile-weighted sum of its cells.
+            Kind::Mask(m) => (
+                m.weighted_total(|x, y| profile(bubble, (x * x + y * y).sqrt())) * (4.0 * m.hw * m.hh) / (m.w * m.h) as f64,
+                0.0,
+                m.symmetric(),
+            ),
         };
-        Geometry { spec, anamorphic, kind, area, inradius, symmetric }
+        Geometry { spec, anamorphic, bubble, kind, area, inradius, symmetric }
     }
 
     /// Whether foreground and background bokeh are the same shape.
@@ -322,22 +358,43 @@ impl Geometry {
         }
         let (x, y) = if flip { (-x, -y) } else { (x, y) };
         match self.square_area(r, x, y, 1.0) {
-            Area::Inside => return 1.0,
+            Area::Inside if self.bubble == 0.0 => return 1.0,
             Area::Part(a) if a == 0.0 => return 0.0,
-            Area::Part(_) => {}
+            _ => {}
         }
         const N: usize = 4;
         let mut acc = 0f64;
         for i in 0..N {
             for j in 0..N {
                 let (ox, oy) = ((i as f32 + 0.5) / N as f32 - 0.5, (j as f32 + 0.5) / N as f32 - 0.5);
-                acc += match self.square_area(r, x + ox, y + oy, 0.5) {
+                let area = match self.square_area(r, x + ox, y + oy, 0.5) {
                     Area::Inside => 1.0,
                     Area::Part(a) => a * r as f64 * r as f64,
                 };
+                // A bubble's intensity at the small square's centre (midpoint rule).
+                acc += if self.bubble == 0.0 || area == 0.0 { area } else { area * self.intensity((x + ox) / r, (y + oy) / r) as f64 };
             }
         }
-        ((acc / (N * N) as f64) as f32).clamp(0.0, 1.0)
+        // A bubble's rim (or centre) is brighter than 1.
+        ((acc / (N * N) as f64) as f32).clamp(0.0, 1.0 + self.bubble.abs())
+    }
+
+    /// The bubble profile's intensity at the unit-frame point `(x, y)` (y up, not reflected):
+    /// `1 + B·(2t² − 1)` where `t` is the point's relative radius, the scale of the outline
+    /// through it (the polygon's gauge, `max n·p / c` over its edges; for an image, the
+    /// distance from the centre). 1 without a bubble.
+    pub fn intensity(&self, x: f32, y: f32) -> f32 {
+        if self.bubble == 0.0 {
+            return 1.0;
+        }
+        let (x, y) = (x as f64, y as f64);
+        let t = match &self.kind {
+            Kind::Polygon { planes, sectors, .. } => {
+                sectors.planes(planes, [x, x, y, y]).map(|&[nx, ny, c]| (nx * x + ny * y) / c).fold(0.0, f64::max)
+            }
+            Kind::Mask(_) => (x * x + y * y).sqrt(),
+        };
+        profile(self.bubble, t) as f32
     }
 
     /// The unit-frame area of the shape (circumradius `r` px) inside the square of half-side
@@ -384,13 +441,19 @@ impl Geometry {
     pub fn transmission(&self, x: f32, y: f32) -> f32 {
         let (x, y) = (x as f64, y as f64);
         match &self.kind {
-            Kind::Polygon { planes, .. } => planes.iter().all(|&[nx, ny, c]| nx * x + ny * y <= c) as u8 as f32,
+            Kind::Polygon { planes, .. } => {
+                if planes.iter().all(|&[nx, ny, c]| nx * x + ny * y <= c) {
+                    self.intensity(x as f32, y as f32)
+                } else {
+                    0.0
+                }
+            }
             Kind::Mask(m) => {
                 let (u, v) = ((x + m.hw) / (2.0 * m.hw) * m.w as f64, (m.hh - y) / (2.0 * m.hh) * m.h as f64);
                 if u < 0.0 || v < 0.0 || u >= m.w as f64 || v >= m.h as f64 {
                     return 0.0;
                 }
-                m.values[v as usize * m.w + u as usize]
+                m.values[v as usize * m.w + u as usize] * self.intensity(x as f32, y as f32)
             }
         }
     }
@@ -654,9 +717,17 @@ impl Mask {
         Ok(Mask { w, h, hw: w as f64 / side, hh: h as f64 / side, sat: table(&|v| v as f64), holes: table(&|v| 1.0 - v as f64), values })
     }
 
-    /// The sum of all values.
-    fn total(&self) -> f64 {
-        self.sat[self.sat.len() - 1]
+    /// The sum of the values times `f` at each cell's centre (unit frame).
+    fn weighted_total(&self, f: impl Fn(f64, f64) -> f64) -> f64 {
+        let mut sum = 0.0;
+        for row in 0..self.h {
+            for col in 0..self.w {
+                let x = -self.hw + (col as f64 + 0.5) * 2.0 * self.hw / self.w as f64;
+                let y = self.hh - (row as f64 + 0.5) * 2.0 * self.hh / self.h as f64;
+                sum += self.values[row * self.w + col] as f64 * f(x, y);
+            }
+        }
+        sum
     }
 
     fn symmetric(&self) -> bool {

@@ -235,7 +235,8 @@ impl Template {
                         }
                         _ => {}
                     }
-                    if c > 0.0 && c < 1.0 {
+                    // (A bubble's weights may pass 1.)
+                    if c > 0.0 && c != 1.0 {
                         taps.push((dx, c));
                     }
                 }
