@@ -359,7 +359,7 @@ impl Geometry {
         let (x, y) = if flip { (-x, -y) } else { (x, y) };
         match self.square_area(r, x, y, 1.0) {
             Area::Inside if self.bubble == 0.0 => return 1.0,
-            Area::Part(a) if a == 0.0 => return 0.0,
+            Area::Part(0.0) => return 0.0,
             _ => {}
         }
         const N: usize = 4;
