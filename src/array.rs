@@ -15,7 +15,7 @@
 //!     col.fill(x as f32 / 8.0);
 //! }
 //! let layers = [Layer::from_array(rgbad, "array")?];
-//! let s = RenderSettings { blur: 4.0, focus: 0.5, lens: 5, occlusion: true, profile: Profile::Official, aperture: crate::render::Aperture::DISC };
+//! let s = RenderSettings { blur: 4.0, focus: 0.5, lens: 5, occlusion: true, profile: Profile::Official, aperture: drbokeh::render::Aperture::DISC };
 //! let tape = Tape::record(&layers, &s, Smoothing::default())?;
 //! assert_eq!(tape.image().view().dim(), (6, 8, 3));
 //! let g = tape.vjp(&Image::from_array(Array3::from_elem((6, 8, 3), 1.0)))?;

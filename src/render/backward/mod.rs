@@ -137,7 +137,7 @@ impl Record {
 ///     px.extend_from_slice(&[v, 0.5, 1.0 - v, 1.0, 0.3 + 0.4 * v]);
 /// }
 /// let layers = [Layer::new(Image::from_vec(8, 8, 5, px).unwrap(), "example")?];
-/// let s = RenderSettings { blur: 6.0, focus: 0.5, lens: 7, occlusion: true, profile: Profile::Physical, aperture: crate::render::Aperture::DISC };
+/// let s = RenderSettings { blur: 6.0, focus: 0.5, lens: 7, occlusion: true, profile: Profile::Physical, aperture: drbokeh::render::Aperture::DISC };
 /// let tape = Tape::record(&layers, &s, Smoothing::default())?;
 /// // L = sum of the red channel: its gradient with respect to the image is 1 on red.
 /// let mut seed = Image::new(8, 8, 3);

@@ -105,7 +105,7 @@ struct Target {
 /// // An 8×6 opaque layer: grey, its left half on the focal plane, its right half behind.
 /// let px: Vec<f32> = (0..48).flat_map(|i| [0.5, 0.5, 0.5, 1.0, if i % 8 < 4 { 1.0 } else { 0.4 }]).collect();
 /// let layer = Layer::new(Image::from_vec(8, 6, 5, px).expect("8·6·5 values"), "example")?;
-/// let s = RenderSettings { blur: 6.0, focus: 1.0, lens: 11, occlusion: true, profile: Profile::Physical, aperture: crate::render::Aperture::DISC };
+/// let s = RenderSettings { blur: 6.0, focus: 1.0, lens: 11, occlusion: true, profile: Profile::Physical, aperture: drbokeh::render::Aperture::DISC };
 /// let tape = SpanTape::record(&layer, &s, Smoothing::default())?;
 /// // L = ½‖image − target‖² with a black target: ∂L/∂image = image.
 /// let g = tape.vjp(&tape.image().clone())?;
