@@ -405,3 +405,31 @@ fn fast_matches_exact_on_stress_scenes() {
     }
     common::assert_no_failures("shapes, fast against exact on the stress scenes", &failures);
 }
+
+/// Extreme blurs and windows stay finite for every shape, in both kernels: K from 0 to 1e8,
+/// a window narrower than the blur, a layer half transparent.
+#[test]
+fn extreme_blurs_stay_finite() {
+    let (w, h) = (24usize, 20usize);
+    let mut data = Vec::with_capacity(w * h * 5);
+    for y in 0..h {
+        for x in 0..w {
+            let a = if (x + y) % 3 == 0 { 0.0 } else { 1.0 };
+            data.extend_from_slice(&[(x as f32 * 0.7).sin().abs() * 30.0, 0.5, 0.2, a, y as f32 / h as f32]);
+        }
+    }
+    let layer = Layer::new(Image::from_vec(w, h, 5, data).unwrap(), "extreme").unwrap();
+    let mut failures = Vec::new();
+    for case in cases() {
+        for (blur, lens) in [(0.0f32, 3usize), (1e-6, 3), (40.0, 5), (1e4, 21), (1e8, 41)] {
+            let s = settings(case.aperture, blur, 0.4, lens);
+            for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }, Kernel::Fast { quality: 8 }] {
+                let out = render::render(std::slice::from_ref(&layer), &s, kernel).unwrap();
+                if !out.all_finite() {
+                    failures.push(format!("{} K {blur} lens {lens} {}: non-finite output", case.name, kernel.name()));
+                }
+            }
+        }
+    }
+    common::assert_no_failures("extreme blurs", &failures);
+}

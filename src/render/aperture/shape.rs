@@ -458,16 +458,19 @@ impl Geometry {
         }
     }
 
-    /// The radius up to which a CoC changes what a window of half-size `p` shows: beyond it
-    /// the window lies inside the shape (polygons), or spans at most a quarter of one of the
-    /// mask's cells (images). The fast kernel draws larger CoCs at this radius.
+    /// The radius the fast kernel draws a larger CoC with, in a window of half-size `p`:
+    /// where a polygon's inscribed circle holds the window (beyond, the window shows the
+    /// inside of the shape whatever the CoC), but at most twice the window's radius, so that
+    /// the coarse grid drawing it keeps cells well inside the window (a CoC beyond the window
+    /// happens only with a `--lens` narrower than the blur; there a thin or image shape is
+    /// drawn as it looks at that radius, its flux from its true CoC).
     pub fn drawn_cap(&self, p: usize) -> f32 {
         let p = p as f64 + 1.0;
         let cap = match &self.kind {
             Kind::Polygon { .. } => p / self.inradius.max(1e-3) + 1.0,
-            Kind::Mask(m) => 4.0 * p * (m.w as f64 / (2.0 * m.hw)).max(m.h as f64 / (2.0 * m.hh)),
+            Kind::Mask(_) => f64::INFINITY,
         };
-        cap.min(1e7) as f32
+        cap.min(2.0 * p) as f32
     }
 }
 
