@@ -1,7 +1,7 @@
 //! The `trace` and `bench` subcommands: flag parsing and progress display; the work is in
 //! `drbokeh::bench::{trace, run}`.
 
-use crate::{as_flags, set_threads};
+use crate::{ApertureArgs, as_flags, set_threads};
 use clap::{Args, ValueEnum};
 use drbokeh::Error;
 use drbokeh::bench::dfd_eval::{self, DfdBenchOptions};
@@ -81,16 +81,8 @@ impl From<MethodArg> for Method {
 
 #[derive(Args)]
 pub struct TraceArgs {
-    /// The aperture's shape (as `render --aperture`): disc, blades:N[,rotation=DEG][,curvature=C]
-    /// or image:PATH [default: disc].
-    #[arg(long, value_name = "SHAPE")]
-    aperture: Option<String>,
-    /// Aspect ratio of the bokeh (as `render --anamorphic`) [default: 1].
-    #[arg(long, value_name = "A", allow_negative_numbers = true)]
-    anamorphic: Option<f32>,
-    /// Radial intensity of the bokeh (as `render --bubble`) [default: 0].
-    #[arg(long, value_name = "B", allow_negative_numbers = true)]
-    bubble: Option<f32>,
+    #[command(flatten)]
+    aperture: ApertureArgs,
     /// A layer (5-channel EXR R,G,B,A,D or NPY H x W x 5, linear radiance), one fronto-parallel
     /// plane: D must be constant where A > 0. Repeat, front first.
     #[arg(long, value_name = "PATH", required = true)]
@@ -140,13 +132,7 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
         })
         .collect::<Result<Vec<_>, Error>>()?;
     let mut s = TraceSettings::new(args.blur, args.focus, args.spp, args.seed);
-    s.aperture = drbokeh::config::ApertureConfig {
-        shape: args.aperture.clone().unwrap_or_else(|| "disc".into()),
-        anamorphic: args.anamorphic.unwrap_or(1.0),
-        bubble: args.bubble.unwrap_or(0.0),
-    }
-    .resolve()
-    .map_err(as_flags)?;
+    s.aperture = aperture_config(&args.aperture).resolve().map_err(as_flags)?;
     s.footprint = match args.footprint {
         FootprintArg::Analytic => Footprint::Analytic,
         FootprintArg::Sampled => Footprint::Sampled,
@@ -177,16 +163,8 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
 
 #[derive(Args)]
 pub struct BenchArgs {
-    /// The aperture's shape (as `render --aperture`): disc, blades:N[,rotation=DEG][,curvature=C]
-    /// or image:PATH [default: disc].
-    #[arg(long, value_name = "SHAPE")]
-    aperture: Option<String>,
-    /// Aspect ratio of the bokeh (as `render --anamorphic`) [default: 1].
-    #[arg(long, value_name = "A", allow_negative_numbers = true)]
-    anamorphic: Option<f32>,
-    /// Radial intensity of the bokeh (as `render --bubble`) [default: 0].
-    #[arg(long, value_name = "B", allow_negative_numbers = true)]
-    bubble: Option<f32>,
+    #[command(flatten)]
+    aperture: ApertureArgs,
     /// Evaluate depth from defocus instead of rendering methods (the paper's Table 2): each
     /// method estimates the disparity from the all-in-focus photo and a traced render focused
     /// on the nearest plane; scored on disparity error and on a re-render at the farthest
@@ -283,6 +261,9 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     if scenes == 0 && args.groundtruth.is_none() {
         return Err(Error::usage("--scenes must be at least 1").into());
     }
+    // Checked (an image aperture read) before the report folder is made.
+    let aperture = aperture_config(&args.aperture);
+    aperture.resolve().map_err(as_flags)?;
     let opts = BenchOptions {
         scenes,
         width: w,
@@ -297,11 +278,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         repeats: args.repeats.max(1),
         crops: args.crops,
         command: command_line(),
-        aperture: drbokeh::config::ApertureConfig {
-            shape: args.aperture.clone().unwrap_or_else(|| "disc".into()),
-            anamorphic: args.anamorphic.unwrap_or(1.0),
-            bubble: args.bubble.unwrap_or(0.0),
-        },
+        aperture,
     };
     let t0 = Instant::now();
     let bar = if opts.groundtruth.is_some() { ProgressBar::new_spinner() } else { ProgressBar::new(opts.scenes as u64) };
@@ -359,6 +336,13 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
     eprint!("{}", drbokeh::bench::dfd_report::acceptance(&res.rows));
     eprintln!("wrote {}", opts.out.join("report.md").display());
     Ok(())
+}
+
+/// `[aperture]` as the flags give it (the tracer and the bench read no pipeline.toml).
+fn aperture_config(args: &ApertureArgs) -> drbokeh::config::ApertureConfig {
+    let mut cfg = drbokeh::config::ApertureConfig::default();
+    args.apply(&mut cfg);
+    cfg
 }
 
 #[cfg(test)]

@@ -288,6 +288,13 @@ pub(crate) struct PipelineArgs {
     /// boost: the brightness factor at stored value 1, in [1, 100] [default: 4].
     #[arg(long, value_name = "G")]
     highlight_gain: Option<f32>,
+    #[command(flatten)]
+    aperture: ApertureArgs,
+}
+
+/// The bokeh's shape, shared by `render`, `batch`, `view`, `trace` and `bench`.
+#[derive(Args)]
+pub(crate) struct ApertureArgs {
     /// The aperture's shape: disc, blades:N[,rotation=DEG][,curvature=C] (3..=64 blades, a
     /// vertex at DEG counterclockwise from +x, y up; curvature 0 straight … 1 round) or
     /// image:PATH (a grey mask, bright = open, its longer side spanning the bokeh's diameter).
@@ -302,6 +309,17 @@ pub(crate) struct PipelineArgs {
     /// "soap bubble"), < 0 a bright centre [default: 0, uniform].
     #[arg(long, value_name = "B", allow_negative_numbers = true)]
     bubble: Option<f32>,
+}
+
+impl ApertureArgs {
+    /// Overrides `[aperture]` with the flags given.
+    pub(crate) fn apply(&self, cfg: &mut drbokeh::config::ApertureConfig) {
+        if let Some(a) = &self.aperture {
+            cfg.shape = a.clone();
+        }
+        cfg.anamorphic = self.anamorphic.unwrap_or(cfg.anamorphic);
+        cfg.bubble = self.bubble.unwrap_or(cfg.bubble);
+    }
 }
 
 pub(crate) fn set_threads(n: Option<usize>) -> anyhow::Result<()> {
@@ -445,11 +463,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
     if let Some(m) = args.highlights {
         cfg.highlights.mode = m.into();
     }
-    if let Some(a) = &args.aperture {
-        cfg.aperture.shape = a.clone();
-    }
-    cfg.aperture.anamorphic = args.anamorphic.unwrap_or(cfg.aperture.anamorphic);
-    cfg.aperture.bubble = args.bubble.unwrap_or(cfg.aperture.bubble);
+    args.aperture.apply(&mut cfg.aperture);
     cfg.highlights.threshold = args.highlight_threshold.unwrap_or(cfg.highlights.threshold);
     cfg.highlights.gain = args.highlight_gain.unwrap_or(cfg.highlights.gain);
     if let Some(k) = args.depth_kind {

@@ -251,6 +251,20 @@ fn one_plane_is_the_photo_convolved_with_the_shape() {
     common::assert_no_failures("shapes against an independent convolution", &failures);
 }
 
+/// Renders `layers` with both kernels (fast at quality 2): both finite, and the fast one at
+/// least 45 dB (linear PSNR, peak 1) from the exact one, as the disc is held to in
+/// `tests/fast_kernel.rs`; a shortfall goes to `failures`.
+fn check_fast_against_exact(name: &str, layers: &[Layer], s: &RenderSettings, failures: &mut Vec<String>) {
+    let exact = render::render(layers, s, Kernel::Exact).unwrap();
+    let fast = render::render(layers, s, Kernel::Fast { quality: 2 }).unwrap();
+    assert!(fast.all_finite() && exact.all_finite(), "{name}: non-finite output");
+    let p = drbokeh::bench::metrics::psnr(&fast, &exact, 1.0, 0);
+    println!("{name:56} fast vs exact {p:6.2} dB");
+    if p.is_nan() || p < 45.0 {
+        failures.push(format!("{name}: {p:.2} dB (at least 45)"));
+    }
+}
+
 /// Fast (quality 2) against exact on the ground-truth scenes' layers (a 112 × 112 crop across
 /// the subject's outline, the scenes' own focus and blur settings): every shape at least
 /// 45 dB (linear PSNR, peak 1), as the disc is held to in `tests/fast_kernel.rs`. The
@@ -258,7 +272,6 @@ fn one_plane_is_the_photo_convolved_with_the_shape() {
 #[test]
 fn fast_matches_exact_on_layered_scenes() {
     use drbokeh::bench::groundtruth::GtScene;
-    use drbokeh::bench::metrics::psnr;
     let mut combos = Vec::new();
     for dir in common::case_dirs(&common::shared_dir().join("groundtruth")) {
         let scene = GtScene::load(&dir).unwrap();
@@ -284,14 +297,7 @@ fn fast_matches_exact_on_layered_scenes() {
                 continue;
             }
             let s = settings(case.aperture, *blur, *focus, render::auto_lens(layers, *blur, *focus));
-            let exact = render::render(layers, &s, Kernel::Exact).unwrap();
-            let fast = render::render(layers, &s, Kernel::Fast { quality: 2 }).unwrap();
-            assert!(fast.all_finite() && exact.all_finite());
-            let p = psnr(&fast, &exact, 1.0, 0);
-            println!("{:24} {name:22} fast vs exact {p:6.2} dB", case.name);
-            if p.is_nan() || p < 45.0 {
-                failures.push(format!("{} {name}: {p:.2} dB (at least 45)", case.name));
-            }
+            check_fast_against_exact(&format!("{} {name}", case.name), layers, &s, &mut failures);
         }
     }
     common::assert_no_failures("shapes, fast against exact on layered scenes", &failures);
@@ -376,7 +382,6 @@ fn tracer_and_renderer_agree_on_one_plane() {
 /// in-layer depth groups decide), physical profile: every shape at least 45 dB.
 #[test]
 fn fast_matches_exact_on_stress_scenes() {
-    use drbokeh::bench::metrics::psnr;
     use drbokeh::bench::stress::{bars_in_one_layer, two_layer_scene};
     let mut scenes = Vec::new();
     for (focus_fg, coc) in [(true, 12.0), (false, 9.0)] {
@@ -393,14 +398,7 @@ fn fast_matches_exact_on_stress_scenes() {
                 continue;
             }
             let s = RenderSettings { profile: Profile::Physical, aperture: case.aperture, ..*s };
-            let exact = render::render(layers, &s, Kernel::Exact).unwrap();
-            let fast = render::render(layers, &s, Kernel::Fast { quality: 2 }).unwrap();
-            assert!(fast.all_finite() && exact.all_finite());
-            let p = psnr(&fast, &exact, 1.0, 0);
-            println!("{:24} {name:32} fast vs exact {p:6.2} dB", case.name);
-            if p.is_nan() || p < 45.0 {
-                failures.push(format!("{} {name}: {p:.2} dB (at least 45)", case.name));
-            }
+            check_fast_against_exact(&format!("{} {name}", case.name), layers, &s, &mut failures);
         }
     }
     common::assert_no_failures("shapes, fast against exact on the stress scenes", &failures);
