@@ -182,7 +182,21 @@ impl Image {
     /// order, so the result is the same for any thread count.
     pub fn sum(&self) -> f64 {
         use rayon::prelude::*;
-        let blocks: Vec<f64> = self.data.par_chunks(BLOCK).map(|c| c.iter().map(|&v| v as f64).sum()).collect();
+        // Eight running sums per block so that the additions vectorize: one is a chain of
+        // dependent adds (~25 ms for a 12 MP photo on 2 cores).
+        const LANES: usize = 8;
+        let block_sum = |c: &[f32]| -> f64 {
+            let mut lanes = [0f64; LANES];
+            let whole = c.chunks_exact(LANES);
+            let rest: f64 = whole.remainder().iter().map(|&v| v as f64).sum();
+            for group in whole {
+                for (l, &v) in lanes.iter_mut().zip(group) {
+                    *l += v as f64;
+                }
+            }
+            lanes.iter().sum::<f64>() + rest
+        };
+        let blocks: Vec<f64> = self.data.par_chunks(BLOCK).map(block_sum).collect();
         blocks.iter().sum()
     }
 

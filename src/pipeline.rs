@@ -284,6 +284,10 @@ impl Pipeline {
                 report.ran("highlights", t, serde_json::to_value(r).ok());
                 img
             }
+            Recovered::Examined(r) => {
+                report.ran("highlights", t, serde_json::to_value(r).ok());
+                &scene.rgb
+            }
             Recovered::Unchanged(why) => {
                 report.skipped("highlights", *why);
                 &scene.rgb

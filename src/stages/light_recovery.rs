@@ -152,7 +152,10 @@ pub struct HighlightsReport {
 pub enum Recovered {
     /// The photo with the light restored (or boosted), and what was done.
     Changed(Image, HighlightsReport),
-    /// The photo is left as it is, and why.
+    /// The stage looked at the photo and added no light (every clipped blob an area, or no
+    /// fit brighter than the photo): the photo is left as it is, bit for bit, without a copy.
+    Examined(HighlightsReport),
+    /// The stage did not run, and why; the photo is left as it is.
     Unchanged(&'static str),
 }
 
@@ -168,10 +171,9 @@ pub fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions) -
             let (img, report) = boost(rgb, encoding.transfer(), opts);
             Recovered::Changed(img, report)
         }
-        (HighlightMode::Auto, PhotoEncoding::Integer { .. }) => match recover_lights(rgb, clip, opts) {
-            Some((img, report)) => Recovered::Changed(img, report),
-            None => Recovered::Unchanged("no sample at or above highlights.threshold"),
-        },
+        (HighlightMode::Auto, PhotoEncoding::Integer { .. }) => {
+            recover_lights(rgb, clip, opts).unwrap_or(Recovered::Unchanged("no sample at or above highlights.threshold"))
+        }
     }
 }
 
@@ -227,9 +229,25 @@ struct Blob {
     bbox: (usize, usize, usize, usize),
 }
 
-/// Per pixel: bit c set when channel c is at or above `clip`. Rows in parallel.
-fn clipped_channels(rgb: &Image, clip: f32) -> Vec<u8> {
-    rgb.data.par_chunks(3).map(|px| (px[0] >= clip) as u8 | ((px[1] >= clip) as u8) << 1 | ((px[2] >= clip) as u8) << 2).collect()
+/// Per pixel: bit c set when channel c is at or above `clip`; and how many pixels have any bit
+/// set. One pass, blocks of pixels in parallel (a pixel-by-pixel parallel collect and a second
+/// pass to count were 40 ms of the stage's 250 at 12 MP).
+fn clipped_channels(rgb: &Image, clip: f32) -> (Vec<u8>, usize) {
+    const PIXELS: usize = 1 << 14;
+    let mut mask = vec![0u8; rgb.width * rgb.height];
+    let count = mask
+        .par_chunks_mut(PIXELS)
+        .zip(rgb.data.par_chunks(3 * PIXELS))
+        .map(|(bits, px)| {
+            let mut n = 0;
+            for (m, p) in bits.iter_mut().zip(px.chunks_exact(3)) {
+                *m = (p[0] >= clip) as u8 | ((p[1] >= clip) as u8) << 1 | ((p[2] >= clip) as u8) << 2;
+                n += (*m != 0) as usize;
+            }
+            n
+        })
+        .sum();
+    (mask, count)
 }
 
 /// The 8-connected blobs of pixels with any bit set in `mask`. Blobs with more than
@@ -276,11 +294,10 @@ fn blobs(mask: &mut [u8], w: usize, h: usize, max_pixels: usize) -> (Vec<Blob>, 
 }
 
 /// `auto`: every light-sized blob fitted and its clipped samples replaced by the model where
-/// it is brighter.
-fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(Image, HighlightsReport)> {
+/// it is brighter. `None` when no sample is clipped.
+fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<Recovered> {
     let (w, h) = (rgb.width, rgb.height);
-    let mut mask = clipped_channels(rgb, clip);
-    let clipped_pixels = mask.par_iter().filter(|&&m| m != 0).count();
+    let (mut mask, clipped_pixels) = clipped_channels(rgb, clip);
     if clipped_pixels == 0 {
         return None;
     }
@@ -295,7 +312,7 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(I
     sample.truncate(PSF_SAMPLE);
     // The camera's PSF from the photo's sharpest edges; from the lights' own fits when the
     // photo has too few clean edges.
-    let near_clipped = crate::stages::mask::dilate(&mask.iter().map(|&m| m != 0).collect::<Vec<_>>(), w, h, 2.0);
+    let near_clipped = crate::stages::mask::dilate(&mask.par_iter().map(|&m| m != 0).collect::<Vec<_>>(), w, h, 2.0);
     let sigma = super::camera_psf::estimate(rgb, &near_clipped).unwrap_or_else(|| photo_psf(&sample, clip));
     let fits: Vec<Option<Fit>> = found
         .par_iter()
@@ -307,8 +324,11 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(I
             })
         })
         .collect();
-    let mut out = rgb.clone();
+    // A clipped sample takes the model's value where the model is brighter. Measured on the
+    // photo first: when nothing is added the photo is not copied (a 12 MP copy is ~40 ms).
+    let brighter = |i: usize, c: usize, m: f32| mask[i] >> c & 1 == 1 && m > rgb.data[i * 3 + c];
     let mut lights = Vec::new();
+    let mut changes = Vec::new();
     let mut unfitted = 0;
     for (blob, fit) in found.iter().zip(fits) {
         let Some(fit) = fit else {
@@ -317,16 +337,31 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(I
         };
         let mut added = 0.0f64;
         for (&i, model) in blob.pixels.iter().zip(&fit.core) {
-            for (c, (v, &m)) in out.data[i * 3..i * 3 + 3].iter_mut().zip(model).enumerate() {
-                if mask[i] >> c & 1 == 1 && m > *v {
-                    added += (m - *v) as f64;
-                    *v = m;
+            for (c, &m) in model.iter().enumerate() {
+                if brighter(i, c, m) {
+                    added += (m - rgb.data[i * 3 + c]) as f64;
                 }
             }
         }
         lights.push(Light { x: fit.g.cx, y: fit.g.cy, radius: fit.g.r, radiance: fit.radiance, pixels: blob.pixels.len(), added });
+        if added > 0.0 {
+            changes.push((blob, fit));
+        }
     }
     let light_added: f64 = lights.iter().map(|l| l.added).sum();
+    let out = (!changes.is_empty()).then(|| {
+        let mut out = rgb.clone();
+        for (blob, fit) in changes {
+            for (&i, model) in blob.pixels.iter().zip(&fit.core) {
+                for (c, &m) in model.iter().enumerate() {
+                    if brighter(i, c, m) {
+                        out.data[i * 3 + c] = m;
+                    }
+                }
+            }
+        }
+        out
+    });
     let n = lights.len();
     lights.sort_by(|a, b| b.radiance.iter().sum::<f32>().total_cmp(&a.radiance.iter().sum::<f32>()));
     lights.truncate(100);
@@ -338,10 +373,14 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<(I
         psf_sigma: sigma,
         areas_left: large + unfitted,
         light_added,
-        light_added_fraction: light_added / total_light(rgb),
+        // The photo's total only when it is divided: a 12 MP sum is ~25 ms.
+        light_added_fraction: if light_added > 0.0 { light_added / total_light(rgb) } else { 0.0 },
         brightest: lights,
     };
-    Some((out, report))
+    Some(match out {
+        Some(img) => Recovered::Changed(img, report),
+        None => Recovered::Examined(report),
+    })
 }
 
 /// A fitted light.

@@ -229,7 +229,7 @@ fn large_clipped_areas_and_extremes() {
                 assert!(out.all_finite(), "{what}: non-finite output");
                 out
             }
-            Recovered::Unchanged(_) => img.clone(),
+            Recovered::Examined(_) | Recovered::Unchanged(_) => img.clone(),
         }
     };
     // An overexposed sky (top third, 1.0–3.0 before clipping, a gradient) over a textured
@@ -243,6 +243,13 @@ fn large_clipped_areas_and_extremes() {
         let out = run(img, what);
         let gain = sum(&out) / sum(img) - 1.0;
         assert!(gain <= 0.10, "{what}: brightened by {:.1}%", gain * 100.0);
+    }
+    // A clipped sky is an area, not a light: the stage reports it and leaves the photo as it
+    // was, without a copy.
+    match recover(&sky, SRGB8, &opts) {
+        Recovered::Examined(r) => assert!(r.lights == 0 && r.areas_left >= 1 && r.light_added == 0.0, "sky: {r:?}"),
+        Recovered::Changed(_, r) => panic!("sky: the photo was changed ({r:?})"),
+        Recovered::Unchanged(why) => panic!("sky: the stage did not look at the photo ({why})"),
     }
     // All white, all one clipped colour, a single clipped pixel at each corner, grey.
     let white = srgb8(32, 24, |_, _| [1.0; 3]);
