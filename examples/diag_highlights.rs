@@ -22,7 +22,7 @@ fn main() -> drbokeh::Result<()> {
         let prepared = prepare(&linear, input)?;
         let photo = &prepared.scene.aif;
         let lost = prepared.missing_light.unwrap_or(0.0);
-        let Recovered::Changed(out, report) = recover(photo, input.encoding(), &HighlightsOptions::default()) else {
+        let Recovered::Changed(out, report) = recover(photo, input.encoding(), &HighlightsOptions::default(), &Default::default())? else {
             println!("{}: nothing clipped", sc.name);
             continue;
         };

@@ -10,6 +10,8 @@ computation of the same function:
                                channels in tensor order, W = (0.8, -0.5, 0.3), B = 0.1), then a
                                Sigmoid where the real model ends in one (U^2-Net, ISNet, MODNet,
                                MediaPipe); BiRefNet emits the logits; depth stubs emit y itself.
+  inverse tone mapping:        half the sRGB-decoded input plus a ramp above 0.96 (see
+                               itm_stub).
   inpainting:                  every masked pixel (mask > 0.5) gets the mean colour of the
                                unmasked pixels, unmasked pixels are kept; `lama` scales the
                                result to 0..255 like the public LaMa export.
@@ -136,6 +138,44 @@ def inpaint_stub(path, h, w, scale):
     save(graph, path)
 
 
+def itm_stub(path, inp, out, gain):
+    """ExpandNet signature: input [1,3,H,W] (sRGB-encoded colours in [0,1]) -> output [1,3,H,W],
+    per sample 0.5 * srgb_to_linear(x) + 0.5 * gain * relu(x - 0.96) / 0.04: half the photo's
+    linear light, plus a ramp above 0.96 that reaches 0.5 * (1 + gain) at white. Scaled to the
+    photo (factor 2), a clipped sample becomes a light of radiance 1 + gain."""
+    nodes = [
+        helper.make_node("Div", [inp, "k1292"], ["lin_lo"]),
+        helper.make_node("Add", [inp, "k0055"], ["t0"]),
+        helper.make_node("Div", ["t0", "k1055"], ["t1"]),
+        helper.make_node("Pow", ["t1", "k24"], ["lin_hi"]),
+        helper.make_node("LessOrEqual", [inp, "k04045"], ["is_lo"]),
+        helper.make_node("Where", ["is_lo", "lin_lo", "lin_hi"], ["lin"]),
+        helper.make_node("Mul", ["lin", "half"], ["base"]),
+        helper.make_node("Sub", [inp, "k096"], ["over"]),
+        helper.make_node("Relu", ["over"], ["over_pos"]),
+        helper.make_node("Mul", ["over_pos", "ramp"], ["lift"]),
+        helper.make_node("Add", ["base", "lift"], [out]),
+    ]
+    inits = [
+        const("k1292", [12.92]),
+        const("k0055", [0.055]),
+        const("k1055", [1.055]),
+        const("k24", [2.4]),
+        const("k04045", [0.04045]),
+        const("half", [0.5]),
+        const("k096", [0.96]),
+        const("ramp", [0.5 * gain / 0.04]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        os.path.basename(path)[:-5],
+        [helper.make_tensor_value_info(inp, F, [1, 3, "height", "width"])],
+        [helper.make_tensor_value_info(out, F, [1, 3, "height", "width"])],
+        inits,
+    )
+    save(graph, path)
+
+
 def main():
     out = sys.argv[1] if len(sys.argv) > 1 else os.path.dirname(os.path.abspath(__file__))
     os.makedirs(out, exist_ok=True)
@@ -152,6 +192,8 @@ def main():
     # Inpainting presets.
     inpaint_stub(p("lama.onnx"), 512, 512, 255.0)
     inpaint_stub(p("lama_dynamic.onnx"), "height", "width", 1.0)
+    # Inverse tone mapping (highlights): a light of radiance 10 behind every clipped sample.
+    itm_stub(p("expandnet.onnx"), "input", "output", 9.0)
     # Broken models for the negative tests.
     conv_stub(p("bad_nan.onnx"), "input.1", "d0", 320, 320, sigmoid=True, nan=True)
     conv_stub(p("bad_names.onnx"), "x", "y", "height", "width", sigmoid=True)

@@ -134,6 +134,7 @@ enum HighlightsArg {
     Auto,
     Off,
     Boost,
+    Onnx,
 }
 
 impl From<HighlightsArg> for HighlightMode {
@@ -142,6 +143,7 @@ impl From<HighlightsArg> for HighlightMode {
             HighlightsArg::Auto => HighlightMode::Auto,
             HighlightsArg::Off => HighlightMode::Off,
             HighlightsArg::Boost => HighlightMode::Boost,
+            HighlightsArg::Onnx => HighlightMode::Onnx,
         }
     }
 }
@@ -277,8 +279,9 @@ pub(crate) struct PipelineArgs {
     #[arg(long, value_name = "DIR")]
     model_dir: Option<PathBuf>,
     /// Clipped highlights of an 8/16-bit photo: auto (their light estimated from the fringe
-    /// around each light), off, or boost (brightness above the threshold raised up to
-    /// --highlight-gain times) [default: auto; linear photos are left as they are].
+    /// around each light), off, boost (brightness above the threshold raised up to
+    /// --highlight-gain times) or onnx (an inverse-tone-mapping model, [highlights.onnx] or
+    /// expandnet.onnx in --model-dir) [default: auto; linear photos are left as they are].
     #[arg(long, value_enum)]
     highlights: Option<HighlightsArg>,
     /// Stored value in (0, 1] at or above which a sample is a clipped highlight (auto) or is

@@ -278,7 +278,7 @@ impl Pipeline {
 
         // The light of clipped highlights, before anything is layered or filled.
         let t = Instant::now();
-        let recovered = light_recovery::recover(&scene.rgb, scene.encoding, &cfg.highlights);
+        let recovered = light_recovery::recover(&scene.rgb, scene.encoding, &cfg.highlights, &cfg.onnx)?;
         let rgb = match &recovered {
             Recovered::Changed(img, r) => {
                 report.ran("highlights", t, serde_json::to_value(r).ok());

@@ -198,6 +198,48 @@ fn depth_model_when_no_depth_map() {
     bad(d, &["image.png", "--focus-depth", "2", "--config", "depth.toml", "-o", "o3.png"], &[], &["--focus-depth"]);
 }
 
+/// `--highlights onnx` with the ExpandNet stub: the scene with a clipped light (stored white,
+/// radiance 10 behind it per the stub) renders brighter around the light than with `off`; the
+/// JSON names the model and its scale; `[highlights.onnx]` in a config does the same; the
+/// classical default never loads the runtime; a missing model exits 2 naming the file.
+#[test]
+fn highlights_model_from_the_command_line_and_the_config() {
+    let dir = scene();
+    let d = dir.path();
+    // A clipped 3x3 light on the far plane.
+    let mut rgb = read_png(&d.join("image.png"));
+    for y in 6..9 {
+        for x in 6..9 {
+            rgb.pixel_mut(x, y).fill(1.0);
+        }
+    }
+    io::write_png(&d.join("lit.png"), &rgb, 8, Transfer::Linear).unwrap();
+    let md = stubs();
+    let base = ["lit.png", "--depth", "depth.exr", "--focus", "1", "--blur", "6"];
+    let onnx = ok(d, &[&base[..], &["--highlights", "onnx", "--model-dir", md.to_str().unwrap(), "-o", "onnx.png"]].concat(), &[]);
+    let h = &stage(&onnx, "highlights")["detail"];
+    assert_eq!(h["mode"], "onnx", "{h}");
+    assert_eq!(h["model"]["preset"], "expandnet", "{h}");
+    let scale = h["model_scale"].as_f64().unwrap();
+    assert!((scale - 2.0).abs() < 0.01, "{h}");
+    assert!(h["light_added"].as_f64().unwrap() > 9.0 * 8.0 * 3.0, "{h}");
+    std::fs::write(
+        d.join("h.toml"),
+        format!("[highlights]\nmode = \"onnx\"\n[highlights.onnx]\nmodel = {:?}\n", md.join("expandnet.onnx")),
+    )
+    .unwrap();
+    let cfg = ok(d, &[&base[..], &["--config", "h.toml", "-o", "cfg.png"]].concat(), &[]);
+    assert_eq!(stage(&cfg, "highlights")["detail"]["light_added"], h["light_added"]);
+    ok(d, &[&base[..], &["--highlights", "off", "-o", "off.png"]].concat(), &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")]);
+    let (lit, off) = (read_png(&d.join("onnx.png")), read_png(&d.join("off.png")));
+    assert_eq!(read_png(&d.join("cfg.png")).data, lit.data);
+    let sum = |img: &Image| img.data.iter().map(|&v| v as f64).sum::<f64>();
+    assert!(sum(&lit) > sum(&off) + 1.0, "the recovered light should brighten the render");
+    std::fs::create_dir(d.join("empty")).unwrap();
+    bad(d, &[&base[..], &["--highlights", "onnx", "--model-dir", "empty", "-o", "x.png"]].concat(), &[], &["expandnet.onnx", "not found"]);
+    bad(d, &[&base[..], &["--highlights", "onnx", "-o", "x.png"]].concat(), &[], &["highlights.onnx", "model"]);
+}
+
 #[test]
 fn committed_stubs_are_up_to_date() {
     let py = root().join(".venv/bin/python");

@@ -6,13 +6,14 @@
 //! onnxruntime wheel into .venv; the library finds it there) or ORT_DYLIB_PATH.
 
 use drbokeh::bench::run::srgb;
-use drbokeh::color::srgb_to_linear;
+use drbokeh::color::{PhotoEncoding, Transfer, linear_to_srgb, srgb_to_linear};
 use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, SizeSpec};
 use drbokeh::onnx::prep::{self, Geometry};
 use drbokeh::onnx::{DepthFill, ModelSpec, OnnxConfig};
 use drbokeh::stages::background::{BandReach, InpaintOptions, Reach};
 use drbokeh::stages::inpaint::{TeleaOptions, inpaint_telea};
 use drbokeh::stages::inpaint_onnx::{self, region, seam_weight};
+use drbokeh::stages::light_recovery::{self, HighlightMode, HighlightsOptions, Recovered};
 use drbokeh::stages::mask::distance_to;
 use drbokeh::stages::{depth_onnx, segment_onnx};
 use drbokeh::{Error, Image};
@@ -446,4 +447,102 @@ fn an_implausible_inpainting_range_is_warned_about() {
     // Declared [0, 0.01]: the fill is blown out.
     let bright = run(Some([0.0, 0.01])).join("\n");
     assert!(bright.contains("far above its declared output range [0, 0.01]"), "{bright}");
+}
+
+/// An 8-bit photo (linear values quantized through sRGB): a smooth textured ground in the
+/// model's anchor range, a disc of radiance 20 (clipped to white) with an anti-aliased rim,
+/// and a last row whose red steps from stored 0.9 to 1 beside a green of 0.97 (a sample the
+/// stub lifts, unclipped, in pixels whose red is clipped).
+fn clipped_photo(w: usize, h: usize) -> Image {
+    let mut img = Image::new(w, h, 3);
+    for y in 0..h {
+        for x in 0..w {
+            let d = ((x as f32 - 20.5).powi(2) + (y as f32 - 14.5).powi(2)).sqrt();
+            let ground = [0.15 + 0.2 * (x as f32 * 0.3).sin().abs(), 0.1 + 0.15 * (y as f32 * 0.2).cos().abs(), 0.2];
+            let cover = (4.0 - d).clamp(0.0, 1.0);
+            let mut v: [f32; 3] = std::array::from_fn(|c| ground[c] * (1.0 - cover) + 20.0 * cover);
+            if y == h - 1 {
+                v = [0.9 + 0.1 * x as f32 / (w - 1) as f32, 0.97, 0.5].map(srgb_to_linear);
+            }
+            img.pixel_mut(x, y).copy_from_slice(&v.map(|v| srgb_to_linear((linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0).round() / 255.0)));
+        }
+    }
+    img
+}
+
+fn highlights(opts_model: ModelSpec) -> HighlightsOptions {
+    HighlightsOptions { mode: HighlightMode::Onnx, onnx: opts_model, ..HighlightsOptions::default() }
+}
+
+const SRGB8: PhotoEncoding = PhotoEncoding::Integer { bits: 8, transfer: Transfer::Srgb };
+
+/// `[highlights.onnx]` through the ExpandNet stub (half the photo's linear light, a ramp to a
+/// light of 10 at white): the scale to the photo is 2, clipped samples at white come back as
+/// 10, samples between the threshold and white on the ramp, every unclipped sample unchanged
+/// bit for bit; a BGR contract gives the same picture (the output is put back in RGB order).
+#[test]
+fn highlights_model_lifts_only_clipped_samples() {
+    let photo = clipped_photo(48, 32);
+    let opts = highlights(spec("expandnet.onnx", "expandnet"));
+    let (out, report) = match light_recovery::recover(&photo, SRGB8, &opts, &cfg()).unwrap() {
+        Recovered::Changed(out, r) => (out, r),
+        _ => panic!("the model added no light"),
+    };
+    let scale = report.model_scale.unwrap();
+    assert!((scale - 2.0).abs() < 1e-3, "scale {scale}");
+    let clip = srgb_to_linear(opts.threshold);
+    let (mut lifted, mut white) = (0, 0);
+    for (i, (o, p)) in out.data.iter().zip(&photo.data).enumerate() {
+        if *p < clip {
+            assert_eq!(o.to_bits(), p.to_bits(), "unclipped sample {i} changed");
+            continue;
+        }
+        let x = linear_to_srgb(*p);
+        let want = (scale * (0.5 * p + 4.5 * (x - 0.96).max(0.0) / 0.04)).max(*p);
+        assert!((o - want).abs() < 1e-3 * want, "sample {i}: {o}, expected {want}");
+        lifted += (*o > *p) as usize;
+        white += (*p == 1.0) as usize;
+        if *p == 1.0 {
+            assert!((o - 10.0).abs() < 0.02, "a white sample came back as {o}, not 10");
+        }
+    }
+    assert!(white >= 30 && lifted >= white, "{white} white samples, {lifted} lifted");
+    assert_eq!(report.clipped_pixels, photo.data.chunks(3).filter(|p| p.iter().any(|&v| v >= clip)).count());
+    let added: f64 = out.data.iter().zip(&photo.data).map(|(o, p)| (o - p) as f64).sum();
+    assert!((report.light_added - added).abs() < 1e-3 * added, "reported {} added, {added} measured", report.light_added);
+    let m = report.model.as_ref().unwrap();
+    assert!(m.model.ends_with("expandnet.onnx") && m.runs == 1 && m.model_size == [32, 48], "{m:?}");
+
+    let bgr = highlights(ModelSpec { color: Some(ColorOrder::Bgr), ..spec("expandnet.onnx", "expandnet") });
+    let Recovered::Changed(out_bgr, _) = light_recovery::recover(&photo, SRGB8, &bgr, &cfg()).unwrap() else { panic!("bgr: no light") };
+    assert!(max_diff(&out, &out_bgr) < 1e-5, "bgr differs by {}", max_diff(&out, &out_bgr));
+}
+
+/// Nothing clipped, a linear photo, `off`: the model is not even loaded (its file need not
+/// exist) and the photo is left as it is. Bad models and photos the model cannot be scaled to
+/// are errors naming the file.
+#[test]
+fn highlights_model_runs_only_when_needed_and_fails_clearly() {
+    let missing = highlights(spec("does_not_exist.onnx", "expandnet"));
+    let dim = Image::filled(40, 30, 3, 0.3);
+    assert!(matches!(light_recovery::recover(&dim, SRGB8, &missing, &cfg()).unwrap(), Recovered::Unchanged(_)));
+    let photo = clipped_photo(48, 32);
+    assert!(matches!(light_recovery::recover(&photo, PhotoEncoding::Linear, &missing, &cfg()).unwrap(), Recovered::Unchanged(_)));
+    let err = |o: &HighlightsOptions, img: &Image| match light_recovery::recover(img, SRGB8, o, &cfg()) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("no error"),
+    };
+    let e = err(&missing, &photo);
+    assert!(e.contains("does_not_exist.onnx") && e.contains("not found"), "{e}");
+    // A one-channel model (the MODNet stub: dynamic size, one output channel).
+    let e = err(&highlights(ModelSpec { input: Some("input".into()), ..spec("modnet.onnx", "expandnet") }), &photo);
+    assert!(e.contains("modnet.onnx") && e.contains("1 channel"), "{e}");
+    // A matting preset in the highlights slot.
+    let e = err(&highlights(spec("u2net.onnx", "u2net")), &photo);
+    assert!(e.contains("highlights.onnx.preset") && e.contains("u2net"), "{e}");
+    // All white but one dark corner: nothing to scale the model's light by.
+    let mut white = Image::filled(40, 30, 3, 1.0);
+    white.pixel_mut(0, 0).fill(0.01);
+    let e = err(&highlights(spec("expandnet.onnx", "expandnet")), &white);
+    assert!(e.contains("expandnet.onnx") && e.contains("well-exposed"), "{e}");
 }

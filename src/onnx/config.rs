@@ -1,5 +1,6 @@
 //! The ONNX parts of `pipeline.toml`: the `[onnx]` runtime section and the per-stage model
-//! sections (`[segment.onnx]`, `[inpaint.onnx]`, `[depth]`), all optional.
+//! sections (`[segment.onnx]`, `[inpaint.onnx]`, `[depth.onnx]`, `[highlights.onnx]`), all
+//! optional.
 //!
 //! A stage's model is a preset (see [`super::contract::PRESETS`]) plus any overrides of its
 //! contract; the model file is `model` (relative paths are taken in `onnx.model_dir` when set,
@@ -80,7 +81,7 @@ pub struct ModelSpec {
     pub mean: Option<[f32; 3]>,
     /// Per-channel standard deviation (RGB order, units of `scale`), non-zero; see `mean`.
     pub std: Option<[f32; 3]>,
-    /// Activation applied to the raw output: "none" or "sigmoid".
+    /// Activation applied to the raw output: "none", "sigmoid" or "exp" (log-radiance outputs).
     pub activation: Option<Activation>,
     /// The output's value range [lo, hi], mapped to [0, 1] (e.g. [0, 255]).
     pub output_range: Option<[f32; 2]>,
@@ -100,6 +101,11 @@ impl ModelSpec {
     /// True when a model is configured at all (a file or a preset).
     pub fn is_configured(&self) -> bool {
         self.model.is_some() || self.preset.is_some()
+    }
+
+    /// True when nothing is set (serialization skips such a section).
+    pub fn is_default(&self) -> bool {
+        *self == ModelSpec::default()
     }
 
     /// Checks the values the types cannot express; `key` is the config section (for messages).

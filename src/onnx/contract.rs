@@ -60,6 +60,8 @@ pub enum Activation {
     None,
     /// `1 / (1 + e^-x)`, for models that output logits.
     Sigmoid,
+    /// `e^x`, for models that output log radiance (inverse tone mapping).
+    Exp,
 }
 
 /// An output chosen by name or by position.
@@ -82,6 +84,8 @@ pub enum ModelKind {
     Inpaint,
     /// Depth estimation: image → relative disparity.
     Depth,
+    /// Inverse tone mapping: 8-bit image → linear HDR image (the clipped highlights' light).
+    Highlights,
 }
 
 impl ModelKind {
@@ -91,6 +95,7 @@ impl ModelKind {
             ModelKind::Matte => "segment.onnx",
             ModelKind::Inpaint => "inpaint.onnx",
             ModelKind::Depth => "depth.onnx",
+            ModelKind::Highlights => "highlights.onnx",
         }
     }
     fn default_preset(self) -> &'static str {
@@ -98,6 +103,7 @@ impl ModelKind {
             ModelKind::Matte => "u2net",
             ModelKind::Inpaint => "lama",
             ModelKind::Depth => "depth-anything-v2",
+            ModelKind::Highlights => "expandnet",
         }
     }
 }
@@ -323,6 +329,14 @@ pub const PRESETS: &[Preset] = &[
             minmax: true,
             ..base("depth-anything-v2", ModelKind::Depth)
         },
+    },
+    Preset {
+        name: "expandnet",
+        file: "expandnet.onnx",
+        source: "ExpandNet (dmarnerides/hdr-expandnet, its PyTorch `forward` exported with dynamic height and width; no official \
+                 ONNX file): 1x3xHxW RGB in [0,1], any size (the network resizes its global branch to 256x256 itself), output \
+                 1x3xHxW linear HDR through a sigmoid, of arbitrary scale (drbokeh scales it to the photo's mid-tones)",
+        contract: || Contract { size: SizeSpec::Dynamic { multiple: 1, max_side: Some(1024) }, ..base("expandnet", ModelKind::Highlights) },
     },
 ];
 

@@ -157,8 +157,8 @@ fn sigmoid(v: f32) -> f32 {
 
 /// Turns a model output into an image of `channels` channels at the geometry's source size:
 /// picks the layout (rank 4: the contract's; rank 3: [1, H, W]; rank 2: [H, W]), applies the
-/// activation, maps `output_range` to [0, 1], drops the padding, min-max normalizes when the
-/// contract says so, and resizes back. An output smaller or larger than the input canvas is
+/// activation, maps `output_range` to [0, 1], puts a BGR model's colour output back in RGB
+/// order, drops the padding, min-max normalizes when the contract says so, and resizes back. An output smaller or larger than the input canvas is
 /// scaled with it. `model` names the file in errors.
 pub fn decode_output(shape: &[i64], data: &[f32], c: &Contract, g: &Geometry, channels: usize, model: &Path) -> Result<Image> {
     let dims: Vec<usize> = shape.iter().map(|&d| d.max(0) as usize).collect();
@@ -191,17 +191,20 @@ pub fn decode_output(shape: &[i64], data: &[f32], c: &Contract, g: &Geometry, ch
     let ch = ((g.h as f64 * sy).round() as usize).clamp(1, oh - y0);
     let [lo, hi] = c.output_range;
     let span = hi - lo;
+    // A colour output is in the model's channel order (BGR models answer in BGR).
+    let slot: Vec<usize> = if channels == 3 && c.color == ColorOrder::Bgr { vec![2, 1, 0] } else { (0..channels).collect() };
     let mut content = Image::new(cw, ch, channels);
     for y in 0..ch {
         for x in 0..cw {
-            for k in 0..channels {
+            for (k, &dst) in slot.iter().enumerate() {
                 let (yy, xx) = (y0 + y, x0 + x);
                 let idx = if nchw { (k * oh + yy) * ow + xx } else { (yy * ow + xx) * oc + k };
-                let mut v = data[idx];
-                if c.activation == Activation::Sigmoid {
-                    v = sigmoid(v);
-                }
-                content.data[(y * cw + x) * channels + k] = (v - lo) / span;
+                let v = match c.activation {
+                    Activation::None => data[idx],
+                    Activation::Sigmoid => sigmoid(data[idx]),
+                    Activation::Exp => data[idx].exp(),
+                };
+                content.data[(y * cw + x) * channels + dst] = (v - lo) / span;
             }
         }
     }

@@ -19,6 +19,9 @@
 //!   else from the lights' own fits): a single clipped light cannot tell it.
 //! - [`HighlightMode::Boost`]: the look control of Photoshop's and Lightroom's lens blur: pixels
 //!   above the threshold are brightened up to `gain` times, with a smooth ramp (no step).
+//! - [`HighlightMode::Onnx`]: an inverse-tone-mapping model (`[highlights.onnx]`) predicts the
+//!   photo's linear light; scaled to the photo's mid-tones, it replaces clipped samples where
+//!   it is brighter ([`super::highlights_onnx`]).
 //! - [`HighlightMode::Off`], and `auto` on linear photos (EXR, float TIFF/NPY: nothing was
 //!   clipped) leave the photo bit-identical.
 //!
@@ -43,6 +46,9 @@ pub enum HighlightMode {
     Off,
     /// Brightness above the threshold raised smoothly up to `gain` times, any photo.
     Boost,
+    /// Integer photos: the `[highlights.onnx]` inverse-tone-mapping model's light in the
+    /// clipped samples. Linear photos pass untouched.
+    Onnx,
 }
 
 /// `[highlights]`: how clipped highlights are treated before layering.
@@ -57,11 +63,14 @@ pub struct HighlightsOptions {
     pub threshold: f32,
     /// `boost`: the factor applied to the brightest pixels (stored value 1), in [1, 100].
     pub gain: f32,
+    /// `[highlights.onnx]`: the inverse-tone-mapping model of `mode = "onnx"`.
+    #[serde(skip_serializing_if = "crate::onnx::ModelSpec::is_default")]
+    pub onnx: crate::onnx::ModelSpec,
 }
 
 impl Default for HighlightsOptions {
     fn default() -> Self {
-        HighlightsOptions { mode: HighlightMode::Auto, threshold: 0.98, gain: 4.0 }
+        HighlightsOptions { mode: HighlightMode::Auto, threshold: 0.98, gain: 4.0, onnx: Default::default() }
     }
 }
 
@@ -74,7 +83,7 @@ impl HighlightsOptions {
         if !(self.gain.is_finite() && (1.0..=100.0).contains(&self.gain)) {
             return Err(Error::usage(format!("{key}.gain must be in [1, 100], got {}", self.gain)));
         }
-        Ok(())
+        self.onnx.validate(&format!("{key}.onnx"), crate::onnx::ModelKind::Highlights)
     }
 }
 
@@ -146,6 +155,13 @@ pub struct HighlightsReport {
     pub light_added_fraction: f64,
     /// The brightest recovered lights (at most 100), brightest first.
     pub brightest: Vec<Light>,
+    /// `onnx`: the factor that brought the model's output to the photo's linear light (the
+    /// median over well-exposed pixels of photo / model luminance).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model_scale: Option<f32>,
+    /// `onnx`: what the model run did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model: Option<crate::onnx::OnnxReport>,
 }
 
 /// What [`recover`] did.
@@ -159,22 +175,30 @@ pub enum Recovered {
     Unchanged(&'static str),
 }
 
-/// Runs the stage on `rgb` (linear RGB, 3 channels) stored with `encoding`. Allocates a copy of
-/// the photo and a byte per pixel when it changes it; `auto` costs O(pixels) plus, per blob,
-/// O(its surroundings × geometries tried), blobs in parallel.
-pub fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions) -> Recovered {
+/// Runs the stage on `rgb` (linear RGB, 3 channels) stored with `encoding`; `onnx` is where a
+/// `mode = "onnx"` model's runtime comes from. Allocates a copy of the photo and a byte per
+/// pixel when it changes it; `auto` costs O(pixels) plus, per blob, O(its surroundings ×
+/// geometries tried), blobs in parallel. Errors only from the model (`onnx`): its file, its
+/// contract, its output.
+pub fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions, onnx: &crate::onnx::OnnxConfig) -> Result<Recovered> {
     let clip = encoding.transfer().decode(opts.threshold);
-    match (opts.mode, encoding) {
+    const NOTHING_CLIPPED: &str = "no sample at or above highlights.threshold";
+    Ok(match (opts.mode, encoding) {
         (HighlightMode::Off, _) => Recovered::Unchanged("highlights.mode = \"off\""),
-        (HighlightMode::Auto, PhotoEncoding::Linear) => Recovered::Unchanged("the photo is linear: nothing was clipped"),
+        (HighlightMode::Auto | HighlightMode::Onnx, PhotoEncoding::Linear) => {
+            Recovered::Unchanged("the photo is linear: nothing was clipped")
+        }
         (HighlightMode::Boost, _) => {
             let (img, report) = boost(rgb, encoding.transfer(), opts);
             Recovered::Changed(img, report)
         }
         (HighlightMode::Auto, PhotoEncoding::Integer { .. }) => {
-            recover_lights(rgb, clip, opts).unwrap_or(Recovered::Unchanged("no sample at or above highlights.threshold"))
+            recover_lights(rgb, clip, opts).unwrap_or(Recovered::Unchanged(NOTHING_CLIPPED))
         }
-    }
+        (HighlightMode::Onnx, PhotoEncoding::Integer { .. }) => {
+            super::highlights_onnx::recover_with_model(rgb, clip, opts, onnx)?.unwrap_or(Recovered::Unchanged(NOTHING_CLIPPED))
+        }
+    })
 }
 
 /// `boost`: each pixel scaled by `1 + (gain - 1)·s`, `s` the smoothstep of where its largest
@@ -213,12 +237,14 @@ fn boost(rgb: &Image, transfer: Transfer, opts: &HighlightsOptions) -> (Image, H
         light_added: added,
         light_added_fraction: added / total_light(rgb),
         brightest: Vec::new(),
+        model_scale: None,
+        model: None,
     };
     (out, report)
 }
 
 /// Sum of all samples (linear), at least a tiny positive value.
-fn total_light(rgb: &Image) -> f64 {
+pub(super) fn total_light(rgb: &Image) -> f64 {
     rgb.sum().max(1e-12)
 }
 
@@ -232,7 +258,7 @@ struct Blob {
 /// Per pixel: bit c set when channel c is at or above `clip`; and how many pixels have any bit
 /// set. One pass, blocks of pixels in parallel (a pixel-by-pixel parallel collect and a second
 /// pass to count were 40 ms of the stage's 250 at 12 MP).
-fn clipped_channels(rgb: &Image, clip: f32) -> (Vec<u8>, usize) {
+pub(super) fn clipped_channels(rgb: &Image, clip: f32) -> (Vec<u8>, usize) {
     const PIXELS: usize = 1 << 14;
     let mut mask = vec![0u8; rgb.width * rgb.height];
     let count = mask
@@ -376,6 +402,8 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<Re
         // The photo's total only when it is divided: a 12 MP sum is ~25 ms.
         light_added_fraction: if light_added > 0.0 { light_added / total_light(rgb) } else { 0.0 },
         brightest: lights,
+        model_scale: None,
+        model: None,
     };
     Some(match out {
         Some(img) => Recovered::Changed(img, report),

@@ -20,6 +20,7 @@ pub mod fill_depth;
 pub mod foreground;
 pub mod highlight_completion;
 pub mod highlights;
+pub mod highlights_onnx;
 pub mod inpaint;
 pub mod inpaint_onnx;
 pub mod light_recovery;

@@ -1,5 +1,10 @@
 use super::*;
 
+/// The stage without a model (every mode but `onnx`).
+fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions) -> Recovered {
+    super::recover(rgb, encoding, opts, &crate::onnx::OnnxConfig::default()).expect("no model, no error")
+}
+
 /// The table against a direct 2D quadrature of the Gaussian over the disc.
 #[test]
 fn footprint_matches_quadrature() {
@@ -273,7 +278,7 @@ fn large_clipped_areas_and_extremes() {
 /// nothing below the threshold changes, `gain` reached at white.
 #[test]
 fn boost_is_a_smooth_ramp() {
-    let opts = HighlightsOptions { mode: HighlightMode::Boost, threshold: 0.8, gain: 3.0 };
+    let opts = HighlightsOptions { mode: HighlightMode::Boost, threshold: 0.8, gain: 3.0, ..Default::default() };
     let n = 1001;
     let img = Image::from_vec(n, 1, 3, (0..n).flat_map(|i| [Transfer::Srgb.decode(i as f32 / (n - 1) as f32); 3]).collect()).unwrap();
     let Recovered::Changed(out, _) = recover(&img, SRGB8, &opts) else { panic!("boost did nothing") };
