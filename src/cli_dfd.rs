@@ -64,11 +64,14 @@ impl From<DfdKernelArg> for DfdKernel {
 pub struct DfdArgs {
     /// The all-in-focus photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR/NPY (linear).
     aif: PathBuf,
-    /// The same view focused at --focus with blur --blur (same formats, same size).
-    bokeh: PathBuf,
-    /// Focal plane of BOKEH as normalized disparity (0 far … 1 near).
-    #[arg(long, allow_hyphen_values = true)]
-    focus: f32,
+    /// The same view focused at --focus with blur --blur (same formats, same size). More than
+    /// one: a focal stack, each photo focused at its own --focus value (in the same order).
+    #[arg(required = true, num_args = 1..)]
+    bokeh: Vec<PathBuf>,
+    /// Focal plane of each BOKEH photo as normalized disparity (0 far … 1 near): one value per
+    /// photo (`--focus 0.5 1` or `--focus 0.5,1`).
+    #[arg(long, required = true, num_args = 1.., value_delimiter = ',', allow_negative_numbers = true)]
+    focus: Vec<f32>,
     /// Blur strength K of BOKEH: CoC radius in pixels per unit of normalized disparity.
     #[arg(long, value_name = "K", allow_hyphen_values = true)]
     blur: f32,
@@ -146,16 +149,27 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
         kernel: args.kernel.into(),
         ..DfdOptions::default()
     };
+    if args.focus.len() != args.bokeh.len() {
+        return Err(Error::usage(format!(
+            "{} defocused photo(s) but {} --focus value(s): give one focal plane per photo, in the same order",
+            args.bokeh.len(),
+            args.focus.len()
+        ))
+        .into());
+    }
+    let mut shots = args.bokeh.into_iter().zip(args.focus);
+    let (bokeh, focus) = shots.next().expect("clap requires one photo");
     let job = DfdJob {
         aif: args.aif,
-        bokeh: args.bokeh,
+        bokeh,
+        stack: shots.collect(),
         output: args.output,
         log: args.log,
         plot: args.plot,
         confidence: args.confidence,
         settings: RenderSettings {
             blur: args.blur,
-            focus: args.focus,
+            focus,
             lens: 1,
             occlusion: !args.no_occlusion,
             profile: args.profile.into(),

@@ -1,11 +1,11 @@
-//! `drbokeh dfd` as a library call: reads the two photos, runs [`dfd::estimate`], writes the
+//! `drbokeh dfd` as a library call: reads the photos, runs [`dfd::estimate_stack`], writes the
 //! disparity map (NPY or EXR, float32, atomically), the per-step loss log (CSV) and the loss
 //! plot (PNG), and returns a report. No file is written over an input
 //! ([`io::InputFiles`]), and nothing is written before the inputs are read and checked.
 //!
 //! Cost: the optimisation's (see [`dfd`]); the log and plot are O(steps).
 
-use super::dfd::{self, DfdOptions, Event, Step, level_size};
+use super::dfd::{self, DfdOptions, Event, Shot, Step, level_size};
 use crate::color::Transfer;
 use crate::error::{Error, Result};
 use crate::io::{self, OutputFormat, ReadLimits};
@@ -28,6 +28,9 @@ pub struct DfdJob {
     pub aif: PathBuf,
     /// The photo of the same view focused at `settings.focus` with blur `settings.blur`.
     pub bokeh: PathBuf,
+    /// More photos of the focal stack, each with the normalized disparity it is focused at
+    /// (same view, size and blur); empty for one photo.
+    pub stack: Vec<(PathBuf, f32)>,
     /// The disparity map to write: `.npy` (H x W float32) or `.exr` (channel Y).
     pub output: PathBuf,
     /// The loss log to write (CSV, [`LOG_HEADER`]), if any.
@@ -64,6 +67,9 @@ pub struct DfdReport {
     pub aif: PathBuf,
     /// The defocused photo read.
     pub bokeh: PathBuf,
+    /// The focal stack's other photos and their foci as used (clamped to [0, 1]).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub stack: Vec<(PathBuf, f32)>,
     /// The disparity map written.
     pub output: PathBuf,
     /// The loss log written, if any.
@@ -120,20 +126,27 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     let t0 = Instant::now();
     check_destinations(job)?;
     let aif = io::read_photo(&job.aif, Transfer::Srgb, &job.limits)?;
-    let bokeh = io::read_photo(&job.bokeh, Transfer::Srgb, &job.limits)?;
-    if (aif.width, aif.height) != (bokeh.width, bokeh.height) {
-        return Err(Error::usage(format!(
-            "the all-in-focus photo {} is {}x{} but the defocused photo {} is {}x{}: they must be the same size",
-            job.aif.display(),
-            aif.width,
-            aif.height,
-            job.bokeh.display(),
-            bokeh.width,
-            bokeh.height
-        )));
+    let shots: Vec<(&PathBuf, f32)> =
+        std::iter::once((&job.bokeh, job.settings.focus)).chain(job.stack.iter().map(|(p, f)| (p, *f))).collect();
+    let mut photos = Vec::with_capacity(shots.len());
+    for (path, _) in &shots {
+        let photo = io::read_photo(path, Transfer::Srgb, &job.limits)?;
+        if (aif.width, aif.height) != (photo.width, photo.height) {
+            return Err(Error::usage(format!(
+                "the all-in-focus photo {} is {}x{} but the defocused photo {} is {}x{}: they must be the same size",
+                job.aif.display(),
+                aif.width,
+                aif.height,
+                path.display(),
+                photo.width,
+                photo.height
+            )));
+        }
+        photos.push(photo);
     }
+    let stack: Vec<Shot> = photos.iter().zip(&shots).map(|(photo, &(_, focus))| Shot { photo, focus }).collect();
     let mut steps = Vec::new();
-    let est = dfd::estimate_with(&aif, &bokeh, &job.settings, &job.options, |e| {
+    let est = dfd::estimate_stack(&aif, &stack, &job.settings, &job.options, |e| {
         if let Event::Step(s) = e {
             steps.push(s);
         }
@@ -156,7 +169,12 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     }
     let confidence = match &job.confidence {
         Some(path) => {
-            let c = crate::diff::dfd_confidence::confidence(&aif, disparity, &job.settings);
+            // A stack's map is as trustworthy as its best-placed photo makes it.
+            let mut c = crate::diff::dfd_confidence::confidence(&aif, disparity, &job.settings);
+            for (_, focus) in &job.stack {
+                let other = crate::diff::dfd_confidence::confidence(&aif, disparity, &RenderSettings { focus: *focus, ..job.settings });
+                c.data.iter_mut().zip(&other.data).for_each(|(a, b)| *a = a.max(*b));
+            }
             io::write_output(path, &c, 16, Transfer::Linear)?;
             Some((path.clone(), (c.sum() / c.data.len().max(1) as f64) as f32))
         }
@@ -166,6 +184,7 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     Ok(DfdReport {
         aif: job.aif.clone(),
         bokeh: job.bokeh.clone(),
+        stack: job.stack.iter().map(|(p, f)| (p.clone(), crate::render::focus_in_range("render.focus", *f).0)).collect(),
         output: job.output.clone(),
         log: job.log.clone(),
         plot: job.plot.clone(),
@@ -212,7 +231,7 @@ fn check_destinations(job: &DfdJob) -> Result<()> {
     .collect();
     // As files, not spellings: `o/al.npy` and `./o/al.npy` are one destination.
     io::check_distinct(&dests)?;
-    let inputs = io::InputFiles::new([&job.aif, &job.bokeh]);
+    let inputs = io::InputFiles::new([&job.aif, &job.bokeh].into_iter().chain(job.stack.iter().map(|(p, _)| p)));
     dests.iter().try_for_each(|(p, what)| inputs.check_write(p, what))
 }
 
