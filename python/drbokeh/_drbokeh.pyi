@@ -103,8 +103,8 @@ def render_layers_vjp(
 
 def dfd(
     aif: Photo,
-    bokeh: Photo,
-    focus: float,
+    bokeh: Union[Photo, Sequence[Photo]],
+    focus: Union[float, Sequence[float]],
     blur: float,
     *,
     iters: Optional[int] = None,
@@ -118,7 +118,9 @@ def dfd(
     threads: Optional[int] = None,
 ) -> npt.NDArray[np.float32]:
     """Depth from defocus, as ``drbokeh dfd``: the H x W disparity map in [0, 1] that turns the
-    all-in-focus photo into ``bokeh`` (focused at ``focus`` with blur ``blur``).
+    all-in-focus photo into ``bokeh`` (focused at ``focus`` with blur ``blur``). A list of
+    photos with a list of foci (one per photo) is a focal stack, as ``drbokeh dfd AIF B1 B2
+    --focus F1 F2``: two focal planes tell near from far.
     loss: "l1-grad", "l1-grad-ssim" or "l1-grad-hssim" (default); kernel: "auto" (default),
     "fast", "exact" or "ray"; iters per level (default 100), levels (default 3)."""
 

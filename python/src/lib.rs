@@ -474,7 +474,7 @@ fn dfd<'py>(
     py: Python<'py>,
     aif: &Bound<'py, PyAny>,
     bokeh: &Bound<'py, PyAny>,
-    focus: f32,
+    focus: &Bound<'py, PyAny>,
     blur: f32,
     iters: Option<i64>,
     levels: Option<i64>,
@@ -488,7 +488,25 @@ fn dfd<'py>(
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
     use drbokeh::diff::dfd::{self as d, DfdOptions, LossVariant};
     let (aif, _) = photo_of(aif, None)?;
-    let (bokeh, _) = photo_of(bokeh, None)?;
+    // A list or tuple of photos is a focal stack, with a list of foci (one per photo).
+    let stack = bokeh.cast::<pyo3::types::PyList>().is_ok() || bokeh.cast::<pyo3::types::PyTuple>().is_ok();
+    let (photos, foci): (Vec<Image>, Vec<f32>) = if stack {
+        let photos = bokeh.try_iter()?.map(|p| photo_of(&p?, None).map(|(img, _)| img)).collect::<PyResult<Vec<_>>>()?;
+        let foci: Vec<f32> = focus
+            .extract()
+            .map_err(|_| PyTypeError::new_err("focus: a focal stack (bokeh a list of photos) takes a list of foci, one per photo"))?;
+        if foci.len() != photos.len() {
+            return Err(PyValueError::new_err(format!(
+                "{} defocused photo(s) but {} focus value(s): give one focal plane per photo, in the same order",
+                photos.len(),
+                foci.len()
+            )));
+        }
+        (photos, foci)
+    } else {
+        let f: f32 = focus.extract().map_err(|_| PyTypeError::new_err("focus: a number (a list only with a list of photos)"))?;
+        (vec![photo_of(bokeh, None)?.0], vec![f])
+    };
     let defaults = DfdOptions::default();
     let mut opts = DfdOptions {
         iters: d::check_iters("iters", iters.unwrap_or(defaults.iters as i64)).map_err(py_err)?,
@@ -507,8 +525,11 @@ fn dfd<'py>(
         Some(p) => parse_value("profile", p)?,
         None => drbokeh::render::Profile::default(),
     };
-    let s = RenderSettings { blur, focus, lens: 1, occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
-    let est = run(py, threads, move || d::estimate_with(&aif, &bokeh, &s, &opts, |_| {}))?;
+    let s = RenderSettings { blur, focus: foci[0], lens: 1, occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
+    let est = run(py, threads, move || {
+        let shots: Vec<d::Shot> = photos.iter().zip(&foci).map(|(photo, &focus)| d::Shot { photo, focus }).collect();
+        d::estimate_stack(&aif, &shots, &s, &opts, |_| {})
+    })?;
     warn_all(py, &est.warnings)?;
     let (h, w) = (est.disparity.height, est.disparity.width);
     let arr = numpy::ndarray::Array2::from_shape_vec((h, w), est.disparity.data).expect("a map's length is its shape");

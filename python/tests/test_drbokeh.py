@@ -10,10 +10,12 @@ import pathlib
 import subprocess
 import threading
 import time
+import warnings
 
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
 
 import cv2  # noqa: E402
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
@@ -156,6 +158,30 @@ def test_dfd_equals_the_command_line(tmp_path):
         drbokeh.dfd(aif, bokeh, 0.2, 5.0, iters=0)
     with pytest.raises(ValueError, match="loss"):
         drbokeh.dfd(aif, bokeh, 0.2, 5.0, loss="l2")
+
+
+def test_dfd_focal_stack_equals_the_command_line(tmp_path):
+    """A list of photos with a list of foci is a focal stack, as `drbokeh dfd AIF B1 B2
+    --focus F1 F2`: the same map; no near/far warning (two focal planes tell the sides)."""
+    h, w = 24, 32
+    rng = np.random.default_rng(21)
+    aif = rng.uniform(0.05, 1.0, (h, w, 3)).astype(np.float32)
+    d = np.where(np.arange(w)[None, :] < w // 2, 0.2, 0.8) * np.ones((h, 1))
+    layer = np.concatenate([aif, np.ones((h, w, 1)), d[..., None]], axis=2).astype(np.float32)
+    mid, near = drbokeh.render_layers([layer], 0.5, 6.0), drbokeh.render_layers([layer], 1.0, 6.0)
+    for name, img in (("aif", aif), ("mid", mid), ("near", near)):
+        np.save(tmp_path / f"{name}.npy", img)
+    args = ("--blur", "6", "--iters", "15", "--levels", "2", "-o", "d.npy")
+    cli("dfd", "aif.npy", "mid.npy", "near.npy", "--focus", "0.5", "1", *args, cwd=tmp_path)
+    want = np.load(tmp_path / "d.npy")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = drbokeh.dfd(aif, [mid, near], [0.5, 1.0], 6.0, iters=15, levels=2)
+    assert np.abs(got - want).max() <= 1e-6
+    with pytest.raises(ValueError, match="2 defocused photo"):
+        drbokeh.dfd(aif, [mid, near], [0.5], 6.0, iters=1)
+    with pytest.raises(TypeError, match="list of foci"):
+        drbokeh.dfd(aif, (mid, near), 0.5, 6.0, iters=1)
 
 
 def test_library_warnings_are_python_warnings():
