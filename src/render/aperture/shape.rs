@@ -187,9 +187,31 @@ impl Aperture {
                 }
                 Kind::polygon(blades(*n, *rotation as f64, *curvature as f64))
             }
-            ShapeSpec::Image { path } => Kind::Mask(Mask::read(Path::new(path))?),
+            ShapeSpec::Image { path } => return Aperture::from_image_file(spec, path, anamorphic, bubble),
         };
         Ok(Aperture::from_kind(spec.clone(), anamorphic, bubble, kind))
+    }
+
+    /// An image aperture, read once per file version: the viewer and the bench resolve the
+    /// configuration for every render, and a 1024² mask's decode, summed-area tables and
+    /// interning comparison cost milliseconds each time. Keyed by the path as given, the
+    /// file's length and modification time (an edited file is read again), and the squeeze
+    /// and bubble.
+    fn from_image_file(spec: &ShapeSpec, path: &str, anamorphic: f32, bubble: f32) -> Result<Aperture> {
+        type Key = (String, u64, Option<std::time::SystemTime>, u32, u32);
+        static READ: Mutex<Vec<(Key, Aperture)>> = Mutex::new(Vec::new());
+        let meta = std::fs::metadata(path).ok();
+        let key: Option<Key> = meta.map(|m| (path.to_string(), m.len(), m.modified().ok(), anamorphic.to_bits(), bubble.to_bits()));
+        if let Some(k) = &key
+            && let Some((_, a)) = READ.lock().unwrap_or_else(|e| e.into_inner()).iter().find(|(old, _)| old == k)
+        {
+            return Ok(*a);
+        }
+        let a = Aperture::from_kind(spec.clone(), anamorphic, bubble, Kind::Mask(Mask::read(Path::new(path))?));
+        if let Some(k) = key {
+            READ.lock().unwrap_or_else(|e| e.into_inner()).push((k, a));
+        }
+        Ok(a)
     }
 
     /// An image aperture from grey values (row-major, top row first, bright = open), for the
@@ -844,6 +866,31 @@ mod tests {
         assert_eq!(a, b);
         assert_ne!(a, c);
         assert_ne!(a, Aperture::DISC);
+    }
+
+    /// An image file is read once per version: asking again gives the same handle; another
+    /// squeeze or another version of the file gives another shape; a removed file is an error
+    /// naming it (the cache is keyed by the live file's metadata).
+    #[test]
+    fn image_files_are_read_once_per_version() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("mask.png");
+        let disc = |n: usize, r: f32| {
+            let c = (n as f32 - 1.0) / 2.0;
+            let v = (0..n * n).map(|i| if ((i % n) as f32 - c).hypot((i / n) as f32 - c) <= r { 1.0 } else { 0.0 }).collect();
+            crate::image::Image::from_vec(n, n, 1, v).unwrap()
+        };
+        crate::io::write_png(&path, &disc(16, 7.0), 8, crate::color::Transfer::Linear).unwrap();
+        let spec = ShapeSpec::parse(&format!("image:{}", path.display()), "a").unwrap();
+        let a = Aperture::new(&spec, 1.0, "a").unwrap();
+        assert_eq!(Aperture::new(&spec, 1.0, "a").unwrap(), a);
+        assert_ne!(Aperture::new(&spec, 1.5, "a").unwrap(), a);
+        crate::io::write_png(&path, &disc(20, 5.0), 8, crate::color::Transfer::Linear).unwrap();
+        let b = Aperture::new(&spec, 1.0, "a").unwrap();
+        assert_ne!(a, b, "a rewritten mask must be read again");
+        std::fs::remove_file(&path).unwrap();
+        let e = Aperture::new(&spec, 1.0, "a").unwrap_err().to_string();
+        assert!(e.contains("mask.png"), "{e}");
     }
 
     #[test]
