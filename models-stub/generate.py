@@ -189,6 +189,9 @@ def main():
     # Depth presets (relative disparity, rank-3 output).
     conv_stub(p("midas_small.onnx"), "image", "depth", 256, 256, sigmoid=False, squeeze=True)
     conv_stub(p("depth_anything_v2.onnx"), "image", "depth", "height", "width", sigmoid=False, squeeze=True)
+    # fabio-sim/Depth-Anything-ONNX's default export (`dynamo.py export`, opset 18): a fixed
+    # 1x3x518x518 input whose name the exporter picks, output 1x518x518 (docs/guide.md).
+    conv_stub(p("depth_anything_v2_vits_18.onnx"), "x", "depth", 518, 518, sigmoid=False, squeeze=True)
     # Inpainting presets.
     inpaint_stub(p("lama.onnx"), 512, 512, 255.0)
     inpaint_stub(p("lama_dynamic.onnx"), "height", "width", 1.0)

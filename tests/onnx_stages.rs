@@ -189,6 +189,18 @@ fn depth_presets_match_their_function() {
         assert!(disp.z_range.is_none());
         eprintln!("{preset:>17}: max error {d:.2e}, model input {:?}", report.model_size);
     }
+    // The export guide.md documents (fabio-sim/Depth-Anything-ONNX, fixed 518x518): the preset
+    // alone names the size to set; with `size = [518, 518]` the map is the stub's function.
+    let export = "depth_anything_v2_vits_18.onnx";
+    let e =
+        depth_onnx::estimate_disparity(&rgb, &spec(export, "depth-anything-v2"), &cfg()).err().expect("a fixed-size export").to_string();
+    assert!(e.contains(export) && e.contains("size = [518, 518]"), "{e}");
+    let sized = ModelSpec { size: Some([518, 518]), ..spec(export, "depth-anything-v2") };
+    let (disp, report) = depth_onnx::estimate_disparity(&rgb, &sized, &cfg()).unwrap();
+    let c = contract::resolve(&sized, ModelKind::Depth, &cfg()).unwrap().1;
+    let mut want = expected_conv(&rgb, &c, &prep::plan(c.size, c.resize, 48, 36), false);
+    minmax(&mut want.data);
+    assert!(max_diff(&disp.map, &want) <= TOL && report.model_size == [518, 518], "{:?}", report.model_size);
 }
 
 fn disk_alpha(w: usize, h: usize, cx: f32, cy: f32, r: f32) -> Image {
