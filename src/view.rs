@@ -87,6 +87,8 @@ struct Ask {
     /// `--aperture` and `--anamorphic`, as given (checked when the pipeline is built).
     aperture: Option<String>,
     anamorphic: Option<f32>,
+    /// `--bubble`, as given (checked when the pipeline is built).
+    bubble: Option<f32>,
 }
 
 impl Viewer {
@@ -139,6 +141,7 @@ impl Viewer {
                 "blur_max": self.blur * BLUR_RANGE, "output": self.output.display().to_string(),
                 "profile": self.config.render.profile, "quality": self.config.render.quality,
                 "aperture": self.config.aperture.shape, "anamorphic": self.config.aperture.anamorphic,
+                "bubble": self.config.aperture.bubble,
             }),
         )
     }
@@ -148,7 +151,7 @@ impl Viewer {
         let (w, h) = self.size();
         let mut focus = None;
         let (mut blur, mut width, mut profile, mut quality) = (None, None, None, None);
-        let (mut aperture, mut anamorphic) = (None, None);
+        let (mut aperture, mut anamorphic, mut bubble) = (None, None, None);
         for (k, v) in params {
             let dup = || Error::usage(format!("{k} is given twice"));
             let number = |what: &str| -> Result<f64> {
@@ -196,11 +199,12 @@ impl Viewer {
                     aperture = Some(v.clone());
                 }
                 "anamorphic" => anamorphic = Some(number("an aspect ratio in [0.1, 10]")? as f32),
+                "bubble" => bubble = Some(number("a rim brightness in [-1, 1]")? as f32),
                 _ => return Err(Error::usage(format!("unknown parameter {k:?}"))),
             }
         }
         let focus = focus.ok_or_else(|| Error::usage("give focus (normalized disparity) or focus_at (X,Y)"))?;
-        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic })
+        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic, bubble })
     }
 
     /// The pipeline of one request: the configuration with its profile and quality.
@@ -216,6 +220,7 @@ impl Viewer {
             cfg.aperture.shape = s.clone();
         }
         cfg.aperture.anamorphic = a.anamorphic.unwrap_or(cfg.aperture.anamorphic);
+        cfg.aperture.bubble = a.bubble.unwrap_or(cfg.aperture.bubble);
         Pipeline::from_config(cfg)
     }
 
@@ -335,6 +340,9 @@ impl Viewer {
         }
         if let Some(x) = a.anamorphic.filter(|&x| x != 1.0) {
             cmd.extend(["--anamorphic".into(), x.to_string()]);
+        }
+        if let Some(b) = a.bubble.filter(|&b| b != 0.0) {
+            cmd.extend(["--bubble".into(), b.to_string()]);
         }
         cmd.extend(["-o".into(), self.output.display().to_string()]);
         let line = cmd.iter().map(|s| shell_quote(s)).collect::<Vec<_>>().join(" ");

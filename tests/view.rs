@@ -114,6 +114,7 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
             "focus=0.2&blur=8&aperture=blades:5,rotation=90&anamorphic=1.3",
             vec!["--focus", "0.2", "--blur", "8", "--aperture", "blades:5,rotation=90", "--anamorphic", "1.3"],
         ),
+        ("focus=0.1&blur=9&bubble=0.6", vec!["--focus", "0.1", "--blur", "9", "--bubble", "0.6"]),
     ] {
         let (status, png) = server.request("GET", &format!("/render?{query}"));
         assert_eq!(status, 200, "{query}: {}", String::from_utf8_lossy(&png));
@@ -135,6 +136,8 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
         ("/render?focus=0.5&blur=3&bogus=1", "bogus"),
         ("/render?blur=3", "focus"),
         ("/render?focus=0.5&aperture=blades:2", "aperture"),
+        ("/render?focus=0.5&bubble=2", "bubble"),
+        ("/render?focus=0.5&bubble=x", "bubble"),
         ("/render?focus=0.5&focus_at=1,1", "focus_at"),
         ("/render?focus_at=64,1", "outside"),
         ("/render?focus_at=a,b", "focus_at"),
@@ -187,6 +190,11 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
         "{cmd}"
     );
     assert!(std::fs::read(d.join("saved.png")).unwrap() == render_layers(d, &["--focus-at", "24,22", "--blur", "6"]));
+    // The look controls reach the command line (here the bubble), and it renders the same.
+    let (status, j) = server.json("POST", "/save?focus=0.1&blur=9&bubble=0.6");
+    assert_eq!(status, 200, "{j}");
+    assert!(j["command"].as_str().unwrap().contains("--focus 0.1 --blur 9 --bubble 0.6 -o saved.png"), "{j}");
+    assert!(std::fs::read(d.join("saved.png")).unwrap() == render_layers(d, &["--focus", "0.1", "--blur", "9", "--bubble", "0.6"]));
 }
 
 #[test]
