@@ -249,6 +249,10 @@ pub enum Event<'a> {
 pub struct Estimate {
     /// The disparity: one channel, the photos' size, in [0, 1].
     pub disparity: Image,
+    /// The map at the size it was optimised at (the plan's finest level), before the guided
+    /// upsampling that gives `disparity` ([`super::dfd_upsample`]); `disparity` itself at full
+    /// size.
+    pub optimised: Image,
     /// How the run went ([`plan`]).
     pub plan: DfdPlan,
     /// The losses of the first step at the finest level (of the map that level started from).
@@ -369,9 +373,12 @@ pub fn estimate_stack(aif: &Image, shots: &[Shot], s: &RenderSettings, opts: &Df
             }
         }
     }
-    let disparity = if (d.width, d.height) == (w, h) { d } else { d.resized(w, h) };
+    // A reduced plan's map follows the photo's edges to full size (a plain resize smears
+    // each depth edge over a level pixel).
+    let disparity = super::dfd_upsample::upsample_guided(&d, aif);
+    let optimised = d;
     let (first, last) = first.zip(last).ok_or_else(|| Error::Internal("dfd: no step was run at the finest level".into()))?;
-    Ok(Estimate { disparity, plan, first, last, warnings })
+    Ok(Estimate { disparity, optimised, plan, first, last, warnings })
 }
 
 /// The checks of [`estimate_with`] (see there).
