@@ -192,8 +192,10 @@ fn depth_presets_match_their_function() {
     // The export guide.md documents (fabio-sim/Depth-Anything-ONNX, fixed 518x518): the preset
     // alone names the size to set; with `size = [518, 518]` the map is the stub's function.
     let export = "depth_anything_v2_vits_18.onnx";
-    let e =
-        depth_onnx::estimate_disparity(&rgb, &spec(export, "depth-anything-v2"), &cfg()).err().expect("a fixed-size export").to_string();
+    let e = match depth_onnx::estimate_disparity(&rgb, &spec(export, "depth-anything-v2"), &cfg()) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a fixed-size export without `size` must be refused"),
+    };
     assert!(e.contains(export) && e.contains("size = [518, 518]"), "{e}");
     let sized = ModelSpec { size: Some([518, 518]), ..spec(export, "depth-anything-v2") };
     let (disp, report) = depth_onnx::estimate_disparity(&rgb, &sized, &cfg()).unwrap();
