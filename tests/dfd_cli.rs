@@ -78,6 +78,17 @@ fn dfd(dir: &Path, extra: &[&str]) -> std::process::Command {
     c
 }
 
+/// `drbokeh dfd ARGS` in `dir` must be a usage error naming every needle and leave the folder
+/// as it was (`common::assert_usage_error`); `what` names the case.
+fn bad_dfd(dir: &Path, what: &str, needles: &[&str], args: &[&str]) {
+    let err = assert_usage_error(dir, what, needles, || {
+        let mut c = drbokeh(dir);
+        c.arg("dfd").args(args);
+        run(c)
+    });
+    eprintln!("{what}: {}", err.trim());
+}
+
 fn mean_abs_error(d: &Image) -> f64 {
     d.data.iter().zip(&truth().data).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / (W * H) as f64
 }
@@ -147,14 +158,7 @@ fn usage_errors() {
     let dir = tmp.path();
     write_scene(dir);
     io::write_output(&dir.join("small.exr"), &Image::filled(16, 8, 3, 0.5), 8, Transfer::Linear).unwrap();
-    let bad = |what: &str, needles: &[&str], args: &[&str]| {
-        let err = assert_usage_error(dir, what, needles, || {
-            let mut c = drbokeh(dir);
-            c.arg("dfd").args(args);
-            run(c)
-        });
-        eprintln!("{what}: {}", err.trim());
-    };
+    let bad = |what: &str, needles: &[&str], args: &[&str]| bad_dfd(dir, what, needles, args);
     let base = ["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "2"];
     let with = |extra: &[&'static str]| base.iter().copied().chain(extra.iter().copied()).collect::<Vec<&str>>();
     bad(
@@ -470,14 +474,7 @@ fn a_focal_stack_through_the_binary() {
     assert!(c.data.iter().all(|v| (0.0..=1.0).contains(v)) && c.data.iter().any(|&v| v > 0.5));
 
     io::write_output(&dir.join("small.exr"), &Image::filled(16, 8, 3, 0.5), 8, Transfer::Linear).unwrap();
-    let bad = |what: &str, needles: &[&str], args: &[&str]| {
-        let err = assert_usage_error(dir, what, needles, || {
-            let mut c = drbokeh(dir);
-            c.arg("dfd").args(args);
-            run(c)
-        });
-        eprintln!("{what}: {}", err.trim());
-    };
+    let bad = |what: &str, needles: &[&str], args: &[&str]| bad_dfd(dir, what, needles, args);
     let photos = ["aif.png", "b_mid.exr", "b_near.exr"];
     let with = |extra: &[&'static str]| {
         photos.iter().copied().chain(["--blur", "8", "--iters", "1"]).chain(extra.iter().copied()).collect::<Vec<&str>>()

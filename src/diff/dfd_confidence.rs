@@ -27,6 +27,13 @@ pub const DEAD_BAND_PX: f32 = 0.25;
 /// The confidence map of `disparity` estimated from `aif` (linear RGB) for the render `s`
 /// (see the module doc).
 pub fn confidence(aif: &Image, disparity: &Image, s: &RenderSettings) -> Image {
+    confidence_of_stack(aif, disparity, s.blur, &[s.focus])
+}
+
+/// [`confidence`] for a focal stack of photos focused at `foci` with blur `blur`: a pixel is
+/// as visibly blurred as its best-placed photo shows it (the largest `visible` of the foci);
+/// the texture term is computed once.
+pub fn confidence_of_stack(aif: &Image, disparity: &Image, blur: f32, foci: &[f32]) -> Image {
     let (w, h) = (aif.width, aif.height);
     let y: Vec<f64> = (0..w * h)
         .into_par_iter()
@@ -49,7 +56,7 @@ pub fn confidence(aif: &Image, disparity: &Image, s: &RenderSettings) -> Image {
             s2[(yy + 1) * sw + xx + 1] = s2[yy * sw + xx + 1] + row2;
         }
     }
-    let r = ((s.blur / 4.0).round() as usize).clamp(2, 16);
+    let r = ((blur / 4.0).round() as usize).clamp(2, 16);
     let data: Vec<f32> = (0..w * h)
         .into_par_iter()
         .map(|i| {
@@ -60,9 +67,13 @@ pub fn confidence(aif: &Image, disparity: &Image, s: &RenderSettings) -> Image {
             let mean = sum(&s1) / n;
             let var = (sum(&s2) / n - mean * mean).max(0.0);
             let texture = 1.0 - (-var / (TEXTURE_SCALE * TEXTURE_SCALE)).exp();
-            let coc = coc_radius(disparity.data[i] - s.focus, s.blur);
-            let t = ((coc - DEAD_BAND_PX) / (1.0 - DEAD_BAND_PX)).clamp(0.0, 1.0);
-            let visible = t * t * (3.0 - 2.0 * t);
+            let visible = foci
+                .iter()
+                .map(|&f| {
+                    let t = ((coc_radius(disparity.data[i] - f, blur) - DEAD_BAND_PX) / (1.0 - DEAD_BAND_PX)).clamp(0.0, 1.0);
+                    t * t * (3.0 - 2.0 * t)
+                })
+                .fold(0.0f32, f32::max);
             (texture as f32 * visible).clamp(0.0, 1.0)
         })
         .collect();

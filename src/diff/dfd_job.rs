@@ -169,12 +169,8 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     }
     let confidence = match &job.confidence {
         Some(path) => {
-            // A stack's map is as trustworthy as its best-placed photo makes it.
-            let mut c = crate::diff::dfd_confidence::confidence(&aif, disparity, &job.settings);
-            for (_, focus) in &job.stack {
-                let other = crate::diff::dfd_confidence::confidence(&aif, disparity, &RenderSettings { focus: *focus, ..job.settings });
-                c.data.iter_mut().zip(&other.data).for_each(|(a, b)| *a = a.max(*b));
-            }
+            let foci: Vec<f32> = shots.iter().map(|&(_, f)| f).collect();
+            let c = crate::diff::dfd_confidence::confidence_of_stack(&aif, disparity, job.settings.blur, &foci);
             io::write_output(path, &c, 16, Transfer::Linear)?;
             Some((path.clone(), (c.sum() / c.data.len().max(1) as f64) as f32))
         }
