@@ -9,6 +9,7 @@ to docs/aperture-bench/seedS/SHAPE/ (report.md, report.csv).
 
     scripts/aperture_bench.py            # run the benches, then write the table
     scripts/aperture_bench.py --table    # rewrite the table from the stored reports
+    scripts/aperture_bench.py --only "--chromatic 0.05"   # run one shape's benches, then the table
 """
 import csv, os, subprocess, sys
 
@@ -22,6 +23,7 @@ SHAPES = [
     ("blades:7,curvature=0.5", ["--aperture", "blades:7,curvature=0.5"]),
     ("--anamorphic 1.5", ["--anamorphic", "1.5"]),
     ("image:star.png", ["--aperture", "image:" + os.path.relpath(STAR, ROOT)]),
+    ("--chromatic 0.05", ["--chromatic", "0.05"]),
 ]
 SEEDS = [1, 2]
 
@@ -60,11 +62,13 @@ def star():
         f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", n, n, 8, 0, 0, 0, 0)) + chunk(b"IDAT", zlib.compress(b"".join(rows))) + chunk(b"IEND", b""))
 
 
-def run():
+def run(only=None):
     subprocess.run(["cargo", "build", "--release", "--locked", "-q", "--bin", "drbokeh"], cwd=ROOT, check=True)
     star()
     for seed in SEEDS:
         for name, flags in SHAPES:
+            if only is not None and name != only:
+                continue
             out = os.path.join(OUT, f"seed{seed}", tag(name))
             cmd = [os.path.join(ROOT, "target", "release", "drbokeh"), "bench", "--methods", "sliced", "--scenes", "12", "--size", "128x128",
                    "--spp", "1024", "--repeats", "1", "--crops", "0", "--inputs", "linear", "--seed", str(seed), "--out", os.path.relpath(out, ROOT)] + flags
@@ -99,6 +103,8 @@ def table():
 
 
 if __name__ == "__main__":
-    if "--table" not in sys.argv:
+    if "--only" in sys.argv:
+        run(sys.argv[sys.argv.index("--only") + 1])
+    elif "--table" not in sys.argv:
         run()
     table()

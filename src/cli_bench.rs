@@ -139,7 +139,9 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
     };
     trace::validate(&planes, &s).map_err(as_flags)?;
     let (w, h) = (planes[0].width, planes[0].height);
-    let bar = ProgressBar::new(h as u64);
+    // A chromatic trace runs once per colour channel.
+    let passes = if s.aperture.channel_scales().is_some() { 3 } else { 1 };
+    let bar = ProgressBar::new(passes * h as u64);
     bar.set_style(ProgressStyle::with_template("tracing {bar:40} {pos}/{len} rows, {elapsed} (eta {eta})").expect("template"));
     let (img, half) = trace::trace_split(&planes, &s, Window::full(w, h), &|n| bar.inc(n as u64)).map_err(as_flags)?;
     bar.finish_and_clear();

@@ -111,18 +111,22 @@ pub struct ApertureConfig {
     /// Radial intensity profile in [-1, 1]: > 0 a bright rim ("soap bubble"), < 0 a bright
     /// centre, 0 uniform.
     pub bubble: f32,
+    /// Longitudinal chromatic aberration in [-0.5, 0.5]: red's circle of confusion scaled by
+    /// `1 + C`, blue's by `1 − C`; 0 = none.
+    pub chromatic: f32,
 }
 
 impl Default for ApertureConfig {
     fn default() -> Self {
-        ApertureConfig { shape: "disc".into(), anamorphic: 1.0, bubble: 0.0 }
+        ApertureConfig { shape: "disc".into(), anamorphic: 1.0, bubble: 0.0, chromatic: 0.0 }
     }
 }
 
 impl ApertureConfig {
-    /// The plain disc (the default).
+    /// The plain disc shape (the default; chromatic aberration aside, which any profile
+    /// renders).
     pub fn is_disc(&self) -> bool {
-        *self == ApertureConfig::default()
+        ApertureConfig { chromatic: 0.0, ..self.clone() } == ApertureConfig::default()
     }
 
     /// The aperture it names; reads an image aperture's file.
@@ -132,7 +136,8 @@ impl ApertureConfig {
             self.anamorphic,
             self.bubble,
             "aperture.shape",
-        )
+        )?
+        .with_chromatic(self.chromatic)
     }
 }
 
@@ -256,6 +261,7 @@ impl Config {
         if !(b.is_finite() && render::aperture::shape::BUBBLE.contains(&b)) {
             return Err(Error::usage(format!("aperture.bubble must be in [-1, 1] (0 = uniform, > 0 a bright rim), got {b}")));
         }
+        render::Aperture::DISC.with_chromatic(self.aperture.chromatic)?;
         if !self.aperture.is_disc() && self.render.profile == render::Profile::Official {
             return Err(Error::usage(format!(
                 "aperture.shape {}: render.profile official renders the disc only; use the physical profile",

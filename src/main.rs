@@ -312,6 +312,11 @@ pub(crate) struct ApertureArgs {
     /// "soap bubble"), < 0 a bright centre [default: 0, uniform].
     #[arg(long, value_name = "B", allow_negative_numbers = true)]
     bubble: Option<f32>,
+    /// Longitudinal chromatic aberration in [-0.5, 0.5]: red's circle of confusion scaled by
+    /// 1 + C and blue's by 1 - C, so out-of-focus edges and lights get coloured fringes (red
+    /// outside, blue inside for C > 0). Renders three passes [default: 0, none].
+    #[arg(long, value_name = "C", allow_negative_numbers = true)]
+    chromatic: Option<f32>,
 }
 
 impl ApertureArgs {
@@ -322,6 +327,7 @@ impl ApertureArgs {
         }
         cfg.anamorphic = self.anamorphic.unwrap_or(cfg.anamorphic);
         cfg.bubble = self.bubble.unwrap_or(cfg.bubble);
+        cfg.chromatic = self.chromatic.unwrap_or(cfg.chromatic);
     }
 }
 
@@ -482,9 +488,10 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 44] = [
+const FLAGS: [(&str, &str); 45] = [
     ("aperture.shape", "--aperture"),
     ("aperture.bubble", "--bubble"),
+    ("aperture.chromatic", "--chromatic"),
     ("aperture.anamorphic", "--anamorphic"),
     ("highlights.mode", "--highlights"),
     ("highlights.threshold", "--highlight-threshold"),

@@ -705,7 +705,8 @@ impl Pipeline {
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
             return Ok((render::alpha_composite(layers), report));
         }
-        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur, focus));
+        // Red's (or blue's) circle of confusion is the widest with chromatic aberration.
+        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur * self.aperture.max_channel_scale(), focus));
         let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile, aperture: self.aperture };
         let (kernel, kernel_name) = match rc.kernel {
             KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),

@@ -87,8 +87,9 @@ struct Ask {
     /// `--aperture` and `--anamorphic`, as given (checked when the pipeline is built).
     aperture: Option<String>,
     anamorphic: Option<f32>,
-    /// `--bubble`, as given (checked when the pipeline is built).
+    /// `--bubble` and `--chromatic`, as given (checked when the pipeline is built).
     bubble: Option<f32>,
+    chromatic: Option<f32>,
 }
 
 impl Viewer {
@@ -141,7 +142,7 @@ impl Viewer {
                 "blur_max": self.blur * BLUR_RANGE, "output": self.output.display().to_string(),
                 "profile": self.config.render.profile, "quality": self.config.render.quality,
                 "aperture": self.config.aperture.shape, "anamorphic": self.config.aperture.anamorphic,
-                "bubble": self.config.aperture.bubble,
+                "bubble": self.config.aperture.bubble, "chromatic": self.config.aperture.chromatic,
             }),
         )
     }
@@ -151,7 +152,7 @@ impl Viewer {
         let (w, h) = self.size();
         let mut focus = None;
         let (mut blur, mut width, mut profile, mut quality) = (None, None, None, None);
-        let (mut aperture, mut anamorphic, mut bubble) = (None, None, None);
+        let (mut aperture, mut anamorphic, mut bubble, mut chromatic) = (None, None, None, None);
         for (k, v) in params {
             let dup = || Error::usage(format!("{k} is given twice"));
             let number = |what: &str| -> Result<f64> {
@@ -200,11 +201,12 @@ impl Viewer {
                 }
                 "anamorphic" => anamorphic = Some(number("an aspect ratio in [0.1, 10]")? as f32),
                 "bubble" => bubble = Some(number("a rim brightness in [-1, 1]")? as f32),
+                "chromatic" => chromatic = Some(number("a chromatic aberration in [-0.5, 0.5]")? as f32),
                 _ => return Err(Error::usage(format!("unknown parameter {k:?}"))),
             }
         }
         let focus = focus.ok_or_else(|| Error::usage("give focus (normalized disparity) or focus_at (X,Y)"))?;
-        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic, bubble })
+        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic, bubble, chromatic })
     }
 
     /// The pipeline of one request: the configuration with its profile and quality.
@@ -221,6 +223,7 @@ impl Viewer {
         }
         cfg.aperture.anamorphic = a.anamorphic.unwrap_or(cfg.aperture.anamorphic);
         cfg.aperture.bubble = a.bubble.unwrap_or(cfg.aperture.bubble);
+        cfg.aperture.chromatic = a.chromatic.unwrap_or(cfg.aperture.chromatic);
         Pipeline::from_config(cfg)
     }
 
@@ -343,6 +346,9 @@ impl Viewer {
         }
         if let Some(b) = a.bubble.filter(|&b| b != 0.0) {
             cmd.extend(["--bubble".into(), b.to_string()]);
+        }
+        if let Some(c) = a.chromatic.filter(|&c| c != 0.0) {
+            cmd.extend(["--chromatic".into(), c.to_string()]);
         }
         cmd.extend(["-o".into(), self.output.display().to_string()]);
         let line = cmd.iter().map(|s| shell_quote(s)).collect::<Vec<_>>().join(" ");

@@ -1,4 +1,4 @@
-//! Aperture shapes (`--aperture`, `--anamorphic`): both kernels against an independent
+//! Aperture shapes (`--aperture`, `--anamorphic`, `--bubble`, `--chromatic`): both kernels against an independent
 //! convolution with the pixel-integrated shape (supersampled from outlines written here, not
 //! from the renderer's geometry), fast against exact on layered scenes, flux, and the
 //! conventions README states (vertex direction, point reflection in front of the focal plane).
@@ -120,6 +120,16 @@ fn cases() -> Vec<Case> {
             }),
         },
         Case {
+            name: "disc chromatic 0.05",
+            aperture: Aperture::DISC.with_chromatic(0.05).unwrap(),
+            inside: open(|x: f64, y: f64| x * x + y * y <= 1.0),
+        },
+        Case {
+            name: "pentagon chromatic -0.1",
+            aperture: aperture("blades:5,rotation=90", 1.0).with_chromatic(-0.1).unwrap(),
+            inside: open(blades(5, 90.0)),
+        },
+        Case {
             name: "star image",
             aperture: Aperture::from_mask(n, n, &star, 1.0, "star").unwrap(),
             // The image's own cells (grey = transmission).
@@ -168,8 +178,19 @@ fn one_layer(img: &Image, disparity: f32) -> Layer {
 
 /// The photo convolved with the shape of circumradius `coc` (reflected when `front`),
 /// integrated over the source's and the target's pixel squares (the tent `box ⊗ box`, by
-/// 32 × 32 weighted samples over 2 × 2 px), normalized to unit flux, replicate-padded.
-fn convolve(img: &Image, inside: &dyn Fn(f64, f64) -> f64, coc: f64, front: bool) -> Image {
+/// 32 × 32 weighted samples over 2 × 2 px), normalized to unit flux, replicate-padded. With
+/// longitudinal chromatic aberration `chromatic` = C, red's circumradius is `(1 + C)·coc`
+/// and blue's `(1 − C)·coc` (README's convention).
+fn convolve(img: &Image, inside: &dyn Fn(f64, f64) -> f64, coc: f64, front: bool, chromatic: f64) -> Image {
+    let mut out = Image::new(W, H, 3);
+    for (c, scale) in [1.0 + chromatic, 1.0, 1.0 - chromatic].into_iter().enumerate() {
+        let one = convolve_one(img, inside, coc * scale, front);
+        out.data.iter_mut().zip(&one.data).skip(c).step_by(3).for_each(|(o, v)| *o = *v);
+    }
+    out
+}
+
+fn convolve_one(img: &Image, inside: &dyn Fn(f64, f64) -> f64, coc: f64, front: bool) -> Image {
     let reach = coc.ceil() as i64 + 2;
     let n = 32;
     let mut kernel = Vec::new();
@@ -234,8 +255,9 @@ fn one_plane_is_the_photo_convolved_with_the_shape() {
                 // CoC = K·|d - f| with K = coc and |d - f| = 0.5; d > f is in front.
                 let (d, focus) = if front { (0.75, 0.25) } else { (0.25, 0.75) };
                 let layer = one_layer(&img, d);
-                let s = settings(case.aperture, 2.0 * coc, focus, 2 * coc as usize + 5);
-                let want = convolve(&img, &case.inside, coc as f64, front);
+                let widest = coc * case.aperture.max_channel_scale();
+                let s = settings(case.aperture, 2.0 * coc, focus, 2 * widest.ceil() as usize + 5);
+                let want = convolve(&img, &case.inside, coc as f64, front, case.aperture.chromatic() as f64);
                 for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }] {
                     let got = render::render(std::slice::from_ref(&layer), &s, kernel).unwrap();
                     assert!(got.all_finite());
@@ -296,7 +318,7 @@ fn fast_matches_exact_on_layered_scenes() {
             if case.name != "pentagon 90" && (m + n) % 3 != 0 {
                 continue;
             }
-            let s = settings(case.aperture, *blur, *focus, render::auto_lens(layers, *blur, *focus));
+            let s = settings(case.aperture, *blur, *focus, render::auto_lens(layers, *blur * case.aperture.max_channel_scale(), *focus));
             check_fast_against_exact(&format!("{} {name}", case.name), layers, &s, &mut failures);
         }
     }
@@ -324,8 +346,8 @@ fn flux_is_conserved_and_front_bokeh_is_reflected() {
                 px[4] = d;
             }
             let layer = Layer::new(Image::from_vec(w, h, 5, img).unwrap(), "point").unwrap();
-            // CoC 20 px.
-            let s = settings(case.aperture, 40.0, focus, 45);
+            // CoC 20 px (22 in red with chromatic aberration 0.1).
+            let s = settings(case.aperture, 40.0, focus, 51);
             for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }] {
                 let out = render::render(std::slice::from_ref(&layer), &s, kernel).unwrap();
                 let sum: Vec<f64> = (0..3).map(|c| out.data.iter().skip(c).step_by(3).map(|&v| v as f64).sum()).collect();

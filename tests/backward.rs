@@ -544,6 +544,77 @@ fn random_directions_match() {
     }
 }
 
+/// Chromatic aberration ([`drbokeh::render::Aperture::with_chromatic`]): channel `c` of the
+/// image is the reference rendered with K scaled by `[1 + C, 1, 1 − C][c]`. The tape's image
+/// is that, and its gradients (every layer input, focus, K) match random directional
+/// derivatives of the per-channel f64 reference.
+#[test]
+fn chromatic_aberration_matches_random_directions() {
+    let chromatic = 0.1;
+    let scales = [1.0 + chromatic, 1.0, 1.0 - chromatic];
+    // Σ over channels of the cotangent times that channel of the render at its own K.
+    let loss = |sc: &Scene, cot: &[f64]| -> f64 {
+        scales
+            .iter()
+            .enumerate()
+            .map(|(c, &k)| {
+                let one = Scene { blur: sc.blur * k, ..sc.clone() }.render();
+                one.iter().zip(cot).skip(c).step_by(3).map(|(a, b)| a * b).sum::<f64>()
+            })
+            .sum()
+    };
+    for (seed, profile) in [(31u64, Profile::Official), (32, Profile::Physical)] {
+        let sc = random_scene(seed, profile, 10, 10);
+        let layers = sc.library_layers();
+        let s = RenderSettings { aperture: drbokeh::render::Aperture::DISC.with_chromatic(chromatic as f32).unwrap(), ..sc.settings() };
+        let tape = Tape::record(&layers, &s, sc.smooth).unwrap();
+        // The forward: each channel from its own K.
+        for (c, &k) in scales.iter().enumerate() {
+            let want = Scene { blur: sc.blur * k, ..sc.clone() }.render();
+            let worst = tape.image().data.iter().zip(&want).skip(c).step_by(3).map(|(&a, &b)| (a as f64 - b).abs()).fold(0.0, f64::max);
+            assert!(worst < 2e-5, "{profile:?} channel {c}: tape and per-channel reference differ by {worst:e}");
+        }
+        let mut rng = Rng::new(seed);
+        let cot: Vec<f32> = (0..sc.w * sc.h * 3).map(|_| rng.next_f32() * 2.0 - 1.0).collect();
+        let cot_img = Image::from_vec(sc.w, sc.h, 3, cot.clone()).unwrap();
+        let cot: Vec<f64> = cot.iter().map(|&v| v as f64).collect();
+        let g = tape.vjp(&cot_img).unwrap();
+        for _ in 0..3 {
+            let mut dir: Vec<Vec<f64>> = sc.layers.iter().map(|l| vec![0.0; l.len()]).collect();
+            let mut predicted = 0.0;
+            for (l, d) in dir.iter_mut().enumerate() {
+                for (k, v) in d.iter_mut().enumerate() {
+                    let c = k % 5;
+                    let a = sc.layers[l][k - c + 3];
+                    let scale = match c {
+                        3 if a <= 0.0 || a >= 1.0 => 0.0,
+                        4 => 0.1,
+                        _ => 1.0,
+                    };
+                    *v = (rng.next_f32() as f64 * 2.0 - 1.0) * scale;
+                    predicted += *v * g.layers[l].data[k] as f64;
+                }
+            }
+            let (df, dk) = (0.1 * (rng.next_f32() as f64 * 2.0 - 1.0), rng.next_f32() as f64 * 2.0 - 1.0);
+            predicted += df * g.focus as f64 + dk * g.blur as f64;
+            let at = |t: f64| {
+                let mut p = sc.clone();
+                for (l, d) in dir.iter().enumerate() {
+                    p.layers[l].iter_mut().zip(d).for_each(|(x, dx)| *x += t * dx);
+                }
+                p.focus += t * df;
+                p.blur += t * dk;
+                loss(&p, &cot)
+            };
+            let h = 1e-6;
+            let fd = (at(h) - at(-h)) / (2.0 * h);
+            let rel = (predicted - fd).abs() / fd.abs().max(1e-6);
+            eprintln!("chromatic {profile:?} seed {seed}: directional derivative {fd:e}, predicted {predicted:e}, rel {rel:e}");
+            assert!(rel < 1e-3, "chromatic {profile:?} seed {seed}: fd {fd:e} vs predicted {predicted:e}");
+        }
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // The forward being differentiated, and finiteness.
 // ---------------------------------------------------------------------------------------------

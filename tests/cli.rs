@@ -2004,7 +2004,7 @@ fn completions_and_the_manual_page() {
     assert_eq!(out.status.code(), Some(2), "an unknown shell is a usage error");
 }
 
-/// `--aperture` / `--anamorphic` / `[aperture]`: the JSON names the shape, the shape changes
+/// `--aperture` / `--anamorphic` / `--chromatic` / `[aperture]`: the JSON names the shape, the shape changes
 /// the picture, and every bad value exits 2 naming the flag or the file, writing nothing.
 #[test]
 fn aperture_shapes_and_their_bad_values() {
@@ -2055,6 +2055,22 @@ fn aperture_shapes_and_their_bad_values() {
         let a = with(&["--bubble", value], "bad.png");
         s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--bubble"]);
     }
+    // Chromatic aberration: named in the report, red and blue blurred differently (the
+    // official profile too: it scales the CoC, not the shape), bad values refused.
+    let chroma = with(&["--chromatic", "0.2", "--profile", "official"], "chroma.png");
+    assert_eq!(s.json(&chroma.iter().map(String::as_str).collect::<Vec<_>>())["params"]["aperture"], "disc,chromatic=0.2");
+    let official = with(&["--profile", "official"], "official.png");
+    s.json(&official.iter().map(String::as_str).collect::<Vec<_>>());
+    let (c, o) = (read("chroma.png"), read("official.png"));
+    let differs = |ch: usize| c.data.iter().zip(&o.data).skip(ch).step_by(c.channels).any(|(a, b)| a != b);
+    assert!(differs(0) && differs(2), "chromatic aberration left red or blue unchanged");
+    for value in ["0.6", "-0.51", "nan"] {
+        let a = with(&["--chromatic", value], "bad.png");
+        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--chromatic"]);
+    }
+    std::fs::write(s.path("chroma.toml"), "[aperture]\nchromatic = 0.7\n").unwrap();
+    let a = with(&["--config", "chroma.toml"], "bad.png");
+    s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["chroma.toml", "aperture.chromatic"]);
     let a = with(&["--aperture", "blades:6", "--profile", "official"], "bad.png");
     s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--aperture", "official"]);
 }

@@ -115,6 +115,7 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
             vec!["--focus", "0.2", "--blur", "8", "--aperture", "blades:5,rotation=90", "--anamorphic", "1.3"],
         ),
         ("focus=0.1&blur=9&bubble=0.6", vec!["--focus", "0.1", "--blur", "9", "--bubble", "0.6"]),
+        ("focus=0.1&blur=9&chromatic=0.1", vec!["--focus", "0.1", "--blur", "9", "--chromatic", "0.1"]),
     ] {
         let (status, png) = server.request("GET", &format!("/render?{query}"));
         assert_eq!(status, 200, "{query}: {}", String::from_utf8_lossy(&png));
@@ -138,6 +139,7 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
         ("/render?focus=0.5&aperture=blades:2", "aperture"),
         ("/render?focus=0.5&bubble=2", "bubble"),
         ("/render?focus=0.5&bubble=x", "bubble"),
+        ("/render?focus=0.5&chromatic=0.9", "chromatic"),
         ("/render?focus=0.5&focus_at=1,1", "focus_at"),
         ("/render?focus_at=64,1", "outside"),
         ("/render?focus_at=a,b", "focus_at"),

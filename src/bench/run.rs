@@ -623,7 +623,7 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
     let plain = |image: Result<Image>| image.map(|image| Rendered { image, light_added: None, alpha: None });
     let aperture = case.aperture.resolve()?;
     let renderer = |layers: &[Layer], occlusion: bool| -> Result<Image> {
-        let lens = render::auto_lens(layers, blur, focus);
+        let lens = render::auto_lens(layers, blur * aperture.max_channel_scale(), focus);
         render::render(layers, &RenderSettings { blur, focus, lens, occlusion, profile: v.profile(), aperture }, v.kernel())
     };
     // The depth map the photo-based methods read.

@@ -239,8 +239,18 @@ pub fn trace(planes: &[Plane], s: &TraceSettings, window: Window, progress: &(dy
 
 /// [`trace`], plus the mean of the first half of each pixel's samples (itself a stratified
 /// set): the RMS difference between the two halves, halved, estimates the result's noise.
+/// With chromatic aberration each colour channel is traced with its own K, as the renderer
+/// renders it ([`crate::render::chromatic`]; `progress` then counts every row three times).
 pub fn trace_split(planes: &[Plane], s: &TraceSettings, window: Window, progress: &(dyn Fn(usize) + Sync)) -> Result<(Image, Image)> {
     validate(planes, s)?;
+    if let Some(scales) = s.aperture.channel_scales() {
+        let [full, half] = crate::render::chromatic::per_channel(scales, |scale, _| {
+            let sc = TraceSettings { blur: s.blur * scale, aperture: s.aperture.achromatic(), ..*s };
+            let (full, half) = trace_split(planes, &sc, window, progress)?;
+            Ok([full, half])
+        })?;
+        return Ok((full, half));
+    }
     let (pw, ph) = (planes[0].width, planes[0].height);
     if window.x0 + window.width > pw || window.y0 + window.height > ph {
         return Err(Error::Internal(format!("trace window {window:?} outside the {pw}x{ph} planes")));

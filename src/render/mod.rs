@@ -5,6 +5,7 @@
 
 pub mod aperture;
 pub mod backward;
+pub mod chromatic;
 pub mod composite;
 pub mod exact;
 pub mod fast;
@@ -256,8 +257,26 @@ pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Im
 /// [`composite::over`]): besides the layers and the 12-byte RGB result, the fast kernel
 /// holds a 4-byte transmittance and a 4-byte scatter radius per pixel plus its coarse grids,
 /// never a whole raw layer.
+///
+/// With chromatic aberration (`s.aperture.channel_scales()`) the stack is rendered once per
+/// colour channel ([`chromatic::per_channel`]); the stats are the green (unscaled) pass's.
 pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     validate(layers, s)?;
+    let Some(scales) = s.aperture.channel_scales() else { return render_pass(layers, s, kernel) };
+    let mut green = Vec::new();
+    let [image] = chromatic::per_channel(scales, |scale, c| {
+        let sc = RenderSettings { blur: s.blur * scale, aperture: s.aperture.achromatic(), ..*s };
+        let (image, stats) = render_pass(layers, &sc, kernel)?;
+        if c == 1 {
+            green = stats;
+        }
+        Ok([image])
+    })?;
+    Ok((image, green))
+}
+
+/// One achromatic pass of [`render_with_stats`] (the caller has validated).
+fn render_pass(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     let (w, h) = (layers[0].width(), layers[0].height());
     let mut acc = composite::accumulator(w, h);
     let mut stats = Vec::with_capacity(layers.len());
@@ -303,8 +322,10 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
 }
 
 /// The per-layer raw renders, front first (stored whole: for tests against the official raws
-/// and for tools that inspect them; [`render`] streams instead).
+/// and for tools that inspect them; [`render`] streams instead). A raw layer has one weight
+/// per pixel, so chromatic aberration is left out: this is the green channel's render.
 pub fn render_raw(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Vec<RawLayer> {
+    let s = &RenderSettings { aperture: s.aperture.achromatic(), ..*s };
     let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
     layers
         .iter()

@@ -45,6 +45,9 @@ fn profile(bubble: f32, t: f64) -> f64 {
 pub const BLADES: std::ops::RangeInclusive<u32> = 3..=64;
 /// Largest side of an aperture image, pixels.
 pub const MAX_IMAGE_SIDE: usize = 1024;
+/// Accepted longitudinal chromatic aberrations (`--chromatic`): blue's circle of confusion
+/// keeps at least half its size.
+pub const CHROMATIC: std::ops::RangeInclusive<f32> = -0.5..=0.5;
 /// Accepted anamorphic aspect ratios.
 pub const ANAMORPHIC: std::ops::RangeInclusive<f32> = 0.1..=10.0;
 /// Vertices of a polygonized curve per full turn (an anamorphic disc, rounded blades): the
@@ -127,18 +130,24 @@ impl ShapeSpec {
     }
 }
 
-/// The aperture a render uses: the disc (`Aperture::DISC`, the default) or a [`Geometry`].
-/// A `Copy` handle; equal handles are equal shapes (geometries are interned).
+/// The aperture a render uses: the disc (`Aperture::DISC`, the default) or a [`Geometry`],
+/// and its longitudinal chromatic aberration (see [`Aperture::with_chromatic`]). A `Copy`
+/// handle; equal handles are equal apertures (geometries are interned).
 #[derive(Clone, Copy, Default)]
-pub struct Aperture(Option<&'static Geometry>);
+pub struct Aperture {
+    shape: Option<&'static Geometry>,
+    /// `C`: red's circle of confusion scaled by `1 + C`, blue's by `1 − C`; 0 = none.
+    chromatic: f32,
+}
 
 impl PartialEq for Aperture {
     fn eq(&self, other: &Self) -> bool {
-        match (self.0, other.0) {
+        let same_shape = match (self.shape, other.shape) {
             (None, None) => true,
             (Some(a), Some(b)) => std::ptr::eq(a, b),
             _ => false,
-        }
+        };
+        same_shape && self.chromatic.to_bits() == other.chromatic.to_bits()
     }
 }
 
@@ -150,7 +159,7 @@ impl std::fmt::Debug for Aperture {
 
 impl Aperture {
     /// The uniform disc.
-    pub const DISC: Aperture = Aperture(None);
+    pub const DISC: Aperture = Aperture { shape: None, chromatic: 0.0 };
 
     /// The aperture of `spec` with anamorphic aspect `anamorphic` (1 = none); an image is read
     /// from its path (relative to the working directory). Errors name `what` (the flag or
@@ -229,34 +238,79 @@ impl Aperture {
         static INTERNED: Mutex<Vec<&'static Geometry>> = Mutex::new(Vec::new());
         let mut all = INTERNED.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(&old) = all.iter().find(|old| ***old == g) {
-            return Aperture(Some(old));
+            return Aperture { shape: Some(old), chromatic: 0.0 };
         }
         // Leaked on purpose: a handful per process (one per distinct shape asked for).
         let g: &'static Geometry = Box::leak(Box::new(g));
         all.push(g);
-        Aperture(Some(g))
+        Aperture { shape: Some(g), chromatic: 0.0 }
+    }
+
+    /// This aperture with longitudinal chromatic aberration `c` in [`CHROMATIC`]: each colour
+    /// channel is rendered with its own circle of confusion, red's `(1 + c)·K·|d − f|`, green's
+    /// unchanged, blue's `(1 − c)·K·|d − f|` (c > 0: red fringes outside, blue inside; c < 0
+    /// the reverse; 0 = none). The shape is the same in every channel, its flux one in each.
+    pub fn with_chromatic(self, c: f32) -> Result<Aperture> {
+        if !c.is_finite() || !CHROMATIC.contains(&c) {
+            return Err(Error::usage(format!(
+                "aperture.chromatic {c} is outside [{}, {}] (0 = none, 0.05 = red's circle of confusion 5% larger and blue's 5% smaller)",
+                CHROMATIC.start(),
+                CHROMATIC.end()
+            )));
+        }
+        Ok(Aperture { chromatic: c, ..self })
+    }
+
+    /// The longitudinal chromatic aberration `C` (0 = none).
+    pub fn chromatic(self) -> f32 {
+        self.chromatic
+    }
+
+    /// The scale of each colour channel's circle of confusion, `[1 + C, 1, 1 − C]`; None
+    /// without chromatic aberration (one pass renders every channel).
+    pub fn channel_scales(self) -> Option<[f32; 3]> {
+        (self.chromatic != 0.0).then_some([1.0 + self.chromatic, 1.0, 1.0 - self.chromatic])
+    }
+
+    /// The largest of [`Aperture::channel_scales`] (1 without aberration): what a lens window
+    /// sized from K must grow by.
+    pub fn max_channel_scale(self) -> f32 {
+        1.0 + self.chromatic.abs()
+    }
+
+    /// The same shape without chromatic aberration: what one channel's pass renders.
+    pub fn achromatic(self) -> Aperture {
+        Aperture { chromatic: 0.0, ..self }
     }
 
     /// The geometry; None for the disc, which the kernels draw themselves.
     pub fn geometry(self) -> Option<&'static Geometry> {
-        self.0
+        self.shape
     }
 
-    /// Whether this is the plain disc.
+    /// Whether the shape is the plain disc (whatever the chromatic aberration).
     pub fn is_disc(self) -> bool {
-        self.0.is_none()
+        self.shape.is_none()
     }
 
     /// How reports name it: `disc`, `blades:6,rotation=0,curvature=0`, `image:star.png`, with
-    /// `,anamorphic=A` and `,bubble=B` when set.
+    /// `,anamorphic=A`, `,bubble=B` and `,chromatic=C` when set.
     pub fn label(self) -> String {
-        let Some(g) = self.0 else { return "disc".into() };
-        let mut s = g.spec.label();
-        if g.anamorphic != 1.0 {
-            s += &format!(",anamorphic={}", g.anamorphic);
-        }
-        if g.bubble != 0.0 {
-            s += &format!(",bubble={}", g.bubble);
+        let mut s = match self.shape {
+            None => "disc".into(),
+            Some(g) => {
+                let mut s = g.spec.label();
+                if g.anamorphic != 1.0 {
+                    s += &format!(",anamorphic={}", g.anamorphic);
+                }
+                if g.bubble != 0.0 {
+                    s += &format!(",bubble={}", g.bubble);
+                }
+                s
+            }
+        };
+        if self.chromatic != 0.0 {
+            s += &format!(",chromatic={}", self.chromatic);
         }
         s
     }

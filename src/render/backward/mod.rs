@@ -157,6 +157,9 @@ pub struct Tape<'a> {
     taps: Vec<Tap>,
     records: Vec<Record>,
     image: Image,
+    /// With chromatic aberration, one achromatic tape per colour channel (K scaled by the
+    /// channel's factor, see [`crate::render::chromatic`]); `records` is then empty.
+    channels: Option<Box<[Tape<'a>; 3]>>,
 }
 
 impl<'a> Tape<'a> {
@@ -182,6 +185,27 @@ impl<'a> Tape<'a> {
         if ray_test && s.profile != Profile::Physical {
             return Err(Error::usage("the ray test is a term of the physical profile's depth groups: use the physical profile"));
         }
+        if let Some(scales) = s.aperture.channel_scales() {
+            let mut tapes = Vec::with_capacity(3);
+            let [image] = super::chromatic::per_channel(scales, |scale, _| {
+                let sc = RenderSettings { blur: s.blur * scale, aperture: s.aperture.achromatic(), ..*s };
+                let tape = Self::record_with(layers, &sc, smoothing, ray_test)?;
+                let image = tape.image.clone();
+                tapes.push(tape);
+                Ok([image])
+            })?;
+            let channels: Box<[Tape<'a>; 3]> = Box::new(tapes.try_into().map_err(|_| Error::Internal("three channel tapes".into()))?);
+            return Ok(Tape {
+                layers,
+                settings: *s,
+                smoothing,
+                ray_test,
+                taps: Vec::new(),
+                records: Vec::new(),
+                image,
+                channels: Some(channels),
+            });
+        }
         let taps = aperture::disk_taps(s.lens);
         let n = layers.len();
         let records: Vec<Record> = layers
@@ -206,7 +230,7 @@ impl<'a> Tape<'a> {
                 s.blur, s.focus, s.lens
             )));
         }
-        Ok(Tape { layers, settings: *s, smoothing, ray_test, taps, records, image })
+        Ok(Tape { layers, settings: *s, smoothing, ray_test, taps, records, image, channels: None })
     }
 
     /// The rendered linear RGB image.
@@ -221,6 +245,9 @@ impl<'a> Tape<'a> {
     pub fn vjp(&self, cotangent: &Image) -> Result<Gradients> {
         let (w, h) = (self.image.width, self.image.height);
         check_cotangent(cotangent, w, h)?;
+        if let (Some(tapes), Some(scales)) = (&self.channels, self.settings.aperture.channel_scales()) {
+            return chromatic_vjp(tapes, scales, cotangent);
+        }
         let cots = self.composite_backward(cotangent);
         let s = &self.settings;
         let (mut g_focus, mut g_blur) = (0f64, 0f64);
@@ -300,6 +327,31 @@ impl<'a> Tape<'a> {
     }
 }
 
+/// [`Tape::vjp`] of a chromatic render: channel `c` of the image is channel `c` of tape `c`'s
+/// render, whose K is `scales[c]·K`, so the gradients are the sum over the channels of each
+/// tape's VJP of that channel's cotangent alone, K's scaled by the channel's factor.
+fn chromatic_vjp(tapes: &[Tape; 3], scales: [f32; 3], cotangent: &Image) -> Result<Gradients> {
+    let mut total: Option<Gradients> = None;
+    for (c, (tape, &scale)) in tapes.iter().zip(&scales).enumerate() {
+        let mut cot = Image::new(cotangent.width, cotangent.height, 3);
+        cot.data.chunks_exact_mut(3).zip(cotangent.data.chunks_exact(3)).for_each(|(o, g)| o[c] = g[c]);
+        let mut g = tape.vjp(&cot)?;
+        g.blur = saturate(g.blur as f64 * scale as f64);
+        total = Some(match total {
+            None => g,
+            Some(mut t) => {
+                for (a, b) in t.layers.iter_mut().zip(&g.layers) {
+                    a.data.iter_mut().zip(&b.data).for_each(|(a, b)| *a = saturate(*a as f64 + *b as f64));
+                }
+                t.focus = saturate(t.focus as f64 + g.focus as f64);
+                t.blur = saturate(t.blur as f64 + g.blur as f64);
+                t
+            }
+        });
+    }
+    Ok(total.expect("three channels"))
+}
+
 /// The gradients of one layer as its image of `∂L/∂[R, G, B, A, D]`, and its share of
 /// `(∂L/∂focus, ∂L/∂K)`: the radius and defocus gradients go to the disparity through
 /// `∂σ/∂d`, `∂q/∂d` and to K through `∂σ/∂K`, `∂q/∂K`; `∂d/∂focus = -1`.
@@ -330,7 +382,8 @@ fn saturate(v: f64) -> f32 {
 }
 
 /// The backward pass differentiates the disc only: a render with another aperture is refused
-/// here rather than differentiated as a disc (a wrong gradient with no error).
+/// here rather than differentiated as a disc (a wrong gradient with no error). Chromatic
+/// aberration is differentiated by [`Tape`] (per channel).
 pub(crate) fn check_differentiable_aperture(s: &RenderSettings) -> Result<()> {
     if s.aperture.is_disc() {
         return Ok(());

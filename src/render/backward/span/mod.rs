@@ -129,6 +129,12 @@ impl<'a> SpanTape<'a> {
     pub fn record(layer: &'a Layer, s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
         validate(std::slice::from_ref(layer), s)?;
         crate::render::backward::check_differentiable_aperture(s)?;
+        if s.aperture.channel_scales().is_some() {
+            return Err(crate::error::Error::usage(format!(
+                "aperture {}: the span kernel's differentiable render is achromatic; use the exact kernel (Tape) for chromatic aberration",
+                s.aperture.label()
+            )));
+        }
         smoothing.validate()?;
         if !layer.is_opaque() {
             return Err(Error::usage("the span render takes one opaque layer (alpha 1 everywhere)"));
