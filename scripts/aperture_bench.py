@@ -24,6 +24,7 @@ SHAPES = [
     ("--anamorphic 1.5", ["--anamorphic", "1.5"]),
     ("image:star.png", ["--aperture", "image:" + os.path.relpath(STAR, ROOT)]),
     ("--chromatic 0.05", ["--chromatic", "0.05"]),
+    ("--cat-eye 1", ["--cat-eye", "1"]),
 ]
 SEEDS = [1, 2]
 

@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Regenerates docs/aperture_shapes.png (guide, *Aperture shapes*): the bundled scene at night
 # (string lights 6-20 times brighter than white, the linear photo), focus on the flower, the
-# lights behind it rendered through eight apertures: the disc, 6 blades, 5 blades with a vertex
+# lights behind it rendered through ten apertures: the disc, 6 blades, 5 blades with a vertex
 # up, 7 rounded blades, an anamorphic disc, a star-shaped image (drawn here), a bright rim
-# (--bubble) and coloured fringes (--chromatic). Needs the test .venv (OpenCV).
+# (--bubble), coloured fringes (--chromatic) and optical vignetting (--cat-eye) on the disc and
+# on 6 blades. Needs the test .venv (OpenCV).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked -q --bin drbokeh --example make_scene
@@ -36,6 +37,8 @@ render "disc --anamorphic 1.6" --anamorphic 1.6
 render "image:star.png" --aperture image:out/aperture/star.png
 render "disc --bubble 0.6" --bubble 0.6
 render "disc --chromatic 0.1" --chromatic 0.1
+render "disc --cat-eye 1" --cat-eye 1
+render "blades:6 --cat-eye 1" --aperture blades:6 --cat-eye 1
 .venv/bin/python - "${names[@]}" <<'PY'
 import sys, cv2, numpy as np
 tiles = []

@@ -114,11 +114,14 @@ pub struct ApertureConfig {
     /// Longitudinal chromatic aberration in [-0.5, 0.5]: red's circle of confusion scaled by
     /// `1 + C`, blue's by `1 − C`; 0 = none.
     pub chromatic: f32,
+    /// Optical vignetting ("cat's eye") in [0, 1]: off axis, the bokeh is cut by a second
+    /// circle displaced toward the frame's centre; 0 = off.
+    pub cat_eye: f32,
 }
 
 impl Default for ApertureConfig {
     fn default() -> Self {
-        ApertureConfig { shape: "disc".into(), anamorphic: 1.0, bubble: 0.0, chromatic: 0.0 }
+        ApertureConfig { shape: "disc".into(), anamorphic: 1.0, bubble: 0.0, chromatic: 0.0, cat_eye: 0.0 }
     }
 }
 
@@ -137,6 +140,7 @@ impl ApertureConfig {
             self.bubble,
             "aperture.shape",
         )?
+        .with_cat_eye(self.cat_eye)?
         .with_chromatic(self.chromatic)
     }
 }
@@ -262,10 +266,12 @@ impl Config {
             return Err(Error::usage(format!("aperture.bubble must be in [-1, 1] (0 = uniform, > 0 a bright rim), got {b}")));
         }
         render::Aperture::DISC.with_chromatic(self.aperture.chromatic)?;
+        render::Aperture::DISC.with_cat_eye(self.aperture.cat_eye)?;
         if !self.aperture.is_disc() && self.render.profile == render::Profile::Official {
+            let a = &self.aperture;
             return Err(Error::usage(format!(
-                "aperture.shape {}: render.profile official renders the disc only; use the physical profile",
-                self.aperture.shape
+                "aperture.shape {} (anamorphic {}, bubble {}, cat_eye {}): render.profile official renders the plain disc only; use the physical profile",
+                a.shape, a.anamorphic, a.bubble, a.cat_eye
             )));
         }
         if self.input.max_pixels == 0 {

@@ -317,6 +317,11 @@ pub(crate) struct ApertureArgs {
     /// outside, blue inside for C > 0). Renders three passes [default: 0, none].
     #[arg(long, value_name = "C", allow_negative_numbers = true)]
     chromatic: Option<f32>,
+    /// Optical vignetting ("cat's eye") in [0, 1]: toward the frame's corners the bokeh is cut
+    /// by a second circle displaced toward the centre, as a real lens's barrel clips its
+    /// pupil (disc and blades) [default: 0, off].
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    cat_eye: Option<f32>,
 }
 
 impl ApertureArgs {
@@ -328,6 +333,7 @@ impl ApertureArgs {
         cfg.anamorphic = self.anamorphic.unwrap_or(cfg.anamorphic);
         cfg.bubble = self.bubble.unwrap_or(cfg.bubble);
         cfg.chromatic = self.chromatic.unwrap_or(cfg.chromatic);
+        cfg.cat_eye = self.cat_eye.unwrap_or(cfg.cat_eye);
     }
 }
 
@@ -488,10 +494,11 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 45] = [
+const FLAGS: [(&str, &str); 46] = [
     ("aperture.shape", "--aperture"),
     ("aperture.bubble", "--bubble"),
     ("aperture.chromatic", "--chromatic"),
+    ("aperture.cat_eye", "--cat-eye"),
     ("aperture.anamorphic", "--anamorphic"),
     ("highlights.mode", "--highlights"),
     ("highlights.threshold", "--highlight-threshold"),

@@ -90,6 +90,8 @@ struct Ask {
     /// `--bubble` and `--chromatic`, as given (checked when the pipeline is built).
     bubble: Option<f32>,
     chromatic: Option<f32>,
+    /// `--cat-eye`, as given.
+    cat_eye: Option<f32>,
 }
 
 impl Viewer {
@@ -143,6 +145,7 @@ impl Viewer {
                 "profile": self.config.render.profile, "quality": self.config.render.quality,
                 "aperture": self.config.aperture.shape, "anamorphic": self.config.aperture.anamorphic,
                 "bubble": self.config.aperture.bubble, "chromatic": self.config.aperture.chromatic,
+                "cat_eye": self.config.aperture.cat_eye,
             }),
         )
     }
@@ -152,7 +155,7 @@ impl Viewer {
         let (w, h) = self.size();
         let mut focus = None;
         let (mut blur, mut width, mut profile, mut quality) = (None, None, None, None);
-        let (mut aperture, mut anamorphic, mut bubble, mut chromatic) = (None, None, None, None);
+        let (mut aperture, mut anamorphic, mut bubble, mut chromatic, mut cat_eye) = (None, None, None, None, None);
         for (k, v) in params {
             let dup = || Error::usage(format!("{k} is given twice"));
             let number = |what: &str| -> Result<f64> {
@@ -202,11 +205,12 @@ impl Viewer {
                 "anamorphic" => anamorphic = Some(number("an aspect ratio in [0.1, 10]")? as f32),
                 "bubble" => bubble = Some(number("a rim brightness in [-1, 1]")? as f32),
                 "chromatic" => chromatic = Some(number("a chromatic aberration in [-0.5, 0.5]")? as f32),
+                "cat_eye" => cat_eye = Some(number("a cat's eye strength in [0, 1]")? as f32),
                 _ => return Err(Error::usage(format!("unknown parameter {k:?}"))),
             }
         }
         let focus = focus.ok_or_else(|| Error::usage("give focus (normalized disparity) or focus_at (X,Y)"))?;
-        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic, bubble, chromatic })
+        Ok(Ask { focus, blur: blur.unwrap_or(self.blur), width, profile, quality, aperture, anamorphic, bubble, chromatic, cat_eye })
     }
 
     /// The pipeline of one request: the configuration with its profile and quality.
@@ -224,6 +228,7 @@ impl Viewer {
         cfg.aperture.anamorphic = a.anamorphic.unwrap_or(cfg.aperture.anamorphic);
         cfg.aperture.bubble = a.bubble.unwrap_or(cfg.aperture.bubble);
         cfg.aperture.chromatic = a.chromatic.unwrap_or(cfg.aperture.chromatic);
+        cfg.aperture.cat_eye = a.cat_eye.unwrap_or(cfg.aperture.cat_eye);
         Pipeline::from_config(cfg)
     }
 
@@ -349,6 +354,9 @@ impl Viewer {
         }
         if let Some(c) = a.chromatic.filter(|&c| c != 0.0) {
             cmd.extend(["--chromatic".into(), c.to_string()]);
+        }
+        if let Some(c) = a.cat_eye.filter(|&c| c != 0.0) {
+            cmd.extend(["--cat-eye".into(), c.to_string()]);
         }
         cmd.extend(["-o".into(), self.output.display().to_string()]);
         let line = cmd.iter().map(|s| shell_quote(s)).collect::<Vec<_>>().join(" ");

@@ -1,4 +1,4 @@
-//! Aperture shapes (`--aperture`, `--anamorphic`, `--bubble`, `--chromatic`): both kernels against an independent
+//! Aperture shapes (`--aperture`, `--anamorphic`, `--bubble`, `--chromatic`, `--cat-eye`): both kernels against an independent
 //! convolution with the pixel-integrated shape (supersampled from outlines written here, not
 //! from the renderer's geometry), fast against exact on layered scenes, flux, and the
 //! conventions README states (vertex direction, point reflection in front of the focal plane).
@@ -322,6 +322,13 @@ fn fast_matches_exact_on_layered_scenes() {
             check_fast_against_exact(&format!("{} {name}", case.name), layers, &s, &mut failures);
         }
     }
+    // A cat's eye (the exact kernel clips every tap of its cut: two settings each).
+    for (n, (cat, aperture)) in cat_cases().into_iter().enumerate() {
+        for (name, layers, blur, focus) in combos.iter().skip(n).step_by(combos.len().div_ceil(2)) {
+            let s = settings(aperture, *blur, *focus, render::auto_lens(layers, *blur, *focus));
+            check_fast_against_exact(&format!("{cat} {name}"), layers, &s, &mut failures);
+        }
+    }
     common::assert_no_failures("shapes, fast against exact on layered scenes", &failures);
 }
 
@@ -380,19 +387,19 @@ fn tracer_and_renderer_agree_on_one_plane() {
     use drbokeh::bench::trace::{Plane, TraceSettings, Window, trace};
     let img = photo();
     let mut failures = Vec::new();
-    for case in cases() {
+    for (case, aperture) in cases().into_iter().map(|c| (c.name, c.aperture)).chain(cat_cases()) {
         for (d, focus) in [(0.25f32, 0.75f32), (0.75, 0.25)] {
             let layer = one_layer(&img, d);
             let plane = Plane::from_layer(&layer, "plane").unwrap();
             let mut ts = TraceSettings::new(24.0, focus, 512, 7);
-            ts.aperture = case.aperture;
+            ts.aperture = aperture;
             let traced = trace(&[plane], &ts, Window { x0: 0, y0: 0, width: W, height: H }, &|_| {}).unwrap();
-            let s = settings(case.aperture, 24.0, focus, 31);
+            let s = settings(aperture, 24.0, focus, 31);
             let rendered = render::render(std::slice::from_ref(&layer), &s, Kernel::Exact).unwrap();
             let p = psnr_compressed(&rendered, &traced);
-            println!("{:24} d {d}: tracer vs exact {p:6.2} dB", case.name);
+            println!("{case:24} d {d}: tracer vs exact {p:6.2} dB");
             if p.is_nan() || p < 45.0 {
-                failures.push(format!("{} d {d}: {p:.2} dB (at least 45)", case.name));
+                failures.push(format!("{case} d {d}: {p:.2} dB (at least 45)"));
             }
         }
     }
@@ -414,13 +421,14 @@ fn fast_matches_exact_on_stress_scenes() {
     let (layers, s) = bars_in_one_layer(72, 60, 10.0);
     scenes.push(("bars in one layer".into(), layers, s));
     let mut failures = Vec::new();
-    for (n, case) in cases().into_iter().enumerate() {
+    let every = cases().into_iter().map(|c| (c.name, c.aperture)).chain(cat_cases());
+    for (n, (case, aperture)) in every.enumerate() {
         for (m, (name, layers, s)) in scenes.iter().enumerate() {
-            if (n + m) % 2 != 0 && case.name != "pentagon 90" {
+            if (n + m) % 2 != 0 && case != "pentagon 90" && !case.contains("cat's eye") {
                 continue;
             }
-            let s = RenderSettings { profile: Profile::Physical, aperture: case.aperture, ..*s };
-            check_fast_against_exact(&format!("{} {name}", case.name), layers, &s, &mut failures);
+            let s = RenderSettings { profile: Profile::Physical, aperture, ..*s };
+            check_fast_against_exact(&format!("{case} {name}"), layers, &s, &mut failures);
         }
     }
     common::assert_no_failures("shapes, fast against exact on the stress scenes", &failures);
@@ -440,16 +448,139 @@ fn extreme_blurs_stay_finite() {
     }
     let layer = Layer::new(Image::from_vec(w, h, 5, data).unwrap(), "extreme").unwrap();
     let mut failures = Vec::new();
-    for case in cases() {
+    for (case, aperture) in cases().into_iter().map(|c| (c.name, c.aperture)).chain(cat_cases()) {
         for (blur, lens) in [(0.0f32, 3usize), (1e-6, 3), (40.0, 5), (1e4, 21), (1e8, 41)] {
-            let s = settings(case.aperture, blur, 0.4, lens);
+            let s = settings(aperture, blur, 0.4, lens);
             for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }, Kernel::Fast { quality: 8 }] {
                 let out = render::render(std::slice::from_ref(&layer), &s, kernel).unwrap();
                 if !out.all_finite() {
-                    failures.push(format!("{} K {blur} lens {lens} {}: non-finite output", case.name, kernel.name()));
+                    failures.push(format!("{case} K {blur} lens {lens} {}: non-finite output", kernel.name()));
                 }
             }
         }
     }
     common::assert_no_failures("extreme blurs", &failures);
+}
+
+/// Cat's-eye apertures (`--cat-eye`): their shape changes over the frame, so they are not in
+/// [`cases`]' convolution test; the tests below that take any aperture take these too.
+fn cat_cases() -> Vec<(&'static str, Aperture)> {
+    vec![
+        ("disc cat's eye 1", Aperture::DISC.with_cat_eye(1.0).unwrap()),
+        ("pentagon cat's eye 0.6", aperture("blades:5,rotation=90", 1.0).with_cat_eye(0.6).unwrap()),
+    ]
+}
+
+/// The value of `img` (3 channels, red) at the continuous pixel position `(x, y)` (pixel
+/// centres at integers), bilinear.
+fn bilinear(img: &Image, x: f64, y: f64) -> f64 {
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let at = |xi: f64, yi: f64| {
+        let (xi, yi) = (xi.clamp(0.0, img.width as f64 - 1.0) as usize, yi.clamp(0.0, img.height as f64 - 1.0) as usize);
+        img.data[(yi * img.width + xi) * 3] as f64
+    };
+    (1.0 - fy) * ((1.0 - fx) * at(x0, y0) + fx * at(x0 + 1.0, y0)) + fy * ((1.0 - fx) * at(x0, y0 + 1.0) + fx * at(x0 + 1.0, y0 + 1.0))
+}
+
+/// The farthest point from `(x, y)` along the unit direction `(ex, ey)` (image coordinates)
+/// where the bokeh is still above half of `plateau`, pixels.
+fn half_max_edge(img: &Image, (x, y): (f64, f64), (ex, ey): (f64, f64), plateau: f64, reach: f64) -> f64 {
+    let mut t = reach;
+    while t > 0.0 && bilinear(img, x + t * ex, y + t * ey) < 0.5 * plateau {
+        t -= 0.01;
+    }
+    // Between the last sample below and this one, linearly.
+    let (a, b) = (bilinear(img, x + t * ex, y + t * ey), bilinear(img, x + (t + 0.01) * ex, y + (t + 0.01) * ey));
+    if a > b { t + 0.01 * (a - 0.5 * plateau) / (a - b) } else { t }
+}
+
+/// A point near each corner of the frame (and one at its centre) out of focus, behind and in
+/// front of the focal plane, at a medium CoC and, as a bright light, a large one: each bokeh
+/// is the intersection of the disc with a second disc of the same radius displaced toward the
+/// frame's centre by the strength times the point's distance from it over the half-diagonal
+/// (README's convention, computed here from the frame), point-reflected in front; its
+/// outline, where the bokeh crosses half its plateau, lies within 0.5 px of that lens shape's
+/// along the radial axis (both ends) and across it, in both kernels. Every point keeps its
+/// light: the points' layer is faint (alpha 0.05) and in front of an empty one, so the image
+/// is its premultiplied sums (an opaque layer's coverage is clamped at 1 per pixel, and a cat's
+/// eye's, its shapes changing across the frame, sums to 1 only within about strength × CoC /
+/// half-diagonal: here 1.08 to 1.2).
+#[test]
+fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
+    let strength = 1.0f64;
+    let ap = Aperture::DISC.with_cat_eye(strength as f32).unwrap();
+    let mut failures = Vec::new();
+    // (CoC, the points' value, frame, inset): a frame that keeps the bokehs apart.
+    for (coc, value, (w, h), inset) in [(10.0f64, 1.0f32, (120usize, 90usize), 24.0), (24.0, 10.0, (200, 150), 40.0)] {
+        let (right, bottom) = (w as f64 - 1.0 - inset, h as f64 - 1.0 - inset);
+        let points = [(inset, inset), (right, inset), (inset, bottom), (right, bottom), ((w / 2) as f64, (h / 2) as f64)];
+        let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let reach = 0.5 * ((w * w + h * h) as f64).sqrt();
+        let empty = Layer::new(Image::new(w, h, 5), "nothing").unwrap();
+        for front in [false, true] {
+            let (d, focus) = if front { (0.75f32, 0.25f32) } else { (0.25, 0.75) };
+            let mut data = vec![0f32; w * h * 5];
+            let alpha = 0.05f32;
+            for px in data.chunks_exact_mut(5) {
+                px[3] = alpha;
+                px[4] = d;
+            }
+            for &(x, y) in &points {
+                let i = (y as usize * w + x as usize) * 5;
+                data[i..i + 3].copy_from_slice(&[value; 3]);
+            }
+            let layers = [Layer::new(Image::from_vec(w, h, 5, data).unwrap(), "points").unwrap(), empty.clone()];
+            let s = settings(ap, 2.0 * coc as f32, focus, 2 * coc as usize + 7);
+            // The exact kernel clips every tap of a cut shape (no tables): the medium CoC only.
+            let kernels: &[Kernel] =
+                if coc < 16.0 { &[Kernel::Exact, Kernel::Fast { quality: 2 }] } else { &[Kernel::Fast { quality: 2 }] };
+            for &kernel in kernels {
+                let out = render::render(&layers, &s, kernel).unwrap();
+                let total: f64 = out.data.iter().step_by(3).map(|&v| v as f64).sum();
+                let want = (alpha * value) as f64 * points.len() as f64;
+                if ((total - want) / want).abs() > 1e-3 {
+                    failures.push(format!("CoC {coc} front {front} {}: the points' light sums to {total:.4} (want {want})", kernel.name()));
+                }
+                for &(x, y) in &points {
+                    // The radial axis outward (image coordinates) and the cut's offset |v|.
+                    let (ux, uy) = ((x - cx) / reach, (y - cy) / reach);
+                    let n = (ux * ux + uy * uy).sqrt();
+                    let v = strength * n.min(1.0);
+                    let (ex, ey) = if n > 1e-9 { (ux / n, uy / n) } else { (1.0, 0.0) };
+                    // Behind: the disc [-r, r] along the axis cut at r(1 - |v|) outward; the
+                    // lens's widest chord at -|v|r/2, half-width r·sqrt(1 - |v|²/4). In front,
+                    // point-reflected.
+                    let sign = if front { -1.0 } else { 1.0 };
+                    let (out_edge, in_edge) = if front { (coc, coc * (1.0 - v)) } else { (coc * (1.0 - v), coc) };
+                    let mid = (x - sign * ex * v * coc / 2.0, y - sign * ey * v * coc / 2.0);
+                    let plateau = bilinear(&out, mid.0, mid.1);
+                    let half_width = coc * (1.0 - v * v / 4.0).sqrt();
+                    let got = [
+                        half_max_edge(&out, (x, y), (ex, ey), plateau, coc + 3.0),
+                        half_max_edge(&out, (x, y), (-ex, -ey), plateau, coc + 3.0),
+                        half_max_edge(&out, mid, (-ey, ex), plateau, coc + 3.0),
+                        half_max_edge(&out, mid, (ey, -ex), plateau, coc + 3.0),
+                    ];
+                    let want = [out_edge, in_edge, half_width, half_width];
+                    println!(
+                        "CoC {coc:2} {:6} {:5} point ({x:3}, {y:3}) |v| {v:.2}: edges {:?} want {:?}",
+                        if front { "front" } else { "behind" },
+                        kernel.name(),
+                        got.map(|g| (g * 100.0).round() / 100.0),
+                        want.map(|g| (g * 100.0).round() / 100.0)
+                    );
+                    for (k, (g, e)) in got.iter().zip(&want).enumerate() {
+                        if (g - e).abs().is_nan() || (g - e).abs() > 0.5 {
+                            failures.push(format!(
+                                "CoC {coc} front {front} {} point ({x}, {y}) edge {k}: {g:.2} px (want {e:.2})",
+                                kernel.name()
+                            ));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    common::assert_no_failures("cat's eye outlines", &failures);
 }

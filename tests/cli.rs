@@ -2068,6 +2068,23 @@ fn aperture_shapes_and_their_bad_values() {
         let a = with(&["--chromatic", value], "bad.png");
         s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--chromatic"]);
     }
+    // Cat's eye: named in the report, changes the picture, refused where it has no meaning.
+    let cat = with(&["--cat-eye", "1"], "cat.png");
+    assert_eq!(s.json(&cat.iter().map(String::as_str).collect::<Vec<_>>())["params"]["aperture"], "disc,cat_eye=1");
+    assert_ne!(read("cat.png").data, read("disc.png").data, "the cat's eye changed nothing");
+    for value in ["1.5", "-0.1", "nan"] {
+        let a = with(&["--cat-eye", value], "bad.png");
+        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--cat-eye"]);
+    }
+    io::write_png(&s.path("open.png"), &Image::from_vec(4, 4, 1, vec![1.0; 16]).unwrap(), 8, Transfer::Linear).unwrap();
+    for extra in [
+        &["--cat-eye", "0.5", "--aperture", "image:open.png"][..],
+        &["--cat-eye", "0.5", "--bubble", "0.5"],
+        &["--cat-eye", "0.5", "--profile", "official"],
+    ] {
+        let a = with(extra, "bad.png");
+        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["cat"]);
+    }
     std::fs::write(s.path("chroma.toml"), "[aperture]\nchromatic = 0.7\n").unwrap();
     let a = with(&["--config", "chroma.toml"], "bad.png");
     s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["chroma.toml", "aperture.chromatic"]);

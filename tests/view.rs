@@ -116,6 +116,7 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
         ),
         ("focus=0.1&blur=9&bubble=0.6", vec!["--focus", "0.1", "--blur", "9", "--bubble", "0.6"]),
         ("focus=0.1&blur=9&chromatic=0.1", vec!["--focus", "0.1", "--blur", "9", "--chromatic", "0.1"]),
+        ("focus=0.1&blur=9&cat_eye=0.8", vec!["--focus", "0.1", "--blur", "9", "--cat-eye", "0.8"]),
     ] {
         let (status, png) = server.request("GET", &format!("/render?{query}"));
         assert_eq!(status, 200, "{query}: {}", String::from_utf8_lossy(&png));
@@ -140,6 +141,7 @@ fn the_api_renders_what_render_renders_and_refuses_bad_requests() {
         ("/render?focus=0.5&bubble=2", "bubble"),
         ("/render?focus=0.5&bubble=x", "bubble"),
         ("/render?focus=0.5&chromatic=0.9", "chromatic"),
+        ("/render?focus=0.5&cat_eye=2", "cat_eye"),
         ("/render?focus=0.5&focus_at=1,1", "focus_at"),
         ("/render?focus_at=64,1", "outside"),
         ("/render?focus_at=a,b", "focus_at"),

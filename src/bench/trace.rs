@@ -259,15 +259,90 @@ pub fn trace_split(planes: &[Plane], s: &TraceSettings, window: Window, progress
     let tables = SampleTables::new(n, s.seed);
     let ks: Vec<f32> = planes.iter().map(|p| s.blur * (p.disparity - s.focus)).collect();
     let ow = window.width;
+    let vignette = Vignette::new(s, window);
     let mut out = Image::new(ow, window.height, 6);
     out.data.par_chunks_mut(ow * 6).enumerate().for_each(|(y, row)| {
         for x in 0..ow {
             let (px, py) = ((x + window.x0) as f32, (y + window.y0) as f32);
-            row[x * 6..x * 6 + 6].copy_from_slice(&trace_pixel(planes, &ks, s, &tables, px, py));
+            row[x * 6..x * 6 + 6].copy_from_slice(&trace_pixel(planes, &ks, s, &tables, vignette.as_ref(), px, py));
         }
         progress(1);
     });
     Ok((out.select_channels(&[0, 1, 2]), out.select_channels(&[3, 4, 5])))
+}
+
+/// A cat's eye as the tracer applies it (`Aperture::with_cat_eye`): a lens sample reaches the
+/// source it lands on only through that source's second circle, and counts the whole shape's
+/// area over the cut one's, so every source keeps unit flux as the renderer's do.
+struct Vignette {
+    cat: crate::render::aperture::CatEye,
+    window: Window,
+    /// `area / area_cut(v)` on a `(2·CELLS + 1)²` grid over `v ∈ [-s, s]²`, read bilinearly.
+    ratio: Vec<f32>,
+    step: f32,
+}
+
+impl Vignette {
+    /// Grid cells per half-axis: the ratio is smooth in `v`; bilinear within 1e-3 of it.
+    const CELLS: usize = 32;
+
+    fn new(s: &TraceSettings, window: Window) -> Option<Vignette> {
+        let cat = s.aperture.cat_eye(window.width, window.height)?;
+        let g = s.aperture.geometry()?;
+        // The farthest a cut's centre gets.
+        let reach = cat.strength().max(1e-6);
+        let side = 2 * Self::CELLS + 1;
+        let step = reach / Self::CELLS as f32;
+        let full = g.norm(1.0);
+        let ratio = (0..side * side)
+            .into_par_iter()
+            .map(|i| {
+                let v = [(i % side) as f32 * step - reach, (i / side) as f32 * step - reach];
+                full / g.norm_cut(1.0, v).max(1e-9)
+            })
+            .collect();
+        Some(Vignette { cat, window, ratio, step })
+    }
+
+    /// The weight of the lens point `(x, y)` (unit frame, y up) for the source at plane point
+    /// `(qx, qy)` (continuous plane coordinates): 0 outside its second circle, else the area
+    /// ratio of its cut.
+    fn weight(&self, x: f32, y: f32, qx: f32, qy: f32) -> f32 {
+        let w = &self.window;
+        // The source's pixel in the frame, clamped as the renderer replicates the border.
+        let cx = (qx - 0.5 - w.x0 as f32).clamp(0.0, w.width as f32 - 1.0);
+        let cy = (qy - 0.5 - w.y0 as f32).clamp(0.0, w.height as f32 - 1.0);
+        let [vx, vy] = self.cat.offset(cx, cy);
+        if (x - vx) * (x - vx) + (y - vy) * (y - vy) > 1.0 {
+            return 0.0;
+        }
+        let side = 2 * Self::CELLS + 1;
+        let (u, v) = (
+            (vx / self.step + Self::CELLS as f32).clamp(0.0, (side - 1) as f32),
+            (vy / self.step + Self::CELLS as f32).clamp(0.0, (side - 1) as f32),
+        );
+        let (i, j) = ((u as usize).min(side - 2), (v as usize).min(side - 2));
+        let (fu, fv) = (u - i as f32, v - j as f32);
+        let at = |a: usize, b: usize| self.ratio[b * side + a];
+        (1.0 - fv) * ((1.0 - fu) * at(i, j) + fu * at(i + 1, j)) + fv * ((1.0 - fu) * at(i, j + 1) + fu * at(i + 1, j + 1))
+    }
+}
+
+/// One plane's light under a cat's eye and the sum of its samples' weights.
+#[derive(Clone, Copy, Default)]
+struct PlaneSums {
+    light: [f64; 3],
+    weight: f64,
+}
+
+impl PlaneSums {
+    /// The planes' light, each divided by its own weight.
+    fn total(planes: &[PlaneSums]) -> [f64; 3] {
+        planes.iter().fold([0f64; 3], |mut a, p| {
+            a.iter_mut().zip(&p.light).for_each(|(a, l)| *a += l / p.weight.max(1e-12));
+            a
+        })
+    }
 }
 
 /// Number of independently scrambled copies of the sample pattern.
@@ -317,7 +392,15 @@ impl SampleTables {
 
 /// Mean radiance of the rays through the pixel whose top-left corner is (`px`, `py`), and the
 /// mean of the first half of them.
-fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTables, px: f32, py: f32) -> [f32; 6] {
+fn trace_pixel(
+    planes: &[Plane],
+    ks: &[f32],
+    s: &TraceSettings,
+    tab: &SampleTables,
+    vignette: Option<&Vignette>,
+    px: f32,
+    py: f32,
+) -> [f32; 6] {
     let h = splitmix(s.seed ^ splitmix(((px as u64) << 32) ^ py as u64));
     let t = (h % TABLES as u64) as usize;
     let (sin, cos) = ((h >> 8) as u32 as f32 * (std::f32::consts::TAU / 4_294_967_296.0)).sin_cos();
@@ -337,10 +420,15 @@ fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTabl
     let mut half = [0f64; 3];
     // Sums of the lens samples' transmission (all 1 for the disc).
     let (mut wsum, mut whalf) = (0f64, 0f64);
+    // A cat's eye: per plane, its light and the sum of its samples' weights (each plane is
+    // normalized by its own, as the renderer divides a layer's sums by its weight).
+    let mut cut_light = vec![PlaneSums::default(); if vignette.is_some() { planes.len() } else { 0 }];
+    let mut cut_half = Vec::new();
     for i in 0..n {
         if i == n / 2 {
             half = acc;
             whalf = wsum;
+            cut_half.clone_from(&cut_light);
         }
         let [lx, ly] = lens[i];
         let (mut ax, mut ay) = (cos * lx - sin * ly, sin * lx + cos * ly);
@@ -368,10 +456,22 @@ fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTabl
         };
         let mut tr = 1f32;
         let mut c = [0f32; 3];
-        for (p, &k) in planes.iter().zip(ks) {
-            let q = p.sample(sx + k * ax, sy + k * ay, s.footprint);
-            for ch in 0..3 {
-                c[ch] += tr * q[ch];
+        for (l, (p, &k)) in planes.iter().zip(ks).enumerate() {
+            let (qx, qy) = (sx + k * ax, sy + k * ay);
+            let q = p.sample(qx, qy, s.footprint);
+            // A cat's eye: through the source's own second circle (the lens point in the
+            // shape's frame, y up), into that plane's own sums.
+            if let Some(v) = vignette {
+                let cut = v.weight(ax, -ay, qx, qy);
+                let sums = &mut cut_light[l];
+                for (light, q) in sums.light.iter_mut().zip(&q[..3]) {
+                    *light += (wt * tr * q * cut) as f64;
+                }
+                sums.weight += (wt * cut) as f64;
+            } else {
+                for ch in 0..3 {
+                    c[ch] += tr * q[ch];
+                }
             }
             tr *= 1.0 - q[3];
             if tr <= 1e-7 {
@@ -381,6 +481,10 @@ fn trace_pixel(planes: &[Plane], ks: &[f32], s: &TraceSettings, tab: &SampleTabl
         for ch in 0..3 {
             acc[ch] += (wt * c[ch]) as f64;
         }
+    }
+    if vignette.is_some() {
+        let (full, first) = (PlaneSums::total(&cut_light), PlaneSums::total(&cut_half));
+        return [full[0], full[1], full[2], first[0], first[1], first[2]].map(|v| v as f32);
     }
     let (inv, inv_half) = (1.0 / wsum.max(1e-12), 1.0 / whalf.max(1e-12));
     [

@@ -7,7 +7,7 @@
 //! is [`shape`]'s.
 
 pub mod shape;
-pub use shape::{Aperture, ShapeSpec};
+pub use shape::{Aperture, CatEye, ShapeSpec};
 
 /// One tap of the lens window: row offset `di`, column offset `dj`, distance `r` in pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]

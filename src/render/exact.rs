@@ -87,7 +87,18 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
     // The disc's own ramp, or the aperture's pixel-integrated shape (`aperture::shape`).
     let shape = s.aperture.geometry();
-    let norm: Vec<f32> = radius.iter().map(|&r| shape.map_or_else(|| lens::disk_norm(r), |g| g.norm(r))).collect();
+    // A cat's eye: each source's second circle, from its position (a source beyond the
+    // border, replicated, takes its border pixel's), and the area it leaves.
+    let cuts: Option<Vec<[f32; 2]>> =
+        s.aperture.cat_eye(w, h).map(|c| (0..w * h).into_par_iter().map(|j| c.offset((j % w) as f32, (j / w) as f32)).collect());
+    let norm: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .map(|j| match (shape, &cuts) {
+            (None, _) => lens::disk_norm(radius[j]),
+            (Some(g), None) => g.norm(radius[j]),
+            (Some(g), Some(cuts)) => g.norm_cut(radius[j], cuts[j]),
+        })
+        .collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];
     let p = (s.lens / 2) as i64;
     out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each_init(ShapeTables::default, |tables, (y, row)| {
@@ -104,7 +115,10 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                     None => lens::disk_coverage(radius[j], t.r),
                     // The target sits (-dj, -di) from the source, (-dj, di) with y up; a source
                     // in front of the focal plane (d > 0) shows the shape point-reflected.
-                    Some(g) => tables.coverage(g, radius[j], d[j] > 0.0, p, t),
+                    Some(g) => match &cuts {
+                        None => tables.coverage(g, radius[j], d[j] > 0.0, p, t),
+                        Some(cuts) => g.coverage_cut(radius[j], -t.dj as f32, t.di as f32, d[j] > 0.0, Some(cuts[j])),
+                    },
                 };
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;

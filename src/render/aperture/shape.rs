@@ -45,6 +45,9 @@ fn profile(bubble: f32, t: f64) -> f64 {
 pub const BLADES: std::ops::RangeInclusive<u32> = 3..=64;
 /// Largest side of an aperture image, pixels.
 pub const MAX_IMAGE_SIDE: usize = 1024;
+/// Accepted cat's-eye strengths (`--cat-eye`): 0 = off, 1 = a corner's bokeh cut to a lens
+/// shape half as wide as it is tall.
+pub const CAT_EYE: std::ops::RangeInclusive<f32> = 0.0..=1.0;
 /// Accepted longitudinal chromatic aberrations (`--chromatic`): blue's circle of confusion
 /// keeps at least half its size.
 pub const CHROMATIC: std::ops::RangeInclusive<f32> = -0.5..=0.5;
@@ -138,6 +141,8 @@ pub struct Aperture {
     shape: Option<&'static Geometry>,
     /// `C`: red's circle of confusion scaled by `1 + C`, blue's by `1 − C`; 0 = none.
     chromatic: f32,
+    /// Optical vignetting's strength (see [`Aperture::with_cat_eye`]); 0 = none.
+    cat_eye: f32,
 }
 
 impl PartialEq for Aperture {
@@ -147,7 +152,7 @@ impl PartialEq for Aperture {
             (Some(a), Some(b)) => std::ptr::eq(a, b),
             _ => false,
         };
-        same_shape && self.chromatic.to_bits() == other.chromatic.to_bits()
+        same_shape && self.chromatic.to_bits() == other.chromatic.to_bits() && self.cat_eye.to_bits() == other.cat_eye.to_bits()
     }
 }
 
@@ -159,7 +164,7 @@ impl std::fmt::Debug for Aperture {
 
 impl Aperture {
     /// The uniform disc.
-    pub const DISC: Aperture = Aperture { shape: None, chromatic: 0.0 };
+    pub const DISC: Aperture = Aperture { shape: None, chromatic: 0.0, cat_eye: 0.0 };
 
     /// The aperture of `spec` with anamorphic aspect `anamorphic` (1 = none); an image is read
     /// from its path (relative to the working directory). Errors name `what` (the flag or
@@ -238,12 +243,12 @@ impl Aperture {
         static INTERNED: Mutex<Vec<&'static Geometry>> = Mutex::new(Vec::new());
         let mut all = INTERNED.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(&old) = all.iter().find(|old| ***old == g) {
-            return Aperture { shape: Some(old), chromatic: 0.0 };
+            return Aperture { shape: Some(old), ..Aperture::DISC };
         }
         // Leaked on purpose: a handful per process (one per distinct shape asked for).
         let g: &'static Geometry = Box::leak(Box::new(g));
         all.push(g);
-        Aperture { shape: Some(g), chromatic: 0.0 }
+        Aperture { shape: Some(g), ..Aperture::DISC }
     }
 
     /// This aperture with longitudinal chromatic aberration `c` in [`CHROMATIC`]: each colour
@@ -259,6 +264,51 @@ impl Aperture {
             )));
         }
         Ok(Aperture { chromatic: c, ..self })
+    }
+
+    /// This aperture with optical vignetting ("cat's eye") of strength `s` in [`CAT_EYE`]:
+    /// a source's bokeh is the shape intersected with a second circle of the same
+    /// circumradius, displaced toward the frame's centre by `s` times the source's distance
+    /// from the centre over the half-diagonal (see [`CatEye`]): round in the middle of the
+    /// frame, cut on the side away from the centre toward the corners, as a real lens's
+    /// barrel clips its pupil off axis. Each source keeps unit flux. The disc and blade shapes
+    /// only (an image aperture or a bubble profile is refused); 0 = off.
+    pub fn with_cat_eye(self, s: f32) -> Result<Aperture> {
+        if !s.is_finite() || !CAT_EYE.contains(&s) {
+            return Err(Error::usage(format!(
+                "aperture.cat_eye {s} is outside [{}, {}] (0 = off, 1 = strong optical vignetting)",
+                CAT_EYE.start(),
+                CAT_EYE.end()
+            )));
+        }
+        if s == 0.0 {
+            return Ok(self);
+        }
+        let shape = match self.shape {
+            // The disc as a polygon (the kernels' radial ramp has no cut).
+            None => Aperture::from_kind(ShapeSpec::Disc, 1.0, 0.0, Kind::polygon(circle(CURVE_VERTICES))).shape,
+            Some(g) if matches!(g.kind, Kind::Mask(_)) => {
+                return Err(Error::usage(format!("aperture.cat_eye {s}: an image aperture has no cat's eye; use the disc or blades")));
+            }
+            Some(g) if g.bubble != 0.0 => {
+                return Err(Error::usage(format!("aperture.cat_eye {s}: not with a bubble profile (aperture.bubble {})", g.bubble)));
+            }
+            shape => shape,
+        };
+        Ok(Aperture { shape, cat_eye: s, ..self })
+    }
+
+    /// The cat's eye of a `width × height` frame; None without one.
+    pub fn cat_eye(self, width: usize, height: usize) -> Option<CatEye> {
+        (self.cat_eye > 0.0).then(|| CatEye::new(self.cat_eye, width, height))
+    }
+
+    /// The radius the fast kernel draws a larger CoC with in a window of half-size `p` (see
+    /// [`Geometry::drawn_cap`]); None for the disc. A cat's eye cuts the shape down to a
+    /// sliver off axis: twice the window's radius.
+    pub fn drawn_cap(self, p: usize) -> Option<f32> {
+        let g = self.shape?;
+        Some(if self.cat_eye > 0.0 { 2.0 * (p as f32 + 1.0) } else { g.drawn_cap(p) })
     }
 
     /// The longitudinal chromatic aberration `C` (0 = none).
@@ -294,7 +344,7 @@ impl Aperture {
     }
 
     /// How reports name it: `disc`, `blades:6,rotation=0,curvature=0`, `image:star.png`, with
-    /// `,anamorphic=A`, `,bubble=B` and `,chromatic=C` when set.
+    /// `,anamorphic=A`, `,bubble=B`, `,cat_eye=S` and `,chromatic=C` when set.
     pub fn label(self) -> String {
         let mut s = match self.shape {
             None => "disc".into(),
@@ -309,6 +359,9 @@ impl Aperture {
                 s
             }
         };
+        if self.cat_eye != 0.0 {
+            s += &format!(",cat_eye={}", self.cat_eye);
+        }
         if self.chromatic != 0.0 {
             s += &format!(",chromatic={}", self.chromatic);
         }
@@ -429,21 +482,48 @@ impl Geometry {
     /// staircase: a neighbour gets light from a CoC of 1/8 px on); below [`POINT_COC_PX`] the
     /// source's own pixel alone (1).
     pub fn coverage(&self, r: f32, x: f32, y: f32, flip: bool) -> f32 {
+        self.coverage_cut(r, x, y, flip, None)
+    }
+
+    /// [`Geometry::coverage`] of the shape intersected with the unit circle centred `cut`
+    /// (unit frame, y up, before the point reflection: a cat's eye's second circle,
+    /// [`CatEye::offset`]); None is the whole shape.
+    pub fn coverage_cut(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<[f32; 2]>) -> f32 {
         if r < POINT_COC_PX {
             return if x == 0.0 && y == 0.0 { 1.0 } else { 0.0 };
         }
         let (x, y) = if flip { (-x, -y) } else { (x, y) };
-        match self.square_area(r, x, y, 1.0) {
+        if let Some([vx, vy]) = cut
+            && self.bubble == 0.0
+        {
+            // Well inside both outlines (the cut circle is 1 − |v| from the centre at its
+            // nearest): no clipping, most of a large bokeh's pixels.
+            let inner = self.inradius.min(1.0 - ((vx * vx + vy * vy) as f64).sqrt()) * r as f64;
+            let (x, y, r) = (x as f64, y as f64, r as f64);
+            if (x * x + y * y).sqrt() + std::f64::consts::SQRT_2 < inner {
+                return 1.0;
+            }
+            // Wholly outside the cut circle: most of the window off axis.
+            let (dx, dy) = (x - vx as f64 * r, y - vy as f64 * r);
+            if (dx * dx + dy * dy).sqrt() - std::f64::consts::SQRT_2 > r {
+                return 0.0;
+            }
+        }
+        let cut = cut.map(|v| [v[0] as f64, v[1] as f64]);
+        match self.square_area(r, x, y, 1.0, cut) {
             Area::Inside if self.bubble == 0.0 => return 1.0,
             Area::Part(0.0) => return 0.0,
             _ => {}
         }
-        const N: usize = 4;
+        // A cat's eye's cut shape is clipped by two polygons per offset and built into a
+        // template per source class: 2 × 2 offsets (the tiling, hence the flux, stays exact;
+        // the outline's half-maximum stays on it: tests/aperture.rs).
+        let n = if cut.is_some() { 2 } else { 4 };
         let mut acc = 0f64;
-        for i in 0..N {
-            for j in 0..N {
-                let (ox, oy) = ((i as f32 + 0.5) / N as f32 - 0.5, (j as f32 + 0.5) / N as f32 - 0.5);
-                let area = match self.square_area(r, x + ox, y + oy, 0.5) {
+        for i in 0..n {
+            for j in 0..n {
+                let (ox, oy) = ((i as f32 + 0.5) / n as f32 - 0.5, (j as f32 + 0.5) / n as f32 - 0.5);
+                let area = match self.square_area(r, x + ox, y + oy, 0.5, cut) {
                     Area::Inside => 1.0,
                     Area::Part(a) => a * r as f64 * r as f64,
                 };
@@ -452,7 +532,7 @@ impl Geometry {
             }
         }
         // A bubble's rim (or centre) is brighter than 1.
-        ((acc / (N * N) as f64) as f32).clamp(0.0, 1.0 + self.bubble.abs())
+        ((acc / (n * n) as f64) as f32).clamp(0.0, 1.0 + self.bubble.abs())
     }
 
     /// The bubble profile's intensity at the unit-frame point `(x, y)` (y up, not reflected):
@@ -473,17 +553,61 @@ impl Geometry {
         profile(self.bubble, t) as f32
     }
 
-    /// The unit-frame area of the shape (circumradius `r` px) inside the square of half-side
-    /// `half` px centred `(x, y)` px from the source (y up, not reflected). O(1) inside and
-    /// outside the shape, O(vertices) on its outline.
-    fn square_area(&self, r: f32, x: f32, y: f32, half: f32) -> Area {
+    /// The unit-frame area of the shape (circumradius `r` px), cut by the unit circle centred
+    /// `cut` if any, inside the square of half-side `half` px centred `(x, y)` px from the
+    /// source (y up, not reflected). O(1) inside and outside the shape, O(vertices) on its
+    /// outline.
+    fn square_area(&self, r: f32, x: f32, y: f32, half: f32, cut: Option<[f64; 2]>) -> Area {
         let s = 1.0 / r as f64;
         let (x, y, h) = (x as f64, y as f64, half as f64);
         let rect = [(x - h) * s, (x + h) * s, (y - h) * s, (y + h) * s];
-        match &self.kind {
-            Kind::Polygon { planes, bbox, radii, sectors, .. } => polygon_rect_area(planes, bbox, *radii, sectors, rect),
-            Kind::Mask(m) => m.integral(rect),
+        match (&self.kind, cut) {
+            (Kind::Polygon { planes, bbox, radii, sectors, .. }, None) => polygon_rect_area(planes, bbox, *radii, sectors, rect),
+            (Kind::Polygon { planes, bbox, radii, sectors, .. }, Some(v)) => {
+                let [x0, x1, y0, y1] = rect;
+                let mut poly: Poly = smallvec::smallvec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+                let mut next = Poly::new();
+                let a = clip_convex(planes, bbox, *radii, sectors, [0.0; 2], rect, &mut poly, &mut next);
+                if a == Clip::Empty {
+                    return Area::Part(0.0);
+                }
+                let Kind::Polygon { planes, bbox, radii, sectors, .. } = unit_circle() else { unreachable!("a polygon") };
+                match (a, clip_convex(planes, bbox, *radii, sectors, v, rect, &mut poly, &mut next)) {
+                    (_, Clip::Empty) => Area::Part(0.0),
+                    (Clip::Untouched, Clip::Untouched) => Area::Inside,
+                    _ => Area::Part(shoelace(&poly).max(0.0)),
+                }
+            }
+            // A cat's eye is refused for images (`Aperture::with_cat_eye`).
+            (Kind::Mask(m), _) => m.integral(rect),
         }
+    }
+
+    /// [`Geometry::norm`] of the shape cut by the unit circle centred `cut` (unit frame, y
+    /// up; see [`Geometry::coverage_cut`]): the cut shape's area times `r²`, the lattice sum
+    /// of its coverages. O(vertices · 256).
+    pub fn norm_cut(&self, r: f32, cut: [f32; 2]) -> f32 {
+        if r < POINT_COC_PX { 1.0 } else { (self.area_cut([cut[0] as f64, cut[1] as f64]) * r as f64 * r as f64) as f32 }
+    }
+
+    /// The unit-frame area of the shape intersected with the unit circle centred `v`.
+    fn area_cut(&self, v: [f64; 2]) -> f64 {
+        let Kind::Polygon { pts, .. } = &self.kind else { return self.area };
+        let Kind::Polygon { planes, .. } = unit_circle() else { unreachable!("a polygon") };
+        let (mut poly, mut next) = (pts.clone(), Vec::with_capacity(pts.len() + 8));
+        for &[nx, ny, c] in planes {
+            let c = c + nx * v[0] + ny * v[1];
+            if poly.iter().all(|p| nx * p[0] + ny * p[1] <= c) {
+                continue;
+            }
+            next.clear();
+            clip_half_plane(&poly, [nx, ny, c], &mut next);
+            std::mem::swap(&mut poly, &mut next);
+            if poly.len() < 3 {
+                return 0.0;
+            }
+        }
+        shoelace(&poly).max(0.0)
     }
 
     /// An area-preserving map from the unit square to a polygon's inside (unit frame, y up),
@@ -550,6 +674,50 @@ impl Geometry {
     }
 }
 
+/// The unit circle as a polygon (a cat's eye's second circle), built once.
+fn unit_circle() -> &'static Kind {
+    static CIRCLE: std::sync::OnceLock<Kind> = std::sync::OnceLock::new();
+    CIRCLE.get_or_init(|| Kind::polygon(circle(CURVE_VERTICES)))
+}
+
+/// Optical vignetting over one frame (`Aperture::with_cat_eye`): where each source's second
+/// circle sits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CatEye {
+    strength: f32,
+    /// The frame's centre, pixels (column, row of pixel centres).
+    cx: f32,
+    cy: f32,
+    /// 1 / the half-diagonal, per pixel.
+    inv_reach: f32,
+}
+
+impl CatEye {
+    /// The cat's eye of strength `strength` over a `width × height` frame.
+    pub fn new(strength: f32, width: usize, height: usize) -> CatEye {
+        let (w, h) = (width as f32, height as f32);
+        let reach = 0.5 * (w * w + h * h).sqrt();
+        CatEye { strength, cx: (w - 1.0) / 2.0, cy: (h - 1.0) / 2.0, inv_reach: 1.0 / reach.max(0.5) }
+    }
+
+    /// The strength: how far (unit frame) the second circle moves at the corners.
+    pub fn strength(&self) -> f32 {
+        self.strength
+    }
+
+    /// The centre of the second circle (unit frame: circumradius 1, y up) for a source at
+    /// pixel `(x, y)` (column, row; may lie outside the frame): toward the frame's centre,
+    /// the strength times the source's distance from the centre over the half-diagonal (1 at
+    /// most, so the cut shape always holds the source's own point).
+    #[inline]
+    pub fn offset(&self, x: f32, y: f32) -> [f32; 2] {
+        let (ux, uy) = ((x - self.cx) * self.inv_reach, (self.cy - y) * self.inv_reach);
+        let n = (ux * ux + uy * uy).sqrt();
+        let k = if n > 1.0 { self.strength / n } else { self.strength };
+        [-ux * k, -uy * k]
+    }
+}
+
 /// What a pixel's rectangle covers of a shape (unit frame areas).
 enum Area {
     /// Wholly inside (coverage exactly 1).
@@ -602,27 +770,82 @@ fn shoelace(pts: &[[f64; 2]]) -> f64 {
 
 /// Area of `rect = [x0, x1, y0, y1]` inside the convex polygon of half-planes `planes`: the
 /// rectangle clipped by each plane that cuts it (most pixels meet none or one edge).
-fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], [inner, outer]: [f64; 2], sectors: &Sectors, rect: [f64; 4]) -> Area {
+fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], radii: [f64; 2], sectors: &Sectors, rect: [f64; 4]) -> Area {
     let [x0, x1, y0, y1] = rect;
+    let mut poly: Poly = smallvec::smallvec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+    let mut next = Poly::new();
+    match clip_convex(planes, bbox, radii, sectors, [0.0; 2], rect, &mut poly, &mut next) {
+        Clip::Empty => Area::Part(0.0),
+        Clip::Untouched => Area::Inside,
+        Clip::Cut => Area::Part(shoelace(&poly).max(0.0)),
+    }
+}
+
+/// Appends to `out` the convex polygon `poly` clipped to the half-plane `n·p ≤ c`
+/// (Sutherland–Hodgman, one plane).
+fn clip_half_plane(poly: &[[f64; 2]], [nx, ny, c]: [f64; 3], out: &mut impl Extend<[f64; 2]>) {
+    let m = poly.len();
+    for i in 0..m {
+        let (a, b) = (poly[i], poly[(i + 1) % m]);
+        let (da, db) = (nx * a[0] + ny * a[1] - c, nx * b[0] + ny * b[1] - c);
+        if da <= 0.0 {
+            out.extend([a]);
+        }
+        if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
+            let t = da / (da - db);
+            out.extend([[a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]]);
+        }
+    }
+}
+
+/// A small polygon on the stack (a rectangle clipped by a few planes).
+type Poly = SmallVec<[[f64; 2]; 12]>;
+
+/// What [`clip_convex`] did.
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Clip {
+    /// Nothing is left.
+    Empty,
+    /// The polygon lies inside: unchanged.
+    Untouched,
+    /// Clipped (possibly to nothing: check its area).
+    Cut,
+}
+
+/// Clips `poly`, which lies inside `rect` (both in the frame whose origin is the shape's
+/// centre), to the convex polygon of half-planes `planes` (with its bounding box, inscribed
+/// and circumscribed radii and sectors, in its own frame) centred at `shift`. `next` is
+/// scratch.
+#[allow(clippy::too_many_arguments)]
+fn clip_convex(
+    planes: &[[f64; 3]],
+    bbox: &[f64; 4],
+    [inner, outer]: [f64; 2],
+    sectors: &Sectors,
+    shift: [f64; 2],
+    rect: [f64; 4],
+    poly: &mut Poly,
+    next: &mut Poly,
+) -> Clip {
+    // The rectangle in the polygon's own frame.
+    let [x0, x1, y0, y1] = [rect[0] - shift[0], rect[1] - shift[0], rect[2] - shift[1], rect[3] - shift[1]];
     if x1 <= bbox[0] || x0 >= bbox[1] || y1 <= bbox[2] || y0 >= bbox[3] {
-        return Area::Part(0.0);
+        return Clip::Empty;
     }
     // The rectangle's farthest and nearest points from the centre.
     let far = |a: f64, b: f64| a.abs().max(b.abs());
     let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
     let (fx, fy, nx, ny) = (far(x0, x1), far(y0, y1), near(x0, x1), near(y0, y1));
     if fx * fx + fy * fy < inner * inner * (1.0 - 1e-12) {
-        return Area::Inside;
+        return Clip::Untouched;
     }
     if nx * nx + ny * ny >= outer * outer {
-        return Area::Part(0.0);
+        return Clip::Empty;
     }
-    let mut poly: SmallVec<[[f64; 2]; 12]> = smallvec::smallvec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
     let mut cut = false;
-    let mut next = SmallVec::<[[f64; 2]; 12]>::new();
     // Within the cone from the centre that holds the rectangle, the polygon is bounded by the
     // edges of that cone's angles alone (it is convex around the centre).
-    for &[nx, ny, c] in sectors.planes(planes, rect) {
+    for &[nx, ny, c] in sectors.planes(planes, [x0, x1, y0, y1]) {
         // The rectangle's corner farthest along n, and the nearest.
         let far = nx * if nx > 0.0 { x1 } else { x0 } + ny * if ny > 0.0 { y1 } else { y0 };
         if far <= c {
@@ -630,28 +853,18 @@ fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], [inner, outer]: [f64;
         }
         let near = nx * if nx > 0.0 { x0 } else { x1 } + ny * if ny > 0.0 { y0 } else { y1 };
         if near >= c {
-            return Area::Part(0.0);
+            return Clip::Empty;
         }
+        // In the shape's frame: n·p ≤ c + n·shift.
         cut = true;
         next.clear();
-        let m = poly.len();
-        for i in 0..m {
-            let (a, b) = (poly[i], poly[(i + 1) % m]);
-            let (da, db) = (nx * a[0] + ny * a[1] - c, nx * b[0] + ny * b[1] - c);
-            if da <= 0.0 {
-                next.push(a);
-            }
-            if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
-                let t = da / (da - db);
-                next.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
-            }
-        }
-        std::mem::swap(&mut poly, &mut next);
+        clip_half_plane(poly, [nx, ny, c + nx * shift[0] + ny * shift[1]], next);
+        std::mem::swap(poly, next);
         if poly.len() < 3 {
-            return Area::Part(0.0);
+            return Clip::Empty;
         }
     }
-    if cut { Area::Part(shoelace(&poly).max(0.0)) } else { Area::Inside }
+    if cut { Clip::Cut } else { Clip::Untouched }
 }
 
 /// A many-sided polygon's edges by angle from the centre: which planes can bound it inside a
@@ -910,6 +1123,40 @@ mod tests {
         assert!(Aperture::from_mask(2, 2, &[0.0; 4], 1.0, "m").unwrap_err().to_string().contains("all black"));
         assert!(Aperture::from_mask(2, 1, &[1.0, f32::NAN], 1.0, "m").unwrap_err().to_string().contains("not finite"));
         assert!(Aperture::from_mask(1025, 1, &[1.0; 1025], 1.0, "m").is_err());
+    }
+
+    #[test]
+    fn cat_eye_cuts_toward_the_frame_centre() {
+        // The offset points at the centre (y up), in proportion to the distance, at most the
+        // strength; the centre itself is uncut.
+        let c = CatEye::new(0.8, 101, 51);
+        assert_eq!(c.offset(50.0, 25.0), [0.0, 0.0]);
+        let reach = 0.5 * (101.0f32 * 101.0 + 51.0 * 51.0).sqrt();
+        let [vx, vy] = c.offset(0.0, 0.0);
+        assert!((vx - 0.8 * 50.0 / reach).abs() < 1e-6 && (vy + 0.8 * 25.0 / reach).abs() < 1e-6, "{vx} {vy}");
+        let far = c.offset(1e6, 25.0);
+        assert!((far[0] + 0.8).abs() < 1e-6 && far[1] == 0.0);
+        // The cut's area is the two discs' lens: 2·acos(d/2) − (d/2)·sqrt(4 − d²).
+        let disc = Aperture::DISC.with_cat_eye(1.0).unwrap();
+        let g = disc.geometry().unwrap();
+        for d in [0.0f64, 0.3, 0.7, 1.0] {
+            let want = 2.0 * (d / 2.0).acos() - d / 2.0 * (4.0 - d * d).sqrt();
+            let got = g.norm_cut(1.0, [0.0, -d as f32]) as f64;
+            assert!((got - want).abs() < 2e-3 * want, "d {d}: {got} vs {want}");
+            // Coverages tile: their lattice sum is the area (the source's unit flux).
+            let r = 7.5f32;
+            let sum: f64 = (-10..=10)
+                .flat_map(|y| (-10..=10).map(move |x| (x, y)))
+                .map(|(x, y)| g.coverage_cut(r, x as f32, y as f32, false, Some([0.0, -d as f32])) as f64)
+                .sum();
+            assert!((sum - g.norm_cut(r, [0.0, -d as f32]) as f64).abs() < 1e-3 * sum, "d {d}: lattice {sum}");
+        }
+        // Refused: out of range, an image aperture, a bubble.
+        assert!(Aperture::DISC.with_cat_eye(1.5).is_err() && Aperture::DISC.with_cat_eye(f32::NAN).is_err());
+        assert!(Aperture::from_mask(2, 2, &[1.0; 4], 1.0, "m").unwrap().with_cat_eye(0.5).is_err());
+        assert!(Aperture::with_bubble(&ShapeSpec::Disc, 1.0, 0.5, "b").unwrap().with_cat_eye(0.5).is_err());
+        assert_eq!(disc.label(), "disc,cat_eye=1");
+        assert!(Aperture::DISC.with_cat_eye(0.0).unwrap().is_disc());
     }
 
     #[test]

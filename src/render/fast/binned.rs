@@ -18,11 +18,12 @@
 //! scaled by the ratio of its disk's area to the bin's.
 
 use super::footprint::{EDGE, HARD_EDGE, SOFT_EDGE, equivalent_radius, rim_row_taps};
-use crate::render::aperture::shape::Geometry;
+use crate::render::aperture::shape::{CatEye, Geometry};
 use crate::render::lens::{disk_coverage, disk_norm};
 use crate::render::splat::{Stripe, Window, disk_chord, flux_scale, lattice_row_reach, span_edges};
 use std::collections::HashMap;
 use std::f32::consts::PI;
+use std::sync::{Arc, Mutex};
 
 /// Sources of one bin at most this many pixels apart share a run (the zeros between them are
 /// added too). A run costs a loop per template row and entry; a zero element, one add per
@@ -132,8 +133,9 @@ impl Template {
     /// The footprint of radius `r` (CoC, scatter radius or disk radius, per `shape`) in a
     /// window of half-size `p`, centred `phase` (x, y; in `[0, 1)`, coarse shape only) past a
     /// lattice point: the rows, spans and taps the one-by-one draw of such a source makes.
-    /// An aperture's shape is point-reflected when `flip`.
-    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, p: i64) -> Self {
+    /// An aperture's shape is point-reflected when `flip`, and cut by a cat's eye's second
+    /// circle centred `cut` (see [`Geometry::coverage_cut`]).
+    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, cut: Option<[f32; 2]>, p: i64) -> Self {
         let mut t = Template { scale: 1.0, rr: 0, rows: Vec::new(), diffs: Vec::new(), taps: Vec::new() };
         match shape {
             Shape::Physical => {
@@ -181,8 +183,8 @@ impl Template {
             }
             // The lens window's taps (|offset| < p, as the exact kernel's), or the coarse
             // window's disk around the off-lattice centre.
-            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
-            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, |j| {
+            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, cut, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
+            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, cut, |j| {
                 Window::Disk(window).half_width(j as f32 - phase.1).map(|hw| (phase.0 - hw, phase.0 + hw))
             }),
         }
@@ -196,8 +198,9 @@ impl Template {
         // `Bins::place` scales that to the source's own radius).
         t.scale = match shape {
             Shape::Physical => 1.0 / disk_norm(r),
-            Shape::Aperture(g) => 1.0 / g.norm(r),
-            Shape::CoarseAperture { .. } => 1.0,
+            Shape::Aperture(g) => 1.0 / cut.map_or_else(|| g.norm(r), |v| g.norm_cut(r, v)),
+            // The aggregate's density is of the whole shape's area: the cut one keeps its flux.
+            Shape::CoarseAperture { shape: g, .. } => cut.map_or(1.0, |v| g.norm(r) / g.norm_cut(r, v)),
             Shape::Coarse { .. } => flux_scale(r, phase.1),
             Shape::Official { .. } => 1.0,
         };
@@ -212,7 +215,15 @@ impl Template {
     /// lattice point: per row `j`, the pixels wholly inside as spans (runs of coverage 1) and
     /// the others with some coverage as taps, where `window(j)` bounds `|dx|` (pixels whose
     /// centre column lies in it). O(r²) coverages.
-    fn shape_rows(&mut self, g: &Geometry, r: f32, (fx, fy): (f32, f32), flip: bool, window: impl Fn(i64) -> Option<(f32, f32)>) {
+    fn shape_rows(
+        &mut self,
+        g: &Geometry,
+        r: f32,
+        (fx, fy): (f32, f32),
+        flip: bool,
+        cut: Option<[f32; 2]>,
+        window: impl Fn(i64) -> Option<(f32, f32)>,
+    ) {
         // A pixel's tent (its square and the source's) reaches a pixel past the outline.
         let reach = r + 1.0;
         self.rr = (reach + fy).ceil() as i64;
@@ -226,7 +237,7 @@ impl Template {
                 let mut run: Option<i64> = None;
                 for dx in lo..=hi + 1 {
                     // Output coordinates, y up.
-                    let c = if dx <= hi { g.coverage(r, dx as f32 - fx, -dy, flip) } else { 0.0 };
+                    let c = if dx <= hi { g.coverage_cut(r, dx as f32 - fx, -dy, flip, cut) } else { 0.0 };
                     match (c == 1.0, run) {
                         (true, None) => run = Some(dx),
                         (false, Some(a)) => {
@@ -274,7 +285,9 @@ impl Template {
 
 /// How one layer's (or coarse level's) sources map to templates: radius bins `width` px wide
 /// (and centre positions, for the coarse shape). Key `(k·P + py)·P + px` is bin `k` (radius
-/// `k·width`) at centre position `(px, py)/P` past a lattice point (`P` = `shape.phases()`).
+/// `k·width`) at centre position `(px, py)/P` past a lattice point (`P` = `shape.phases()`);
+/// with a cat's eye, its second circle's centre, quantized ([`Bins::cut_class`]), sits in
+/// the key's bits from [`CUT_SHIFT`] on.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Bins {
     shape: Shape,
@@ -282,12 +295,60 @@ pub(super) struct Bins {
     p: i64,
     /// Width of a bin, pixels.
     width: f32,
+    /// An aperture's cat's eye (its sources' templates are per cut as well).
+    cat: Option<CatEye>,
 }
+
+/// Where a cat's eye's cut class starts in a key; 12 bits per axis above it.
+const CUT_SHIFT: u32 = 40;
+/// The cut's centre per axis in steps of `CUT_PX / r` (unit frame; at least 1/2048): the
+/// outline of a template then lies within `CUT_PX / √2` px of the source's own. A coarse
+/// grid (upsampled bilinearly, `2^ℓ` px per cell) quantizes to [`CUT_PX_COARSE`] grid px:
+/// its templates were 78% of a 12 MP cat's-eye render at focus 1 with 0.5.
+const CUT_PX: f32 = 0.25;
+/// [`CUT_PX`] of the coarse grids, grid pixels.
+const CUT_PX_COARSE: f32 = 1.0;
 
 impl Bins {
     /// Bins `width` px wide of footprint `shape` in a window of half-size `p`.
     pub(super) fn new(shape: Shape, width: f32, p: usize) -> Self {
-        Bins { shape, p: p as i64, width }
+        Bins { shape, p: p as i64, width, cat: None }
+    }
+
+    /// These bins with templates per cat's eye cut (an aperture shape only).
+    pub(super) fn with_cat_eye(self, cat: Option<CatEye>) -> Self {
+        Bins { cat: cat.filter(|_| matches!(self.shape, Shape::Aperture(_) | Shape::CoarseAperture { .. })), ..self }
+    }
+
+    /// Whether keys carry the point reflection: a shape that is not point-symmetric, or cut.
+    fn flips(&self) -> bool {
+        self.shape.flips() || self.cat.is_some()
+    }
+
+    /// The quantization step of a cut's centre in bin `k`.
+    fn cut_step(&self, k: u64) -> f32 {
+        let px = if matches!(self.shape, Shape::CoarseAperture { .. }) { CUT_PX_COARSE } else { CUT_PX };
+        (px / self.radius(k).max(1e-3)).clamp(1.0 / 2048.0, 1.0)
+    }
+
+    /// The key bits of the cut of a source at full-resolution pixel `at` in bin `k` (0 without
+    /// a cat's eye).
+    #[inline]
+    fn cut_class(&self, k: u64, at: (f32, f32)) -> u64 {
+        let Some(cat) = self.cat else { return 0 };
+        let [vx, vy] = cat.offset(at.0, at.1);
+        let step = self.cut_step(k);
+        let q = |v: f32| ((v / step).round().clamp(-2047.0, 2047.0) as i64 + 2048) as u64;
+        ((q(vy) << 12) | q(vx)) << CUT_SHIFT
+    }
+
+    /// The cut's centre of a key's class (None without a cat's eye).
+    fn cut_of(&self, k: u64, key: u64) -> Option<[f32; 2]> {
+        self.cat?;
+        let class = key >> CUT_SHIFT;
+        let step = self.cut_step(k);
+        let v = |q: u64| (q as i64 - 2048) as f32 * step;
+        Some([v(class & 0xFFF), v(class >> 12)])
     }
 
     /// The bin of radius `r` (a source centred on a lattice point) and the factor that scales
@@ -301,22 +362,23 @@ impl Bins {
     }
 
     /// [`Bins::bin`] for an aperture's shape, point-reflected when `flip` (a source in front
-    /// of the focal plane).
+    /// of the focal plane), of a source at full-resolution pixel `at` (its cat's eye's cut).
     #[inline]
-    pub(super) fn bin_flipped(&self, r: f32, flip: bool) -> (u64, f32) {
+    pub(super) fn bin_flipped(&self, r: f32, flip: bool, at: (f32, f32)) -> (u64, f32) {
         let k = self.bin_index(r);
-        (k * 2 + u64::from(flip && self.shape.flips()), self.factor(k, r))
+        ((k * 2 + u64::from(flip && self.flips())) | self.cut_class(k, at), self.factor(k, r))
     }
 
     /// Coarse shape: the template of a disk of radius `rho` centred at `(cx, cy)` (grid
     /// pixels), the lattice point `(x, y)` it is placed at, and its value's factor. O(1).
     #[inline]
-    pub(super) fn place(&self, cx: f32, cy: f32, rho: f32, flip: bool) -> (u64, i64, i64, f32) {
+    /// With a cat's eye, `at` is the aggregate's full-resolution position (its cut).
+    pub(super) fn place(&self, cx: f32, cy: f32, rho: f32, flip: bool, at: (f32, f32)) -> (u64, i64, i64, f32) {
         let n = self.shape.phases() as i64;
         let (qx, qy) = ((cx * n as f32).round() as i64, (cy * n as f32).round() as i64);
         let k = self.bin_index(rho);
-        let kf = if self.shape.flips() { k * 2 + u64::from(flip) } else { k };
-        let key = (kf * n as u64 + qy.rem_euclid(n) as u64) * n as u64 + qx.rem_euclid(n) as u64;
+        let kf = if self.flips() { k * 2 + u64::from(flip) } else { k };
+        let key = ((kf * n as u64 + qy.rem_euclid(n) as u64) * n as u64 + qx.rem_euclid(n) as u64) | self.cut_class(k, at);
         (key, qx.div_euclid(n), qy.div_euclid(n), self.factor(k, rho))
     }
 
@@ -352,20 +414,56 @@ impl Bins {
     /// The template of `key`, built (O(r)).
     fn template(&self, key: u64) -> Template {
         let n = self.shape.phases() as u64;
-        let (k, py, px) = (key / (n * n), key / n % n, key % n);
-        let (k, flip) = if self.shape.flips() || matches!(self.shape, Shape::Aperture(_)) { (k / 2, k % 2 == 1) } else { (k, false) };
-        Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), flip, self.p)
+        let base = if self.cat.is_some() { key & ((1 << CUT_SHIFT) - 1) } else { key };
+        let (k, py, px) = (base / (n * n), base / n % n, base % n);
+        let (k, flip) = if self.flips() || matches!(self.shape, Shape::Aperture(_)) { (k / 2, k % 2 == 1) } else { (k, false) };
+        let cut = self.cut_of(k, key);
+        Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), flip, cut, self.p)
     }
 }
 
-/// The templates one worker has drawn, by key (built on first use; per layer, or per coarse
-/// level, as its [`Bins`]).
+/// The templates the workers of one layer (or coarse level, as its [`Bins`]) have built, by
+/// key: each is built once, whichever worker needs it first, not once per worker (a 12.2 MP
+/// cat's-eye render builds thousands, at up to a millisecond each).
 #[derive(Default)]
-pub(super) struct Templates(HashMap<u64, Template>);
+pub(super) struct SharedTemplates(Mutex<HashMap<u64, Arc<Template>>>);
+
+/// The templates one worker has drawn, by key (built on first use, or taken from the
+/// [`SharedTemplates`] it shares; per layer, or per coarse level, as its [`Bins`]). Looked up
+/// without a lock once a worker has met a key.
+#[derive(Default)]
+pub(super) struct Templates {
+    local: HashMap<u64, Arc<Template>>,
+    shared: Option<Arc<SharedTemplates>>,
+}
 
 impl Templates {
+    /// A worker's templates that share `shared`'s.
+    pub(super) fn sharing(shared: &Arc<SharedTemplates>) -> Self {
+        Templates { local: HashMap::new(), shared: Some(Arc::clone(shared)) }
+    }
+
+    /// Whether these share a pool (a pooled scratch's may come from another layer).
+    pub(super) fn shares(&self, shared: &Arc<SharedTemplates>) -> bool {
+        self.shared.as_ref().is_some_and(|s| Arc::ptr_eq(s, shared))
+    }
+
     fn get(&mut self, bins: &Bins, key: u64) -> &Template {
-        self.0.entry(key).or_insert_with(|| bins.template(key))
+        if !self.local.contains_key(&key) {
+            let t = match &self.shared {
+                None => Arc::new(bins.template(key)),
+                Some(shared) => {
+                    let found = shared.0.lock().unwrap_or_else(|e| e.into_inner()).get(&key).cloned();
+                    found.unwrap_or_else(|| {
+                        // Built outside the lock; a worker that built it meanwhile wins.
+                        let t = Arc::new(bins.template(key));
+                        Arc::clone(shared.0.lock().unwrap_or_else(|e| e.into_inner()).entry(key).or_insert(t))
+                    })
+                }
+            };
+            self.local.insert(key, t);
+        }
+        &self.local[&key]
     }
 }
 
@@ -475,7 +573,7 @@ mod tests {
             for x in (-6i64..46).filter(|x| x % 7 != 3) {
                 let v = [0.1 * (x as f32).sin().abs(), 0.5, 0.2 + 0.01 * x as f32, 0.7];
                 let (k, x0, y0, factor) = match shape {
-                    Shape::Coarse { .. } => bins.place(x as f32 + fx, sy as f32 + fy, r, false),
+                    Shape::Coarse { .. } => bins.place(x as f32 + fx, sy as f32 + fy, r, false, (0.0, 0.0)),
                     _ => (k, x, sy, factor),
                 };
                 assert_eq!((x0, y0), (x, sy));
@@ -545,7 +643,7 @@ mod tests {
         let n = PHASES as f32;
         for (cx, cy) in [(0.0f32, 0.0f32), (3.49, -2.51), (-0.03, 7.97), (-5.2, -0.7), (12.0625, 3.9374)] {
             for rho in [7.0f32, 9.3, 16.96] {
-                let (key, x, y, factor) = bins.place(cx, cy, rho, false);
+                let (key, x, y, factor) = bins.place(cx, cy, rho, false, (0.0, 0.0));
                 let n2 = PHASES as u64;
                 let (k, py, px) = (key / n2 / n2, key / n2 % n2, key % n2);
                 let (qx, qy) = (x as f32 + px as f32 / n, y as f32 + py as f32 / n);

@@ -7,7 +7,7 @@
 //! present and per pass, `16/4^ℓ` bytes per pixel each.
 
 use super::band;
-use super::binned::{Bins, RowBatch, Shape, Templates, flush};
+use super::binned::{Bins, RowBatch, Shape, SharedTemplates, Templates, flush};
 use super::bright::{BRIGHT_MIN, is_bright};
 use super::footprint::equivalent;
 use super::{Counts, Ctx, Presence};
@@ -101,14 +101,19 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
         let bins = match shape {
             None => Bins::new(Shape::Coarse { window: radius }, ctx.params.radius_bin * COARSE_BIN, 0),
             // A shape's template costs O(ρ²) to build: bins of 1/8 grid pixel.
-            Some(g) => Bins::new(Shape::CoarseAperture { shape: g, window: radius }, COARSE_SHAPE_BIN, 0),
+            Some(g) => Bins::new(Shape::CoarseAperture { shape: g, window: radius }, COARSE_SHAPE_BIN, 0)
+                .with_cat_eye(ctx.s.aperture.cat_eye(w, h)),
         };
+        // An aggregate's full-resolution position, for a cat's eye's cut (clamped to the frame,
+        // as a replicated source's).
+        let at = |a: &Agg| (((a.cx + 0.5) * f - 0.5).clamp(0.0, w as f32 - 1.0), ((a.cy + 0.5) * f - 0.5).clamp(0.0, h as f32 - 1.0));
         let reach = 2.0 * r0 + 2.0;
         let pad = ctx.pad(ctx.sigma_max + 3.0) as f32;
         let writes = AtomicU64::new(0);
+        let shared = std::sync::Arc::new(SharedTemplates::default());
         accumulate(&mut grid, |st| {
             let (y0, y1) = st.rows();
-            let (mut batch, mut templates, mut places) = (RowBatch::default(), Templates::default(), Vec::new());
+            let (mut batch, mut templates, mut places) = (RowBatch::default(), Templates::sharing(&shared), Vec::new());
             let mut ops = 0;
             for (i, row) in aggs.iter().enumerate() {
                 // Centres of cell row i lie within ±1 of this coarse coordinate.
@@ -117,7 +122,7 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
                     continue;
                 }
                 places.clear();
-                places.extend(row.iter().map(|a| bins.place(a.cx, a.cy, a.rho, a.flip)));
+                places.extend(row.iter().map(|a| bins.place(a.cx, a.cy, a.rho, a.flip, at(a))));
                 for (k, (a, &(key, x, y, factor))) in row.iter().zip(&places).enumerate() {
                     // A template pays where a run forms (its neighbours in the row share it);
                     // an aggregate alone, or of bright light (the rounding errs in proportion
@@ -155,7 +160,8 @@ fn aggregate(ctx: &Ctx, level: u32, slot: usize) -> Vec<Vec<Agg>> {
     // A shape that is not point-symmetric: the sources in front of the focal plane in a second
     // set of bins.
     let shape = ctx.s.aperture.geometry();
-    let sides = if shape.is_some_and(|g| !g.symmetric()) { 2 } else { 1 };
+    let cut = ctx.s.aperture.cat_eye(ctx.w, ctx.h).is_some();
+    let sides = if shape.is_some_and(|g| !g.symmetric()) || cut { 2 } else { 1 };
     let pad = ctx.pad(ctx.sigma_max + 3.0);
     let (x0, x1) = (-pad, ctx.w as i64 + pad);
     let (y0, y1) = (-pad, ctx.h as i64 + pad);

@@ -70,15 +70,15 @@ pub(super) fn source_radius(profile: Profile, d: f32, k: f32) -> f32 {
 /// beyond the footprint is the window itself and only the norm still depends on `r`.
 ///
 /// A non-disc aperture is capped where its own shape stops changing inside the window
-/// ([`Geometry::drawn_cap`]).
+/// ([`Aperture::drawn_cap`]).
 ///
-/// [`Geometry::drawn_cap`]: super::super::aperture::shape::Geometry::drawn_cap
+/// [`Aperture::drawn_cap`]: super::super::aperture::Aperture::drawn_cap
 #[inline]
 pub(super) fn drawn(s: &RenderSettings, radius: f32, p: usize) -> f32 {
-    match (s.profile, s.aperture.geometry()) {
+    match (s.profile, s.aperture.drawn_cap(p)) {
         (Profile::Official, _) => drawn_radius(radius, p),
         (Profile::Physical, None) => radius.min(p as f32 + 2.0 * EDGE),
-        (Profile::Physical, Some(g)) => radius.min(g.drawn_cap(p)),
+        (Profile::Physical, Some(cap)) => radius.min(cap),
     }
 }
 

@@ -172,6 +172,8 @@ struct Ctx<'a> {
     stencil: Stencil,
     /// The radius bins of the medium disks (`stencil_max ≤ r < 2·r0`; None at quality 8).
     bins: Option<binned::Bins>,
+    /// Their templates, built once for every worker.
+    templates: std::sync::Arc<binned::SharedTemplates>,
 }
 
 impl<'a> Ctx<'a> {
@@ -221,8 +223,18 @@ impl<'a> Ctx<'a> {
                     (Profile::Official, _) if params.soft_edge => binned::Shape::Official { soft_below: f32::INFINITY },
                     (Profile::Official, _) => binned::Shape::Official { soft_below: 2.0 * params.stencil_max },
                 };
-                binned::Bins::new(shape, if s.aperture.is_disc() { params.radius_bin } else { params.radius_bin / 8.0 }, p)
+                // A shape's edge is a sharp outline: bins 8 times finer than the disc's ramp
+                // needs. A cat's eye quantizes its cut to binned::CUT_PX already: the disc's
+                // bins (templates per bin and cut: 16 times fewer).
+                let cat = s.aperture.cat_eye(img.width, img.height);
+                let width = match cat {
+                    Some(_) => 2.0 * params.radius_bin,
+                    None if s.aperture.is_disc() => params.radius_bin,
+                    None => params.radius_bin / 8.0,
+                };
+                binned::Bins::new(shape, width, p).with_cat_eye(cat)
             }),
+            templates: Default::default(),
         }
     }
 

@@ -88,7 +88,10 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                     }
                     ops += sc.dests.len() as u64;
                 } else {
-                    let (key, _) = bins.bin_flipped(r, ctx.d(j) > 0.0);
+                    // A cat's eye's cut from the source's position (a replicated source
+                    // beyond the border takes its border pixel's, as the exact kernel).
+                    let at = (sx.clamp(0, w as i64 - 1) as f32, sy.clamp(0, h as i64 - 1) as f32);
+                    let (key, _) = bins.bin_flipped(r, ctx.d(j) > 0.0, at);
                     // Capped at the window: the flux of the true radius.
                     let factor = if r == true_r { 1.0 } else { g.norm(r) / g.norm(true_r) };
                     for &(slot, f) in &sc.dests {

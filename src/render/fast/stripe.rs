@@ -69,6 +69,9 @@ pub(super) fn render_stripes(
     let pool = std::sync::Mutex::new(Vec::<Scratch>::new());
     out.par_chunks_mut(STRIPE_ROWS * ctx.w * stride).enumerate().for_each(|(si, chunk)| {
         let mut sc = pool.lock().map(|mut p| p.pop()).ok().flatten().unwrap_or_default();
+        if !sc.templates.shares(&ctx.templates) {
+            sc.templates = super::binned::Templates::sharing(&ctx.templates);
+        }
         let y0 = si * STRIPE_ROWS;
         let y1 = (y0 + STRIPE_ROWS).min(ctx.h);
         render_stripe(ctx, coarse, empty, y0, y1, &mut sc, counts);
