@@ -257,16 +257,8 @@ impl Config {
         self.highlights.validate("highlights")?;
         // The shape's syntax and ranges; an image is read when the pipeline is built.
         render::ShapeSpec::parse(&self.aperture.shape, "aperture.shape")?;
-        let a = self.aperture.anamorphic;
-        if !(a.is_finite() && render::aperture::shape::ANAMORPHIC.contains(&a)) {
-            return Err(Error::usage(format!("aperture.anamorphic must be in [0.1, 10] (1 = round bokeh), got {a}")));
-        }
-        let b = self.aperture.bubble;
-        if !(b.is_finite() && render::aperture::shape::BUBBLE.contains(&b)) {
-            return Err(Error::usage(format!("aperture.bubble must be in [-1, 1] (0 = uniform, > 0 a bright rim), got {b}")));
-        }
-        render::Aperture::DISC.with_chromatic(self.aperture.chromatic)?;
-        render::Aperture::DISC.with_cat_eye(self.aperture.cat_eye)?;
+        let a = &self.aperture;
+        render::Aperture::check_values(a.anamorphic, a.bubble, a.chromatic, a.cat_eye)?;
         if !self.aperture.is_disc() && self.render.profile == render::Profile::Official {
             let a = &self.aperture;
             return Err(Error::usage(format!(

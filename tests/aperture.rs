@@ -501,11 +501,11 @@ fn half_max_edge(img: &Image, (x, y): (f64, f64), (ex, ey): (f64, f64), plateau:
 /// frame's centre by the strength times the point's distance from it over the half-diagonal
 /// (README's convention, computed here from the frame), point-reflected in front; its
 /// outline, where the bokeh crosses half its plateau, lies within 0.5 px of that lens shape's
-/// along the radial axis (both ends) and across it, in both kernels. Every point keeps its
-/// light: the points' layer is faint (alpha 0.05) and in front of an empty one, so the image
-/// is its premultiplied sums (an opaque layer's coverage is clamped at 1 per pixel, and a cat's
-/// eye's, its shapes changing across the frame, sums to 1 only within about strength × CoC /
-/// half-diagonal: here 1.08 to 1.2).
+/// along the radial axis (both ends) and across it, in both kernels. Each point's light is its
+/// cut's area over the area of the circle its norm is taken in (`CatEye::norm_disc`: the cut
+/// circle scaled by 1 / (1 ∓ k) about v·(1 ∓ k/2), k = strength · CoC / half-diagonal, so that
+/// a surface stays uniform), computed here from the circles' analytic intersection: the points' layer is faint
+/// (alpha 0.05) and in front of an empty one, so the image is its premultiplied sums.
 #[test]
 fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
     let strength = 1.0f64;
@@ -538,9 +538,19 @@ fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
             for &kernel in kernels {
                 let out = render::render(&layers, &s, kernel).unwrap();
                 let total: f64 = out.data.iter().step_by(3).map(|&v| v as f64).sum();
-                let want = (alpha * value) as f64 * points.len() as f64;
-                if ((total - want) / want).abs() > 1e-3 {
-                    failures.push(format!("CoC {coc} front {front} {}: the points' light sums to {total:.4} (want {want})", kernel.name()));
+                let k = (strength * coc / reach).min(0.9);
+                let (scale, shift) = if front { (1.0 / (1.0 + k), 1.0 + k / 2.0) } else { (1.0 / (1.0 - k), 1.0 - k / 2.0) };
+                let want: f64 = points
+                    .iter()
+                    .map(|&(x, y)| {
+                        let v = strength * (((x - cx) / reach).powi(2) + ((y - cy) / reach).powi(2)).sqrt().min(1.0);
+                        (alpha * value) as f64 * lens_area(1.0, 1.0, v) / lens_area(1.0, scale, v * shift * scale)
+                    })
+                    .sum();
+                // The fast kernel's cut is quantized (binned::CUT_PX), its area with it.
+                if ((total - want) / want).abs() > 3e-3 {
+                    failures
+                        .push(format!("CoC {coc} front {front} {}: the points' light sums to {total:.5} (want {want:.5})", kernel.name()));
                 }
                 for &(x, y) in &points {
                     // The radial axis outward (image coordinates) and the cut's offset |v|.
@@ -583,4 +593,52 @@ fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
         }
     }
     common::assert_no_failures("cat's eye outlines", &failures);
+}
+
+/// The area of the intersection of discs of radii `r1` and `r2` whose centres are `d` apart.
+fn lens_area(r1: f64, r2: f64, d: f64) -> f64 {
+    if d >= r1 + r2 {
+        return 0.0;
+    }
+    if d <= (r1 - r2).abs() {
+        return PI * r1.min(r2).powi(2);
+    }
+    let a = r1 * r1 * ((d * d + r1 * r1 - r2 * r2) / (2.0 * d * r1)).acos();
+    let b = r2 * r2 * ((d * d + r2 * r2 - r1 * r1) / (2.0 * d * r2)).acos();
+    a + b - 0.5 * ((-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)).sqrt()
+}
+
+/// A uniform opaque surface out of focus with a cat's eye stays uniform and opaque in front of
+/// an empty layer (its coverage sums to 1 where the cut changes across the frame), behind and
+/// in front of the focal plane, in both kernels, away from the frame's border (the replicated
+/// edge has one cut for many sources).
+#[test]
+fn cat_eye_keeps_a_uniform_surface_uniform() {
+    let (w, h) = (96usize, 72usize);
+    let mut failures = Vec::new();
+    for (name, aperture) in cat_cases() {
+        for (coc, front) in [(8.0f32, false), (8.0, true), (14.0, false), (14.0, true)] {
+            let (d, focus) = if front { (0.75f32, 0.25f32) } else { (0.25, 0.75) };
+            let mut data = Vec::with_capacity(w * h * 5);
+            for _ in 0..w * h {
+                data.extend_from_slice(&[0.5, 0.5, 0.5, 1.0, d]);
+            }
+            let layers =
+                [Layer::new(Image::from_vec(w, h, 5, data).unwrap(), "wall").unwrap(), Layer::new(Image::new(w, h, 5), "nothing").unwrap()];
+            let s = settings(aperture, 2.0 * coc, focus, 2 * coc as usize + 7);
+            for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }] {
+                let out = render::render(&layers, &s, kernel).unwrap();
+                let m = coc as usize + 3;
+                let worst = (m..h - m)
+                    .flat_map(|y| (m..w - m).map(move |x| (x, y)))
+                    .map(|(x, y)| (out.data[(y * w + x) * 3] - 0.5).abs())
+                    .fold(0f32, f32::max);
+                println!("{name:24} CoC {coc:4} front {front:5} {:5}: worst |out - 0.5| {worst:.4}", kernel.name());
+                if worst.is_nan() || worst > 0.01 {
+                    failures.push(format!("{name} CoC {coc} front {front} {}: off by {worst:.4} (at most 0.01)", kernel.name()));
+                }
+            }
+        }
+    }
+    common::assert_no_failures("cat's eye on a uniform surface", &failures);
 }

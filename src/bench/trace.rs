@@ -259,7 +259,7 @@ pub fn trace_split(planes: &[Plane], s: &TraceSettings, window: Window, progress
     let tables = SampleTables::new(n, s.seed);
     let ks: Vec<f32> = planes.iter().map(|p| s.blur * (p.disparity - s.focus)).collect();
     let ow = window.width;
-    let vignette = Vignette::new(s, window);
+    let vignette = Vignette::new(s, window, &ks);
     let mut out = Image::new(ow, window.height, 6);
     out.data.par_chunks_mut(ow * 6).enumerate().for_each(|(y, row)| {
         for x in 0..ow {
@@ -273,12 +273,14 @@ pub fn trace_split(planes: &[Plane], s: &TraceSettings, window: Window, progress
 
 /// A cat's eye as the tracer applies it (`Aperture::with_cat_eye`): a lens sample reaches the
 /// source it lands on only through that source's second circle, and counts the whole shape's
-/// area over the cut one's, so every source keeps unit flux as the renderer's do.
+/// area over the source's norm ([`crate::render::aperture::CatEye::norm_disc`]), as the
+/// renderer weights it.
 struct Vignette {
     cat: crate::render::aperture::CatEye,
     window: Window,
-    /// `area / area_cut(v)` on a `(2·CELLS + 1)²` grid over `v ∈ [-s, s]²`, read bilinearly.
-    ratio: Vec<f32>,
+    /// Per plane, `area / norm area(v)` on a `(2·CELLS + 1)²` grid over `v ∈ [-s, s]²`, read
+    /// bilinearly.
+    ratio: Vec<Vec<f32>>,
     step: f32,
 }
 
@@ -286,7 +288,7 @@ impl Vignette {
     /// Grid cells per half-axis: the ratio is smooth in `v`; bilinear within 1e-3 of it.
     const CELLS: usize = 32;
 
-    fn new(s: &TraceSettings, window: Window) -> Option<Vignette> {
+    fn new(s: &TraceSettings, window: Window, ks: &[f32]) -> Option<Vignette> {
         let cat = s.aperture.cat_eye(window.width, window.height)?;
         let g = s.aperture.geometry()?;
         // The farthest a cut's centre gets.
@@ -294,20 +296,26 @@ impl Vignette {
         let side = 2 * Self::CELLS + 1;
         let step = reach / Self::CELLS as f32;
         let full = g.norm(1.0);
-        let ratio = (0..side * side)
-            .into_par_iter()
-            .map(|i| {
-                let v = [(i % side) as f32 * step - reach, (i / side) as f32 * step - reach];
-                full / g.norm_cut(1.0, v).max(1e-9)
+        // A plane's CoC is |k|, in front of the focal plane where k > 0.
+        let ratio = ks
+            .iter()
+            .map(|&k| {
+                (0..side * side)
+                    .into_par_iter()
+                    .map(|i| {
+                        let v = [(i % side) as f32 * step - reach, (i / side) as f32 * step - reach];
+                        full / g.norm_cut(1.0, cat.norm_disc(v, k.abs(), k > 0.0)).max(1e-9)
+                    })
+                    .collect()
             })
             .collect();
         Some(Vignette { cat, window, ratio, step })
     }
 
-    /// The weight of the lens point `(x, y)` (unit frame, y up) for the source at plane point
-    /// `(qx, qy)` (continuous plane coordinates): 0 outside its second circle, else the area
-    /// ratio of its cut.
-    fn weight(&self, x: f32, y: f32, qx: f32, qy: f32) -> f32 {
+    /// The weight of the lens point `(x, y)` (unit frame, y up) for the source at plane
+    /// `plane`'s point `(qx, qy)` (continuous plane coordinates): 0 outside its second circle,
+    /// else the area ratio of its norm.
+    fn weight(&self, plane: usize, x: f32, y: f32, qx: f32, qy: f32) -> f32 {
         let w = &self.window;
         // The source's pixel in the frame, clamped as the renderer replicates the border.
         let cx = (qx - 0.5 - w.x0 as f32).clamp(0.0, w.width as f32 - 1.0);
@@ -323,7 +331,7 @@ impl Vignette {
         );
         let (i, j) = ((u as usize).min(side - 2), (v as usize).min(side - 2));
         let (fu, fv) = (u - i as f32, v - j as f32);
-        let at = |a: usize, b: usize| self.ratio[b * side + a];
+        let at = |a: usize, b: usize| self.ratio[plane][b * side + a];
         (1.0 - fv) * ((1.0 - fu) * at(i, j) + fu * at(i + 1, j)) + fv * ((1.0 - fu) * at(i, j + 1) + fu * at(i + 1, j + 1))
     }
 }
@@ -462,7 +470,7 @@ fn trace_pixel(
             // A cat's eye: through the source's own second circle (the lens point in the
             // shape's frame, y up), into that plane's own sums.
             if let Some(v) = vignette {
-                let cut = v.weight(ax, -ay, qx, qy);
+                let cut = v.weight(l, ax, -ay, qx, qy);
                 let sums = &mut cut_light[l];
                 for (light, q) in sums.light.iter_mut().zip(&q[..3]) {
                     *light += (wt * tr * q * cut) as f64;

@@ -89,14 +89,14 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     let shape = s.aperture.geometry();
     // A cat's eye: each source's second circle, from its position (a source beyond the
     // border, replicated, takes its border pixel's), and the area it leaves.
-    let cuts: Option<Vec<[f32; 2]>> =
-        s.aperture.cat_eye(w, h).map(|c| (0..w * h).into_par_iter().map(|j| c.offset((j % w) as f32, (j / w) as f32)).collect());
+    let cat = s.aperture.cat_eye(w, h);
+    let cuts: Option<Vec<[f32; 2]>> = cat.map(|c| (0..w * h).into_par_iter().map(|j| c.offset((j % w) as f32, (j / w) as f32)).collect());
     let norm: Vec<f32> = (0..w * h)
         .into_par_iter()
-        .map(|j| match (shape, &cuts) {
-            (None, _) => lens::disk_norm(radius[j]),
-            (Some(g), None) => g.norm(radius[j]),
-            (Some(g), Some(cuts)) => g.norm_cut(radius[j], cuts[j]),
+        .map(|j| match (shape, cat, &cuts) {
+            (None, ..) => lens::disk_norm(radius[j]),
+            (Some(g), Some(cat), Some(cuts)) => g.norm_cut(radius[j], cat.norm_disc(cuts[j], radius[j], d[j] > 0.0)),
+            (Some(g), ..) => g.norm(radius[j]),
         })
         .collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];

@@ -135,7 +135,8 @@ impl Template {
     /// lattice point: the rows, spans and taps the one-by-one draw of such a source makes.
     /// An aperture's shape is point-reflected when `flip`, and cut by a cat's eye's second
     /// circle centred `cut` (see [`Geometry::coverage_cut`]).
-    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, cut: Option<[f32; 2]>, p: i64) -> Self {
+    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, cut: Option<Cut>, p: i64) -> Self {
+        let v = cut.map(|c| c.v);
         let mut t = Template { scale: 1.0, rr: 0, rows: Vec::new(), diffs: Vec::new(), taps: Vec::new() };
         match shape {
             Shape::Physical => {
@@ -183,8 +184,8 @@ impl Template {
             }
             // The lens window's taps (|offset| < p, as the exact kernel's), or the coarse
             // window's disk around the off-lattice centre.
-            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, cut, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
-            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, cut, |j| {
+            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, v, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
+            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, v, |j| {
                 Window::Disk(window).half_width(j as f32 - phase.1).map(|hw| (phase.0 - hw, phase.0 + hw))
             }),
         }
@@ -198,9 +199,9 @@ impl Template {
         // `Bins::place` scales that to the source's own radius).
         t.scale = match shape {
             Shape::Physical => 1.0 / disk_norm(r),
-            Shape::Aperture(g) => 1.0 / cut.map_or_else(|| g.norm(r), |v| g.norm_cut(r, v)),
-            // The aggregate's density is of the whole shape's area: the cut one keeps its flux.
-            Shape::CoarseAperture { shape: g, .. } => cut.map_or(1.0, |v| g.norm(r) / g.norm_cut(r, v)),
+            Shape::Aperture(g) => 1.0 / cut.map_or_else(|| g.norm(r), |c| g.norm_cut(r, c.norm)),
+            // The aggregate's density is of the whole shape's area: the cut's norm instead.
+            Shape::CoarseAperture { shape: g, .. } => cut.map_or(1.0, |c| g.norm(r) / g.norm_cut(r, c.norm)),
             Shape::Coarse { .. } => flux_scale(r, phase.1),
             Shape::Official { .. } => 1.0,
         };
@@ -297,6 +298,16 @@ pub(super) struct Bins {
     width: f32,
     /// An aperture's cat's eye (its sources' templates are per cut as well).
     cat: Option<CatEye>,
+    /// Full-resolution pixels per unit of the bins' radii (a coarse grid's `2^ℓ`).
+    px_per_unit: f32,
+}
+
+/// A template's cat's-eye cut: its circle's centre (see [`Geometry::coverage_cut`]) and the
+/// circle its norm is taken in ([`CatEye::norm_disc`]).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Cut {
+    v: [f32; 2],
+    norm: ([f32; 2], f32),
 }
 
 /// Where a cat's eye's cut class starts in a key; 12 bits per axis above it.
@@ -312,12 +323,13 @@ const CUT_PX_COARSE: f32 = 1.0;
 impl Bins {
     /// Bins `width` px wide of footprint `shape` in a window of half-size `p`.
     pub(super) fn new(shape: Shape, width: f32, p: usize) -> Self {
-        Bins { shape, p: p as i64, width, cat: None }
+        Bins { shape, p: p as i64, width, cat: None, px_per_unit: 1.0 }
     }
 
-    /// These bins with templates per cat's eye cut (an aperture shape only).
-    pub(super) fn with_cat_eye(self, cat: Option<CatEye>) -> Self {
-        Bins { cat: cat.filter(|_| matches!(self.shape, Shape::Aperture(_) | Shape::CoarseAperture { .. })), ..self }
+    /// These bins with templates per cat's eye cut (an aperture shape only), their radii in
+    /// units of `px_per_unit` full-resolution pixels.
+    pub(super) fn with_cat_eye(self, cat: Option<CatEye>, px_per_unit: f32) -> Self {
+        Bins { cat: cat.filter(|_| matches!(self.shape, Shape::Aperture(_) | Shape::CoarseAperture { .. })), px_per_unit, ..self }
     }
 
     /// Whether keys carry the point reflection: a shape that is not point-symmetric, or cut.
@@ -342,13 +354,14 @@ impl Bins {
         ((q(vy) << 12) | q(vx)) << CUT_SHIFT
     }
 
-    /// The cut's centre of a key's class (None without a cat's eye).
-    fn cut_of(&self, k: u64, key: u64) -> Option<[f32; 2]> {
-        self.cat?;
+    /// The cut of a key's class in bin `k`, reflected when `flip` (None without a cat's eye).
+    fn cut_of(&self, k: u64, key: u64, flip: bool) -> Option<Cut> {
+        let cat = self.cat?;
         let class = key >> CUT_SHIFT;
         let step = self.cut_step(k);
-        let v = |q: u64| (q as i64 - 2048) as f32 * step;
-        Some([v(class & 0xFFF), v(class >> 12)])
+        let at = |q: u64| (q as i64 - 2048) as f32 * step;
+        let v = [at(class & 0xFFF), at(class >> 12)];
+        Some(Cut { v, norm: cat.norm_disc(v, self.radius(k) * self.px_per_unit, flip) })
     }
 
     /// The bin of radius `r` (a source centred on a lattice point) and the factor that scales
@@ -417,7 +430,7 @@ impl Bins {
         let base = if self.cat.is_some() { key & ((1 << CUT_SHIFT) - 1) } else { key };
         let (k, py, px) = (base / (n * n), base / n % n, base % n);
         let (k, flip) = if self.flips() || matches!(self.shape, Shape::Aperture(_)) { (k / 2, k % 2 == 1) } else { (k, false) };
-        let cut = self.cut_of(k, key);
+        let cut = self.cut_of(k, key, flip);
         Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), flip, cut, self.p)
     }
 }

@@ -102,7 +102,7 @@ fn levels(ctx: &Ctx, slot: usize, mask: u64, counts: &Counts) -> Vec<Coarse> {
             None => Bins::new(Shape::Coarse { window: radius }, ctx.params.radius_bin * COARSE_BIN, 0),
             // A shape's template costs O(ρ²) to build: bins of 1/8 grid pixel.
             Some(g) => Bins::new(Shape::CoarseAperture { shape: g, window: radius }, COARSE_SHAPE_BIN, 0)
-                .with_cat_eye(ctx.s.aperture.cat_eye(w, h)),
+                .with_cat_eye(ctx.s.aperture.cat_eye(w, h), f),
         };
         // An aggregate's full-resolution position, for a cat's eye's cut (clamped to the frame,
         // as a replicated source's).

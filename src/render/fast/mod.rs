@@ -232,7 +232,7 @@ impl<'a> Ctx<'a> {
                     None if s.aperture.is_disc() => params.radius_bin,
                     None => params.radius_bin / 8.0,
                 };
-                binned::Bins::new(shape, width, p).with_cat_eye(cat)
+                binned::Bins::new(shape, width, p).with_cat_eye(cat, 1.0)
             }),
             templates: Default::default(),
         }
