@@ -494,6 +494,46 @@ fn ray_test_matches_finite_differences() {
     assert!(changed * 10 >= plain.data.len(), "the ray test changed only {changed} values");
 }
 
+/// Checks the gradients `g` of `loss(scene, cotangent)` at `sc` along three random directions
+/// over every parameter at once (colours and alpha ±1, disparity ±0.1, focus ±0.1, K ±1; alpha
+/// only where it is inside (0, 1), so no step leaves its domain): `<Jᵀ·cotangent, v>` against
+/// central differences of the f64 reference, relative error below 1e-3.
+fn check_random_directions(sc: &Scene, g: &Gradients, rng: &mut Rng, cot: &[f64], loss: &dyn Fn(&Scene, &[f64]) -> f64, label: &str) {
+    for _ in 0..3 {
+        let mut dir: Vec<Vec<f64>> = sc.layers.iter().map(|l| vec![0.0; l.len()]).collect();
+        let mut predicted = 0.0;
+        for (l, d) in dir.iter_mut().enumerate() {
+            for (k, v) in d.iter_mut().enumerate() {
+                let c = k % 5;
+                let a = sc.layers[l][k - c + 3];
+                let scale = match c {
+                    3 if a <= 0.0 || a >= 1.0 => 0.0,
+                    4 => 0.1,
+                    _ => 1.0,
+                };
+                *v = (rng.next_f32() as f64 * 2.0 - 1.0) * scale;
+                predicted += *v * g.layers[l].data[k] as f64;
+            }
+        }
+        let (df, dk) = (0.1 * (rng.next_f32() as f64 * 2.0 - 1.0), rng.next_f32() as f64 * 2.0 - 1.0);
+        predicted += df * g.focus as f64 + dk * g.blur as f64;
+        let at = |t: f64| {
+            let mut p = sc.clone();
+            for (l, d) in dir.iter().enumerate() {
+                p.layers[l].iter_mut().zip(d).for_each(|(x, dx)| *x += t * dx);
+            }
+            p.focus += t * df;
+            p.blur += t * dk;
+            loss(&p, cot)
+        };
+        let h = 1e-6;
+        let fd = (at(h) - at(-h)) / (2.0 * h);
+        let rel = (predicted - fd).abs() / fd.abs().max(1e-6);
+        eprintln!("{label}: directional derivative {fd:e}, predicted {predicted:e}, rel {rel:e}");
+        assert!(rel < 1e-3, "{label}: fd {fd:e} vs predicted {predicted:e}");
+    }
+}
+
 /// `<cotangent, J·v>` for random directions `v` over every parameter at once (all layers'
 /// channels, focus, K) against `<Jᵀ·cotangent, v>`.
 #[test]
@@ -506,41 +546,7 @@ fn random_directions_match() {
         let cot: Vec<f64> = cot.iter().map(|&v| v as f64).collect();
         let layers = sc.library_layers();
         let g = Tape::record(&layers, &sc.settings(), sc.smooth).unwrap().vjp(&cot_img).unwrap();
-        for _ in 0..3 {
-            // Direction: colours and alpha ±1, disparity ±0.1, focus ±0.1, K ±1 (alpha only
-            // where it is inside (0, 1), so no step leaves its domain).
-            let mut dir: Vec<Vec<f64>> = sc.layers.iter().map(|l| vec![0.0; l.len()]).collect();
-            let mut predicted = 0.0;
-            for (l, d) in dir.iter_mut().enumerate() {
-                for (k, v) in d.iter_mut().enumerate() {
-                    let c = k % 5;
-                    let a = sc.layers[l][k - c + 3];
-                    let scale = match c {
-                        3 if a <= 0.0 || a >= 1.0 => 0.0,
-                        4 => 0.1,
-                        _ => 1.0,
-                    };
-                    *v = (rng.next_f32() as f64 * 2.0 - 1.0) * scale;
-                    predicted += *v * g.layers[l].data[k] as f64;
-                }
-            }
-            let (df, dk) = (0.1 * (rng.next_f32() as f64 * 2.0 - 1.0), rng.next_f32() as f64 * 2.0 - 1.0);
-            predicted += df * g.focus as f64 + dk * g.blur as f64;
-            let at = |t: f64| {
-                let mut p = sc.clone();
-                for (l, d) in dir.iter().enumerate() {
-                    p.layers[l].iter_mut().zip(d).for_each(|(x, dx)| *x += t * dx);
-                }
-                p.focus += t * df;
-                p.blur += t * dk;
-                p.loss(&cot)
-            };
-            let h = 1e-6;
-            let fd = (at(h) - at(-h)) / (2.0 * h);
-            let rel = (predicted - fd).abs() / fd.abs().max(1e-6);
-            eprintln!("{profile:?} seed {seed}: directional derivative {fd:e}, predicted {predicted:e}, rel {rel:e}");
-            assert!(rel < 1e-3, "{profile:?} seed {seed}: fd {fd:e} vs predicted {predicted:e}");
-        }
+        check_random_directions(&sc, &g, &mut rng, &cot, &|p, cot| p.loss(cot), &format!("{profile:?} seed {seed}"));
     }
 }
 
@@ -579,39 +585,7 @@ fn chromatic_aberration_matches_random_directions() {
         let cot_img = Image::from_vec(sc.w, sc.h, 3, cot.clone()).unwrap();
         let cot: Vec<f64> = cot.iter().map(|&v| v as f64).collect();
         let g = tape.vjp(&cot_img).unwrap();
-        for _ in 0..3 {
-            let mut dir: Vec<Vec<f64>> = sc.layers.iter().map(|l| vec![0.0; l.len()]).collect();
-            let mut predicted = 0.0;
-            for (l, d) in dir.iter_mut().enumerate() {
-                for (k, v) in d.iter_mut().enumerate() {
-                    let c = k % 5;
-                    let a = sc.layers[l][k - c + 3];
-                    let scale = match c {
-                        3 if a <= 0.0 || a >= 1.0 => 0.0,
-                        4 => 0.1,
-                        _ => 1.0,
-                    };
-                    *v = (rng.next_f32() as f64 * 2.0 - 1.0) * scale;
-                    predicted += *v * g.layers[l].data[k] as f64;
-                }
-            }
-            let (df, dk) = (0.1 * (rng.next_f32() as f64 * 2.0 - 1.0), rng.next_f32() as f64 * 2.0 - 1.0);
-            predicted += df * g.focus as f64 + dk * g.blur as f64;
-            let at = |t: f64| {
-                let mut p = sc.clone();
-                for (l, d) in dir.iter().enumerate() {
-                    p.layers[l].iter_mut().zip(d).for_each(|(x, dx)| *x += t * dx);
-                }
-                p.focus += t * df;
-                p.blur += t * dk;
-                loss(&p, &cot)
-            };
-            let h = 1e-6;
-            let fd = (at(h) - at(-h)) / (2.0 * h);
-            let rel = (predicted - fd).abs() / fd.abs().max(1e-6);
-            eprintln!("chromatic {profile:?} seed {seed}: directional derivative {fd:e}, predicted {predicted:e}, rel {rel:e}");
-            assert!(rel < 1e-3, "chromatic {profile:?} seed {seed}: fd {fd:e} vs predicted {predicted:e}");
-        }
+        check_random_directions(&sc, &g, &mut rng, &cot, &loss, &format!("chromatic {profile:?} seed {seed}"));
     }
 }
 
