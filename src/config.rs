@@ -87,6 +87,10 @@ pub struct InputConfig {
     /// so batch fingerprints made before the key existed stay valid.
     #[serde(skip_serializing_if = "is_true")]
     pub embedded_depth: bool,
+    /// A photo given without a matte uses the matte it embeds (a HEIF portrait matte); false
+    /// ignores it. Left out of the config's JSON at its default, as `embedded_depth`.
+    #[serde(skip_serializing_if = "is_true")]
+    pub embedded_matte: bool,
 }
 
 fn is_true(b: &bool) -> bool {
@@ -95,7 +99,7 @@ fn is_true(b: &bool) -> bool {
 
 impl Default for InputConfig {
     fn default() -> Self {
-        InputConfig { depth_kind: DepthKind::Depth, max_pixels: 200_000_000, embedded_depth: true }
+        InputConfig { depth_kind: DepthKind::Depth, max_pixels: 200_000_000, embedded_depth: true, embedded_matte: true }
     }
 }
 

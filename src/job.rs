@@ -9,6 +9,7 @@ use crate::focus_pull::{FocusPull, FramePattern};
 use crate::image::Image;
 use crate::io::{self, ReadLimits};
 use crate::pipeline::{BuildLayers, DepthSource, Focus, Outcome, Pipeline, Report, Scene, StageReport};
+use crate::report::MatteSource;
 use crate::render::Layer;
 use crate::stages::depth;
 use crate::timing::ms_since;
@@ -178,7 +179,13 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
                         }
                         None => DepthRead::Off,
                     },
-                    || job.matte.as_ref().map(|p| io::read_matte(p, &limits)),
+                    || match &job.matte {
+                        Some(p) => MatteRead::File(io::read_matte(p, &limits)),
+                        None if cfg.input.embedded_matte && io::detect_format(image_path).ok() == Some(io::FileFormat::Heif) => {
+                            MatteRead::Embedded(io::heif_depth::read_matte(image_path, &limits))
+                        }
+                        None => MatteRead::None,
+                    },
                 )
             },
         );
@@ -242,13 +249,14 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
             read @ (DepthRead::Embedded(Ok(None)) | DepthRead::Off) => {
                 let why = match read {
                     DepthRead::Off => format!("input.embedded_depth = false ignores any depth map {} embeds", image_path.display()),
-                    _ if io::detect_format(image_path)? == io::FileFormat::Jpeg => {
-                        format!("{} embeds no depth map (no Dynamic Depth or GDepth XMP)", image_path.display())
-                    }
-                    _ => format!(
-                        "{} embeds no depth map (embedded depth is read from JPEG photos: Dynamic Depth, GDepth XMP)",
-                        image_path.display()
-                    ),
+                    _ => match io::detect_format(image_path)? {
+                        io::FileFormat::Jpeg => format!("{} embeds no depth map (no Dynamic Depth or GDepth XMP)", image_path.display()),
+                        io::FileFormat::Heif => format!("{} embeds no depth map (no HEIF depth image)", image_path.display()),
+                        _ => format!(
+                            "{} embeds no depth map (embedded depth is read from JPEG photos: Dynamic Depth, GDepth XMP; and HEIC photos)",
+                            image_path.display()
+                        ),
+                    },
                 };
                 // The configured depth model predicts relative disparity.
                 let t = Instant::now();
@@ -260,9 +268,23 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
                 (d, source)
             }
         };
-        let matte = match (&job.matte, matte_file) {
-            (Some(p), Some(m)) => Some(fit_to(m?, &rgb, p, image_path, &mut read_warnings)?),
-            _ => None,
+        let (matte, matte_source) = match matte_file {
+            MatteRead::File(m) => {
+                let p = job.matte.as_ref().expect("a matte file was read");
+                let m = m?;
+                let source = MatteSource::File { path: p.display().to_string(), width: m.width, height: m.height };
+                (Some(fit_to(m, &rgb, p, image_path, &mut read_warnings)?), Some(source))
+            }
+            MatteRead::Embedded(m) => match m? {
+                // The embedded matte is usually smaller than the photo (half size on iPhones):
+                // resized without a warning, as the embedded depth map is.
+                Some(e) => {
+                    let source = MatteSource::Embedded { path: image_path.display().to_string(), info: Box::new(e.info) };
+                    (Some(e.matte.resized(rgb.width, rgb.height)), Some(source))
+                }
+                None => (None, None),
+            },
+            MatteRead::None => (None, None),
         };
         let read_ms = ms_since(t_read);
         let mut out = pipeline.run_with(&Scene { rgb, disparity, matte, encoding }, focus, build)?;
@@ -270,6 +292,7 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
             out.report.stages.insert(0, s);
         }
         out.report.depth_source = Some(source);
+        out.report.matte_source = matte_source;
         out.report.stages.insert(0, StageReport::ran("read", read_ms, None));
         out
     };
@@ -349,6 +372,16 @@ enum DepthRead {
     Embedded(Result<Option<Box<io::embedded_depth::EmbeddedDepth>>>),
     /// No depth file, and `input.embedded_depth = false`.
     Off,
+}
+
+/// Where a job's matte is read from.
+enum MatteRead {
+    /// A matte file (`--matte`).
+    File(Result<Image>),
+    /// The photo's embedded matte, if it has one (a HEIF photo without `--matte`).
+    Embedded(Result<Option<io::heif_depth::EmbeddedMatte>>),
+    /// None.
+    None,
 }
 
 /// The warning for a depth map (`what`) with no depth range.

@@ -170,13 +170,17 @@ struct RenderArgs {
     #[arg(required_unless_present = "layer", conflicts_with = "layer")]
     image: Option<PathBuf>,
     /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W). Without it, the depth map
-    /// the photo embeds (Dynamic Depth or GDepth in a JPEG), else the depth model ([depth.onnx] or --model-dir).
+    /// the photo embeds (Dynamic Depth or GDepth in a JPEG, a HEIC's depth image), else the depth model ([depth.onnx] or --model-dir).
     #[arg(long, conflicts_with = "layer")]
     depth: Option<PathBuf>,
-    /// Ignore the depth map the photo embeds (Dynamic Depth, GDepth); without --depth, the depth model is used.
+    /// Ignore the depth map the photo embeds (Dynamic Depth, GDepth, HEIF depth image); without --depth, the depth model is used.
     #[arg(long, conflicts_with = "layer")]
     no_embedded_depth: bool,
-    /// Foreground matte: grey image or the alpha of an RGBA image, in [0, 1].
+    /// Ignore the matte the photo embeds (a HEIC portrait matte); without --matte, none is used.
+    #[arg(long, conflicts_with = "layer")]
+    no_embedded_matte: bool,
+    /// Foreground matte: grey image or the alpha of an RGBA image, in [0, 1]. Without it, the
+    /// matte the photo embeds (a HEIC portrait matte), if any.
     #[arg(long, conflicts_with = "layer")]
     matte: Option<PathBuf>,
     /// A layer (5-channel EXR R,G,B,A,D or NPY H x W x 5, linear colours); repeat, front first.
@@ -494,7 +498,7 @@ pub(crate) fn config_from(args: &PipelineArgs) -> Result<Config, Error> {
 /// The names the library gives parameters in its messages (config keys such as `render.lens`,
 /// parameter names such as `trace.spp`), and the command-line flags that set them. A key that
 /// starts another key comes after it (`render.focus_at` before `render.focus`).
-const FLAGS: [(&str, &str); 46] = [
+const FLAGS: [(&str, &str); 47] = [
     ("aperture.shape", "--aperture"),
     ("aperture.bubble", "--bubble"),
     ("aperture.chromatic", "--chromatic"),
@@ -521,6 +525,7 @@ const FLAGS: [(&str, &str); 46] = [
     ("input.depth_kind = \"depth\"", "--depth-kind depth"),
     ("input.depth_kind = \"disparity\"", "--depth-kind disparity"),
     ("input.embedded_depth = false", "--no-embedded-depth"),
+    ("input.embedded_matte = false", "--no-embedded-matte"),
     ("output.bit_depth", "--bit-depth"),
     ("batch.manifest", "--manifest"),
     ("job.save_layers", "--save-layers"),
@@ -591,6 +596,9 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     if args.no_embedded_depth {
         cfg.input.embedded_depth = false;
     }
+    if args.no_embedded_matte {
+        cfg.input.embedded_matte = false;
+    }
     let focus = match (args.focus, args.focus_at, args.focus_depth, args.focus_from) {
         (Some(f), ..) | (_, _, _, Some(f)) => Focus::Disparity(f),
         (_, Some((x, y)), ..) => Focus::At(x, y),
@@ -649,6 +657,9 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
     if args.verbose {
         if let Some(d) = &report.depth_source {
             eprintln!("{:>12}  {}", "depth", d.describe());
+        }
+        if let Some(m) = &report.matte_source {
+            eprintln!("{:>12}  {}", "matte", m.describe());
         }
         for s in &report.stages {
             match &s.reason {

@@ -108,6 +108,39 @@ pub enum DepthSource {
     },
 }
 
+/// Where a render's matte came from (`matte_source` in `--json`; tagged by `kind`).
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum MatteSource {
+    /// A matte file (`--matte`).
+    File {
+        /// The file.
+        path: String,
+        /// Its size, pixels.
+        width: usize,
+        /// Its size, pixels.
+        height: usize,
+    },
+    /// A matte embedded in the photo (a HEIF portrait matte).
+    Embedded {
+        /// The photo.
+        path: String,
+        /// Where in it (container "heif", aux type, item, size, bits).
+        #[serde(flatten)]
+        info: Box<crate::io::heif_depth::MatteInfo>,
+    },
+}
+
+impl MatteSource {
+    /// One line for people (`-v`).
+    pub fn describe(&self) -> String {
+        match self {
+            MatteSource::File { path, width, height } => format!("file {path} ({width}x{height})"),
+            MatteSource::Embedded { path, info } => format!("embedded in {path}: {}", info.describe()),
+        }
+    }
+}
+
 impl DepthSource {
     /// One line for people (`-v`).
     pub fn describe(&self) -> String {
@@ -145,6 +178,9 @@ pub struct Report {
     /// given layers).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub depth_source: Option<DepthSource>,
+    /// Where the scene's matte came from, when it has one (set by [`crate::job::run`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub matte_source: Option<MatteSource>,
     /// The written file (set by [`crate::job::run`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub output: Option<String>,

@@ -162,7 +162,7 @@ pub(super) fn read(path: &Path, b: &[u8], xmp: &JpegXmp, packets: &Packets, limi
         width: image.n.width,
         height: image.n.height,
         bit_depth: image.bit_depth,
-        data_bytes: bytes.len(),
+        data_bytes: Some(bytes.len()),
         confidence_mime: None,
         item: Some(ItemInfo {
             uri: depth_uri,
@@ -173,7 +173,8 @@ pub(super) fn read(path: &Path, b: &[u8], xmp: &JpegXmp, packets: &Packets, limi
             camera,
             confidence_uri: f("ConfidenceURI")?,
         }),
-        xmp: xmp.layout.clone(),
+        heif: None,
+        xmp: Some(xmp.layout.clone()),
     };
     Ok(Some(EmbeddedDepth::new(path, &image, info, None, warnings)))
 }

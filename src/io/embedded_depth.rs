@@ -29,7 +29,9 @@
 //!   (`GDepth:Near`, `DepthMap:DepthURI`, `xmpNote:HasExtendedXMP`...): a photo that claims a
 //!   depth map never reads as one without depth.
 //!
-//! Not read yet: HEIC/HEIF auxiliary depth and matte images.
+//! A HEIF photo's depth image (ISO/IEC 23002-3 representations) and portrait matte are read by
+//! [`super::heif_depth`] into the same [`EmbeddedDepth`]; [`read_embedded`] dispatches on the
+//! file's format.
 
 use super::dynamic_depth::{self, ItemInfo};
 use super::format::{FileFormat, detect_format, guarded, read_input};
@@ -56,13 +58,23 @@ pub fn same_aspect(a: (usize, usize), b: (usize, usize)) -> bool {
     (ra / rb - 1.0).abs() <= ASPECT_TOLERANCE
 }
 
-/// How a GDepth image stores depth (`GDepth:Format`).
+/// How an embedded depth image stores depth: GDepth's `Format` (also Dynamic Depth's), or a
+/// HEIF depth image's ISO/IEC 23002-3 representation type. `n` is the normalized sample in
+/// [0, 1]; `near` < `far` are the depths the range covers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub enum RangeFormat {
     /// `d = n·(far − near) + near`.
     RangeLinear,
     /// `d = far·near / (far − n·(far − near))`: more levels near the camera.
     RangeInverse,
+    /// ISO 23002-3 type 0: `1/d` uniform, the largest sample nearest:
+    /// `1/d = 1/far + n·(1/near − 1/far)`.
+    UniformInverseZ,
+    /// ISO 23002-3 type 1: disparity `D = d_min + n·(d_max − d_min)` uniform, depth `1/D`; kept
+    /// as near = 1/d_max, far = 1/d_min (infinite when d_min = 0), the same law as type 0.
+    UniformDisparity,
+    /// ISO 23002-3 type 2: `d = near + n·(far − near)` (as RangeLinear).
+    UniformZ,
 }
 
 impl RangeFormat {
@@ -71,6 +83,9 @@ impl RangeFormat {
         match self {
             RangeFormat::RangeLinear => "RangeLinear",
             RangeFormat::RangeInverse => "RangeInverse",
+            RangeFormat::UniformInverseZ => "uniform inverse Z",
+            RangeFormat::UniformDisparity => "uniform disparity",
+            RangeFormat::UniformZ => "uniform Z",
         }
     }
 
@@ -88,19 +103,23 @@ impl RangeFormat {
         }
     }
 
-    /// Depth of the normalized sample `n` in [0, 1].
+    /// Depth of the normalized sample `n` in [0, 1] (infinite where an unbounded far range
+    /// puts it).
     pub fn depth(self, n: f64, near: f64, far: f64) -> f64 {
         match self {
-            RangeFormat::RangeLinear => n * (far - near) + near,
+            RangeFormat::RangeLinear | RangeFormat::UniformZ => n * (far - near) + near,
             RangeFormat::RangeInverse => far * near / (far - n * (far - near)),
+            // In disparity, so that far = ∞ (d_min = 0) stays exact: 1/d = (1 − n)/far + n/near.
+            RangeFormat::UniformInverseZ | RangeFormat::UniformDisparity => 1.0 / ((1.0 - n) / far + n / near),
         }
     }
 
     /// The normalized sample in [0, 1] of depth `d` in [near, far] (what a writer stores).
     pub fn normalized(self, d: f64, near: f64, far: f64) -> f64 {
         match self {
-            RangeFormat::RangeLinear => (d - near) / (far - near),
+            RangeFormat::RangeLinear | RangeFormat::UniformZ => (d - near) / (far - near),
             RangeFormat::RangeInverse => far * (d - near) / (d * (far - near)),
+            RangeFormat::UniformInverseZ | RangeFormat::UniformDisparity => (1.0 / d - 1.0 / far) / (1.0 / near - 1.0 / far),
         }
     }
 }
@@ -114,6 +133,9 @@ pub enum Container {
     /// Google's Dynamic Depth 1.0: the depth image a container item after the primary JPEG.
     #[serde(rename = "dynamic-depth")]
     DynamicDepth,
+    /// A HEIF (HEIC) photo's depth auxiliary image (iPhone portrait mode...).
+    #[serde(rename = "heif")]
+    Heif,
 }
 
 impl Container {
@@ -122,6 +144,7 @@ impl Container {
         match self {
             Container::GDepth => "GDepth",
             Container::DynamicDepth => "Dynamic Depth",
+            Container::Heif => "HEIF depth image",
         }
     }
 
@@ -130,6 +153,7 @@ impl Container {
         match self {
             Container::GDepth => "GDepth",
             Container::DynamicDepth => "DepthMap",
+            Container::Heif => "HEIF depth",
         }
     }
 }
@@ -159,16 +183,21 @@ pub struct DepthInfo {
     pub height: usize,
     /// Bits per sample of the depth image (8 or 16).
     pub bit_depth: u8,
-    /// Bytes of the depth image (after base64 for GDepth).
-    pub data_bytes: usize,
+    /// Bytes of the depth image (after base64 for GDepth); not known for HEIF.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub data_bytes: Option<usize>,
     /// `GDepth:ConfidenceMime`, when a confidence map is embedded (reported, not used).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub confidence_mime: Option<String>,
     /// Dynamic Depth: the container item that holds the depth image, and its camera.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub item: Option<ItemInfo>,
-    /// Where the XMP came from (standard packet, extended segments).
-    pub xmp: XmpLayout,
+    /// HEIF: the depth item and its ISO 23002-3 representation as the file states it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heif: Option<super::heif_depth::HeifDepthItem>,
+    /// Where the XMP came from (standard packet, extended segments); none for HEIF.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub xmp: Option<XmpLayout>,
 }
 
 impl DepthInfo {
@@ -191,9 +220,10 @@ impl DepthInfo {
     /// The field that holds the depth image, for messages: `GDepth:Data`, or the Dynamic
     /// Depth item with its URI.
     pub fn data_field(&self) -> String {
-        match &self.item {
-            Some(i) => format!("Container:Item {} ('{}')", i.index, i.uri),
-            None => "GDepth:Data".to_owned(),
+        match (&self.item, &self.heif) {
+            (Some(i), _) => format!("Container:Item {} ('{}')", i.index, i.uri),
+            (_, Some(h)) => format!("the HEIF depth image (item {})", h.item_id),
+            (None, None) => "GDepth:Data".to_owned(),
         }
     }
 }
@@ -215,10 +245,11 @@ pub struct EmbeddedDepth {
 /// Reads the depth map the photo `path` embeds (see the module doc): `Ok(None)` when the file
 /// is not a JPEG or embeds none.
 pub fn read_embedded(path: &Path, limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
-    if detect_format(path)? != FileFormat::Jpeg {
-        return Ok(None);
+    match detect_format(path)? {
+        FileFormat::Jpeg => read_embedded_bytes(path, &read_input(path)?, limits),
+        FileFormat::Heif => super::heif_depth::read_depth(path, limits),
+        _ => Ok(None),
     }
-    read_embedded_bytes(path, &read_input(path)?, limits)
 }
 
 /// [`read_embedded`] of the JPEG bytes `b` of the file `path`.
@@ -279,10 +310,11 @@ fn read_gdepth(path: &Path, b: &[u8], xmp: &JpegXmp, packets: &Packets, limits: 
         width: image.n.width,
         height: image.n.height,
         bit_depth: image.bit_depth,
-        data_bytes: bytes.len(),
+        data_bytes: Some(bytes.len()),
         confidence_mime: confidence_mime.map(|m| m.trim().to_owned()),
         item: None,
-        xmp: xmp.layout.clone(),
+        heif: None,
+        xmp: Some(xmp.layout.clone()),
     };
     Ok(Some(EmbeddedDepth::new(path, &image, info, original_image, warnings)))
 }
@@ -322,7 +354,7 @@ impl Range {
 }
 
 /// An embedded depth image, decoded: samples normalized to [0, 1].
-pub(super) struct DepthImage {
+pub(crate) struct DepthImage {
     /// One grey channel, `q / (2^b − 1)`.
     pub n: Image,
     /// Bits per sample in the file.
@@ -396,10 +428,12 @@ impl EmbeddedDepth {
     }
 }
 
-/// Metric depth of the normalized samples `n` (see [`RangeFormat::depth`]), in f64, stored as f32.
+/// Metric depth of the normalized samples `n` (see [`RangeFormat::depth`]), in f64, stored as
+/// f32; an infinite depth (a disparity of 0) as the largest f32, a valid depth the
+/// normalization turns into disparity 0, not a hole to fill.
 fn to_depth(n: &Image, format: RangeFormat, near: f64, far: f64) -> Image {
     use rayon::prelude::*;
-    let data = n.data.par_iter().map(|&v| format.depth(v as f64, near, far) as f32).collect();
+    let data = n.data.par_iter().map(|&v| format.depth(v as f64, near, far).min(f32::MAX as f64) as f32).collect();
     Image::from_vec(n.width, n.height, 1, data).expect("same size")
 }
 
@@ -474,6 +508,19 @@ mod tests {
             assert_eq!(f.depth(1.0, near, far), far);
             for d in [0.5, 0.7, 1.0, 2.5, 4.0] {
                 assert!((f.depth(f.normalized(d, near, far), near, far) - d).abs() < 1e-12, "{f:?} {d}");
+            }
+        }
+        // The ISO 23002-3 laws: type 2 is RangeLinear; types 0 and 1 are RangeInverse read from
+        // the far end (the largest sample nearest), also with an unbounded far range.
+        for n in [0.0, 0.25, 0.5, 1.0] {
+            assert_eq!(RangeFormat::UniformZ.depth(n, near, far), RangeFormat::RangeLinear.depth(n, near, far));
+            for f in [RangeFormat::UniformInverseZ, RangeFormat::UniformDisparity] {
+                let d = f.depth(n, near, far);
+                assert!((d - RangeFormat::RangeInverse.depth(1.0 - n, near, far)).abs() < 1e-12, "{f:?} {n}");
+                assert!((f.normalized(d, near, far) - n).abs() < 1e-12);
+                // d_min = 0: disparity n·d_max.
+                let d = f.depth(n, near, f64::INFINITY);
+                assert!((1.0 / d - n / near).abs() < 1e-12, "{f:?} {n} {d}");
             }
         }
         // RangeInverse is linear in 1/d: half way in n is half way in disparity.

@@ -24,10 +24,16 @@ pub enum FileFormat {
     Exr,
     /// NumPy `.npy`: float32, float64, uint8 or uint16, H x W or H x W x C.
     Npy,
+    /// HEIF: HEIC photos (HEVC), AVIF; 8 to 12 bits, read through libheif ([`super::heif`]).
+    Heif,
 }
 
+/// ISO BMFF major brands of HEIF still images (HEVC: heic/heix/heim/heis, mif1/msf1 generic,
+/// image sequences hevc/hevx, AVIF avif/avis).
+const HEIF_BRANDS: [&[u8; 4]; 11] = [b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"hevm", b"mif1", b"msf1", b"avif", b"avis"];
+
 /// Extensions accepted for input, as listed in error messages.
-pub const SUPPORTED_INPUT_EXTENSIONS: &str = ".png, .jpg/.jpeg, .tif/.tiff, .exr, .npy";
+pub const SUPPORTED_INPUT_EXTENSIONS: &str = ".png, .jpg/.jpeg, .tif/.tiff, .exr, .npy, .heic/.heif/.avif (with libheif)";
 
 impl FileFormat {
     /// Human name used in messages ("PNG", "OpenEXR"...).
@@ -38,6 +44,7 @@ impl FileFormat {
             FileFormat::Tiff => "TIFF",
             FileFormat::Exr => "EXR",
             FileFormat::Npy => "NPY",
+            FileFormat::Heif => "HEIF",
         }
     }
 
@@ -53,6 +60,8 @@ impl FileFormat {
             Some(FileFormat::Exr)
         } else if head.starts_with(b"\x93NUMPY") {
             Some(FileFormat::Npy)
+        } else if head.len() >= 12 && &head[4..8] == b"ftyp" && HEIF_BRANDS.iter().any(|b| &head[8..12] == *b) {
+            Some(FileFormat::Heif)
         } else {
             None
         }
@@ -67,6 +76,7 @@ impl FileFormat {
             "tif" | "tiff" => Some(FileFormat::Tiff),
             "exr" => Some(FileFormat::Exr),
             "npy" => Some(FileFormat::Npy),
+            "heic" | "heif" | "hif" | "avif" => Some(FileFormat::Heif),
             _ => None,
         }
     }
@@ -224,6 +234,10 @@ mod tests {
         assert_eq!(FileFormat::from_magic(&[0x76, 0x2F, 0x31, 0x01, 2]), Some(FileFormat::Exr));
         assert_eq!(FileFormat::from_magic(b"\x93NUMPY\x01\x00"), Some(FileFormat::Npy));
         assert_eq!(FileFormat::from_magic(b"hello"), None);
+        assert_eq!(FileFormat::from_magic(b"\0\0\0\x18ftypheic\0\0\0\0"), Some(FileFormat::Heif));
+        assert_eq!(FileFormat::from_magic(b"\0\0\0\x18ftypmif1\0\0\0\0"), Some(FileFormat::Heif));
+        assert_eq!(FileFormat::from_magic(b"\0\0\0\x18ftypisom\0\0\0\0"), None, "an MP4 is not a HEIF image");
+        assert_eq!(FileFormat::from_extension(Path::new("IMG_0001.HEIC")), Some(FileFormat::Heif));
         assert_eq!(FileFormat::from_extension(Path::new("a/B.TIFF")), Some(FileFormat::Tiff));
         assert_eq!(FileFormat::from_extension(Path::new("a.JPEG")), Some(FileFormat::Jpeg));
         assert_eq!(FileFormat::from_extension(Path::new("a.bmp")), None);

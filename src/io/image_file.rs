@@ -206,6 +206,7 @@ fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Resul
         }
         FileFormat::Tiff => super::tiff_file::decode_tiff(path, limits),
         FileFormat::Exr => decode_exr(path, limits),
+        FileFormat::Heif => decode_heif(path, limits),
         FileFormat::Npy => {
             let bytes = super::format::read_input(path)?;
             let (width, height, channels, samples) = super::format::guarded(path, FileFormat::Npy, || {
@@ -225,6 +226,18 @@ fn read_stored_as(path: &Path, format: FileFormat, limits: &ReadLimits) -> Resul
             Ok(Stored { width, height, channels, samples, encoding, bit_depth, has_alpha, format: FileFormat::Npy })
         }
     }
+}
+
+/// A HEIF file's primary image through libheif ([`super::heif`]): RGB, display-encoded, in
+/// stored orientation.
+fn decode_heif(path: &Path, limits: &ReadLimits) -> Result<Stored> {
+    let file = super::heif::HeifFile::open(path)?;
+    let (width, height, rgb, bit_depth) = file.primary()?.decode_rgb(limits)?;
+    let samples = match rgb {
+        super::heif::Rgb::U8(v) => Samples::U8(v),
+        super::heif::Rgb::Scaled(v) => Samples::F32(v),
+    };
+    Ok(Stored { width, height, channels: 3, samples, encoding: Encoding::Display, bit_depth, has_alpha: false, format: FileFormat::Heif })
 }
 
 /// Decodes a PNG or JPEG held in memory (an image embedded in another file), with the same

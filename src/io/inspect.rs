@@ -1,20 +1,26 @@
 //! What a photo file holds, for `drbokeh inspect`: its size, colour and bit depth from the
-//! header, and the depth map it embeds ([`super::embedded_depth`]) with its parameters.
+//! header, the depth map it embeds ([`super::embedded_depth`], [`super::heif_depth`]) with its
+//! parameters, and its matte (a HEIF portrait matte) and other auxiliary images.
 //!
-//! The depth map is decoded in full (its problems are errors, as in a render: a file that
-//! claims a depth map never inspects as one without); the photo's pixels are not, where the
-//! format's header says enough (PNG, JPEG, TIFF).
+//! The depth map and matte are decoded in full (their problems are errors, as in a render: a
+//! file that claims a depth map never inspects as one without); the photo's pixels are not,
+//! where the format's header says enough (PNG, JPEG, TIFF, HEIF).
 
 use super::embedded_depth::{DepthInfo, EmbeddedDepth, read_embedded};
+use super::heif_depth::{AuxInfo, EmbeddedMatte, MatteInfo};
 use super::format::{FileFormat, detect_format, guarded};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use std::path::Path;
 
 /// The embedded formats that are read today, and those that are not yet.
-pub const EMBEDDED_READ: &[&str] = &["Dynamic Depth 1.0 (JPEG container items)", "GDepth (XMP in JPEG)"];
+pub const EMBEDDED_READ: &[&str] = &[
+    "Dynamic Depth 1.0 (JPEG container items)",
+    "GDepth (XMP in JPEG)",
+    "HEIF/HEIC depth images (ISO/IEC 23002-3) and Apple portrait mattes (with libheif)",
+];
 /// Embedded depth and matte formats not read yet (named in reports).
-pub const EMBEDDED_NOT_READ: &[&str] = &["HEIC/HEIF auxiliary depth and matte images"];
+pub const EMBEDDED_NOT_READ: &[&str] = &["Apple semantic mattes (skin, hair, teeth, glasses: listed, not used)"];
 
 /// What `inspect` reports of a photo (`--json` prints it as it is).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -36,8 +42,11 @@ pub struct Inspection {
     /// The embedded depth map's parameters (`kind` and `container`: "gdepth" or
     /// "dynamic-depth"), or null.
     pub depth: Option<EmbeddedDepthReport>,
-    /// An embedded matte (none of the formats read today carries one): always null for now.
-    pub matte: Option<()>,
+    /// The embedded matte (a HEIF portrait matte), or null.
+    pub matte: Option<MatteInfo>,
+    /// A HEIF file's auxiliary images other than depth and alpha (the matte among them).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub auxiliary: Vec<AuxInfo>,
     /// `GImage:Mime` when the file also keeps an original image (Lens Blur photos).
     pub original_image: Option<String>,
     /// What is looked for and what is not yet ([`EMBEDDED_READ`], [`EMBEDDED_NOT_READ`]).
@@ -62,12 +71,24 @@ pub struct EmbeddedDepthReport {
     pub depth_max: f32,
 }
 
-/// Inspects the photo `path`; also returns the embedded depth map, decoded (for
-/// `--extract-depth`).
-pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Option<EmbeddedDepth>)> {
+/// What [`inspect`] decoded besides the report: the embedded depth map and matte (for
+/// `--extract-depth`, `--extract-matte`).
+pub struct Extracted {
+    /// The depth map, if embedded.
+    pub depth: Option<EmbeddedDepth>,
+    /// The matte, if embedded.
+    pub matte: Option<EmbeddedMatte>,
+}
+
+/// Inspects the photo `path`; also returns what it embeds, decoded.
+pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Extracted)> {
     let format = detect_format(path)?;
     let header = photo_header(path, format, limits)?;
     let embedded = read_embedded(path, limits)?;
+    let (matte, auxiliary) = match format {
+        FileFormat::Heif => (super::heif_depth::read_matte(path, limits)?, super::heif_depth::auxiliary(path)?),
+        _ => (None, Vec::new()),
+    };
     let depth = embedded.as_ref().map(|e| {
         let (lo, hi) = e.depth.data.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
         EmbeddedDepthReport { kind: e.info.container, info: e.info.clone(), depth_min: lo, depth_max: hi }
@@ -87,13 +108,36 @@ pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Option<E
         colour,
         bit_depth: header.bit_depth,
         depth,
-        matte: None,
+        matte: matte.as_ref().map(|m| m.info.clone()),
+        auxiliary,
         original_image: embedded.as_ref().and_then(|e| e.original_image.clone()),
         embedded_formats_read: EMBEDDED_READ,
         embedded_formats_not_read: EMBEDDED_NOT_READ,
         warnings: embedded.as_ref().map(|e| e.warnings.clone()).unwrap_or_default(),
     };
-    Ok((inspection, embedded))
+    Ok((inspection, Extracted { depth: embedded, matte }))
+}
+
+/// Writes an embedded matte for other tools, the format from `out`'s extension, atomically:
+/// `.png` 8 or 16-bit grey as the file stores it, `.exr` one float channel `A`, `.npy` H x W
+/// float32; values in [0, 1] at the matte's own size. Returns a description of what was written.
+pub fn write_extracted_matte(out: &Path, m: &EmbeddedMatte) -> Result<String> {
+    let (w, h) = (m.matte.width, m.matte.height);
+    match super::write::OutputFormat::from_path(out)? {
+        super::write::OutputFormat::Exr => {
+            super::exr_file::write_exr(out, &m.matte, &["A"])?;
+            Ok(format!("matte, {w}x{h}, float channel A"))
+        }
+        super::write::OutputFormat::Npy => {
+            super::npy::save_npy(out, &m.matte)?;
+            Ok(format!("matte, {w}x{h}, float32"))
+        }
+        super::write::OutputFormat::Png => {
+            let bits = if m.info.bit_depth > 8 { 16 } else { 8 };
+            super::write::write_png(out, &m.matte, bits, crate::color::Transfer::Linear)?;
+            Ok(format!("matte, {w}x{h}, {bits}-bit grey"))
+        }
+    }
 }
 
 /// The size (width, height) of the raster `path`, from its header where the format has one
@@ -116,6 +160,14 @@ struct Header {
 /// against `limits`; formats it cannot describe (EXR, NPY, float TIFF) are decoded in full.
 fn photo_header(path: &Path, format: FileFormat, limits: &ReadLimits) -> Result<Header> {
     use image::ImageDecoder;
+    if format == FileFormat::Heif {
+        let file = super::heif::HeifFile::open(path)?;
+        let primary = file.primary()?;
+        let (width, height) = primary.size();
+        limits.check(path, width as u64, height as u64)?;
+        let channels = if primary.has_alpha() { 4 } else { 3 };
+        return Ok(Header { width, height, channels, bit_depth: primary.luma_bits().unwrap_or(8) });
+    }
     if matches!(format, FileFormat::Png | FileFormat::Jpeg | FileFormat::Tiff) {
         let header = guarded(path, format, || {
             let dec = image::ImageReader::open(path)
@@ -160,6 +212,10 @@ pub fn write_extracted_depth(out: &Path, e: &EmbeddedDepth) -> Result<String> {
             super::npy::save_npy(out, &e.depth)?;
             Ok(format!("metric depth, {w}x{h}, float32"))
         }
+        super::write::OutputFormat::Png if !e.info.far.is_finite() => Err(Error::input(
+            out,
+            "the embedded depth reaches infinity (a disparity range from 0), which a PNG of depth / Far cannot hold; write .exr or .npy",
+        )),
         super::write::OutputFormat::Png => {
             let far = e.info.far as f32;
             let mut scaled = e.depth.clone();

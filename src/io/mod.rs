@@ -23,6 +23,8 @@ pub mod embedded_depth;
 pub mod exr_file;
 pub mod format;
 pub mod guard;
+pub mod heif;
+pub mod heif_depth;
 pub mod image_file;
 pub mod inspect;
 pub mod layer;
