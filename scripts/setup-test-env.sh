@@ -3,6 +3,8 @@
 #   .venv/   Python with the oracle packages from scripts/requirements-test.txt, including
 #            the onnxruntime wheel whose onnxruntime/capi/libonnxruntime.so.* drbokeh finds there
 #   .tools/exiftool/   ExifTool (Debian's libimage-exiftool-perl), for the GDepth tests
+#   .tools/heif/pug.heic   an iPhone portrait photo with its depth image (from pillow-heif's
+#            source distribution on PyPI), for tests/heif.rs
 # Safe to run repeatedly; it only installs what is missing.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -47,6 +49,23 @@ if [ ! -f "$exiftool_dir/usr/bin/exiftool" ]; then
     else
         echo "warning: apt-get/dpkg not found: ExifTool not installed ($exiftool_dir); tests/embedded_depth.rs's ExifTool tests need it or \$DRBOKEH_EXIFTOOL" >&2
     fi
+fi
+
+# A HEIC written by an iPhone (a portrait photo with a uniform-disparity depth image and an HDR
+# gain map): pillow-heif's test image, taken from its source distribution on PyPI (pinned and
+# checked), the real-camera file tests/heif.rs reads.
+heif_dir=.tools/heif
+pug_sha=1ddce96766efbfa0f6bdf634bdab26bdeff831393df8d67f4cdc7b7a7afebc67
+if [ "$(sha256sum "$heif_dir/pug.heic" 2>/dev/null | cut -d' ' -f1)" != "$pug_sha" ]; then
+    tmp=$(mktemp -d)
+    .venv/bin/python -m pip download --quiet --disable-pip-version-check --no-deps --no-binary :all: \
+        --dest "$tmp" pillow-heif==1.8.1
+    mkdir -p "$heif_dir"
+    tar -xzf "$tmp"/pillow_heif-1.8.1.tar.gz -C "$tmp" pillow_heif-1.8.1/tests/images/heif_other/pug.heic
+    cp "$tmp"/pillow_heif-1.8.1/tests/images/heif_other/pug.heic "$heif_dir/pug.heic"
+    rm -rf "$tmp"
+    echo "$pug_sha  $heif_dir/pug.heic" | sha256sum --check --quiet
+    echo "pillow-heif's iPhone HEIC (pug.heic) copied into $heif_dir"
 fi
 
 # Chromium's headless shell, the browser tests/view.rs drives `drbokeh view`'s page with

@@ -10,9 +10,14 @@
 //! to install the library.
 //!
 //! Contracts:
-//! - Pixels are in stored order: libheif's transformations (`irot`, `imir`, `clap`) are not
+//! - Pixels are in stored order: the container's rotation and mirror (`irot`, `imir`) are not
 //!   applied, as EXIF orientation is not applied to a JPEG ([`super::image_file`]); the photo,
-//!   its depth image and its matte then stay aligned whatever the container says about display.
+//!   its depth image and its matte then stay aligned whatever the container says about display
+//!   (phones store the auxiliary images without the primary image's rotation). The crop
+//!   (`clap`, the clean aperture) is applied: it is part of each image's size (an encoder pads
+//!   a coded picture to its block size and crops it back with `clap`). libheif cannot apply
+//!   one without the others, so it decodes with none and the crop is read from the container
+//!   here ([`clean_apertures`]) and applied to the decoded plane.
 //! - The primary image is decoded as interleaved RGB: 8-bit files as 8-bit samples, 10/12-bit
 //!   files as samples scaled to [0, 1] by `2^bits − 1`; display-encoded (the colour profile is
 //!   not applied, as for a JPEG). Alpha is dropped.
@@ -105,6 +110,7 @@ struct Api {
     context_free: unsafe extern "C" fn(*mut Context),
     read_from_memory: unsafe extern "C" fn(*mut Context, *const c_void, usize, *const c_void) -> HeifError,
     primary_handle: unsafe extern "C" fn(*mut Context, *mut *mut Handle) -> HeifError,
+    primary_id: unsafe extern "C" fn(*mut Context, *mut u32) -> HeifError,
     handle_release: unsafe extern "C" fn(*const Handle),
     handle_width: unsafe extern "C" fn(*const Handle) -> c_int,
     handle_height: unsafe extern "C" fn(*const Handle) -> c_int,
@@ -174,6 +180,7 @@ fn load() -> std::result::Result<Api, String> {
         context_free: sym!("heif_context_free"),
         read_from_memory: sym!("heif_context_read_from_memory_without_copy"),
         primary_handle: sym!("heif_context_get_primary_image_handle"),
+        primary_id: sym!("heif_context_get_primary_image_ID"),
         handle_release: sym!("heif_image_handle_release"),
         handle_width: sym!("heif_image_handle_get_width"),
         handle_height: sym!("heif_image_handle_get_height"),
@@ -241,6 +248,8 @@ pub struct HeifFile<'p> {
     api: &'static Api,
     path: &'p Path,
     ctx: *mut Context,
+    /// Each item's clean aperture, read from the container.
+    claps: Vec<(u32, Clap)>,
     // Declared after `ctx`, freed after it in `Drop` (the context reads these bytes).
     _bytes: Vec<u8>,
 }
@@ -257,6 +266,8 @@ impl Drop for HeifFile<'_> {
 pub struct ImageHandle<'f> {
     file: &'f HeifFile<'f>,
     raw: *mut Handle,
+    /// Its item id.
+    id: u32,
 }
 
 impl Drop for ImageHandle<'_> {
@@ -291,7 +302,8 @@ impl<'p> HeifFile<'p> {
         if ctx.is_null() {
             return Err(Error::Internal("libheif could not allocate a context".into()));
         }
-        let file = HeifFile { api, path, ctx, _bytes: bytes };
+        let claps = clean_apertures(&bytes);
+        let file = HeifFile { api, path, ctx, claps, _bytes: bytes };
         // SAFETY: the bytes live as long as the context (same struct, freed after it).
         let e = unsafe { (api.read_from_memory)(ctx, file._bytes.as_ptr().cast(), file._bytes.len(), std::ptr::null()) };
         file.check(e, "cannot read the HEIF file")?;
@@ -305,11 +317,14 @@ impl<'p> HeifFile<'p> {
 
     /// The primary image (the photo).
     pub fn primary(&self) -> Result<ImageHandle<'_>> {
-        let mut raw = std::ptr::null_mut();
+        let (mut raw, mut id) = (std::ptr::null_mut(), 0u32);
+        // SAFETY: a live context.
+        let e = unsafe { (self.api.primary_id)(self.ctx, &mut id) };
+        self.check(e, "the HEIF file has no primary image")?;
         // SAFETY: a live context; the handle is released by ImageHandle's Drop.
         let e = unsafe { (self.api.primary_handle)(self.ctx, &mut raw) };
         self.check(e, "the HEIF file has no primary image")?;
-        Ok(ImageHandle { file: self, raw })
+        Ok(ImageHandle { file: self, raw, id })
     }
 }
 
@@ -340,14 +355,29 @@ pub struct GreyPlane {
 }
 
 impl<'f> ImageHandle<'f> {
-    /// Width and height as stored (the `ispe` property: before the container's rotation,
-    /// mirror or crop, which are not applied), else as displayed when no `ispe` is given.
+    /// Width and height in stored orientation after the crop (see the module doc): the `ispe`
+    /// property cropped by `clap`, else libheif's size when no `ispe` is given.
     pub fn size(&self) -> (usize, usize) {
+        let (w, h) = self.coded_size();
+        match self.crop(w, h) {
+            Some(c) => (c.width, c.height),
+            None => (w, h),
+        }
+    }
+
+    /// Width and height before the crop.
+    fn coded_size(&self) -> (usize, usize) {
         let api = self.file.api;
         // SAFETY: a live handle.
         let (w, h) = unsafe { ((api.handle_ispe_width)(self.raw), (api.handle_ispe_height)(self.raw)) };
         let (w, h) = if w > 0 && h > 0 { (w, h) } else { unsafe { ((api.handle_width)(self.raw), (api.handle_height)(self.raw)) } };
         (w.max(0) as usize, h.max(0) as usize)
+    }
+
+    /// The image's crop of a `w` x `h` picture, if its item has a valid clean aperture (an
+    /// invalid one, which libheif would refuse on display, is not applied).
+    fn crop(&self, w: usize, h: usize) -> Option<Crop> {
+        self.file.claps.iter().find(|(id, _)| *id == self.id).and_then(|(_, c)| c.crop(w, h))
     }
 
     /// Bits per luma sample (8 for most phones, 10 for HDR), or `None` when not stated.
@@ -382,7 +412,7 @@ impl<'f> ImageHandle<'f> {
         // SAFETY: a live handle; the new one is released by its Drop.
         let e = unsafe { (self.file.api.depth_handle)(self.raw, id, &mut raw) };
         self.file.check(e, &format!("cannot open the depth image (item {id})"))?;
-        Ok(ImageHandle { file: self.file, raw })
+        Ok(ImageHandle { file: self.file, raw, id })
     }
 
     /// The depth representation of this (primary) image's depth image `id`, if the file
@@ -443,7 +473,7 @@ impl<'f> ImageHandle<'f> {
         // SAFETY: a live handle; the new one is released by its Drop.
         let e = unsafe { (self.file.api.aux_handle)(self.raw, id, &mut raw) };
         self.file.check(e, &format!("cannot open auxiliary image {id}"))?;
-        Ok(ImageHandle { file: self.file, raw })
+        Ok(ImageHandle { file: self.file, raw, id })
     }
 
     /// Decodes into `colorspace`/`chroma`, transformations not applied, after checking the
@@ -476,39 +506,40 @@ impl<'f> ImageHandle<'f> {
         let deep = self.luma_bits().is_some_and(|b| b > 8);
         let chroma = if deep { CHROMA_INTERLEAVED_RRGGBB_LE } else { CHROMA_INTERLEAVED_RGB };
         let d = self.decode(COLORSPACE_RGB, chroma, limits, "the primary image")?;
-        let (w, h, bits, rows) = d.plane(self.file.path, CHANNEL_INTERLEAVED, "the primary image")?;
-        let row_bytes = if deep { w * 6 } else { w * 3 };
+        let (plane, bits) = d.plane(self.file.path, CHANNEL_INTERLEAVED, "the primary image")?;
+        let c = self.crop(plane.width, plane.height).unwrap_or(Crop::whole(plane.width, plane.height));
         let rgb = if deep {
             let m = ((1u32 << bits) - 1) as f32;
-            let mut v = Vec::with_capacity(w * h * 3);
-            for r in rows.chunks(rows.len() / h.max(1)).take(h) {
-                v.extend(r[..row_bytes].as_chunks::<2>().0.iter().map(|q| u16::from_le_bytes(*q) as f32 / m));
+            let mut v = Vec::with_capacity(c.width * c.height * 3);
+            for r in plane.rows(&c, 6) {
+                v.extend(r.as_chunks::<2>().0.iter().map(|q| u16::from_le_bytes(*q) as f32 / m));
             }
             Rgb::Scaled(v)
         } else {
-            let mut v = Vec::with_capacity(w * h * 3);
-            for r in rows.chunks(rows.len() / h.max(1)).take(h) {
-                v.extend_from_slice(&r[..row_bytes]);
+            let mut v = Vec::with_capacity(c.width * c.height * 3);
+            for r in plane.rows(&c, 3) {
+                v.extend_from_slice(r);
             }
             Rgb::U8(v)
         };
-        Ok((w, h, rgb, bits))
+        Ok((c.width, c.height, rgb, bits))
     }
 
     /// Decodes the image as one grey channel in [0, 1]; `what` names it in errors.
     pub fn decode_grey(&self, limits: &ReadLimits, what: &str) -> Result<GreyPlane> {
         let d = self.decode(COLORSPACE_MONOCHROME, CHROMA_MONOCHROME, limits, what)?;
-        let (w, h, bits, rows) = d.plane(self.file.path, CHANNEL_Y, what)?;
+        let (plane, bits) = d.plane(self.file.path, CHANNEL_Y, what)?;
+        let c = self.crop(plane.width, plane.height).unwrap_or(Crop::whole(plane.width, plane.height));
         let m = ((1u32 << bits) - 1) as f32;
-        let mut v = Vec::with_capacity(w * h);
-        for r in rows.chunks(rows.len() / h.max(1)).take(h) {
+        let mut v = Vec::with_capacity(c.width * c.height);
+        for r in plane.rows(&c, if bits > 8 { 2 } else { 1 }) {
             if bits > 8 {
-                v.extend(r[..w * 2].as_chunks::<2>().0.iter().map(|q| u16::from_ne_bytes(*q) as f32 / m));
+                v.extend(r.as_chunks::<2>().0.iter().map(|q| u16::from_ne_bytes(*q) as f32 / m));
             } else {
-                v.extend(r[..w].iter().map(|&q| q as f32 / m));
+                v.extend(r.iter().map(|&q| q as f32 / m));
             }
         }
-        let image = crate::image::Image::from_vec(w, h, 1, v).ok_or_else(|| Error::Internal("libheif plane size".into()))?;
+        let image = crate::image::Image::from_vec(c.width, c.height, 1, v).ok_or_else(|| Error::Internal("libheif plane size".into()))?;
         Ok(GreyPlane { image, bits })
     }
 }
@@ -521,10 +552,28 @@ pub enum Rgb {
     Scaled(Vec<f32>),
 }
 
+/// A decoded plane: `height` rows of `stride` bytes.
+struct Plane<'a> {
+    width: usize,
+    height: usize,
+    stride: usize,
+    bytes: &'a [u8],
+}
+
+impl<'a> Plane<'a> {
+    /// The rows of `crop`, each its `crop.width * bytes_per_pixel` bytes.
+    fn rows(&self, crop: &Crop, bytes_per_pixel: usize) -> impl Iterator<Item = &'a [u8]> {
+        let (x0, x1) = (crop.left * bytes_per_pixel, (crop.left + crop.width) * bytes_per_pixel);
+        let bytes = self.bytes;
+        let stride = self.stride;
+        (crop.top..crop.top + crop.height).map(move |y| &bytes[y * stride + x0..y * stride + x1])
+    }
+}
+
 impl Decoded<'_> {
-    /// The plane `channel`: width, height, bits per sample and its rows (`stride` bytes each,
-    /// `height` of them), checked for a size libheif's own header promised.
-    fn plane(&self, path: &Path, channel: c_int, what: &str) -> Result<(usize, usize, u8, &[u8])> {
+    /// The plane `channel` and its bits per sample, checked for a size libheif's own header
+    /// promised.
+    fn plane(&self, path: &Path, channel: c_int, what: &str) -> Result<(Plane<'_>, u8)> {
         let mut stride: c_int = 0;
         // SAFETY: a live image; the plane it returns lives as long as the image (`&self`).
         let (w, h, bits, ptr) = unsafe {
@@ -542,8 +591,171 @@ impl Decoded<'_> {
             return Err(Error::input(path, format!("{what}: libheif decoded no usable pixels ({w}x{h}, {bits}-bit, stride {stride})")));
         }
         // SAFETY: libheif's plane is `stride * height` bytes.
-        let rows = unsafe { std::slice::from_raw_parts(ptr, stride as usize * h as usize) };
-        Ok((w as usize, h as usize, bits as u8, rows))
+        let bytes = unsafe { std::slice::from_raw_parts(ptr, stride as usize * h as usize) };
+        Ok((Plane { width: w as usize, height: h as usize, stride: stride as usize, bytes }, bits as u8))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The clean aperture, read from the container (ISO/IEC 14496-12 boxes, ISO/IEC 23008-12 items).
+
+/// A `clap` property: the crop's size and its centre's offset from the picture's centre, each
+/// a fraction (numerator, denominator).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Clap {
+    width: (u32, u32),
+    height: (u32, u32),
+    horizontal_offset: (i32, u32),
+    vertical_offset: (i32, u32),
+}
+
+/// A rectangle of a picture, pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Crop {
+    left: usize,
+    top: usize,
+    width: usize,
+    height: usize,
+}
+
+impl Crop {
+    fn whole(width: usize, height: usize) -> Crop {
+        Crop { left: 0, top: 0, width, height }
+    }
+}
+
+impl Clap {
+    /// The crop of a `w` x `h` picture: centre at `offset + (size − 1)/2`, edges at the centre
+    /// ∓ (crop size − 1)/2, rounded; `None` when a denominator is 0 or the crop leaves the
+    /// picture.
+    fn crop(&self, w: usize, h: usize) -> Option<Crop> {
+        let frac = |(n, d): (i64, u32)| (d != 0).then(|| n as f64 / d as f64);
+        let axis = |size: (u32, u32), offset: (i32, u32), full: usize| -> Option<(usize, usize)> {
+            let (s, o) = (frac((size.0 as i64, size.1))?, frac((offset.0 as i64, offset.1))?);
+            let centre = o + (full as f64 - 1.0) / 2.0;
+            let (a, b) = ((centre - (s - 1.0) / 2.0).round(), (centre + (s - 1.0) / 2.0).round());
+            (a >= 0.0 && b >= a && b < full as f64).then_some((a as usize, (b - a) as usize + 1))
+        };
+        let (left, width) = axis(self.width, self.horizontal_offset, w)?;
+        let (top, height) = axis(self.height, self.vertical_offset, h)?;
+        Some(Crop { left, top, width, height })
+    }
+}
+
+/// The boxes of `b`: (type, payload). Stops at the first malformed header (libheif has
+/// already checked the structure; this reader only looks for properties).
+fn boxes(mut b: &[u8]) -> Vec<([u8; 4], &[u8])> {
+    let mut out = Vec::new();
+    while b.len() >= 8 {
+        let size = u32::from_be_bytes([b[0], b[1], b[2], b[3]]) as u64;
+        let kind = [b[4], b[5], b[6], b[7]];
+        let (head, size) = match size {
+            0 => (8, b.len() as u64),
+            1 if b.len() >= 16 => (16, u64::from_be_bytes(b[8..16].try_into().expect("8 bytes"))),
+            _ => (8, size),
+        };
+        if size < head as u64 || size > b.len() as u64 {
+            break;
+        }
+        out.push((kind, &b[head..size as usize]));
+        b = &b[size as usize..];
+    }
+    out
+}
+
+/// The payload of the first box of type `k` in `bs`.
+fn find<'a>(bs: &[([u8; 4], &'a [u8])], k: &[u8; 4]) -> Option<&'a [u8]> {
+    bs.iter().find(|(kind, _)| kind == k).map(|(_, p)| *p)
+}
+
+/// Every item's `clap` property: (item id, clean aperture). Empty when the file has none or
+/// its boxes cannot be followed.
+fn clean_apertures(file: &[u8]) -> Vec<(u32, Clap)> {
+    let top = boxes(file);
+    let Some(meta) = find(&top, b"meta").filter(|m| m.len() >= 4) else { return Vec::new() };
+    let meta = boxes(&meta[4..]);
+    let Some(iprp) = find(&meta, b"iprp") else { return Vec::new() };
+    let iprp = boxes(iprp);
+    let (Some(ipco), Some(ipma)) = (find(&iprp, b"ipco"), find(&iprp, b"ipma")) else { return Vec::new() };
+    let properties = boxes(ipco);
+    let mut out = Vec::new();
+    for (item, index) in associations(ipma) {
+        let Some((kind, p)) = index.checked_sub(1).and_then(|i| properties.get(i)) else { continue };
+        if kind != b"clap" || p.len() < 32 {
+            continue;
+        }
+        let w = |i: usize| u32::from_be_bytes(p[i * 4..i * 4 + 4].try_into().expect("4 bytes"));
+        let clap = Clap {
+            width: (w(0), w(1)),
+            height: (w(2), w(3)),
+            horizontal_offset: (w(4) as i32, w(5)),
+            vertical_offset: (w(6) as i32, w(7)),
+        };
+        out.push((item, clap));
+    }
+    out
+}
+
+/// The (item id, 1-based property index) pairs of an `ipma` box's payload; stops where it is
+/// cut short.
+fn associations(p: &[u8]) -> Vec<(u32, usize)> {
+    let mut out = Vec::new();
+    if p.len() < 8 {
+        return out;
+    }
+    let (version, wide) = (p[0], p[3] & 1 == 1);
+    let count = u32::from_be_bytes([p[4], p[5], p[6], p[7]]);
+    let mut at = 8;
+    let mut take = |n: usize| -> Option<u32> {
+        let v = p.get(at..at + n)?.iter().fold(0u32, |a, &b| (a << 8) | b as u32);
+        at += n;
+        Some(v)
+    };
+    for _ in 0..count {
+        let Some(item) = take(if version < 1 { 2 } else { 4 }) else { break };
+        let Some(n) = take(1) else { break };
+        for _ in 0..n {
+            let Some(a) = take(if wide { 2 } else { 1 }) else { return out };
+            let index = if wide { a & 0x7FFF } else { a & 0x7F };
+            out.push((item, index as usize));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clean_aperture_crops() {
+        // libheif's padding of a 48 x 32 picture coded as 64 x 64: the top-left 48 x 32.
+        let c = Clap { width: (48, 1), height: (32, 1), horizontal_offset: (-16, 2), vertical_offset: (-32, 2) };
+        assert_eq!(c.crop(64, 64), Some(Crop { left: 0, top: 0, width: 48, height: 32 }));
+        // Centred.
+        let c = Clap { width: (10, 1), height: (6, 1), horizontal_offset: (0, 1), vertical_offset: (0, 1) };
+        assert_eq!(c.crop(20, 10), Some(Crop { left: 5, top: 2, width: 10, height: 6 }));
+        // Outside the picture, or a zero denominator: no crop.
+        let c = Clap { width: (30, 1), height: (6, 1), horizontal_offset: (0, 1), vertical_offset: (0, 1) };
+        assert_eq!(c.crop(20, 10), None);
+        let c = Clap { width: (10, 0), height: (6, 1), horizontal_offset: (0, 1), vertical_offset: (0, 1) };
+        assert_eq!(c.crop(20, 10), None);
+    }
+
+    #[test]
+    fn box_walk_survives_damage() {
+        // A meta box whose iprp is cut anywhere: never a panic.
+        let clap: Vec<u8> = [48u32, 1, 32, 1, (-16i32) as u32, 2, (-32i32) as u32, 2].iter().flat_map(|v| v.to_be_bytes()).collect();
+        let bx = |k: &[u8; 4], p: &[u8]| [&(8 + p.len() as u32).to_be_bytes()[..], k, p].concat();
+        let ipco = bx(b"ipco", &bx(b"clap", &clap));
+        let ipma = bx(b"ipma", &[0, 0, 0, 0, 0, 0, 0, 1, 0, 7, 1, 0x81]);
+        let meta = bx(b"meta", &[&[0u8, 0, 0, 0][..], &bx(b"iprp", &[ipco, ipma].concat())].concat());
+        let found = clean_apertures(&meta);
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].0, 7);
+        for cut in 0..meta.len() {
+            let _ = clean_apertures(&meta[..cut]);
+        }
     }
 }
 
