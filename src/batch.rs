@@ -26,7 +26,7 @@ use std::sync::{Condvar, Mutex};
 use std::time::{Instant, SystemTime};
 
 /// Extensions of photos a batch picks up.
-pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "tif", "tiff", "exr"];
+pub const IMAGE_EXTENSIONS: [&str; 10] = ["png", "jpg", "jpeg", "tif", "tiff", "exr", "heic", "heif", "hif", "avif"];
 const DEPTH_EXTENSIONS: [&str; 5] = ["exr", "png", "tif", "tiff", "npy"];
 const MATTE_EXTENSIONS: [&str; 5] = ["png", "tif", "tiff", "exr", "npy"];
 /// Estimated peak memory per pixel of one render (inputs, layers, kernel buffers).
@@ -356,6 +356,10 @@ fn probe_dims(path: &Path) -> Option<(u64, u64)> {
             [h, w] | [h, w, _] => Some((*w, *h)),
             _ => None,
         };
+    }
+    if crate::io::detect_format(path).ok()? == crate::io::FileFormat::Heif {
+        let (w, h) = crate::io::inspect::raster_size(path, &crate::io::ReadLimits::unlimited()).ok()?;
+        return Some((w as u64, h as u64));
     }
     let (w, h) = image::ImageReader::open(path).ok()?.with_guessed_format().ok()?.into_dimensions().ok()?;
     Some((w as u64, h as u64))
@@ -772,16 +776,12 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
     let item = &plan.item;
     let mut fingerprint = None;
     let outcome = (|| -> Result<(Status, Option<String>)> {
-        let depth = item.depth.clone().ok_or_else(|| {
-            Error::input(
-                &item.image,
-                format!("no depth map found (looked for {} with .exr/.png/.tif/.tiff/.npy)", plan.cfg.batch.depth_patterns.join(", ")),
-            )
-        })?;
         let output = item.output.clone();
+        // Without a depth companion the photo's embedded depth map is used (a portrait JPEG or
+        // HEIC), else the configured depth model, as `render` does.
         let job = Job {
             image: Some(item.image.clone()),
-            depth: Some(depth),
+            depth: item.depth.clone(),
             matte: item.matte.clone(),
             layers: Vec::new(),
             focus: plan.focus,
@@ -816,7 +816,18 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
         }))
         .unwrap_or_else(|_| Err(Error::Internal("the renderer panicked on this image (a bug; please report it)".into())));
         budget.release(bytes);
-        r?;
+        r.map_err(|e| match e {
+            // With nothing to give depth (the job's usage error names the ways forward), say
+            // which companions were looked for.
+            Error::Usage(msg) if item.depth.is_none() => Error::input(
+                &item.image,
+                format!(
+                    "no depth map found (looked for {} with .exr/.png/.tif/.tiff/.npy): {msg}",
+                    plan.cfg.batch.depth_patterns.join(", ")
+                ),
+            ),
+            e => e,
+        })?;
         let output_bytes = std::fs::metadata(&output).map_err(|e| Error::io(&output, e))?.len();
         let text = serde_json::to_string_pretty(&Record { fingerprint: fp, output_bytes, drbokeh: env!("CARGO_PKG_VERSION").into() })
             .map_err(|e| Error::Internal(e.to_string()))?;

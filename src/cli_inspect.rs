@@ -41,7 +41,10 @@ pub(crate) fn run(args: InspectArgs) -> anyhow::Result<()> {
     let (report, embedded) = inspect(&args.photo, &limits)?;
     if let Some(out) = &args.extract_depth {
         let e = embedded.depth.as_ref().ok_or_else(|| {
-            Error::input(&args.photo, "embeds no depth map (no Dynamic Depth, GDepth XMP or HEIF depth image); --extract-depth has nothing to write")
+            Error::input(
+                &args.photo,
+                "embeds no depth map (no Dynamic Depth, GDepth XMP or HEIF depth image); --extract-depth has nothing to write",
+            )
         })?;
         let what = write_extracted_depth(out, e)?;
         eprintln!("wrote {} ({what})", out.display());

@@ -51,6 +51,15 @@ impl Error {
         Error::Usage(msg.into())
     }
 
+    /// This error with `what` (the part of the file at fault) in front of an input error's
+    /// message; the file stays the one named. Other errors are returned as they are.
+    pub(crate) fn within(self, what: &str) -> Self {
+        match self {
+            Error::Input { path, msg } => Error::Input { path, msg: format!("{what}: {msg}") },
+            other => other,
+        }
+    }
+
     /// True when the error is caused by the user's input or options (exit code 2).
     pub fn is_user_error(&self) -> bool {
         !matches!(self, Error::Internal(_))

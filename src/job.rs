@@ -9,8 +9,8 @@ use crate::focus_pull::{FocusPull, FramePattern};
 use crate::image::Image;
 use crate::io::{self, ReadLimits};
 use crate::pipeline::{BuildLayers, DepthSource, Focus, Outcome, Pipeline, Report, Scene, StageReport};
-use crate::report::MatteSource;
 use crate::render::Layer;
+use crate::report::MatteSource;
 use crate::stages::depth;
 use crate::timing::ms_since;
 use rayon::prelude::*;
@@ -20,12 +20,13 @@ use std::time::Instant;
 /// The files of one job and where its result goes.
 #[derive(Clone, Debug)]
 pub struct Job {
-    /// The photo (PNG/JPEG/TIFF/EXR); None with `layers`.
+    /// The photo (PNG/JPEG/TIFF/EXR/NPY, HEIC with libheif); None with `layers`.
     pub image: Option<PathBuf>,
-    /// Its depth map; None: the depth map the photo embeds (Dynamic Depth or GDepth, unless
-    /// `input.embedded_depth = false`), else the configured depth model.
+    /// Its depth map; None: the depth map the photo embeds (Dynamic Depth, GDepth or a HEIC's
+    /// depth image, unless `input.embedded_depth = false`), else the configured depth model.
     pub depth: Option<PathBuf>,
-    /// Its optional foreground matte.
+    /// Its optional foreground matte; None: the matte a HEIC photo embeds, if any (unless
+    /// `input.embedded_matte = false`).
     pub matte: Option<PathBuf>,
     /// Ready-made layers (front first) instead of image + depth.
     pub layers: Vec<PathBuf>,

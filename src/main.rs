@@ -166,7 +166,7 @@ enum DepthKindArg {
 #[derive(Args)]
 #[command(group = clap::ArgGroup::new("focus_spec").required(true).args(["focus", "focus_at", "focus_depth", "focus_from"]))]
 struct RenderArgs {
-    /// The photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR (linear).
+    /// The photo: PNG/JPEG/TIFF (8/16-bit, sRGB), EXR (linear), or HEIC/HEIF (with libheif).
     #[arg(required_unless_present = "layer", conflicts_with = "layer")]
     image: Option<PathBuf>,
     /// Depth map: EXR, 16-bit PNG/TIFF, float TIFF or NPY (H x W). Without it, the depth map

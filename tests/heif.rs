@@ -40,9 +40,11 @@ fn libheif() -> Option<PathBuf> {
             let lib = root().join(".venv/lib");
             let bundled = std::fs::read_dir(&lib).ok()?.filter_map(|e| e.ok()).find_map(|py| {
                 let libs = py.path().join("site-packages/pillow_heif.libs");
-                std::fs::read_dir(libs).ok()?.filter_map(|e| e.ok()).map(|e| e.path()).find(|p| {
-                    p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("libheif") && n.contains(".so"))
-                })
+                std::fs::read_dir(libs)
+                    .ok()?
+                    .filter_map(|e| e.ok())
+                    .map(|e| e.path())
+                    .find(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("libheif") && n.contains(".so")))
             });
             Some(bundled.expect("no libheif: neither the system's libheif.so.1 nor pillow-heif's in .venv (run scripts/setup-test-env.sh)"))
         })
@@ -228,8 +230,9 @@ fn read_png(path: &Path) -> Vec<u8> {
 fn inspect_and_extract_agree_with_pillow_heif() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    // A 120 x 80 depth image (libheif pads its coding to 128 x 128 and crops it with `clap`).
-    example_heic(d, "photo.heic", (120, 80), true, (240, 160));
+    // A 48 x 32 depth image: libheif's encoder codes a picture this small as 64 x 64 (its `ispe`)
+    // and crops it back with a `clap` property, which drbokeh applies.
+    example_heic(d, "photo.heic", (48, 32), true, (240, 160));
     let read = pillow_read(d, "photo.heic");
     let (z, d_min, d_max) = depth_by_hand(&read);
     let out = drbokeh(d, &["inspect", "photo.heic"]);
@@ -241,7 +244,7 @@ fn inspect_and_extract_agree_with_pillow_heif() {
         "representation      uniform_disparity",
         &format!("d_min               {d_min}"),
         &format!("d_max               {d_max}"),
-        "image               120x80, 8-bit grey",
+        "image               48x32, 8-bit grey",
         &format!("matte: HEIF auxiliary image 3 ({MATTE_URN}), 240x160 8-bit"),
     ] {
         assert!(text.contains(needle), "inspect should print {needle:?}; got:\n{text}");
@@ -253,7 +256,8 @@ fn inspect_and_extract_agree_with_pillow_heif() {
     assert_eq!(j["auxiliary"][0]["used_as"], "matte", "{j}");
 
     for ext in ["exr", "npy"] {
-        let o = drbokeh(d, &["inspect", "photo.heic", "--extract-depth", &format!("depth.{ext}"), "--extract-matte", &format!("matte.{ext}")]);
+        let o =
+            drbokeh(d, &["inspect", "photo.heic", "--extract-depth", &format!("depth.{ext}"), "--extract-matte", &format!("matte.{ext}")]);
         assert!(o.status.success(), "{}", common::stderr(&o));
         let got = io::read_depth(&d.join(format!("depth.{ext}")), &ReadLimits::default()).unwrap();
         let rel = got.data.iter().zip(&z.data).map(|(a, b)| ((a - b) / b).abs()).fold(0f32, f32::max);
@@ -307,7 +311,10 @@ fn iphone_heic_reads_as_pillow_heif_reads_it() {
     let j = ok_json(d, &["inspect", "pug.heic", "--json", "--extract-depth", "z.npy"]);
     assert_eq!((j["width"].as_u64(), j["height"].as_u64(), j["bit_depth"].as_u64()), (Some(4032), Some(3024), Some(8)), "{j}");
     let h = &j["depth"]["heif"];
-    assert_eq!((h["representation"].as_str(), h["d_min"].as_f64(), h["d_max"].as_f64()), (Some("uniform_disparity"), Some(d_min), Some(d_max)));
+    assert_eq!(
+        (h["representation"].as_str(), h["d_min"].as_f64(), h["d_max"].as_f64()),
+        (Some("uniform_disparity"), Some(d_min), Some(d_max))
+    );
     assert_eq!((j["depth"]["width"].as_u64(), j["depth"]["height"].as_u64()), (Some(768), Some(576)), "{j}");
     let got = io::read_depth(&d.join("z.npy"), &ReadLimits::default()).unwrap();
     let rel = got.data.iter().zip(&z.data).map(|(a, b)| ((a - b) / b).abs()).fold(0f32, f32::max);
@@ -394,4 +401,33 @@ fn bad_heic_exits_2_naming_the_photo() {
     oracle(d, &["write", "flat.heic", "photo.npy"]);
     let three = ["--depth", "[depth.onnx]", "--model-dir", "flat.heic embeds no depth map (no HEIF depth image)"];
     assert_usage_error(d, "render a HEIC without depth", &three, || render("flat.heic"));
+}
+
+/// `drbokeh batch` picks up HEIC photos and, without a depth companion, uses the depth image
+/// and matte they embed; a photo with neither a companion nor an embedded map fails naming the
+/// companions looked for and the ways forward, the others still run.
+#[test]
+fn batch_uses_the_embedded_depth_and_matte() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("in")).unwrap();
+    example_heic(&d.join("in"), "portrait.HEIC", (240, 160), true, (240, 160));
+    std::fs::copy(root().join("examples/scene/image.png"), d.join("in/plain.png")).unwrap();
+    for f in ["photo.npy", "depth.npy", "matte.npy"] {
+        std::fs::remove_file(d.join("in").join(f)).unwrap();
+    }
+    let out = drbokeh(d, &["batch", "in", "-o", "out", "--focus", "0.5", "--json"]);
+    assert_eq!(out.status.code(), Some(3), "one item fails (exit 3): {}", common::stderr(&out));
+    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("out/drbokeh-batch.json")).unwrap()).unwrap();
+    let items = summary["items"].as_array().unwrap_or_else(|| panic!("{summary}"));
+    let by_name = |n: &str| items.iter().find(|i| i["image"] == n).unwrap_or_else(|| panic!("{n}: {summary}"));
+    assert_eq!(by_name("portrait.HEIC")["status"], "ok", "{summary}");
+    let failed = by_name("plain.png");
+    assert_eq!(failed["status"], "failed", "{summary}");
+    let msg = failed["reason"].as_str().unwrap_or_default();
+    assert!(msg.contains("no depth map found") && msg.contains("{stem}_depth") && msg.contains("three ways"), "{msg}");
+    // The batch's render is the single render's.
+    let j = ok_json(d, &["render", "in/portrait.HEIC", "--focus", "0.5", "-o", "single.png", "--json"]);
+    assert_eq!(j["matte_source"]["kind"], "embedded", "{j}");
+    assert_eq!(read_png(&d.join("out/portrait_bokeh.png")), read_png(&d.join("single.png")));
 }

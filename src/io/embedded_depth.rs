@@ -385,7 +385,7 @@ impl DepthImage {
             return Err(Error::input(path, format!("{field} holds {what}, but {mime_field} says {mime}")));
         }
         let decoded = decode_image_bytes(path, declared, bytes, limits)
-            .map_err(|e| in_field(e, &format!("{field} (the embedded {mime} depth image)")))?;
+            .map_err(|e| e.within(&format!("{field} (the embedded {mime} depth image)")))?;
         let n = super::depth::single_grey_channel(path, decoded.image, &format!("{field} (the embedded depth image)"))?;
         let photo = photo_size(path, photo)?;
         if !same_aspect((n.width, n.height), photo) {
@@ -481,14 +481,6 @@ fn photo_size(path: &Path, b: &[u8]) -> Result<(usize, usize)> {
             .map(|(w, h)| (w as usize, h as usize))
             .map_err(|e| Error::input(path, format!("cannot read the JPEG's size from its header: {e}")))
     })
-}
-
-/// `e` with `field` in front of its message (the file stays the one named).
-fn in_field(e: Error, field: &str) -> Error {
-    match e {
-        Error::Input { path, msg } => Error::Input { path, msg: format!("{field}: {msg}") },
-        other => other,
-    }
 }
 
 /// `s`, cut to 40 characters for a message.

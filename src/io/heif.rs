@@ -223,7 +223,10 @@ fn open_library() -> std::result::Result<(libloading::Library, String), String> 
             return Ok((l, (*name).to_owned()));
         }
     }
-    Err(format!("reading HEIF/HEIC needs libheif, which was not found (tried DRBOKEH_LIBHEIF, {}); {INSTALL_HINT}", LIBRARY_NAMES.join(", ")))
+    Err(format!(
+        "reading HEIF/HEIC needs libheif, which was not found (tried DRBOKEH_LIBHEIF, {}); {INSTALL_HINT}",
+        LIBRARY_NAMES.join(", ")
+    ))
 }
 
 /// libheif's message of `e`.
@@ -480,7 +483,7 @@ impl<'f> ImageHandle<'f> {
     /// size against `limits`; `what` names the image in errors.
     fn decode(&self, colorspace: c_int, chroma: c_int, limits: &ReadLimits, what: &str) -> Result<Decoded<'f>> {
         let (w, h) = self.size();
-        limits.check(self.file.path, w as u64, h as u64).map_err(|e| prefixed(e, what))?;
+        limits.check(self.file.path, w as u64, h as u64).map_err(|e| e.within(what))?;
         let api = self.file.api;
         let mut raw = std::ptr::null_mut();
         // SAFETY: the options struct is libheif's own (so its version matches), freed after the
@@ -756,13 +759,5 @@ mod tests {
         for cut in 0..meta.len() {
             let _ = clean_apertures(&meta[..cut]);
         }
-    }
-}
-
-/// `e` with `what` in front of its message.
-fn prefixed(e: Error, what: &str) -> Error {
-    match e {
-        Error::Input { path, msg } => Error::Input { path, msg: format!("{what}: {msg}") },
-        other => other,
     }
 }

@@ -168,11 +168,16 @@ fn law(path: &Path, rep: Option<&Representation>, what: &str) -> Result<(RangeFo
         return Ok((RangeFormat::UniformDisparity, 1.0, f64::INFINITY));
     };
     let need = |v: Option<f64>, name: &str| {
-        v.ok_or_else(|| Error::input(path, format!("{what}: its depth representation ({}) lacks {name}", representation_name(r.kind).unwrap_or("?"))))
+        v.ok_or_else(|| {
+            Error::input(path, format!("{what}: its depth representation ({}) lacks {name}", representation_name(r.kind).unwrap_or("?")))
+        })
     };
     let bounds = |lo: f64, hi: f64, names: (&str, &str)| {
         if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && lo < hi) {
-            return Err(Error::input(path, format!("{what}: {} = {lo} and {} = {hi}; expected finite 0 ≤ {} < {}", names.0, names.1, names.0, names.1)));
+            return Err(Error::input(
+                path,
+                format!("{what}: {} = {lo} and {} = {hi}; expected finite 0 ≤ {} < {}", names.0, names.1, names.0, names.1),
+            ));
         }
         Ok(())
     };
@@ -192,7 +197,9 @@ fn law(path: &Path, rep: Option<&Representation>, what: &str) -> Result<(RangeFo
         }
         3 => Err(Error::input(
             path,
-            format!("{what} stores non-uniform disparity (ISO/IEC 23002-3 type 3), which drbokeh does not read; pass the depth with --depth"),
+            format!(
+                "{what} stores non-uniform disparity (ISO/IEC 23002-3 type 3), which drbokeh does not read; pass the depth with --depth"
+            ),
         )),
         t => Err(Error::input(path, format!("{what}: unknown depth representation type {t} (ISO/IEC 23002-3 defines 0 to 3)"))),
     }
@@ -200,13 +207,7 @@ fn law(path: &Path, rep: Option<&Representation>, what: &str) -> Result<(RangeFo
 
 /// Decodes the auxiliary image `aux` of `primary` as grey in [0, 1] and checks its aspect
 /// ratio against the photo's.
-fn checked_plane(
-    path: &Path,
-    primary: &ImageHandle,
-    aux: &ImageHandle,
-    limits: &ReadLimits,
-    what: &str,
-) -> Result<super::heif::GreyPlane> {
+fn checked_plane(path: &Path, primary: &ImageHandle, aux: &ImageHandle, limits: &ReadLimits, what: &str) -> Result<super::heif::GreyPlane> {
     let plane = aux.decode_grey(limits, what)?;
     let photo = primary.size();
     let own = (plane.image.width, plane.image.height);

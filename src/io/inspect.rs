@@ -7,8 +7,8 @@
 //! where the format's header says enough (PNG, JPEG, TIFF, HEIF).
 
 use super::embedded_depth::{DepthInfo, EmbeddedDepth, read_embedded};
-use super::heif_depth::{AuxInfo, EmbeddedMatte, MatteInfo};
 use super::format::{FileFormat, detect_format, guarded};
+use super::heif_depth::{AuxInfo, EmbeddedMatte, MatteInfo};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use std::path::Path;

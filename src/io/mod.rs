@@ -6,7 +6,8 @@
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
 //! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads),
 //! [`xmp`] (a JPEG's XMP packets), [`embedded_depth`] and [`dynamic_depth`] (the depth map
-//! inside a photo: GDepth, Dynamic Depth).
+//! inside a photo: GDepth, Dynamic Depth), [`heif`] (HEIC photos through libheif, loaded at run
+//! time) and [`heif_depth`] (a HEIC's depth image and portrait matte).
 //!
 //! Every error names the file and says what is wrong. Only regular files are opened (a FIFO
 //! or a device would block: [`check_regular_file`]), and a truncated file is an error in every

@@ -24,7 +24,7 @@ pub fn estimate_disparity(rgb: &Image, spec: &ModelSpec, cfg: &OnnxConfig) -> Re
 /// The ways to give a photo depth, named by every "no depth" message (the library's names:
 /// `job.depth` and `onnx.model_dir` read as `--depth` and `--model-dir` on the command line).
 pub const THREE_WAYS: &str = "three ways forward: (1) a depth file (job.depth DEPTH: EXR, 16-bit PNG/TIFF, float TIFF or NPY); \
-     (2) a photo that embeds its depth map (a portrait-mode JPEG with Google Dynamic Depth or GDepth XMP; `drbokeh inspect PHOTO` shows what a photo holds); \
+     (2) a photo that embeds its depth map (a portrait-mode JPEG with Google Dynamic Depth or GDepth XMP, or a HEIC with a depth image; `drbokeh inspect PHOTO` shows what a photo holds); \
      (3) a depth model ([depth.onnx] model = \"midas_small.onnx\", preset = \"midas-small\" in the config, or a model folder (onnx.model_dir) holding depth_anything_v2.onnx)";
 
 /// The disparity of a photo given without a depth map and without an embedded one: the
