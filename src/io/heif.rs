@@ -1,9 +1,13 @@
 //! HEIF files (HEIC photos from phones, AVIF) through the system's libheif, loaded at run time:
 //! the primary image, its depth or disparity image and its portrait matte.
 //!
-//! Why loaded at run time: the default build must not need libheif's headers or library, and a
-//! user who has libheif (Debian/Ubuntu `libheif1`, Fedora `libheif`, macOS `brew install libheif`)
-//! reads HEIC with the same binary. The library is looked for once per process:
+//! Why loaded at run time, and not through the `libheif-rs`/`libheif-sys` crates: those link
+//! libheif at build time, found by pkg-config, and need libheif ≥ 1.17 (Debian 12 ships 1.15,
+//! Ubuntu 22.04 1.12), so they would make HEIC an optional feature that the default build and
+//! most Linux systems lack; their embedded build compiles libheif but not its HEVC decoder. Here
+//! the default build needs neither libheif's headers nor its library, and a user who has
+//! libheif (Debian/Ubuntu `libheif1`, Fedora `libheif`, macOS `brew install libheif`) reads HEIC
+//! with the same binary; the ~30 entry points used are declared below from `libheif/heif.h`. The library is looked for once per process:
 //! `DRBOKEH_LIBHEIF` (a path) first, then the loader's search path under its usual names
 //! ([`LIBRARY_NAMES`]). libheif ≥ [`MIN_VERSION`] is required (its depth API is settled there).
 //! Without it every HEIF read is an [`Error::Input`] naming the file, what was searched and how
