@@ -176,7 +176,7 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
                     || match &job.depth {
                         Some(p) => DepthRead::File(io::read_depth_map(p, &limits)),
                         None if cfg.input.embedded_depth => {
-                            DepthRead::Embedded(io::embedded_depth::read_embedded(image_path, &limits).map(|e| e.map(Box::new)))
+                            DepthRead::Embedded(io::embedded::read_embedded(image_path, &limits).map(|e| e.map(Box::new)))
                         }
                         None => DepthRead::Off,
                     },

@@ -445,7 +445,7 @@ fn drbokeh_reads_gdepth_written_by_exiftool() {
 /// error naming the photo.
 #[test]
 fn damaged_files_never_panic() {
-    use drbokeh::io::embedded_depth::read_embedded_bytes;
+    use drbokeh::io::embedded::read_embedded_bytes;
     let (photo, png, near, far) = small();
     let good = GDepthJpeg::new(photo.clone(), "RangeInverse", near, far, "image/png", &png);
     let dd = DynamicDepthJpeg::new(photo, "RangeInverse", near, far, "image/png", &png, &png);

@@ -2,7 +2,7 @@
 //! a JPEG whose XMP describes a device, its cameras and a container of items, the items'
 //! bytes appended to the file after the primary image.
 //!
-//! Contract of [`read`] (called by [`super::embedded_depth::read_embedded`]):
+//! Contract of [`read`] (called by [`super::embedded::read_embedded`]):
 //! - The XMP (either packet) holds `Device:Container` with a `Container:Directory`, a list of
 //!   `Container:Item` structures (`Item:Mime`, `Item:Length` in bytes, `Item:Padding`,
 //!   `Item:DataURI`), and `Device:Cameras`, each `Device:Camera` with an optional
@@ -25,7 +25,7 @@
 //!   ('android/depthmap') Item:Length`...): a missing or duplicate URI, an item that reaches
 //!   beyond the file's end, a length that is not a number, a primary image without an end.
 
-use super::embedded_depth::{Container, DepthImage, DepthInfo, EmbeddedDepth, Packets, Range, shorten};
+use super::embedded_depth::{Container, DepthImage, DepthInfo, EmbeddedDepth, ItemInfo, Packets, Range, shorten};
 use super::limits::ReadLimits;
 use super::xmp::{JpegXmp, field_values, jpeg_end, single};
 use crate::error::{Error, Result};
@@ -41,26 +41,6 @@ pub const NS_ITEM: &str = "http://ns.google.com/photos/dd/1.0/item/";
 pub const NS_CAMERA: &str = "http://ns.google.com/photos/dd/1.0/camera/";
 /// `DepthMap:Format`, `Near`, `Far`...
 pub const NS_DEPTHMAP: &str = "http://ns.google.com/photos/dd/1.0/depthmap/";
-
-/// Where a Dynamic Depth depth image was found, for reports.
-#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
-pub struct ItemInfo {
-    /// `Item:DataURI` (= `DepthMap:DepthURI`).
-    pub uri: String,
-    /// Its index in `Container:Directory` (0 is the primary image).
-    pub index: usize,
-    /// Its first byte in the file.
-    pub offset: usize,
-    /// `Item:Length`.
-    pub length: usize,
-    /// `Item:Padding`.
-    pub padding: usize,
-    /// The camera whose `DepthMap` it is (index in `Device:Cameras`).
-    pub camera: usize,
-    /// `DepthMap:ConfidenceURI`, when given (reported, not used).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub confidence_uri: Option<String>,
-}
 
 /// One `Container:Item`.
 struct Item {

@@ -1,51 +1,25 @@
-//! Depth maps that a photo carries inside itself, in a JPEG: Google's GDepth XMP (the depth
-//! metadata of portrait-mode and "Lens Blur" photos; <https://developers.google.com/depthmap-metadata>)
-//! and Google's Dynamic Depth 1.0 (depth images appended to the JPEG as container items,
-//! [`super::dynamic_depth`]).
+//! What an embedded depth map is, whatever holds it: its sample laws ([`RangeFormat`]), its
+//! parameters for reports ([`DepthInfo`]), the decoded map ([`EmbeddedDepth`]) and the checks
+//! every embedding shares (Near/Far, the depth image's aspect ratio). The readers build on it:
+//! [`super::gdepth`] (GDepth XMP), [`super::dynamic_depth`] (Dynamic Depth items),
+//! [`super::heif_depth`] (a HEIF's depth image); [`super::embedded`] picks one by the file's
+//! format.
 //!
-//! Contract of [`read_embedded`]:
-//! - Input: a JPEG file. Its XMP is read from the APP1 segments, the standard packet and the
-//!   extended one put together by offset and checked against `xmpNote:HasExtendedXMP`
-//!   ([`super::xmp`]). Any other format, or a JPEG with neither a Dynamic Depth depth map nor
-//!   GDepth properties, is `Ok(None)`: nothing is embedded. Where a file has both, the Dynamic
-//!   Depth map is read (a warning says the GDepth one is not).
-//! - GDepth properties (namespace `http://ns.google.com/photos/1.0/depthmap/`, any prefix,
-//!   attributes or elements, in either packet): `Format` (`RangeInverse` | `RangeLinear`),
-//!   `Near`, `Far` (depths in `Units`, 0 ≤ Near < Far, both finite; Near > 0 for RangeInverse),
-//!   `Mime` (`image/png` | `image/jpeg`) and `Data` (the base64 depth image) are required;
-//!   `Units`, `MeasureType` and the confidence map's `ConfidenceMime` are reported. A property
-//!   given twice with different values is an error.
-//! - The depth image (8 or 16-bit grey PNG, or JPEG) is decoded under the same [`ReadLimits`] as
-//!   any input (its header's size is checked before its pixels are), and must have the photo's
-//!   aspect ratio (within [`ASPECT_TOLERANCE`]). A sample `q` of `b` bits is normalized,
-//!   `n = q / (2^b - 1)`, then turned into depth by the format's definition:
-//!   RangeLinear `d = n·(far − near) + near`, RangeInverse `d = far·near / (far − n·(far − near))`
-//!   (so n = 0 is Near and n = 1 is Far in both).
-//! - Output ([`EmbeddedDepth`]): the metric depth at the depth image's own size, one channel
-//!   of f32 (computed in f64), exactly what a float depth file (`--depth`, `--depth-kind
-//!   depth`) of those values holds: the caller normalizes and resizes it the same way
-//!   ([`crate::job`]). And [`DepthInfo`], the parameters, for reports.
-//! - Every problem is an [`Error::Input`] naming the photo and the XMP field at fault
-//!   (`GDepth:Near`, `DepthMap:DepthURI`, `xmpNote:HasExtendedXMP`...): a photo that claims a
-//!   depth map never reads as one without depth.
-//!
-//! A HEIF photo's depth image (ISO/IEC 23002-3 representations) and portrait matte are read by
-//! [`super::heif_depth`] into the same [`EmbeddedDepth`]; [`read_embedded`] dispatches on the
-//! file's format.
+//! A sample `q` of `b` bits is normalized, `n = q / (2^b - 1)`, then turned into depth by the
+//! format's definition (RangeLinear `d = n·(far − near) + near`, RangeInverse
+//! `d = far·near / (far − n·(far − near))`, so n = 0 is Near and n = 1 is Far in both; the ISO
+//! 23002-3 laws of HEIF beside them). [`EmbeddedDepth`] holds the metric depth at the depth
+//! image's own size, one channel of f32 (computed in f64), exactly what a float depth file
+//! (`--depth`, `--depth-kind depth`) of those values holds: the caller normalizes and resizes it
+//! the same way ([`crate::job`]).
 
-use super::dynamic_depth::{self, ItemInfo};
-use super::format::{FileFormat, detect_format, guarded, read_input};
+use super::format::{FileFormat, guarded};
 use super::image_file::decode_image_bytes;
 use super::limits::ReadLimits;
-use super::xmp::{JpegXmp, Packet, XmpLayout, read_jpeg_xmp, single};
+use super::xmp::{JpegXmp, Packet, XmpLayout, single};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use std::path::Path;
-
-/// The GDepth namespace.
-pub const NS_GDEPTH: &str = "http://ns.google.com/photos/1.0/depthmap/";
-/// The GImage namespace (the original photo a Lens Blur JPEG keeps next to its blurred one).
-pub const NS_GIMAGE: &str = "http://ns.google.com/photos/1.0/image/";
 
 /// Largest relative difference of aspect ratios (width / height) between a depth map or matte
 /// and its photo that is taken as the same framing (rounding of a downscaled map).
@@ -158,6 +132,48 @@ impl Container {
     }
 }
 
+/// Where a Dynamic Depth depth image was found, for reports.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ItemInfo {
+    /// `Item:DataURI` (= `DepthMap:DepthURI`).
+    pub uri: String,
+    /// Its index in `Container:Directory` (0 is the primary image).
+    pub index: usize,
+    /// Its first byte in the file.
+    pub offset: usize,
+    /// `Item:Length`.
+    pub length: usize,
+    /// `Item:Padding`.
+    pub padding: usize,
+    /// The camera whose `DepthMap` it is (index in `Device:Cameras`).
+    pub camera: usize,
+    /// `DepthMap:ConfidenceURI`, when given (reported, not used).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub confidence_uri: Option<String>,
+}
+
+/// A HEIF depth item and its representation, as `inspect` and the render's report show them.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct HeifDepthItem {
+    /// The depth image's item id.
+    pub item_id: u32,
+    /// The representation type as the file states it (`uniform_disparity`...), or null when
+    /// the file states none.
+    pub representation: Option<&'static str>,
+    /// `z_near`, when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_near: Option<f64>,
+    /// `z_far`, when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_far: Option<f64>,
+    /// `d_min`, when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub d_min: Option<f64>,
+    /// `d_max`, when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub d_max: Option<f64>,
+}
+
 /// The parameters of an embedded depth map, as `inspect` and the render's report show them.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct DepthInfo {
@@ -194,7 +210,7 @@ pub struct DepthInfo {
     pub item: Option<ItemInfo>,
     /// HEIF: the depth item and its ISO 23002-3 representation as the file states it.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub heif: Option<super::heif_depth::HeifDepthItem>,
+    pub heif: Option<HeifDepthItem>,
     /// Where the XMP came from (standard packet, extended segments); none for HEIF.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub xmp: Option<XmpLayout>,
@@ -240,83 +256,6 @@ pub struct EmbeddedDepth {
     pub original_image: Option<String>,
     /// What the caller should tell the user (each names the photo).
     pub warnings: Vec<String>,
-}
-
-/// Reads the depth map the photo `path` embeds (see the module doc): `Ok(None)` when the file
-/// is not a JPEG or embeds none.
-pub fn read_embedded(path: &Path, limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
-    match detect_format(path)? {
-        FileFormat::Jpeg => read_embedded_bytes(path, &read_input(path)?, limits),
-        FileFormat::Heif => super::heif_depth::read_depth(path, limits),
-        _ => Ok(None),
-    }
-}
-
-/// [`read_embedded`] of the JPEG bytes `b` of the file `path`.
-pub fn read_embedded_bytes(path: &Path, b: &[u8], limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
-    let xmp = read_jpeg_xmp(path, b)?;
-    let packets = Packets::parse(path, &xmp)?;
-    match dynamic_depth::read(path, b, &xmp, &packets, limits)? {
-        Some(mut dd) => {
-            // Named, not decoded: the GDepth map is not used.
-            let gdepth = ["Format", "Data"].iter().any(|n| packets.docs.iter().any(|d| !d.values(NS_GDEPTH, n).is_empty()));
-            if gdepth {
-                dd.warnings.push(format!("{} also has GDepth depth metadata; the Dynamic Depth map is the one used", path.display()));
-            }
-            Ok(Some(dd))
-        }
-        None => read_gdepth(path, b, &xmp, &packets, limits),
-    }
-}
-
-/// The GDepth map of the JPEG bytes `b`, if its XMP has GDepth properties.
-fn read_gdepth(path: &Path, b: &[u8], xmp: &JpegXmp, packets: &Packets, limits: &ReadLimits) -> Result<Option<EmbeddedDepth>> {
-    let field = |name: &str| packets.value(path, NS_GDEPTH, name, &format!("GDepth:{name}"));
-    let names = ["Format", "Near", "Far", "Mime", "Data", "Units", "MeasureType", "ConfidenceMime", "Confidence"];
-    let mut values = Vec::with_capacity(names.len());
-    for n in names {
-        values.push(field(n)?);
-    }
-    if values.iter().all(Option::is_none) {
-        return Ok(None);
-    }
-    let [format, near, far, mime, data, units, measure_type, confidence_mime, _confidence] =
-        <[Option<String>; 9]>::try_from(values).expect("nine names");
-    let required = |v: Option<String>, name: &str| {
-        v.map(|s| s.trim().to_owned()).ok_or_else(|| {
-            Error::input(path, format!("the photo has GDepth metadata but no GDepth:{name} (required by the GDepth format)"))
-        })
-    };
-    let range = Range::checked(path, Container::GDepth, &required(format, "Format")?, &required(near, "Near")?, &required(far, "Far")?)?;
-    let mime = required(mime, "Mime")?;
-    let bytes = decode_base64(path, &required(data, "Data")?)?;
-    let image = DepthImage::decode(path, b, &bytes, &mime, "GDepth:Data", "GDepth:Mime", limits)?;
-    let mut warnings = Vec::new();
-    let original_image = packets.value(path, NS_GIMAGE, "Mime", "GImage:Mime")?;
-    if original_image.is_some() {
-        warnings.push(format!(
-            "{} also keeps an original image (GImage:Data, as a Lens Blur photo does, whose primary image may already be blurred); the primary image is the one rendered",
-            path.display()
-        ));
-    }
-    let info = DepthInfo {
-        container: Container::GDepth,
-        format: range.format,
-        near: range.near,
-        far: range.far,
-        units: units.map(|u| u.trim().to_owned()),
-        measure_type: measure_type.map(|m| m.trim().to_owned()),
-        mime,
-        width: image.n.width,
-        height: image.n.height,
-        bit_depth: image.bit_depth,
-        data_bytes: Some(bytes.len()),
-        confidence_mime: confidence_mime.map(|m| m.trim().to_owned()),
-        item: None,
-        heif: None,
-        xmp: Some(xmp.layout.clone()),
-    };
-    Ok(Some(EmbeddedDepth::new(path, &image, info, original_image, warnings)))
 }
 
 /// `Format`, `Near` and `Far` of an embedded depth map, checked.
@@ -443,7 +382,8 @@ pub(super) struct Packets<'a> {
 }
 
 impl<'a> Packets<'a> {
-    fn parse(path: &Path, xmp: &'a JpegXmp) -> Result<Packets<'a>> {
+    /// The standard and extended packets of `xmp`, parsed.
+    pub fn parse(path: &Path, xmp: &'a JpegXmp) -> Result<Packets<'a>> {
         let mut docs = Vec::new();
         if let Some(s) = &xmp.standard {
             docs.push(Packet::parse(path, s, "standard XMP packet")?);
@@ -458,19 +398,6 @@ impl<'a> Packets<'a> {
     pub fn value(&self, path: &Path, ns: &str, name: &str, field: &str) -> Result<Option<String>> {
         single(path, self.docs.iter().flat_map(|d| d.values(ns, name)).collect(), field)
     }
-}
-
-/// The bytes of the base64 text `s` (ASCII whitespace between characters is allowed, padding
-/// optional), or an error naming `GDepth:Data`.
-fn decode_base64(path: &Path, s: &str) -> Result<Vec<u8>> {
-    use base64::Engine;
-    let compact: Vec<u8> = s.bytes().filter(|c| !c.is_ascii_whitespace()).collect();
-    if compact.is_empty() {
-        return Err(Error::input(path, "GDepth:Data is empty"));
-    }
-    base64::engine::general_purpose::STANDARD_PAD_INDIFFERENT.decode(&compact).map_err(|e| {
-        Error::input(path, format!("GDepth:Data is not valid base64 ({e}; {} characters: truncated or damaged?)", compact.len()))
-    })
 }
 
 /// The photo's width and height from its JPEG header.
@@ -526,16 +453,5 @@ mod tests {
         assert!(same_aspect((480, 320), (240, 160)));
         assert!(same_aspect((480, 320), (241, 160)));
         assert!(!same_aspect((480, 320), (100, 100)));
-    }
-
-    #[test]
-    fn base64_errors_name_the_field() {
-        let p = Path::new("p.jpg");
-        assert_eq!(decode_base64(p, "aGk=\n").unwrap(), b"hi");
-        assert_eq!(decode_base64(p, "aGk").unwrap(), b"hi");
-        for bad in ["", "a", "@@@@", "aGk=aGk="] {
-            let e = decode_base64(p, bad).unwrap_err().to_string();
-            assert!(e.contains("p.jpg") && e.contains("GDepth:Data"), "{bad}: {e}");
-        }
     }
 }

@@ -23,34 +23,12 @@
 //! Errors name the photo and the item (`the HEIF depth image (item 52)`), never a panic, and a
 //! file that claims a depth image never reads as one without.
 
-use super::embedded_depth::{Container, DepthImage, DepthInfo, EmbeddedDepth, RangeFormat, same_aspect};
+use super::embedded_depth::{Container, DepthImage, DepthInfo, EmbeddedDepth, HeifDepthItem, RangeFormat, same_aspect};
 use super::heif::{APPLE_PORTRAIT_MATTE, HeifFile, ImageHandle, Representation};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use std::path::Path;
-
-/// A HEIF depth item and its representation, as `inspect` and the render's report show them.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct HeifDepthItem {
-    /// The depth image's item id.
-    pub item_id: u32,
-    /// The representation type as the file states it (`uniform_disparity`...), or null when
-    /// the file states none.
-    pub representation: Option<&'static str>,
-    /// `z_near`, when stated.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub z_near: Option<f64>,
-    /// `z_far`, when stated.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub z_far: Option<f64>,
-    /// `d_min`, when stated.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub d_min: Option<f64>,
-    /// `d_max`, when stated.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub d_max: Option<f64>,
-}
 
 /// A matte a photo embeds.
 #[derive(Clone, Debug)]

@@ -15,6 +15,8 @@
 use super::exr_file::read_exr_image;
 use super::format::{FileFormat, detect_format, guarded, open, read_input};
 use super::limits::ReadLimits;
+pub use super::samples::Encoding;
+use super::samples::{Samples, Stored};
 use crate::color::{PhotoEncoding, Transfer};
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -22,16 +24,6 @@ use image::{DynamicImage, ImageDecoder, ImageError, ImageFormat, ImageReader};
 use std::io::{BufRead, Seek};
 use std::mem::MaybeUninit;
 use std::path::Path;
-
-/// How the decoded values relate to light.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Encoding {
-    /// Display-encoded integer samples (8/16-bit PNG, JPEG, TIFF) scaled to [0, 1]; a transfer
-    /// function (sRGB or gamma) must be decoded to get linear light.
-    Display,
-    /// Already linear values (EXR, float TIFF, NPY), kept as stored.
-    Linear,
-}
 
 /// An image as stored in its file.
 #[derive(Clone, Debug, PartialEq)]
@@ -60,46 +52,12 @@ pub fn read_decoded(path: &Path, limits: &ReadLimits) -> Result<Decoded> {
     read_stored(path, limits).map(Stored::into_decoded)
 }
 
-/// Samples as the decoder delivered them. Integer samples are display-encoded and span their
-/// full width (0..=255, 0..=65535); `F32` holds float formats' values, or integer formats
-/// already scaled to [0, 1] where the reader had to transform them (32-bit or white-is-zero
-/// TIFF).
-pub(crate) enum Samples {
-    /// 8-bit integers.
-    U8(Vec<u8>),
-    /// 16-bit integers.
-    U16(Vec<u16>),
-    /// Floats: linear values, or display values in [0, 1] (see [`Stored::encoding`]).
-    F32(Vec<f32>),
-}
-
-/// A decoded file before its conversion to `f32` images: [`read_decoded`] scales it to
-/// [`Decoded`], [`read_photo`] turns it into linear RGB in one pass (no [0, 1] copy between).
-pub(crate) struct Stored {
-    pub width: usize,
-    pub height: usize,
-    /// Interleaved channels per pixel (1 to 4 for images).
-    pub channels: usize,
-    /// `width * height * channels` samples.
-    pub samples: Samples,
-    pub encoding: Encoding,
-    pub bit_depth: u8,
-    pub has_alpha: bool,
-    pub format: FileFormat,
-}
-
 /// Pixels per parallel task of the sample conversions: 64 K pixels (0.75 MB of RGB floats) keep
 /// a 12 MP image at ~190 tasks, enough to balance any core count, few enough that the
 /// scheduling cost is nil.
 const PIXELS_PER_TASK: usize = 1 << 16;
 
 impl Stored {
-    pub(crate) fn from_image(image: Image, encoding: Encoding, bit_depth: u8, format: FileFormat) -> Stored {
-        let (width, height, channels) = (image.width, image.height, image.channels);
-        let has_alpha = matches!(channels, 2 | 4);
-        Stored { width, height, channels, samples: Samples::F32(image.data), encoding, bit_depth, has_alpha, format }
-    }
-
     /// [`Decoded`]: integers scaled to [0, 1] (8-bit / 255, 16-bit / 65535), floats as they are.
     /// One parallel pass over the samples; allocates the `f32` image.
     fn into_decoded(self) -> Decoded {

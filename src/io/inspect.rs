@@ -6,7 +6,8 @@
 //! file that claims a depth map never inspects as one without); the photo's pixels are not,
 //! where the format's header says enough (PNG, JPEG, TIFF, HEIF).
 
-use super::embedded_depth::{DepthInfo, EmbeddedDepth, read_embedded};
+use super::embedded::read_embedded;
+use super::embedded_depth::{DepthInfo, EmbeddedDepth};
 use super::format::{FileFormat, detect_format, guarded};
 use super::heif_depth::{AuxInfo, EmbeddedMatte, MatteInfo};
 use super::limits::ReadLimits;

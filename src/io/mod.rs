@@ -5,9 +5,9 @@
 //! photo decoded row by row in `png_rows`; PNG encoded in parallel in `png_encode`),
 //! [`tiff_file`], [`exr_file`], [`npy`], [`depth`], [`matte`], [`layer`], [`write`] and
 //! [`atomic`] (temp file + rename), [`guard`] (no write may hit a file the run reads),
-//! [`xmp`] (a JPEG's XMP packets), [`embedded_depth`] and [`dynamic_depth`] (the depth map
-//! inside a photo: GDepth, Dynamic Depth), [`heif`] (HEIC photos through libheif, loaded at run
-//! time) and [`heif_depth`] (a HEIC's depth image and portrait matte).
+//! [`xmp`] (a JPEG's XMP packets), [`embedded`] (the depth map inside a photo, by format:
+//! [`gdepth`], [`dynamic_depth`], [`heif_depth`]; what they share in [`embedded_depth`]), [`heif`] (HEIC photos through libheif, loaded at run
+//! time; [`heif_depth`] also reads a HEIC's portrait matte).
 //!
 //! Every error names the file and says what is wrong. Only regular files are opened (a FIFO
 //! or a device would block: [`check_regular_file`]), and a truncated file is an error in every
@@ -20,9 +20,11 @@
 pub mod atomic;
 pub mod depth;
 pub mod dynamic_depth;
+pub mod embedded;
 pub mod embedded_depth;
 pub mod exr_file;
 pub mod format;
+pub mod gdepth;
 pub mod guard;
 pub mod heif;
 pub mod heif_depth;
@@ -34,6 +36,7 @@ pub mod matte;
 pub mod npy;
 mod png_encode;
 mod png_rows;
+pub(crate) mod samples;
 pub mod tiff_file;
 pub mod write;
 pub mod xmp;

@@ -7,8 +7,8 @@
 //! palette, CMYK, YCbCr, Lab, bilevel and other sub-byte depths, signed integers.
 
 use super::format::{FileFormat, guarded, open};
-use super::image_file::{Encoding, Samples, Stored};
 use super::limits::ReadLimits;
+use super::samples::{Encoding, Samples, Stored};
 use crate::error::{Error, Result};
 use std::path::Path;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
