@@ -11,7 +11,8 @@
 //!
 //! `cargo run --release --example diag_groundtruth -- SCENE_DIR...`
 use drbokeh::bench::groundtruth::GtScene;
-use drbokeh::bench::run::{score, srgb};
+use drbokeh::bench::metrics::srgb;
+use drbokeh::bench::run::score;
 use drbokeh::config::{Config, KernelChoice};
 use drbokeh::render::{self, Kernel, Layer, Profile, RenderSettings};
 use drbokeh::stages::depth::Disparity;

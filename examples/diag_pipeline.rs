@@ -323,7 +323,7 @@ fn main() -> drbokeh::Result<()> {
         }
         if let Ok(dir) = std::env::var("DUMP") {
             let save = |img: &Image, name: &str| {
-                let s = drbokeh::bench::run::srgb(img);
+                let s = drbokeh::bench::metrics::srgb(img);
                 let s = &s;
                 let c = img.channels;
                 let buf: Vec<u8> = (0..img.width * img.height)

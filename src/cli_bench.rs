@@ -299,8 +299,9 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     })
     .map_err(as_flags)?;
     bar.finish_and_clear();
+    drbokeh::bench::report::write_all(&opts, &res)?;
     eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
-    eprint!("{}", drbokeh::bench::report::comparisons(&drbokeh::bench::report::primary_rows(&res.rows)));
+    eprint!("{}", drbokeh::bench::report::comparisons(&drbokeh::bench::summary::primary_rows(&res.rows)));
     eprintln!("wrote {}", opts.out.join("report.md").display());
     Ok(())
 }
@@ -334,6 +335,7 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
     };
     let t0 = Instant::now();
     let res = dfd_eval::run(&opts, &mut |msg: &str| eprintln!("[{:7.1} s] {msg}", t0.elapsed().as_secs_f64())).map_err(as_flags)?;
+    drbokeh::bench::dfd_report::write_all(&opts, &res)?;
     eprintln!("{} cases in {:.1} s ({} threads)", res.cases, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
     eprint!("{}", drbokeh::bench::dfd_report::acceptance(&res.rows));
     eprintln!("wrote {}", opts.out.join("report.md").display());

@@ -5,7 +5,7 @@
 //! ONNX Runtime comes from the test environment (`scripts/setup-test-env.sh` installs the
 //! onnxruntime wheel into .venv; the library finds it there) or ORT_DYLIB_PATH.
 
-use drbokeh::bench::run::srgb;
+use drbokeh::bench::metrics::srgb;
 use drbokeh::color::{PhotoEncoding, Transfer, linear_to_srgb, srgb_to_linear};
 use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, SizeSpec};
 use drbokeh::onnx::prep::{self, Geometry};

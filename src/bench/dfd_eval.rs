@@ -23,7 +23,8 @@
 
 use super::groundtruth::GtScene;
 use super::metrics::luminance;
-use super::run::{Scores, score, srgb};
+use super::metrics::srgb;
+use super::run::{Scores, score};
 use super::scenes::generate;
 use super::trace::{TraceSettings, trace};
 use crate::config::Config;
@@ -533,8 +534,8 @@ pub fn load_case(opts: &DfdBenchOptions, dirs: &[PathBuf], index: usize, log: &m
     }
 }
 
-/// Runs the evaluation and writes report.csv, report.md and figures/ into `opts.out`. `log`
-/// receives a line per case and per estimate.
+/// Runs the evaluation: its rows and figure panels (written by
+/// [`super::dfd_report::write_all`]). `log` receives a line per case and per estimate.
 pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBenchResult> {
     if opts.scenes > 0 && (opts.width < 16 || opts.height < 16) {
         return Err(Error::usage(format!("bench.size must be at least 16x16, got {}x{}", opts.width, opts.height)));
@@ -552,7 +553,6 @@ pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBench
         Some(d) => super::groundtruth::scene_dirs(d)?,
         None => Vec::new(),
     };
-    std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
     let mut res = DfdBenchResult { rows: Vec::new(), cases: 0, figures: Vec::new() };
     for i in 0..opts.scenes + dirs.len() {
         let case = load_case(opts, &dirs, i, log)?;
@@ -561,7 +561,6 @@ pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBench
         res.figures.push((case.scene.clone(), panels));
         res.cases += 1;
     }
-    super::dfd_report::write_all(opts, &res)?;
     Ok(res)
 }
 

@@ -4,7 +4,8 @@
 //! estimated disparities, truth).
 
 use super::dfd_eval::{CaseSource, DfdBenchOptions, DfdBenchResult, DfdMethod, DfdRow, RowKind, TEXTURE_THRESHOLD, TEXTURE_WINDOW};
-use super::report::{mean, median, table_head, write_panels};
+use super::report::write_panels;
+use super::summary::{mean, median, table_head};
 use crate::error::{Error, Result};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -18,8 +19,10 @@ const PSNR_CAP: f64 = 100.0;
 /// this many dB of the true disparity's.
 pub const ACCEPT_DB: f64 = 2.0;
 
-/// Writes every output of a run into `opts.out`.
+/// Writes every output of a run into `opts.out` (created if missing): report.csv, report.md
+/// and figures/.
 pub fn write_all(opts: &DfdBenchOptions, res: &DfdBenchResult) -> Result<()> {
+    std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
     write_text(&opts.out.join("report.csv"), &csv(&res.rows))?;
     write_text(&opts.out.join("report.md"), &markdown(opts, res))?;
     let dir = opts.out.join("figures");

@@ -4,9 +4,9 @@
 //! baseline with estimator-like depth and no matte; and the fraction of the light clipping
 //! took that the highlights stage gave back.
 
-use super::inputs::{CAMERA_PSF_SIGMA, Input};
-use super::report::{CATEGORIES, Summary, inputs_of, median, plot_file, primary_input, summarize, table_head};
+use super::inputs::{CAMERA_PSF_SIGMA, Input, primary_input};
 use super::run::{Method, Row, Variant};
+use super::summary::{CATEGORIES, Summary, inputs_of, median, plot_file, summarize, table_head};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 

@@ -197,6 +197,12 @@ fn blur_rgb(rgb: &Image, sigma: f32) -> Image {
     Image::stack(&planes.iter().collect::<Vec<_>>())
 }
 
+/// The input the method tables, the main plot and the crops are drawn from: the linear one
+/// when it ran (the ceiling), else the first of `inputs` (linear for none).
+pub fn primary_input(inputs: &[Input]) -> Input {
+    if inputs.contains(&Input::Linear) { Input::Linear } else { inputs.first().copied().unwrap_or(Input::Linear) }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,6 +3,7 @@
 //! in pixels that is left out (frame borders, where the input lacks off-frame content).
 //! Sums run in f64.
 
+use crate::color::linear_to_srgb;
 use crate::image::Image;
 
 /// Values of `a` and `b` inside the frame minus `border` pixels, in matching order.
@@ -126,6 +127,13 @@ pub fn ssim(a: &Image, b: &Image, peak: f64, border: usize) -> f64 {
         }
     }
     if n == 0 { 1.0 } else { sum / n as f64 }
+}
+
+/// sRGB-encodes a linear image, clipped to [0, 1].
+pub fn srgb(img: &Image) -> Image {
+    let mut o = img.clone();
+    o.map_inplace(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
+    o
 }
 
 #[cfg(test)]

@@ -13,4 +13,5 @@ pub mod report;
 pub mod run;
 pub mod scenes;
 pub mod stress;
+pub mod summary;
 pub mod trace;

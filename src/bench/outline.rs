@@ -11,7 +11,7 @@
 //! - **Alpha error**: the mean |α − α_true| over the band, for a method that builds a
 //!   foreground matte (the pipeline's front layer).
 
-use super::run::srgb;
+use super::metrics::srgb;
 use crate::image::Image;
 use crate::stages::mask::dilate;
 
@@ -95,55 +95,6 @@ impl Outline {
         let alpha_mae = alpha.map(|(a, truth)| band().map(|i| (a.data[i] - truth.data[i]).abs() as f64).sum::<f64>() / n as f64);
         OutlineScores { violations: bad as f64 / n as f64, alpha_mae }
     }
-}
-
-/// The report's section on edges without a matte (issue 42): per input, the pipeline with the
-/// realistic depth map given the exact matte, without a matte (the depth split refined by
-/// `stages::matting`), and without a matte unrefined; mean PSNR, outline range violations and
-/// alpha error over the cases all three scored. Empty when the run has none of those rows.
-pub fn section(rows: &[super::run::Row]) -> String {
-    use super::run::{Method, Variant};
-    use std::fmt::Write;
-    let variants = [Variant::RealisticDepth, Variant::RealisticNoMatte, Variant::RealisticNoMatteRefineOff];
-    let mut s = String::new();
-    for input in super::report::inputs_of(rows) {
-        let of = |v: Variant| -> Vec<&super::run::Row> {
-            rows.iter().filter(|r| r.input == input && r.method == Method::Pipeline && r.variant == v).collect()
-        };
-        let sets: Vec<Vec<&super::run::Row>> = variants.iter().map(|&v| of(v)).collect();
-        let n = sets.iter().map(Vec::len).min().unwrap_or(0);
-        if n == 0 || sets.iter().any(|set| set.len() != n) {
-            continue;
-        }
-        if s.is_empty() {
-            s.push_str(
-                "\n### Edges without a matte (issue 42)\n\n\
-                 The pipeline fed the realistic depth map, with the exact matte and without one (the depth split refined by \
-                 `[segment] refine = \"auto\"`, and unrefined with `\"off\"`). Outline scores over the pixels within 2 px of the \
-                 true matte's edge: `violations` = the share whose render leaves the truth's range in the 5x5 window around it \
-                 by more than 4/255 (sRGB), `alpha error` = mean |alpha - true alpha| of the pipeline's front layer.\n\n\
-                 | input | setting | cases | PSNR sRGB (dB) | PSNR linear (dB) | outline violations | alpha error |\n\
-                 | --- | --- | ---: | ---: | ---: | ---: | ---: |\n",
-            );
-        }
-        for (v, set) in variants.iter().zip(&sets) {
-            let mean = |f: &dyn Fn(&super::run::Row) -> f64| set.iter().map(|r| f(r)).sum::<f64>() / n as f64;
-            let alpha = match v {
-                Variant::RealisticDepth => "(given)".to_string(),
-                _ => format!("{:.4}", mean(&|r| r.outline.alpha_mae.unwrap_or(0.0))),
-            };
-            let _ = writeln!(
-                s,
-                "| {} | {} | {n} | {:.2} | {:.2} | {:.4} | {alpha} |",
-                input.name(),
-                v.name(),
-                mean(&|r| r.scores.psnr_srgb.min(super::report::PSNR_CAP)),
-                mean(&|r| r.scores.psnr.min(super::report::PSNR_CAP)),
-                mean(&|r| r.outline.violations),
-            );
-        }
-    }
-    s
 }
 
 #[cfg(test)]

@@ -4,8 +4,10 @@
 //! `error_vs_time.png` (primary input) and `error_vs_time_<input>.png` (each other input),
 //! and side-by-side crops in `crops/`.
 
-use super::inputs::Input;
-use super::run::{BenchOptions, BenchResult, Case, Method, Row, Variant, srgb};
+use super::inputs::primary_input;
+use super::metrics::srgb;
+use super::run::{BenchOptions, BenchResult, Method, Row, Variant};
+use super::summary::{CATEGORIES, PSNR_CAP, by_method, cap, input_rows, inputs_of, mean, plot_file, summarize, table_head};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::plot::{self, draw_text, text_width};
@@ -14,111 +16,6 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
-
-/// Report categories, in table order, with their descriptions.
-pub const CATEGORIES: [(&str, &str); 5] = [
-    ("fg_in_focus", "foreground in focus"),
-    ("bg_in_focus", "background in focus"),
-    ("between", "focus between the layers"),
-    ("thin", "thin structures (1–4 px)"),
-    ("highlights", "HDR highlights behind edges"),
-];
-
-/// PSNR values are capped here before averaging (identical images give +inf).
-pub const PSNR_CAP: f64 = 100.0;
-
-/// Mean of the values that are not NaN (a metric that could not be computed); NaN if none.
-pub(super) fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for x in v.filter(|x| !x.is_nan()) {
-        s += x;
-        n += 1;
-    }
-    if n == 0 { f64::NAN } else { s / n as f64 }
-}
-
-/// Median (mean of the middle two for an even count); NaN for no values.
-pub(super) fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
-}
-
-fn cap(p: f64) -> f64 {
-    p.min(PSNR_CAP)
-}
-
-/// Mean scores of a group of rows.
-#[derive(Clone, Copy, Debug)]
-pub struct Summary {
-    /// Rows averaged.
-    pub n: usize,
-    /// Mean PSNR, dB, on sRGB-encoded output clipped to [0, 1] (each capped at `PSNR_CAP`).
-    pub psnr_srgb: f64,
-    /// Mean SSIM (0 … 1, 1 = identical) on sRGB-encoded output clipped to [0, 1].
-    pub ssim_srgb: f64,
-    /// Mean PSNR, dB, in linear light (peak 1, each capped at `PSNR_CAP`).
-    pub psnr: f64,
-    /// Mean SSIM in linear light.
-    pub ssim: f64,
-    /// Mean root-mean-square error in linear light.
-    pub rmse: f64,
-    /// Mean RMSE after the best gain (exposure-insensitive), linear light.
-    pub si_rmse: f64,
-    /// Mean zero-normalized cross-correlation, -1 … 1 (1 = identical up to gain and offset).
-    pub zncc: f64,
-    /// Median run time, milliseconds.
-    pub time_ms: f64,
-}
-
-/// Means of the rows' scores (PSNR capped first) and the median of their times.
-pub fn summarize(rows: &[&Row]) -> Summary {
-    Summary {
-        n: rows.len(),
-        psnr_srgb: mean(rows.iter().map(|r| cap(r.scores.psnr_srgb))),
-        ssim_srgb: mean(rows.iter().map(|r| r.scores.ssim_srgb)),
-        psnr: mean(rows.iter().map(|r| cap(r.scores.psnr))),
-        ssim: mean(rows.iter().map(|r| r.scores.ssim)),
-        rmse: mean(rows.iter().map(|r| r.scores.rmse)),
-        si_rmse: mean(rows.iter().map(|r| r.scores.si_rmse)),
-        zncc: mean(rows.iter().map(|r| r.scores.zncc)),
-        time_ms: median(rows.iter().map(|r| r.time_ms).collect()),
-    }
-}
-
-/// Mean scores per (method, setting), in method order.
-pub fn by_method(rows: &[Row]) -> BTreeMap<(Method, Variant), Summary> {
-    let mut groups: BTreeMap<(Method, Variant), Vec<&Row>> = BTreeMap::new();
-    for r in rows {
-        groups.entry((r.method, r.variant)).or_default().push(r);
-    }
-    groups.into_iter().map(|(k, v)| (k, summarize(&v))).collect()
-}
-
-/// The input the method tables, the main plot and the crops are drawn from: the linear one
-/// when it ran (the ceiling), else the first of `inputs` (linear for none).
-pub fn primary_input(inputs: &[Input]) -> Input {
-    if inputs.contains(&Input::Linear) { Input::Linear } else { inputs.first().copied().unwrap_or(Input::Linear) }
-}
-
-/// The inputs present in `rows`, in report order.
-pub fn inputs_of(rows: &[Row]) -> Vec<Input> {
-    Input::ALL.into_iter().filter(|i| rows.iter().any(|r| r.input == *i)).collect()
-}
-
-/// The rows rendered from `input` (copies).
-pub fn input_rows(rows: &[Row], input: Input) -> Vec<Row> {
-    rows.iter().filter(|r| r.input == input).cloned().collect()
-}
-
-/// The rows of the primary input ([`primary_input`] of the inputs present): what the method
-/// tables and [`comparisons`] read.
-pub fn primary_rows(rows: &[Row]) -> Vec<Row> {
-    input_rows(rows, primary_input(&inputs_of(rows)))
-}
 
 /// Writes every output of a run into `opts.out`.
 pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
@@ -142,11 +39,6 @@ pub fn write_all(opts: &BenchOptions, res: &BenchResult) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// The error-versus-time figure of a non-primary input: `error_vs_time_<input>.png`.
-pub fn plot_file(input: Input) -> String {
-    format!("error_vs_time_{}.png", input.name())
 }
 
 /// Writes the error-versus-time figure of `rows` (one input's): one series per method and lens
@@ -308,22 +200,6 @@ pub fn comparisons(rows: &[Row]) -> String {
     s
 }
 
-/// A markdown table's header: the fixed columns (`head`, and their alignment row `align`),
-/// then one right-aligned column per name. Ends with a newline.
-pub(super) fn table_head<'a>(head: &str, align: &str, names: impl Iterator<Item = &'a str>) -> String {
-    let mut s = String::from(head);
-    let mut n = 0;
-    for name in names {
-        let _ = write!(s, " {name} |");
-        n += 1;
-    }
-    s.push('\n');
-    s.push_str(align);
-    s.push_str(&" ---: |".repeat(n));
-    s.push('\n');
-    s
-}
-
 /// Mean sRGB PSNR / SSIM per category and method, every method with `profile` (exact kernel).
 pub fn category_table(rows: &[Row], profile: Profile) -> String {
     let methods: Vec<Method> = Method::ALL.into_iter().filter(|m| rows.iter().any(|r| r.method == *m)).collect();
@@ -426,59 +302,8 @@ fn markdown(opts: &BenchOptions, res: &BenchResult) -> String {
     if compared {
         s.push_str(&super::input_report::section(&res.rows));
     }
-    s.push_str(&super::outline::section(&res.rows));
+    s.push_str(&outline_section(&res.rows));
     s
-}
-
-/// Picks the `size`² window (inside the scored area) where the scatter baseline's error most
-/// exceeds Dr.Bokeh's, and crops every image there.
-pub fn crop_panels(case: &Case, images: &[(String, &Image)], ours: Option<&Image>, base: Option<&Image>) -> Vec<(String, Image)> {
-    let gt = &case.gt;
-    let (w, h) = (gt.width, gt.height);
-    let b = case.border.min(w / 4).min(h / 4);
-    let size = 96.min(w - 2 * b).min(h - 2 * b).max(1);
-    let (mut best, mut at) = (f64::NEG_INFINITY, (b, b));
-    if let (Some(o), Some(s)) = (ours, base) {
-        let lum = |img: &Image, i: usize| {
-            0.2126 * img.data[i * 3] as f64 + 0.7152 * img.data[i * 3 + 1] as f64 + 0.0722 * img.data[i * 3 + 2] as f64
-        };
-        let (so, ss, sg) = (srgb(o), srgb(s), srgb(gt));
-        // Integral image of (scatter error - ours error).
-        let mut integ = vec![0f64; (w + 1) * (h + 1)];
-        for y in 0..h {
-            for x in 0..w {
-                let i = y * w + x;
-                let v = (lum(&ss, i) - lum(&sg, i)).abs() - (lum(&so, i) - lum(&sg, i)).abs();
-                integ[(y + 1) * (w + 1) + x + 1] = v + integ[y * (w + 1) + x + 1] + integ[(y + 1) * (w + 1) + x] - integ[y * (w + 1) + x];
-            }
-        }
-        let mut y = b;
-        while y + size <= h - b {
-            let mut x = b;
-            while x + size <= w - b {
-                let at_ = |xx: usize, yy: usize| integ[yy * (w + 1) + xx];
-                let v = at_(x + size, y + size) - at_(x, y + size) - at_(x + size, y) + at_(x, y);
-                if v > best {
-                    best = v;
-                    at = (x, y);
-                }
-                x += 4;
-            }
-            y += 4;
-        }
-    }
-    images
-        .iter()
-        .map(|(name, img)| {
-            let mut c = Image::new(size, size, 3);
-            for y in 0..size {
-                for x in 0..size {
-                    c.pixel_mut(x, y).copy_from_slice(img.pixel(at.0 + x, at.1 + y));
-                }
-            }
-            (name.clone(), c)
-        })
-        .collect()
 }
 
 /// Writes labelled panels (linear RGB, any sizes; non-square ones included) side by side as an
@@ -511,4 +336,52 @@ pub fn write_panels(path: &Path, panels: &[(String, Image)]) -> Result<()> {
     }
     let img = Image::from_vec(w, h, 3, buf.iter().map(|&v| v as f32 / 255.0).collect()).expect("size");
     crate::io::write_png(path, &img, 8, crate::color::Transfer::Linear)
+}
+
+/// The report's section on edges without a matte (issue 42): per input, the pipeline with the
+/// realistic depth map given the exact matte, without a matte (the depth split refined by
+/// `stages::matting`), and without a matte unrefined; mean PSNR, outline range violations and
+/// alpha error over the cases all three scored. Empty when the run has none of those rows.
+fn outline_section(rows: &[Row]) -> String {
+    use std::fmt::Write;
+    let variants = [Variant::RealisticDepth, Variant::RealisticNoMatte, Variant::RealisticNoMatteRefineOff];
+    let mut s = String::new();
+    for input in inputs_of(rows) {
+        let of = |v: Variant| -> Vec<&Row> {
+            rows.iter().filter(|r| r.input == input && r.method == Method::Pipeline && r.variant == v).collect()
+        };
+        let sets: Vec<Vec<&Row>> = variants.iter().map(|&v| of(v)).collect();
+        let n = sets.iter().map(Vec::len).min().unwrap_or(0);
+        if n == 0 || sets.iter().any(|set| set.len() != n) {
+            continue;
+        }
+        if s.is_empty() {
+            s.push_str(
+                "\n### Edges without a matte (issue 42)\n\n\
+                 The pipeline fed the realistic depth map, with the exact matte and without one (the depth split refined by \
+                 `[segment] refine = \"auto\"`, and unrefined with `\"off\"`). Outline scores over the pixels within 2 px of the \
+                 true matte's edge: `violations` = the share whose render leaves the truth's range in the 5x5 window around it \
+                 by more than 4/255 (sRGB), `alpha error` = mean |alpha - true alpha| of the pipeline's front layer.\n\n\
+                 | input | setting | cases | PSNR sRGB (dB) | PSNR linear (dB) | outline violations | alpha error |\n\
+                 | --- | --- | ---: | ---: | ---: | ---: | ---: |\n",
+            );
+        }
+        for (v, set) in variants.iter().zip(&sets) {
+            let mean = |f: &dyn Fn(&Row) -> f64| set.iter().map(|r| f(r)).sum::<f64>() / n as f64;
+            let alpha = match v {
+                Variant::RealisticDepth => "(given)".to_string(),
+                _ => format!("{:.4}", mean(&|r| r.outline.alpha_mae.unwrap_or(0.0))),
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {n} | {:.2} | {:.2} | {:.4} | {alpha} |",
+                input.name(),
+                v.name(),
+                mean(&|r| r.scores.psnr_srgb.min(PSNR_CAP)),
+                mean(&|r| r.scores.psnr.min(PSNR_CAP)),
+                mean(&|r| r.outline.violations),
+            );
+        }
+    }
+    s
 }

@@ -19,10 +19,10 @@
 use super::gather::gather;
 use super::groundtruth::GtScene;
 use super::inputs::{self, Input, Prepared};
-use super::metrics::{psnr, rmse, si_rmse, ssim, zncc};
+use super::metrics::{psnr, rmse, si_rmse, srgb, ssim, zncc};
 use super::scenes::{FocusKind, SceneInputs, generate, gt_plane_layers};
 use super::trace::{Plane, TraceSettings, trace_split};
-use crate::color::{Transfer, linear_to_srgb};
+use crate::color::Transfer;
 use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -359,13 +359,6 @@ pub struct Scores {
     pub ssim_srgb: f64,
     /// sRGB PSNR over the whole frame, borders included.
     pub psnr_srgb_full: f64,
-}
-
-/// sRGB-encodes a linear image, clipped to [0, 1].
-pub fn srgb(img: &Image) -> Image {
-    let mut o = img.clone();
-    o.map_inplace(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
-    o
 }
 
 /// Scores `img` against `gt` (both linear RGB, same size), leaving `border` pixels out at
@@ -713,7 +706,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
     }
     // The crops and the report's method tables are drawn from one input: the linear one when
     // it runs (the ceiling), else the first asked for.
-    let primary = super::report::primary_input(&opts.inputs);
+    let primary = super::inputs::primary_input(&opts.inputs);
     std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
     let threads = rayon::current_num_threads();
     let mut rows = Vec::new();
@@ -796,11 +789,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
                 images.extend(refs.iter().map(|(m, img, _)| (m.short().to_string(), img)));
                 let (ours, base) = (find(Method::Layers).map(|r| &r.1), find(Method::Scatter).map(|r| &r.1));
                 // Show where the difference is largest, in whichever direction this case goes.
-                let panel = if worse {
-                    super::report::crop_panels(&case, &images, base, ours)
-                } else {
-                    super::report::crop_panels(&case, &images, ours, base)
-                };
+                let panel = if worse { crop_panels(&case, &images, base, ours) } else { crop_panels(&case, &images, ours, base) };
                 let c = CropPanel { name: format!("{}_{}", case.scene, case.setting), gain, panels: panel };
                 if worse {
                     worst = Some(c);
@@ -814,7 +803,56 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<BenchResult
         Ok(())
     })?;
     crops.extend(worst);
-    let result = BenchResult { rows, crops, gt_noise, cases };
-    super::report::write_all(opts, &result)?;
-    Ok(result)
+    Ok(BenchResult { rows, crops, gt_noise, cases })
+}
+
+/// Picks the `size`² window (inside the scored area) where the scatter baseline's error most
+/// exceeds Dr.Bokeh's, and crops every image there.
+pub fn crop_panels(case: &Case, images: &[(String, &Image)], ours: Option<&Image>, base: Option<&Image>) -> Vec<(String, Image)> {
+    let gt = &case.gt;
+    let (w, h) = (gt.width, gt.height);
+    let b = case.border.min(w / 4).min(h / 4);
+    let size = 96.min(w - 2 * b).min(h - 2 * b).max(1);
+    let (mut best, mut at) = (f64::NEG_INFINITY, (b, b));
+    if let (Some(o), Some(s)) = (ours, base) {
+        let lum = |img: &Image, i: usize| {
+            0.2126 * img.data[i * 3] as f64 + 0.7152 * img.data[i * 3 + 1] as f64 + 0.0722 * img.data[i * 3 + 2] as f64
+        };
+        let (so, ss, sg) = (srgb(o), srgb(s), srgb(gt));
+        // Integral image of (scatter error - ours error).
+        let mut integ = vec![0f64; (w + 1) * (h + 1)];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let v = (lum(&ss, i) - lum(&sg, i)).abs() - (lum(&so, i) - lum(&sg, i)).abs();
+                integ[(y + 1) * (w + 1) + x + 1] = v + integ[y * (w + 1) + x + 1] + integ[(y + 1) * (w + 1) + x] - integ[y * (w + 1) + x];
+            }
+        }
+        let mut y = b;
+        while y + size <= h - b {
+            let mut x = b;
+            while x + size <= w - b {
+                let at_ = |xx: usize, yy: usize| integ[yy * (w + 1) + xx];
+                let v = at_(x + size, y + size) - at_(x, y + size) - at_(x + size, y) + at_(x, y);
+                if v > best {
+                    best = v;
+                    at = (x, y);
+                }
+                x += 4;
+            }
+            y += 4;
+        }
+    }
+    images
+        .iter()
+        .map(|(name, img)| {
+            let mut c = Image::new(size, size, 3);
+            for y in 0..size {
+                for x in 0..size {
+                    c.pixel_mut(x, y).copy_from_slice(img.pixel(at.0 + x, at.1 + y));
+                }
+            }
+            (name.clone(), c)
+        })
+        .collect()
 }
