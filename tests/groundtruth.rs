@@ -7,8 +7,8 @@ mod common;
 
 use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;
-use drbokeh::bench::metrics::{psnr, ssim};
 use drbokeh::bench::metrics::srgb;
+use drbokeh::bench::metrics::{psnr, ssim};
 use drbokeh::render::{self, Kernel, RenderSettings};
 
 /// How far (dB) a figure may move from what README prints before this test fails: the

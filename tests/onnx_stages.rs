@@ -7,6 +7,7 @@
 
 use drbokeh::bench::metrics::srgb;
 use drbokeh::color::{PhotoEncoding, Transfer, linear_to_srgb, srgb_to_linear};
+use drbokeh::onnx::binding;
 use drbokeh::onnx::contract::{self, ColorOrder, Layout, ModelKind, ResizeMode, SizeSpec};
 use drbokeh::onnx::prep::{self, Geometry};
 use drbokeh::onnx::{DepthFill, ModelSpec, OnnxConfig};
@@ -95,7 +96,7 @@ fn expected_conv(rgb: &Image, c: &contract::Contract, g: &Geometry, sigmoid_out:
 }
 
 fn contract_of(model: &str, preset: &str) -> contract::Contract {
-    contract::resolve(&spec(model, preset), kind_of(preset), &cfg()).unwrap().1
+    binding::resolve(&spec(model, preset), kind_of(preset), &cfg()).unwrap().1
 }
 
 fn kind_of(preset: &str) -> ModelKind {
@@ -164,7 +165,7 @@ fn overrides_bgr_letterbox_and_byte_scaling() {
         ..spec("modnet.onnx", "modnet")
     };
     let (matte, _) = segment_onnx::predict_matte(&rgb, &s, &cfg()).unwrap();
-    let (_, c) = contract::resolve(&s, ModelKind::Matte, &cfg()).unwrap();
+    let (_, c) = binding::resolve(&s, ModelKind::Matte, &cfg()).unwrap();
     let g = prep::plan(c.size, c.resize, 40, 30);
     assert!(g.w < g.model_w || g.h < g.model_h, "letterbox pads: {g:?}");
     let want = expected_conv(&rgb, &c, &g, true);
@@ -199,7 +200,7 @@ fn depth_presets_match_their_function() {
     assert!(e.contains(export) && e.contains("size = [518, 518]"), "{e}");
     let sized = ModelSpec { size: Some([518, 518]), ..spec(export, "depth-anything-v2") };
     let (disp, report) = depth_onnx::estimate_disparity(&rgb, &sized, &cfg()).unwrap();
-    let c = contract::resolve(&sized, ModelKind::Depth, &cfg()).unwrap().1;
+    let c = binding::resolve(&sized, ModelKind::Depth, &cfg()).unwrap().1;
     let mut want = expected_conv(&rgb, &c, &prep::plan(c.size, c.resize, 48, 36), false);
     minmax(&mut want.data);
     assert!(max_diff(&disp.map, &want) <= TOL && report.model_size == [518, 518], "{:?}", report.model_size);

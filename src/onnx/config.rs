@@ -6,7 +6,7 @@
 //! contract; the model file is `model` (relative paths are taken in `onnx.model_dir` when set,
 //! else in the working directory) or, when unset, the preset's file name in `onnx.model_dir`.
 
-use super::contract::{Activation, ColorOrder, Layout, ModelKind, OutputRef, ResizeMode, ValueScale};
+use super::contract::{Activation, ColorOrder, DepthFill, Layout, ModelKind, OutputRef, ResizeMode, ValueScale};
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -33,18 +33,6 @@ impl Default for OnnxConfig {
     fn default() -> Self {
         OnnxConfig { runtime: None, model_dir: None, threads: 0, providers: vec!["cpu".into()] }
     }
-}
-
-/// How the inpainting stage fills the background's disparity.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum DepthFill {
-    /// Telea inpainting of the disparity (as the classical stage).
-    #[default]
-    Telea,
-    /// The inpainting model on the disparity replicated to three channels (as the official
-    /// pipeline does).
-    Model,
 }
 
 /// A stage's model: preset + overrides. Every field is optional.
@@ -177,10 +165,10 @@ impl OnnxConfig {
     /// the `onnx.*` key.
     pub fn validate(&self) -> Result<()> {
         for p in &self.providers {
-            if super::runtime::Provider::parse(p).is_none() {
+            if Provider::parse(p).is_none() {
                 return Err(Error::usage(format!(
                     "onnx.providers: unknown execution provider \"{p}\"; known: {}",
-                    super::runtime::Provider::NAMES.join(", ")
+                    Provider::NAMES.join(", ")
                 )));
             }
         }
@@ -188,5 +176,48 @@ impl OnnxConfig {
             return Err(Error::usage(format!("onnx.threads must be 0 (default) .. 1024, got {}", self.threads)));
         }
         Ok(())
+    }
+}
+
+/// An execution provider the config may ask for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Provider {
+    /// ONNX Runtime's default CPU provider (always available).
+    Cpu,
+    /// NVIDIA CUDA.
+    Cuda,
+    /// NVIDIA TensorRT.
+    TensorRt,
+    /// Apple Core ML.
+    CoreMl,
+    /// Microsoft DirectML (also spelled "dml").
+    DirectMl,
+}
+
+impl Provider {
+    /// The names `onnx.providers` accepts, as error messages list them.
+    pub const NAMES: &'static [&'static str] = &["cpu", "cuda", "tensorrt", "coreml", "directml"];
+
+    /// The provider named `s` (case-insensitive; "dml" for DirectML); None if unknown.
+    pub fn parse(s: &str) -> Option<Provider> {
+        Some(match s.to_ascii_lowercase().as_str() {
+            "cpu" => Provider::Cpu,
+            "cuda" => Provider::Cuda,
+            "tensorrt" => Provider::TensorRt,
+            "coreml" => Provider::CoreMl,
+            "directml" | "dml" => Provider::DirectMl,
+            _ => return None,
+        })
+    }
+
+    /// ONNX Runtime's name of the provider.
+    pub fn ort_name(self) -> &'static str {
+        match self {
+            Provider::Cpu => "CPUExecutionProvider",
+            Provider::Cuda => "CUDAExecutionProvider",
+            Provider::TensorRt => "TensorrtExecutionProvider",
+            Provider::CoreMl => "CoreMLExecutionProvider",
+            Provider::DirectMl => "DmlExecutionProvider",
+        }
     }
 }

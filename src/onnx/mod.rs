@@ -6,14 +6,16 @@
 //! ONNX Runtime. The stage implementations are in `stages::{segment_onnx, inpaint_onnx,
 //! depth_onnx}`.
 
+pub mod binding;
 pub mod config;
 pub mod contract;
 pub mod prep;
 pub mod runtime;
 pub mod session;
 
-pub use config::{DepthConfig, DepthFill, ModelSpec, OnnxConfig};
-pub use contract::{Binding, Contract, ModelKind};
+pub use binding::Binding;
+pub use config::{DepthConfig, ModelSpec, OnnxConfig};
+pub use contract::{Contract, DepthFill, ModelKind};
 
 use crate::error::Result;
 use crate::image::Image;
@@ -71,10 +73,10 @@ pub struct Model {
 /// Resolves, loads (or takes from the cache) and checks a stage's model.
 pub fn load(spec: &ModelSpec, kind: ModelKind, cfg: &OnnxConfig) -> Result<Model> {
     cfg.validate()?;
-    let (path, contract) = contract::resolve(spec, kind, cfg)?;
+    let (path, contract) = binding::resolve(spec, kind, cfg)?;
     let was_loaded = runtime::is_loaded();
     let (session, cached) = session::session(&path, cfg)?;
-    let binding = contract::bind(&contract, &session)?;
+    let binding = binding::bind(&contract, &session)?;
     let rt_ms = if was_loaded { 0.0 } else { runtime::runtime(cfg).map(|r| r.load_ms).unwrap_or(0.0) };
     let report = OnnxReport {
         model: path.display().to_string(),

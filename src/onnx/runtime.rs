@@ -21,49 +21,6 @@ const INSTALL_HINT: &str = "install ONNX Runtime with `scripts/setup-test-env.sh
      the project's .venv) or `pip install onnxruntime==1.31.1`, then point `[onnx] runtime` or ORT_DYLIB_PATH at its \
      onnxruntime/capi/libonnxruntime.so.* (any ONNX Runtime >= 1.31 works)";
 
-/// An execution provider the config may ask for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Provider {
-    /// ONNX Runtime's default CPU provider (always available).
-    Cpu,
-    /// NVIDIA CUDA.
-    Cuda,
-    /// NVIDIA TensorRT.
-    TensorRt,
-    /// Apple Core ML.
-    CoreMl,
-    /// Microsoft DirectML (also spelled "dml").
-    DirectMl,
-}
-
-impl Provider {
-    /// The names `onnx.providers` accepts, as error messages list them.
-    pub const NAMES: &'static [&'static str] = &["cpu", "cuda", "tensorrt", "coreml", "directml"];
-
-    /// The provider named `s` (case-insensitive; "dml" for DirectML); None if unknown.
-    pub fn parse(s: &str) -> Option<Provider> {
-        Some(match s.to_ascii_lowercase().as_str() {
-            "cpu" => Provider::Cpu,
-            "cuda" => Provider::Cuda,
-            "tensorrt" => Provider::TensorRt,
-            "coreml" => Provider::CoreMl,
-            "directml" | "dml" => Provider::DirectMl,
-            _ => return None,
-        })
-    }
-
-    /// ONNX Runtime's name of the provider.
-    pub fn ort_name(self) -> &'static str {
-        match self {
-            Provider::Cpu => "CPUExecutionProvider",
-            Provider::Cuda => "CUDAExecutionProvider",
-            Provider::TensorRt => "TensorrtExecutionProvider",
-            Provider::CoreMl => "CoreMLExecutionProvider",
-            Provider::DirectMl => "DmlExecutionProvider",
-        }
-    }
-}
-
 /// The loaded runtime.
 pub struct Runtime {
     /// The shared library that was loaded.

@@ -1,8 +1,8 @@
 //! Sessions: one per (model file, threads, providers), created on first use and reused for
 //! every later image of the process (a batch pays session creation once).
 
-use super::config::OnnxConfig;
-use super::runtime::{self, Provider};
+use super::config::{OnnxConfig, Provider};
+use super::runtime;
 use crate::error::{Error, Result};
 use crate::timing::ms_since;
 use ort::ep::{self, ExecutionProvider};

@@ -45,7 +45,7 @@ pub fn estimate_without_depth_map(
                 )));
             }
             Some(dir) => {
-                let (path, _) = crate::onnx::contract::resolve(spec, ModelKind::Depth, cfg)?;
+                let (path, _) = crate::onnx::binding::resolve(spec, ModelKind::Depth, cfg)?;
                 if !path.is_file() {
                     return Err(crate::error::Error::usage(format!(
                         "job.depth is required: no depth file is given, {why_no_embedded}, and the model folder {} has no {}; {THREE_WAYS}",
