@@ -52,10 +52,10 @@ pub struct BatchOptions {
     /// Per-image overrides (see [`read_manifest`]), if any.
     pub manifest: Option<PathBuf>,
     /// The manifest's `focus` values are keyframes: an image without its own focus gets one
-    /// interpolated in the batch's order ([`interpolate_keyframes`]).
+    /// interpolated in the batch's order ([`crate::focus_pull::interpolate_keyframes`]).
     pub keyframes: bool,
     /// `(seconds, frames per second)`: the images' focus values, in the batch's order, smoothed
-    /// over time by a Gaussian of that width ([`smooth_foci`]), so a video's focus does not
+    /// over time by a Gaussian of that width ([`crate::focus_pull::smooth_foci`]), so a video's focus does not
     /// jitter from frame to frame.
     pub focus_smoothing: Option<(f32, f32)>,
 }
@@ -492,7 +492,7 @@ fn plan(
     }
     if opts.keyframes {
         let keys: Vec<Option<f32>> = plans.iter().map(|p| manifest.get(&p.item.rel).and_then(|e| e.focus)).collect();
-        let foci = interpolate_keyframes(&keys).ok_or_else(|| {
+        let foci = crate::focus_pull::interpolate_keyframes(&keys).ok_or_else(|| {
             Error::usage("--keyframes: the manifest gives no image a focus value to interpolate from (focus_at entries are not keyframes)")
         })?;
         for (p, f) in plans.iter_mut().zip(foci) {
@@ -516,7 +516,7 @@ fn plan(
                 ))),
             })
             .collect::<Result<_>>()?;
-        for (p, f) in plans.iter_mut().zip(smooth_foci(&foci, seconds * fps)) {
+        for (p, f) in plans.iter_mut().zip(crate::focus_pull::smooth_foci(&foci, seconds * fps)) {
             p.focus = Focus::Disparity(f);
         }
     }
@@ -528,53 +528,6 @@ fn plan(
         )));
     }
     Ok(plans)
-}
-
-/// The focus of every image from the keyframes among them (`Some(focus)` where the manifest
-/// gives one, in the batch's order): linear between the keyframes around an image, the
-/// nearest keyframe's before the first and after the last. None without any keyframe.
-pub fn interpolate_keyframes(keys: &[Option<f32>]) -> Option<Vec<f32>> {
-    let known: Vec<(usize, f32)> = keys.iter().enumerate().filter_map(|(i, k)| k.map(|f| (i, f))).collect();
-    let (&(first_i, first_f), &(last_i, last_f)) = (known.first()?, known.last()?);
-    let mut next = 0;
-    Some(
-        (0..keys.len())
-            .map(|i| {
-                if i <= first_i {
-                    return first_f;
-                }
-                if i >= last_i {
-                    return last_f;
-                }
-                while known[next + 1].0 < i {
-                    next += 1;
-                }
-                let ((a, fa), (b, fb)) = (known[next], known[next + 1]);
-                fa + (fb - fa) * (i - a) as f32 / (b - a) as f32
-            })
-            .collect(),
-    )
-}
-
-/// `foci` (one per frame, in order) smoothed by a Gaussian of `sigma` frames, its weights
-/// renormalized at the ends (a still focus stays as it is; `sigma` 0 changes nothing). The
-/// kernel reaches 3σ.
-pub fn smooth_foci(foci: &[f32], sigma: f32) -> Vec<f32> {
-    if sigma <= 0.0 || foci.len() < 2 {
-        return foci.to_vec();
-    }
-    let reach = (3.0 * sigma).ceil() as usize;
-    let w: Vec<f64> = (0..=reach).map(|d| (-0.5 * (d as f64 / sigma as f64).powi(2)).exp()).collect();
-    (0..foci.len())
-        .map(|i| {
-            let (lo, hi) = (i.saturating_sub(reach), (i + reach).min(foci.len() - 1));
-            let (sum, norm) = (lo..=hi).fold((0.0f64, 0.0f64), |(s, n), j| {
-                let k = w[i.abs_diff(j)];
-                (s + k * foci[j] as f64, n + k)
-            });
-            (sum / norm) as f32
-        })
-        .collect()
 }
 
 /// Runs the batch. `progress` is called after each item with (done, total, result).
@@ -865,30 +818,6 @@ mod tests {
             }
         });
         most.into_inner()
-    }
-
-    #[test]
-    fn keyframes_interpolate_and_hold_at_the_ends() {
-        assert_eq!(interpolate_keyframes(&[None, None]), None);
-        let f = interpolate_keyframes(&[None, Some(0.2), None, None, Some(0.8), None]).unwrap();
-        let want = [0.2, 0.2, 0.4, 0.6, 0.8, 0.8];
-        assert!(f.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{f:?}");
-        assert_eq!(interpolate_keyframes(&[Some(0.5), None, None]).unwrap(), vec![0.5; 3]);
-        let f = interpolate_keyframes(&[Some(0.0), None, Some(1.0), None, Some(0.0)]).unwrap();
-        assert_eq!(f, vec![0.0, 0.5, 1.0, 0.5, 0.0]);
-    }
-
-    #[test]
-    fn smoothing_removes_jitter_and_keeps_a_still_focus() {
-        assert_eq!(smooth_foci(&[0.3; 10], 4.0), vec![0.3; 10]);
-        assert_eq!(smooth_foci(&[0.1, 0.9, 0.1], 0.0), vec![0.1, 0.9, 0.1]);
-        // Frame-to-frame jitter of ±0.05 around a slow ramp: the smoothed steps are far smaller.
-        let jittery: Vec<f32> = (0..60).map(|i| 0.2 + 0.01 * i as f32 + if i % 2 == 0 { 0.05 } else { -0.05 }).collect();
-        let s = smooth_foci(&jittery, 3.0);
-        let worst = |v: &[f32]| v.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0f32, f32::max);
-        assert!(worst(&jittery) > 0.08 && worst(&s[5..55]) < 0.02, "{} -> {}", worst(&jittery), worst(&s[5..55]));
-        // The ramp itself is kept in the middle.
-        assert!((s[30] - (0.2 + 0.30)).abs() < 0.02, "{}", s[30]);
     }
 
     /// `[batch] memory_budget_mb`: images whose estimates together exceed the budget never run

@@ -619,7 +619,7 @@ fn keyframes_interpolate_the_focus_and_smoothing_steadies_it() {
         batch_json(&inp, &out, &["--manifest", m.to_str().unwrap(), "--keyframes", "--blur", "4", "--focus-smoothing", "0.1"]);
     assert_eq!(code, Some(0), "{err}");
     let smooth = foci(&s);
-    let lib = drbokeh::batch::smooth_foci(&want.map(|v| v as f32), 3.0);
+    let lib = drbokeh::focus_pull::smooth_foci(&want.map(|v| v as f32), 3.0);
     assert!(smooth.iter().zip(&lib).all(|(a, b)| (a - *b as f64).abs() < 1e-6), "{smooth:?} vs {lib:?}");
     assert!(smooth[0] > 0.2 && smooth[5] < 0.8 && smooth.windows(2).all(|w| w[1] >= w[0]), "{smooth:?}");
     // Without a focus value to interpolate from, or smoothing focus_at: exit 2 naming why.

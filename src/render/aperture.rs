@@ -6,6 +6,7 @@
 //! What the aperture looks like inside that window (blades, an image, an anamorphic squeeze)
 //! is [`shape`]'s.
 
+pub mod polygon;
 pub mod shape;
 pub use shape::{Aperture, CatEye, ShapeSpec};
 

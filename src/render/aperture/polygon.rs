@@ -1,0 +1,235 @@
+//! Convex polygons in the aperture's unit frame: the outlines the shapes are made of (a circle,
+//! straight or curved blades) and the area of a pixel rectangle inside one (clipped by the
+//! polygon's half-planes, with the angular sectors that tell which edges can cut a rectangle).
+//! Used by [`super::shape::Geometry`] and the cat's eye's cut.
+
+use smallvec::SmallVec;
+use std::f64::consts::PI;
+
+/// Vertices of a polygonized circle, and of a curved-blade outline (spread over its sides).
+pub(super) const CURVE_VERTICES: usize = 256;
+
+/// What a pixel's rectangle covers of a shape (unit frame areas).
+pub(super) enum Area {
+    /// Wholly inside (coverage exactly 1).
+    Inside,
+    /// This much area.
+    Part(f64),
+}
+
+/// A unit circle as a counterclockwise polygon of `n` vertices.
+pub(super) fn circle(n: usize) -> Vec<[f64; 2]> {
+    (0..n).map(|k| 2.0 * PI * k as f64 / n as f64).map(|t| [t.cos(), t.sin()]).collect()
+}
+
+/// `n` blades, a vertex at `rotation` degrees, curvature `c`: the outline's radius at angle
+/// θ is `(1 - c)·polygon(θ) + c` (straight sides at 0, the circle at 1), polygonized with
+/// [`CURVE_VERTICES`] vertices (the corners kept exactly) when curved.
+pub(super) fn blades(n: u32, rotation: f64, c: f64) -> Vec<[f64; 2]> {
+    let rot = rotation.to_radians();
+    let step = 2.0 * PI / n as f64;
+    if c == 0.0 {
+        return (0..n).map(|k| rot + step * k as f64).map(|t| [t.cos(), t.sin()]).collect();
+    }
+    let per_side = CURVE_VERTICES.div_ceil(n as usize).max(4);
+    let apothem = (PI / n as f64).cos();
+    let mut pts = Vec::with_capacity(n as usize * per_side);
+    for k in 0..n {
+        for i in 0..per_side {
+            let u = i as f64 / per_side as f64;
+            let t = step * u;
+            let polygon = apothem / (t - step / 2.0).cos();
+            let radius = (1.0 - c) * polygon + c;
+            let a = rot + step * k as f64 + t;
+            pts.push([radius * a.cos(), radius * a.sin()]);
+        }
+    }
+    pts
+}
+
+/// Area of a polygon given counterclockwise.
+pub(super) fn shoelace(pts: &[[f64; 2]]) -> f64 {
+    let n = pts.len();
+    0.5 * (0..n).map(|i| pts[i][0] * pts[(i + 1) % n][1] - pts[(i + 1) % n][0] * pts[i][1]).sum::<f64>()
+}
+
+/// Area of `rect = [x0, x1, y0, y1]` inside the convex polygon of half-planes `planes`: the
+/// rectangle clipped by each plane that cuts it (most pixels meet none or one edge).
+pub(super) fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], radii: [f64; 2], sectors: &Sectors, rect: [f64; 4]) -> Area {
+    let [x0, x1, y0, y1] = rect;
+    let mut poly: Poly = smallvec::smallvec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+    let mut next = Poly::new();
+    match clip_convex(planes, bbox, radii, sectors, [0.0; 2], rect, &mut poly, &mut next) {
+        Clip::Empty => Area::Part(0.0),
+        Clip::Untouched => Area::Inside,
+        Clip::Cut => Area::Part(shoelace(&poly).max(0.0)),
+    }
+}
+
+/// Appends to `out` the convex polygon `poly` clipped to the half-plane `n·p ≤ c`
+/// (Sutherland–Hodgman, one plane).
+pub(super) fn clip_half_plane(poly: &[[f64; 2]], [nx, ny, c]: [f64; 3], out: &mut impl Extend<[f64; 2]>) {
+    let m = poly.len();
+    for i in 0..m {
+        let (a, b) = (poly[i], poly[(i + 1) % m]);
+        let (da, db) = (nx * a[0] + ny * a[1] - c, nx * b[0] + ny * b[1] - c);
+        if da <= 0.0 {
+            out.extend([a]);
+        }
+        if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
+            let t = da / (da - db);
+            out.extend([[a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]]);
+        }
+    }
+}
+
+/// A small polygon on the stack (a rectangle clipped by a few planes).
+pub(super) type Poly = SmallVec<[[f64; 2]; 12]>;
+
+/// What [`clip_convex`] did.
+#[derive(Clone, Copy, PartialEq, Debug)]
+pub(super) enum Clip {
+    /// Nothing is left.
+    Empty,
+    /// The polygon lies inside: unchanged.
+    Untouched,
+    /// Clipped (possibly to nothing: check its area).
+    Cut,
+}
+
+/// Clips `poly`, which lies inside `rect` (both in the frame whose origin is the shape's
+/// centre), to the convex polygon of half-planes `planes` (with its bounding box, inscribed
+/// and circumscribed radii and sectors, in its own frame) centred at `shift`. `next` is
+/// scratch.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn clip_convex(
+    planes: &[[f64; 3]],
+    bbox: &[f64; 4],
+    [inner, outer]: [f64; 2],
+    sectors: &Sectors,
+    shift: [f64; 2],
+    rect: [f64; 4],
+    poly: &mut Poly,
+    next: &mut Poly,
+) -> Clip {
+    // The rectangle in the polygon's own frame.
+    let [x0, x1, y0, y1] = [rect[0] - shift[0], rect[1] - shift[0], rect[2] - shift[1], rect[3] - shift[1]];
+    if x1 <= bbox[0] || x0 >= bbox[1] || y1 <= bbox[2] || y0 >= bbox[3] {
+        return Clip::Empty;
+    }
+    // The rectangle's farthest and nearest points from the centre.
+    let far = |a: f64, b: f64| a.abs().max(b.abs());
+    let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
+    let (fx, fy, nx, ny) = (far(x0, x1), far(y0, y1), near(x0, x1), near(y0, y1));
+    if fx * fx + fy * fy < inner * inner * (1.0 - 1e-12) {
+        return Clip::Untouched;
+    }
+    if nx * nx + ny * ny >= outer * outer {
+        return Clip::Empty;
+    }
+    let mut cut = false;
+    // Within the cone from the centre that holds the rectangle, the polygon is bounded by the
+    // edges of that cone's angles alone (it is convex around the centre).
+    for &[nx, ny, c] in sectors.planes(planes, [x0, x1, y0, y1]) {
+        // The rectangle's corner farthest along n, and the nearest.
+        let far = nx * if nx > 0.0 { x1 } else { x0 } + ny * if ny > 0.0 { y1 } else { y0 };
+        if far <= c {
+            continue;
+        }
+        let near = nx * if nx > 0.0 { x0 } else { x1 } + ny * if ny > 0.0 { y0 } else { y1 };
+        if near >= c {
+            return Clip::Empty;
+        }
+        // In the shape's frame: n·p ≤ c + n·shift.
+        cut = true;
+        next.clear();
+        clip_half_plane(poly, [nx, ny, c + nx * shift[0] + ny * shift[1]], next);
+        std::mem::swap(poly, next);
+        if poly.len() < 3 {
+            return Clip::Empty;
+        }
+    }
+    if cut { Clip::Cut } else { Clip::Untouched }
+}
+
+/// A many-sided polygon's edges by angle from the centre: which planes can bound it inside a
+/// cone (see [`polygon_rect_area`]). Few-sided polygons keep every plane.
+#[derive(Debug, PartialEq)]
+pub(super) struct Sectors {
+    /// Per sector of `2π / SECTORS`, the first and one-past-last edge (cyclic) whose angular
+    /// span meets it; empty for polygons of at most `ALL_BELOW` edges.
+    ranges: Vec<(usize, usize)>,
+}
+
+impl Sectors {
+    const COUNT: usize = 64;
+    const ALL_BELOW: usize = 16;
+
+    pub(super) fn new(pts: &[[f64; 2]]) -> Sectors {
+        let n = pts.len();
+        if n <= Self::ALL_BELOW {
+            return Sectors { ranges: Vec::new() };
+        }
+        let sector = |a: f64| (((a.rem_euclid(2.0 * PI)) / (2.0 * PI) * Self::COUNT as f64) as usize).min(Self::COUNT - 1);
+        let mut ranges = vec![(usize::MAX, 0usize); Self::COUNT];
+        for k in 0..n {
+            let (a, b) = (pts[k], pts[(k + 1) % n]);
+            let (sa, sb) = (sector(a[1].atan2(a[0])), sector(b[1].atan2(b[0])));
+            // The edge's sectors, counterclockwise from a's to b's.
+            let mut s = sa;
+            loop {
+                let r = &mut ranges[s];
+                // Edges arrive in order: a sector's edges are consecutive (cyclically).
+                if r.0 == usize::MAX {
+                    *r = (k, k + 1);
+                } else {
+                    r.1 = k + 1;
+                }
+                if s == sb {
+                    break;
+                }
+                s = (s + 1) % Self::COUNT;
+            }
+        }
+        Sectors { ranges }
+    }
+
+    /// The planes that can bound the polygon inside the cone holding `rect`: every plane when
+    /// the rectangle holds the centre or spans more than a quarter turn.
+    pub(super) fn planes<'a>(&self, planes: &'a [[f64; 3]], [x0, x1, y0, y1]: [f64; 4]) -> impl Iterator<Item = &'a [f64; 3]> + 'a {
+        let all = || (0..planes.len(), 0..0);
+        let (first, wrap) = if self.ranges.is_empty() || (x0 <= 0.0 && x1 >= 0.0 && y0 <= 0.0 && y1 >= 0.0) {
+            all()
+        } else {
+            // The rectangle's corners' angles, unwrapped around its centre's.
+            let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+            let mid = cy.atan2(cx);
+            let rel = |x: f64, y: f64| {
+                let d = y.atan2(x) - mid;
+                d - (2.0 * PI) * (d / (2.0 * PI)).round()
+            };
+            let corners = [rel(x0, y0), rel(x1, y0), rel(x1, y1), rel(x0, y1)];
+            let (lo, hi) =
+                (corners.iter().copied().fold(f64::INFINITY, f64::min), corners.iter().copied().fold(f64::NEG_INFINITY, f64::max));
+            if hi - lo > 0.5 * PI {
+                all()
+            } else {
+                let n = planes.len();
+                let count = Self::COUNT as f64;
+                let (s0, s1) = (((mid + lo) / (2.0 * PI) * count).floor() as i64, ((mid + hi) / (2.0 * PI) * count).floor() as i64);
+                let at = |s: i64| self.ranges[s.rem_euclid(Self::COUNT as i64) as usize];
+                // Edges from the first sector's first to the last sector's last, cyclically.
+                let (a, b) = (at(s0).0, at(s1).1);
+                let b = if b <= a { b + n } else { b };
+                if b - a >= n {
+                    all()
+                } else if b <= n {
+                    (a..b, 0..0)
+                } else {
+                    (a..n, 0..b - n)
+                }
+            }
+        };
+        planes[first].iter().chain(planes[wrap].iter())
+    }
+}

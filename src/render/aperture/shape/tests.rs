@@ -1,0 +1,300 @@
+use super::*;
+use std::f64::consts::PI;
+
+fn aperture(spec: &str, anamorphic: f32) -> &'static Geometry {
+    Aperture::new(&ShapeSpec::parse(spec, "--aperture").unwrap(), anamorphic, "--aperture").unwrap().geometry().unwrap()
+}
+
+/// The weight of a pixel by supersampling the outline under the tent of the two pixel
+/// squares (an independent truth): `n × n` points over the 2 × 2 px around the centre.
+fn supersampled(inside: impl Fn(f64, f64) -> bool, r: f64, x: f64, y: f64, n: usize) -> f64 {
+    supersampled_grey(|u, v| inside(u, v) as u8 as f64, r, x, y, n)
+}
+
+/// [`supersampled`] of a transmission in [0, 1].
+fn supersampled_grey(t: impl Fn(f64, f64) -> f64, r: f64, x: f64, y: f64, n: usize) -> f64 {
+    let mut acc = 0.0;
+    for i in 0..n {
+        for j in 0..n {
+            let (u, v) = (-1.0 + 2.0 * (i as f64 + 0.5) / n as f64, -1.0 + 2.0 * (j as f64 + 0.5) / n as f64);
+            acc += t((x + u) / r, (y + v) / r) * (1.0 - u.abs()) * (1.0 - v.abs());
+        }
+    }
+    acc * 4.0 / (n * n) as f64
+}
+
+fn in_hexagon(x: f64, y: f64, rot: f64) -> bool {
+    (0..6).all(|k| {
+        let t = (rot + 60.0 * k as f64 + 30.0).to_radians();
+        x * t.cos() + y * t.sin() <= (PI / 6.0).cos()
+    })
+}
+
+#[test]
+fn parse_and_reject() {
+    assert_eq!(ShapeSpec::parse("disc", "a").unwrap(), ShapeSpec::Disc);
+    assert_eq!(
+        ShapeSpec::parse("blades:6,rotation=30,curvature=0.5", "a").unwrap(),
+        ShapeSpec::Blades { n: 6, rotation: 30.0, curvature: 0.5 }
+    );
+    for bad in [
+        "blades:2",
+        "blades:65",
+        "blades:6,curvature=1.5",
+        "blades:6,curvature=-0.1",
+        "blades:x",
+        "blades:6,rotation=nan",
+        "hexagon",
+        "image:",
+        "blades:6,size=2",
+    ] {
+        let e = ShapeSpec::parse(bad, "--aperture").unwrap_err().to_string();
+        assert!(e.contains("--aperture"), "{bad}: {e}");
+    }
+    assert!(Aperture::new(&ShapeSpec::Disc, 0.0, "a").is_err());
+    assert!(Aperture::new(&ShapeSpec::Disc, f32::NAN, "a").is_err());
+    assert!(Aperture::new(&ShapeSpec::Disc, 1.0, "a").unwrap().is_disc());
+}
+
+#[test]
+fn masks_that_pass_no_light_or_are_too_large_are_refused() {
+    assert!(Aperture::from_mask(0, 0, &[], 1.0, "m").is_err());
+    assert!(Aperture::from_mask(2, 2, &[0.0; 4], 1.0, "m").unwrap_err().to_string().contains("all black"));
+    assert!(Aperture::from_mask(2, 1, &[1.0, f32::NAN], 1.0, "m").unwrap_err().to_string().contains("not finite"));
+    assert!(Aperture::from_mask(1025, 1, &[1.0; 1025], 1.0, "m").is_err());
+}
+
+#[test]
+fn cat_eye_cuts_toward_the_frame_centre() {
+    // The offset points at the centre (y up), in proportion to the distance, at most the
+    // strength; the centre itself is uncut.
+    let c = CatEye::new(0.8, 101, 51);
+    assert_eq!(c.offset(50.0, 25.0), [0.0, 0.0]);
+    let reach = 0.5 * (101.0f32 * 101.0 + 51.0 * 51.0).sqrt();
+    let [vx, vy] = c.offset(0.0, 0.0);
+    assert!((vx - 0.8 * 50.0 / reach).abs() < 1e-6 && (vy + 0.8 * 25.0 / reach).abs() < 1e-6, "{vx} {vy}");
+    let far = c.offset(1e6, 25.0);
+    assert!((far[0] + 0.8).abs() < 1e-6 && far[1] == 0.0);
+    // The cut's area is the two discs' lens: 2·acos(d/2) − (d/2)·sqrt(4 − d²).
+    let disc = Aperture::DISC.with_cat_eye(1.0).unwrap();
+    let g = disc.geometry().unwrap();
+    for d in [0.0f64, 0.3, 0.7, 1.0] {
+        let want = 2.0 * (d / 2.0).acos() - d / 2.0 * (4.0 - d * d).sqrt();
+        let got = g.norm_cut(1.0, ([0.0, -d as f32], 1.0)) as f64;
+        assert!((got - want).abs() < 2e-3 * want, "d {d}: {got} vs {want}");
+        // Coverages tile: their lattice sum is the area (the source's unit flux).
+        let r = 7.5f32;
+        let sum: f64 = (-10..=10)
+            .flat_map(|y| (-10..=10).map(move |x| (x, y)))
+            .map(|(x, y)| g.coverage_cut(r, x as f32, y as f32, false, Some([0.0, -d as f32])) as f64)
+            .sum();
+        assert!((sum - g.norm_cut(r, ([0.0, -d as f32], 1.0)) as f64).abs() < 1e-3 * sum, "d {d}: lattice {sum}");
+    }
+    // Refused: out of range, an image aperture, a bubble.
+    assert!(Aperture::DISC.with_cat_eye(1.5).is_err() && Aperture::DISC.with_cat_eye(f32::NAN).is_err());
+    assert!(Aperture::from_mask(2, 2, &[1.0; 4], 1.0, "m").unwrap().with_cat_eye(0.5).is_err());
+    assert!(Aperture::with_bubble(&ShapeSpec::Disc, 1.0, 0.5, "b").unwrap().with_cat_eye(0.5).is_err());
+    assert_eq!(disc.label(), "disc,cat_eye=1");
+    assert!(Aperture::DISC.with_cat_eye(0.0).unwrap().is_disc());
+}
+
+#[test]
+fn geometries_are_interned() {
+    let a = Aperture::new(&ShapeSpec::parse("blades:7,rotation=10", "a").unwrap(), 1.0, "a").unwrap();
+    let b = Aperture::new(&ShapeSpec::parse("blades:7,rotation=10", "a").unwrap(), 1.0, "a").unwrap();
+    let c = Aperture::new(&ShapeSpec::parse("blades:7,rotation=11", "a").unwrap(), 1.0, "a").unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+    assert_ne!(a, Aperture::DISC);
+}
+
+/// An image file is read once per version: asking again gives the same handle; another
+/// squeeze or another version of the file gives another shape; a removed file is an error
+/// naming it (the cache is keyed by the live file's metadata).
+#[test]
+fn image_files_are_read_once_per_version() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("mask.png");
+    let disc = |n: usize, r: f32| {
+        let c = (n as f32 - 1.0) / 2.0;
+        let v = (0..n * n).map(|i| if ((i % n) as f32 - c).hypot((i / n) as f32 - c) <= r { 1.0 } else { 0.0 }).collect();
+        crate::image::Image::from_vec(n, n, 1, v).unwrap()
+    };
+    crate::io::write_png(&path, &disc(16, 7.0), 8, crate::color::Transfer::Linear).unwrap();
+    let spec = ShapeSpec::parse(&format!("image:{}", path.display()), "a").unwrap();
+    let a = Aperture::new(&spec, 1.0, "a").unwrap();
+    assert_eq!(Aperture::new(&spec, 1.0, "a").unwrap(), a);
+    assert_ne!(Aperture::new(&spec, 1.5, "a").unwrap(), a);
+    crate::io::write_png(&path, &disc(20, 5.0), 8, crate::color::Transfer::Linear).unwrap();
+    let b = Aperture::new(&spec, 1.0, "a").unwrap();
+    assert_ne!(a, b, "a rewritten mask must be read again");
+    std::fs::remove_file(&path).unwrap();
+    let e = Aperture::new(&spec, 1.0, "a").unwrap_err().to_string();
+    assert!(e.contains("mask.png"), "{e}");
+}
+
+#[test]
+fn hexagon_coverage_is_the_pixel_area_inside_it() {
+    for rot in [0.0, 30.0, 17.0] {
+        let g = aperture(&format!("blades:6,rotation={rot}"), 1.0);
+        let r = 6.3f32;
+        let mut worst = 0f64;
+        let mut sum = 0f64;
+        for y in -8..=8 {
+            for x in -8..=8 {
+                let c = g.coverage(r, x as f32, y as f32, false) as f64;
+                sum += c;
+                let truth = supersampled(|u, v| in_hexagon(u, v, rot), r as f64, x as f64, y as f64, 64);
+                worst = worst.max((c - truth).abs());
+            }
+        }
+        // Supersampling's own error on an edge pixel is about 1/64.
+        assert!(worst < 0.02, "rotation {rot}: worst {worst}");
+        assert!((sum / g.norm(r) as f64 - 1.0).abs() < 1e-5, "rotation {rot}: flux {sum}");
+    }
+}
+
+#[test]
+fn rounded_blades_coverage_is_the_supersampled_outline() {
+    // 256 edges: the planes are picked by sector.
+    let g = aperture("blades:7,rotation=10,curvature=0.6", 1.0);
+    let inside = |x: f64, y: f64| {
+        let (r, a) = ((x * x + y * y).sqrt(), (y.atan2(x) - 10f64.to_radians()).rem_euclid(2.0 * PI / 7.0));
+        r <= 0.4 * (PI / 7.0).cos() / (a - PI / 7.0).cos() + 0.6
+    };
+    for r in [2.3f32, 9.7] {
+        let mut worst = 0f64;
+        for y in -12..=12 {
+            for x in -12..=12 {
+                let c = g.coverage(r, x as f32, y as f32, false) as f64;
+                worst = worst.max((c - supersampled(inside, r as f64, x as f64, y as f64, 64)).abs());
+            }
+        }
+        assert!(worst < 0.03, "r {r}: worst {worst}");
+    }
+}
+
+#[test]
+fn a_vertex_points_at_the_rotation() {
+    let g = aperture("blades:5,rotation=90", 1.0);
+    let r = 20.0;
+    // Straight up (y up) the vertex reaches r; straight down an edge stops at the apothem.
+    assert!(g.coverage(r, 0.0, 19.0, false) > 0.0);
+    assert_eq!(g.coverage(r, 0.0, -18.0, false), 0.0);
+    // In front of the focal plane the pentagon is point-reflected.
+    assert_eq!(g.coverage(r, 0.0, 18.0, true), 0.0);
+    assert!(g.coverage(r, 0.0, -19.0, true) > 0.0);
+    assert!(!g.symmetric());
+    assert!(aperture("blades:6", 1.0).symmetric());
+}
+
+#[test]
+fn curvature_runs_from_the_polygon_to_the_circle() {
+    let area = |c: f32| aperture(&format!("blades:5,curvature={c}"), 1.0).area;
+    let pentagon = 2.5 * (2.0 * PI / 5.0).sin();
+    assert!((area(0.0) - pentagon).abs() < 1e-9);
+    assert!((area(1.0) - PI).abs() < 1e-3);
+    assert!(area(0.0) < area(0.5) && area(0.5) < area(1.0));
+    // The rounded outline stays convex: every vertex inside every edge's half-plane.
+    let g = aperture("blades:5,curvature=0.5", 1.0);
+    let Kind::Polygon { pts, planes, .. } = &g.kind else { panic!() };
+    assert!(planes.iter().all(|&[nx, ny, c]| pts.iter().all(|p| nx * p[0] + ny * p[1] <= c + 1e-9)));
+}
+
+#[test]
+fn anamorphic_disc_is_an_ellipse_inside_the_coc() {
+    let g = aperture("disc", 1.5);
+    assert!((g.area - PI / 1.5).abs() < 1e-3);
+    let r = 10.0;
+    assert!(g.coverage(r, 0.0, 9.0, false) > 0.99);
+    assert_eq!(g.coverage(r, 9.0, 0.0, false), 0.0);
+    assert_eq!(g.coverage(r, 5.0, 0.0, false), 1.0);
+}
+
+#[test]
+fn mask_coverage_integrates_the_image() {
+    // A 4x4 mask, open in its left half and its top-right cell half.
+    let mut v = vec![0f32; 16];
+    for y in 0..4 {
+        v[y * 4] = 1.0;
+        v[y * 4 + 1] = 1.0;
+    }
+    v[3] = 0.5;
+    let a = Aperture::from_mask(4, 4, &v, 1.0, "m").unwrap().geometry().unwrap();
+    assert!((a.area - (8.5 * 0.25)).abs() < 1e-12);
+    // The grey value of the cell under a unit-frame point (rows down).
+    let cell = |x: f64, y: f64, flip: bool| {
+        let (x, y) = if flip { (-x, -y) } else { (x, y) };
+        let (cx, cy) = ((x + 1.0) * 2.0, (1.0 - y) * 2.0);
+        if !(0.0..4.0).contains(&cx) || !(0.0..4.0).contains(&cy) {
+            return 0.0;
+        }
+        v[cy as usize * 4 + cx as usize] as f64
+    };
+    let r = 8.0;
+    let mut worst = 0f64;
+    for flip in [false, true] {
+        for y in -9..=9 {
+            for x in -9..=9 {
+                let c = a.coverage(r, x as f32, y as f32, flip) as f64;
+                let truth = supersampled_grey(|u, w| cell(u, w, flip), r as f64, x as f64, y as f64, 96);
+                worst = worst.max((c - truth).abs());
+            }
+        }
+    }
+    assert!(worst < 0.03, "worst {worst}");
+    // Wholly open 2 x 2 neighbourhoods are exactly 1, wholly closed ones 0.
+    assert_eq!(a.coverage(r, -4.0, 4.0, false), 1.0);
+    assert_eq!(a.coverage(r, 4.0, -4.0, false), 0.0);
+    let sum: f64 =
+        (-5..=5).flat_map(|y| (-5..=5).map(move |x| (x, y))).map(|(x, y)| a.coverage(2.7, x as f32, y as f32, false) as f64).sum();
+    assert!((sum / a.norm(2.7) as f64 - 1.0).abs() < 1e-5, "{sum}");
+}
+
+#[test]
+fn the_sample_map_covers_the_polygon_uniformly() {
+    let g = aperture("blades:5,rotation=90,curvature=0.3", 1.3);
+    let n = 200;
+    let mut upper = 0usize;
+    for i in 0..n {
+        for j in 0..n {
+            let (x, y) = g.sample((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32).unwrap();
+            assert_eq!(g.transmission(x * 0.999, y * 0.999), 1.0, "({x}, {y}) outside");
+            upper += (y > 0.2) as usize;
+        }
+    }
+    // The share above y = 0.2 is that of the area (by supersampled coverage).
+    let mut above = 0f64;
+    for y in 0..400 {
+        for x in 0..400 {
+            let (px, py) = (-1.0 + (x as f32 + 0.5) / 200.0, -1.0 + (y as f32 + 0.5) / 200.0);
+            if py > 0.2 {
+                above += g.transmission(px, py) as f64;
+            }
+        }
+    }
+    let want = above / 40000.0 / g.area;
+    let got = upper as f64 / (n * n) as f64;
+    assert!((got - want).abs() < 0.01, "{got} vs {want}");
+    assert!(aperture("blades:6", 1.0).sample(0.3, 0.3).is_some());
+}
+
+#[test]
+fn small_cocs_tend_continuously_to_the_source_pixel() {
+    let g = aperture("blades:6", 2.0);
+    assert_eq!(g.norm(0.0005), 1.0);
+    assert_eq!(g.coverage(0.0005, 0.0, 0.0, false), 1.0);
+    assert_eq!(g.coverage(0.0005, 1.0, 0.0, false), 0.0);
+    let weights = |r: f32| -> Vec<f32> {
+        (-2..=2).flat_map(|y| (-2..=2).map(move |x| (x, y))).map(|(x, y)| g.coverage(r, x as f32, y as f32, false) / g.norm(r)).collect()
+    };
+    // Unit flux at every radius; the centre's weight falls as the CoC grows.
+    let mut last = 1.0f32;
+    for r in [0.01f32, 0.1, 0.2, 0.3, 0.5, 0.8] {
+        let w = weights(r);
+        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-4, "r {r}: {}", w.iter().sum::<f32>());
+        assert!(w[12] <= last + 1e-6, "r {r}: centre {} after {last}", w[12]);
+        last = w[12];
+    }
+    assert!((weights(0.01)[12] - 1.0).abs() < 1e-4 && last < 0.9);
+}
