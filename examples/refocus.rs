@@ -1,4 +1,4 @@
-//! Focus sweep from saved layers through `pipeline::Refocuser`: reads the layers once, then
+//! Focus sweep from saved layers through `refocus::Refocuser`: reads the layers once, then
 //! times one render per focus (fast kernel, default settings, K as given).
 //!
 //!   cargo run --release --example refocus -- BLUR FOCUS[,FOCUS...] LAYER.exr [LAYER.exr ...]
@@ -6,7 +6,7 @@
 //! Layers as `drbokeh render --save-layers DIR` writes them (e.g. `DIR/0_fg.exr`, `DIR/1_bg.exr`).
 
 use drbokeh::io::ReadLimits;
-use drbokeh::pipeline::Refocuser;
+use drbokeh::refocus::Refocuser;
 use drbokeh::render::Layer;
 use drbokeh::{Config, Focus, Pipeline};
 use std::path::Path;

@@ -7,7 +7,7 @@
 //!   in speed at either end). Foci are normalized disparity (0 far … 1 near).
 //! - The layers are built once ([`FocusPull::build_settings`]: the frame whose circles of
 //!   confusion reach farthest, so what any frame reveals behind the subject is filled), then
-//!   every frame is [`crate::pipeline::Refocuser::render_with_blur`] of them: frame `i` equals
+//!   every frame is [`crate::refocus::Refocuser::render_with_blur`] of them: frame `i` equals
 //!   `drbokeh render --layer ... --focus f_i --blur k_i` of those layers (`--save-layers`
 //!   writes them), bit for bit.
 //! - Frame files come from a pattern with one `%d` or `%0Nd` (N ≤ 9): `frames/%04d.png`.

@@ -333,7 +333,7 @@ pub fn write_image(output: &Path, image: &mut Image, cfg: &Config) -> Result<()>
 }
 
 /// The frames of a focus pull from `layers` (built once), each rendered by a
-/// [`crate::pipeline::Refocuser`] and written atomically to its file of `pattern`; the frames'
+/// [`crate::refocus::Refocuser`] and written atomically to its file of `pattern`; the frames'
 /// warnings (each once) go to `warnings`.
 fn render_frames(
     cfg: &Config,
@@ -347,7 +347,7 @@ fn render_frames(
     }
     let (w, h) = (layers[0].width(), layers[0].height());
     let blur = cfg.render.blur.unwrap_or_else(|| crate::pipeline::default_blur(w, h));
-    let refocuser = crate::pipeline::Refocuser::new(Pipeline::from_config(cfg.clone())?, layers)?;
+    let refocuser = crate::refocus::Refocuser::new(Pipeline::from_config(cfg.clone())?, layers)?;
     let mut frames = Vec::with_capacity(pull.frames);
     for i in 0..pull.frames {
         let t = Instant::now();

@@ -8,7 +8,7 @@ use crate::color::PhotoEncoding;
 use crate::config::{Config, KernelChoice};
 use crate::error::{Error, Result};
 use crate::image::Image;
-pub use crate::refocus::Refocuser;
+
 use crate::render::{self, Kernel, Layer, RenderSettings, lens};
 pub use crate::report::{DepthSource, FrameReport, Report, StageReport, StageStatus, UsedParams};
 use crate::stages::background::{BandReach, EdgeBand, ForegroundColour, InpaintOptions, Reach, fill_background, prepare_background};
@@ -643,7 +643,7 @@ impl Pipeline {
 
     /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
     /// caller has already raised them to the gamma. To render the same layers at several foci,
-    /// see [`Refocuser`].
+    /// see [`crate::refocus::Refocuser`].
     pub fn render_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
         let (image, report) = self.render_given(&layers, focus, None)?;
         let layers = if self.renders_back_only(&layers) { vec![layers.into_iter().next_back().expect("non-empty")] } else { layers };

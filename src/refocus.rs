@@ -13,7 +13,7 @@ use crate::report::Report;
 /// layers are borrowed, never copied, and stay usable after an error.
 ///
 /// ```
-/// use drbokeh::{Config, Focus, Image, Pipeline, pipeline::Refocuser, render::Layer};
+/// use drbokeh::{Config, Focus, Image, Pipeline, refocus::Refocuser, render::Layer};
 /// // One 32x32 layer: a grey ramp, opaque, its disparity rising from 0 to 1 across.
 /// let mut px = Vec::new();
 /// for _y in 0..32 {

@@ -868,7 +868,7 @@ fn physical_planes_in_one_layer_match_planes_as_layers() {
 /// focus (fast and exact kernels, occlusion on and off), and keeps them usable after an error.
 #[test]
 fn refocuser_equals_render_layers_at_every_focus() {
-    use drbokeh::pipeline::Refocuser;
+    use drbokeh::refocus::Refocuser;
     let (w, h) = (40, 30);
     let disk = plane(w, h, |x, y| if (x as f32 - 20.0).hypot(y as f32 - 15.0) < 9.0 { 1.0 } else { 0.0 });
     let near = plane(w, h, |_, _| 0.9);

@@ -102,7 +102,7 @@ pub fn input_rows(rows: &[Row], input: Input) -> Vec<Row> {
 }
 
 /// The rows of the primary input ([`primary_input`] of the inputs present): what the method
-/// tables and [`comparisons`] read.
+/// tables and [`super::report::comparisons`] read.
 pub fn primary_rows(rows: &[Row]) -> Vec<Row> {
     input_rows(rows, primary_input(&inputs_of(rows)))
 }

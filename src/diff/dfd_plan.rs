@@ -17,7 +17,7 @@
 //!
 //! Estimated seconds are CPU seconds over the threads ([`DfdPlan::seconds`]).
 
-use super::dfd::{DfdKernel, DfdOptions, DfdRenderer};
+use super::dfd_options::{DfdKernel, DfdOptions, DfdRenderer};
 use super::gauss_psf::window_radius;
 use crate::error::{Error, Result};
 use crate::render::lens::coc_radius;
@@ -41,18 +41,6 @@ pub const MIN_LEVEL_COC: f32 = 2.0;
 /// The smallest side, pixels, of the finest level [`DfdKernel::Auto`] may optimise at instead
 /// of the full size.
 pub const AUTO_MIN_SIDE: usize = 16;
-
-/// The CPU seconds (this project's 2-core machine, see the module notes) that
-/// [`DfdKernel::Auto`] plans for: in the worst case of the cost model about 30 s of wall time
-/// on 2 idle cores, and under a minute with one of them busy elsewhere, so that no default run
-/// on a photo up to 256×256 passes a minute there. Scenes near the worst case (a far
-/// background at disparity 0, focus 1, K 8 and 16 at 128 and 256 px) planned at 73 CPU
-/// seconds (a budget of 80) took 62: 61-65 s of wall time while another build shared the
-/// machine. A level coarser costs about 16 times less (a quarter of the pixels, a quarter of
-/// the window's taps) and loses detail: 256×256 at K 16 (two planes) has a mean disparity
-/// error of 0.015 optimised at 128×128 (28 CPU seconds), 0.036 at 64×64 (2.7), the plan under
-/// this budget.
-pub const AUTO_CPU_BUDGET: f64 = 60.0;
 
 /// A run estimated to take longer than this (seconds on the threads it has) is announced.
 pub const LONG_RUN_SECONDS: f64 = 60.0;
@@ -263,6 +251,7 @@ pub fn check_levels(key: &str, n: i64) -> Result<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::diff::dfd_options::AUTO_CPU_BUDGET;
     use crate::render::Profile;
 
     fn settings(blur: f32, focus: f32) -> RenderSettings {

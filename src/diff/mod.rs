@@ -7,6 +7,7 @@
 pub mod dfd;
 pub mod dfd_confidence;
 pub mod dfd_job;
+pub mod dfd_options;
 pub mod dfd_plan;
 pub mod dfd_start;
 pub mod dfd_upsample;

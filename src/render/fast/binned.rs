@@ -555,7 +555,7 @@ pub(super) fn flush(bins: &Bins, templates: &mut Templates, batch: &mut RowBatch
 #[cfg(test)]
 mod tests {
     use super::super::footprint::coverage_disk;
-    use super::super::stripe::Scratch;
+    use super::super::scratch::Scratch;
     use super::*;
 
     /// A run of sources drawn from a template equals the same sources drawn one by one at the

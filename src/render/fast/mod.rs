@@ -50,6 +50,7 @@ mod bright;
 mod coarse;
 pub(in crate::render) mod footprint;
 mod physical;
+mod scratch;
 mod stripe;
 mod survey;
 mod visibility;

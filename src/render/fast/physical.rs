@@ -33,7 +33,7 @@ use super::band::Side;
 use super::binned;
 use super::bright::is_bright;
 use super::footprint::{EDGE, coverage_disk};
-use super::stripe::Scratch;
+use super::scratch::Scratch;
 use super::survey::Survey;
 use super::{Counts, Ctx};
 use crate::render::layer::{A, CHANNELS, D, max_rgb};

@@ -7,6 +7,7 @@ use super::band::{self, Side, band_coc, in_band};
 use super::bright::is_bright;
 use super::coarse::Coarse;
 use super::footprint::{HARD_EDGE, SOFT_EDGE, STENCIL_TAIL, drawn_radius, equivalent_radius, rim_disk};
+use super::scratch::Scratch;
 use super::visibility::visibility_rows;
 use super::{Counts, Ctx, physical};
 use crate::render::layer::max_rgb;
@@ -15,43 +16,6 @@ use crate::render::raw;
 use crate::render::splat::{STRIPE_ROWS, Stripe, Window};
 use rayon::prelude::*;
 use std::sync::atomic::Ordering;
-
-/// A worker's reusable buffers (sized on first use, then recycled from stripe to stripe).
-#[derive(Default)]
-pub(super) struct Scratch {
-    /// Accumulators: `A`, then per side its full pass and `U_ka, …, U_kb` for the stripe's
-    /// nodes (see `band::slot`).
-    pub(super) accs: Vec<Stripe>,
-    /// `q` of the stripe's targets.
-    q: Vec<f32>,
-    /// The stripe's finished raw pixels ([`raw::CHANNELS`] each).
-    raw: Vec<f32>,
-    /// One row of `A`, of the front and behind sides (`B`) and of one `U_k` (4 channels per
-    /// pixel), and one coarse row.
-    row_a: Vec<f32>,
-    row_b: Vec<f32>,
-    row_h: Vec<f32>,
-    row_u: Vec<f32>,
-    tmp: Vec<f32>,
-    /// Tap weights per stencil row `-stencil.p..=stencil.p` (first column offset, weights)
-    /// of a source with scatter radius `stencil_sigma` (reused while σ repeats: in-focus
-    /// regions and planes of constant depth).
-    pub(super) stencil_w: Vec<(i64, Vec<f32>)>,
-    pub(super) stencil_sigma: f32,
-    /// One rim row of a bright source.
-    pub(super) rim: Vec<f32>,
-    /// Columns of one row's band targets.
-    band_x: Vec<usize>,
-    /// (accumulator, factor) pairs a source scatters into.
-    pub(super) dests: Vec<(usize, f32)>,
-    /// The medium disks of one row of sources, batched per radius bin.
-    pub(super) bins: super::binned::RowBatch,
-    /// The templates this worker drew them with (the pool of scratch is per layer).
-    pub(super) templates: super::binned::Templates,
-    /// The visibility's summed-area table and the stripe's visibilities.
-    sat: Vec<f64>,
-    vis: Vec<f32>,
-}
 
 /// Renders every stripe in parallel and hands each finished raw pixel to `finish` with its
 /// `stride` values of `out`. `empty`: nothing visible to scatter (only the visibility).
