@@ -269,6 +269,18 @@ mod tests {
         assert!((1.0 / f.depth(0.3, near, far) - 0.3).abs() < 1e-12);
     }
 
+    impl Representation {
+        fn with_z_far(self, z_far: Option<f64>) -> Representation {
+            Representation { z_far, ..self }
+        }
+    }
+
+    #[test]
+    fn representations_have_their_iso_names() {
+        let names: Vec<Option<&str>> = (0..5).map(representation_name).collect();
+        assert_eq!(names, [Some("uniform_inverse_Z"), Some("uniform_disparity"), Some("uniform_Z"), Some("nonuniform_disparity"), None]);
+    }
+
     #[test]
     fn bad_representations_name_the_field() {
         let p = Path::new("p.heic");
@@ -281,7 +293,8 @@ mod tests {
             (rep(0, Some((0.0, 1.0)), None), "z_near is 0"),
             (rep(2, Some((-1.0, 1.0)), None), "z_near = -1"),
             (rep(2, Some((1.0, f64::INFINITY)), None), "z_far = inf"),
-            (rep(0, None, None), "lacks z_near"),
+            (rep(0, None, None), "(uniform_inverse_Z) lacks z_near"),
+            (rep(2, Some((1.0, 2.0)), None).with_z_far(None), "(uniform_Z) lacks z_far"),
         ];
         for (r, want) in cases {
             let e = law(p, Some(&r), "the HEIF depth image (item 5)").unwrap_err().to_string();
