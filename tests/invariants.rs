@@ -441,7 +441,7 @@ fn no_colour_bleeding_through_the_full_pipeline() {
 /// count follows the depth (3 here) and says when it cannot reach the count.
 #[test]
 fn more_layers_peel_a_stepped_background() {
-    use drbokeh::stages::slices::LayerCount;
+    use drbokeh::stages::layer_count::LayerCount;
     let (w, h) = (64, 48);
     let rgb = Image::stack(&[&random_plane(w, h, 21), &random_plane(w, h, 22), &random_plane(w, h, 23)]);
     let subject = |x: usize, y: usize| (40..52).contains(&x) && (16..32).contains(&y);

@@ -643,7 +643,7 @@ pub fn render_method(case: &Case, photo: &Prepared, m: Method, v: Variant) -> Re
             cfg.render.profile = v.profile();
             cfg.aperture = case.aperture.clone();
             if matches!(v, Variant::LayersAuto | Variant::RealisticLayersAuto) {
-                cfg.segment.layers = crate::stages::slices::LayerCount::Auto;
+                cfg.segment.layers = crate::stages::layer_count::LayerCount::Auto;
             }
             if v == Variant::PatchMatch {
                 cfg.inpaint.method = crate::stages::inpaint_onnx::InpaintMethod::PatchMatch;

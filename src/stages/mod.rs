@@ -23,6 +23,7 @@ pub mod highlights;
 pub mod highlights_onnx;
 pub mod inpaint;
 pub mod inpaint_onnx;
+pub mod layer_count;
 pub mod light_recovery;
 pub mod mask;
 pub mod matting;

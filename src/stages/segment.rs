@@ -38,7 +38,7 @@ pub struct SegmentOptions {
     pub edge_softness: f32,
     /// How many layers to build: 2 (the foreground over the inpainted background), a count
     /// 1 ..= 8, or "auto" (the background cut at gaps of its depth; see `stages::slices`).
-    pub layers: super::slices::LayerCount,
+    pub layers: super::layer_count::LayerCount,
     /// `layers = "auto"`: the narrowest gap of the visible background's disparity histogram
     /// (normalized disparity) that separates two background layers.
     pub layer_gap: f32,
