@@ -289,6 +289,7 @@ mod tests {
             (rep(7, None, None), "unknown depth representation type 7"),
             (rep(1, None, None), "lacks d_min"),
             (rep(1, None, Some((2.0, 1.0))), "d_min = 2"),
+            (rep(1, None, Some((2.0, 2.0))), "d_min = 2 and d_max = 2"),
             (rep(1, None, Some((f64::NAN, 1.0))), "d_min = NaN"),
             (rep(0, Some((0.0, 1.0)), None), "z_near is 0"),
             (rep(2, Some((-1.0, 1.0)), None), "z_near = -1"),
