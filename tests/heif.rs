@@ -396,6 +396,8 @@ fn bad_heic_exits_2_naming_the_photo() {
     assert!(j["depth_source"]["heif"]["representation"].is_null(), "{j}");
     let warned = j["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("states no depth representation"));
     assert!(warned, "{j}");
+    // One depth image: no "several depth images" warning.
+    assert!(!j["warnings"].to_string().contains("depth images"), "{j}");
 
     // A HEIC without a depth image, no --depth, no model: the three ways forward.
     oracle(d, &["write", "flat.heic", "photo.npy"]);
