@@ -168,6 +168,11 @@ fn aux_by_hand(read: &Path) -> Vec<(u64, String, Image)> {
         .collect()
 }
 
+/// pillow-heif's portrait matte, in [0, 1].
+fn matte_by_hand(read: &Path) -> Image {
+    aux_by_hand(read).into_iter().find(|a| a.1 == MATTE_URN).expect("pillow-heif sees the matte").2
+}
+
 fn max_diff(a: &Image, b: &Image) -> f32 {
     assert_eq!((a.width, a.height, a.channels), (b.width, b.height, b.channels));
     common::max_abs_diff(&a.data, &b.data)
@@ -186,9 +191,8 @@ fn embedded_depth_and_matte_render_as_the_same_maps_given_by_hand() {
     let read = pillow_read(d, "photo.heic");
     let (z, d_min, d_max) = depth_by_hand(&read);
     io::write_exr(&d.join("z.exr"), &z, &["Z"]).unwrap();
-    let aux = aux_by_hand(&read);
-    let (_, _, matte) = aux.iter().find(|a| a.1 == MATTE_URN).expect("pillow-heif sees the matte");
-    io::write_exr(&d.join("matte.exr"), matte, &["A"]).unwrap();
+    let matte = matte_by_hand(&read);
+    io::write_exr(&d.join("matte.exr"), &matte, &["A"]).unwrap();
 
     let common_args = ["--focus-at", "200,150", "--blur", "12", "--json"];
     let mut a = vec!["render", "photo.heic", "-o", "embedded.png"];
@@ -263,14 +267,12 @@ fn inspect_and_extract_agree_with_pillow_heif() {
         let rel = got.data.iter().zip(&z.data).map(|(a, b)| ((a - b) / b).abs()).fold(0f32, f32::max);
         assert!(rel < 1e-6, "{ext}: extracted depth off by {rel} (relative)");
         let m = io::read_matte(&d.join(format!("matte.{ext}")), &ReadLimits::default()).unwrap();
-        let (_, _, by_hand) = aux_by_hand(&read).into_iter().find(|a| a.1 == MATTE_URN).unwrap();
-        assert!(max_diff(&m, &by_hand) < 1e-6, "{ext}: extracted matte");
+        assert!(max_diff(&m, &matte_by_hand(&read)) < 1e-6, "{ext}: extracted matte");
     }
     let o = drbokeh(d, &["inspect", "photo.heic", "--extract-matte", "matte.png"]);
     assert!(o.status.success(), "{}", common::stderr(&o));
     let m = io::read_matte(&d.join("matte.png"), &ReadLimits::default()).unwrap();
-    let (_, _, by_hand) = aux_by_hand(&read).into_iter().find(|a| a.1 == MATTE_URN).unwrap();
-    assert_eq!(max_diff(&m, &by_hand), 0.0, "the 8-bit PNG holds the matte's samples");
+    assert_eq!(max_diff(&m, &matte_by_hand(&read)), 0.0, "the 8-bit PNG holds the matte's samples");
 
     // The photo's pixels, against pillow-heif's decoding (another libheif, another YCbCr
     // conversion: within one level).

@@ -17,7 +17,8 @@
 //! Contract of [`read_matte`]: Apple's portrait effects matte ([`APPLE_PORTRAIT_MATTE`]), the
 //! subject's matte, as one channel in [0, 1] at its own size (usually half the photo's), which
 //! must have the photo's aspect ratio; `Ok(None)` when the file has none. Other auxiliary
-//! images (HDR gain maps, Apple's skin/hair/teeth/glasses mattes) are listed by [`auxiliary`]
+//! images (HDR gain maps, Apple's skin/hair/teeth/glasses mattes) are listed by
+//! [`read_matte_and_list`]
 //! and not used.
 //!
 //! Errors name the photo and the item (`the HEIF depth image (item 52)`), never a panic, and a
@@ -200,36 +201,35 @@ fn checked_plane(path: &Path, primary: &ImageHandle, aux: &ImageHandle, limits: 
 
 /// Reads the portrait matte of the HEIF photo `path` (see the module doc).
 pub fn read_matte(path: &Path, limits: &ReadLimits) -> Result<Option<EmbeddedMatte>> {
-    let file = HeifFile::open(path)?;
-    let primary = file.primary()?;
-    let Some((id, aux_type)) = primary.auxiliary()?.into_iter().find(|(_, t)| t == APPLE_PORTRAIT_MATTE) else {
-        return Ok(None);
-    };
-    let what = format!("the HEIF portrait matte (item {id})");
-    let plane = checked_plane(path, &primary, &primary.auxiliary_image(id)?, limits, &what)?;
-    let info = MatteInfo {
-        container: Container::Heif,
-        aux_type,
-        item_id: id,
-        width: plane.image.width,
-        height: plane.image.height,
-        bit_depth: plane.bits,
-    };
-    Ok(Some(EmbeddedMatte { matte: plane.image, info }))
+    read_matte_and_list(path, limits).map(|(m, _)| m)
 }
 
-/// The auxiliary images of the HEIF photo `path` other than depth and alpha, with what each
-/// is used for.
-pub fn auxiliary(path: &Path) -> Result<Vec<AuxInfo>> {
+/// The portrait matte of the HEIF photo `path`, and every auxiliary image other than depth
+/// and alpha with what it is used for (for `inspect`): one open of the file for both.
+pub fn read_matte_and_list(path: &Path, limits: &ReadLimits) -> Result<(Option<EmbeddedMatte>, Vec<AuxInfo>)> {
     let file = HeifFile::open(path)?;
     let primary = file.primary()?;
-    let mut out = Vec::new();
+    let (mut matte, mut list) = (None, Vec::new());
     for (id, aux_type) in primary.auxiliary()? {
-        let (width, height) = primary.auxiliary_image(id)?.size();
-        let used_as = if aux_type == APPLE_PORTRAIT_MATTE { "matte" } else { "not used" };
-        out.push(AuxInfo { item_id: id, aux_type, width, height, used_as });
+        let aux = primary.auxiliary_image(id)?;
+        let (width, height) = aux.size();
+        let is_matte = aux_type == APPLE_PORTRAIT_MATTE;
+        if is_matte && matte.is_none() {
+            let what = format!("the HEIF portrait matte (item {id})");
+            let plane = checked_plane(path, &primary, &aux, limits, &what)?;
+            let info = MatteInfo {
+                container: Container::Heif,
+                aux_type: aux_type.clone(),
+                item_id: id,
+                width: plane.image.width,
+                height: plane.image.height,
+                bit_depth: plane.bits,
+            };
+            matte = Some(EmbeddedMatte { matte: plane.image, info });
+        }
+        list.push(AuxInfo { item_id: id, aux_type, width, height, used_as: if is_matte { "matte" } else { "not used" } });
     }
-    Ok(out)
+    Ok((matte, list))
 }
 
 #[cfg(test)]

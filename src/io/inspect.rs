@@ -12,6 +12,7 @@ use super::format::{FileFormat, detect_format, guarded};
 use super::heif_depth::{AuxInfo, EmbeddedMatte, MatteInfo};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
+use crate::image::Image;
 use std::path::Path;
 
 /// The embedded formats that are read today, and those that are not yet.
@@ -87,7 +88,7 @@ pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Extracte
     let header = photo_header(path, format, limits)?;
     let embedded = read_embedded(path, limits)?;
     let (matte, auxiliary) = match format {
-        FileFormat::Heif => (super::heif_depth::read_matte(path, limits)?, super::heif_depth::auxiliary(path)?),
+        FileFormat::Heif => super::heif_depth::read_matte_and_list(path, limits)?,
         _ => (None, Vec::new()),
     };
     let depth = embedded.as_ref().map(|e| {
@@ -123,22 +124,37 @@ pub fn inspect(path: &Path, limits: &ReadLimits) -> Result<(Inspection, Extracte
 /// `.png` 8 or 16-bit grey as the file stores it, `.exr` one float channel `A`, `.npy` H x W
 /// float32; values in [0, 1] at the matte's own size. Returns a description of what was written.
 pub fn write_extracted_matte(out: &Path, m: &EmbeddedMatte) -> Result<String> {
-    let (w, h) = (m.matte.width, m.matte.height);
-    match super::write::OutputFormat::from_path(out)? {
+    let bits = if m.info.bit_depth > 8 { 16 } else { 8 };
+    write_map(out, &m.matte, "matte", "A", || Ok((std::borrow::Cow::Borrowed(&m.matte), bits, format!("{bits}-bit grey"))))
+}
+
+/// Writes the one-channel `map` to `out`, the format from its extension, atomically: `.exr`
+/// one float channel `channel`, `.npy` H x W float32, `.png` the image, bits and description
+/// `png` gives. Returns "`what`, WxH, " and the format's description.
+fn write_map<'a>(
+    out: &Path,
+    map: &'a Image,
+    what: &str,
+    channel: &str,
+    png: impl FnOnce() -> Result<(std::borrow::Cow<'a, Image>, u8, String)>,
+) -> Result<String> {
+    let (w, h) = (map.width, map.height);
+    let how = match super::write::OutputFormat::from_path(out)? {
         super::write::OutputFormat::Exr => {
-            super::exr_file::write_exr(out, &m.matte, &["A"])?;
-            Ok(format!("matte, {w}x{h}, float channel A"))
+            super::exr_file::write_exr(out, map, &[channel])?;
+            format!("float channel {channel}")
         }
         super::write::OutputFormat::Npy => {
-            super::npy::save_npy(out, &m.matte)?;
-            Ok(format!("matte, {w}x{h}, float32"))
+            super::npy::save_npy(out, map)?;
+            "float32".to_owned()
         }
         super::write::OutputFormat::Png => {
-            let bits = if m.info.bit_depth > 8 { 16 } else { 8 };
-            super::write::write_png(out, &m.matte, bits, crate::color::Transfer::Linear)?;
-            Ok(format!("matte, {w}x{h}, {bits}-bit grey"))
+            let (img, bits, how) = png()?;
+            super::write::write_png(out, &img, bits, crate::color::Transfer::Linear)?;
+            how
         }
-    }
+    };
+    Ok(format!("{what}, {w}x{h}, {how}"))
 }
 
 /// The size (width, height) of the raster `path`, from its header where the format has one
@@ -203,26 +219,16 @@ fn photo_header(path: &Path, format: FileFormat, limits: &ReadLimits) -> Result<
 /// the embedded map gives (disparity is normalized, so a scale does not change it; the PNG
 /// within its 16-bit steps). Returns a description of what was written.
 pub fn write_extracted_depth(out: &Path, e: &EmbeddedDepth) -> Result<String> {
-    let (w, h) = (e.depth.width, e.depth.height);
-    match super::write::OutputFormat::from_path(out)? {
-        super::write::OutputFormat::Exr => {
-            super::exr_file::write_exr(out, &e.depth, &["Z"])?;
-            Ok(format!("metric depth, {w}x{h}, float channel Z"))
+    write_map(out, &e.depth, "metric depth", "Z", || {
+        let far = e.info.far;
+        if !far.is_finite() {
+            return Err(Error::input(
+                out,
+                "the embedded depth reaches infinity (a disparity range from 0), which a PNG of depth / Far cannot hold; write .exr or .npy",
+            ));
         }
-        super::write::OutputFormat::Npy => {
-            super::npy::save_npy(out, &e.depth)?;
-            Ok(format!("metric depth, {w}x{h}, float32"))
-        }
-        super::write::OutputFormat::Png if !e.info.far.is_finite() => Err(Error::input(
-            out,
-            "the embedded depth reaches infinity (a disparity range from 0), which a PNG of depth / Far cannot hold; write .exr or .npy",
-        )),
-        super::write::OutputFormat::Png => {
-            let far = e.info.far as f32;
-            let mut scaled = e.depth.clone();
-            scaled.map_inplace(|d| d / far);
-            super::write::write_png(out, &scaled, 16, crate::color::Transfer::Linear)?;
-            Ok(format!("depth / Far (Far = {}), {w}x{h}, 16-bit grey", e.info.far))
-        }
-    }
+        let mut scaled = e.depth.clone();
+        scaled.map_inplace(|d| d / far as f32);
+        Ok((std::borrow::Cow::Owned(scaled), 16, format!("16-bit grey of depth / Far (Far = {far})")))
+    })
 }
