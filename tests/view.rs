@@ -244,34 +244,139 @@ fn chromium() -> std::process::Command {
     c
 }
 
+/// Chromium's headless shell driven over the DevTools protocol on a pipe (`--remote-debugging-pipe`:
+/// it reads commands on fd 3 and writes answers on fd 4, each a JSON text ended by a NUL). The
+/// test waits on the page in real time, so a loaded machine slows it down without cutting it
+/// short (as `--virtual-time-budget` with `--dump-dom` did once in CI), and its click is a
+/// real mouse event at a point of the window.
+struct Browser {
+    child: Child,
+    to: std::io::PipeWriter,
+    from: BufReader<std::io::PipeReader>,
+    next: u64,
+    session: String,
+    _profile: tempfile::TempDir,
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Browser {
+    /// Opens `url` in a 900x700 window and attaches to its page.
+    fn open(url: &str) -> Browser {
+        use std::os::fd::AsRawFd;
+        use std::os::unix::process::CommandExt;
+        let (cmd_r, cmd_w) = std::io::pipe().unwrap();
+        let (ans_r, ans_w) = std::io::pipe().unwrap();
+        let profile = tempfile::tempdir().unwrap();
+        let mut c = chromium();
+        c.args(["--no-sandbox", "--disable-gpu", "--window-size=900,700", "--remote-debugging-pipe"])
+            .arg(format!("--user-data-dir={}", profile.path().display()))
+            .arg(url)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        let (r, w) = (cmd_r.as_raw_fd(), ans_w.as_raw_fd());
+        // SAFETY: fcntl and dup2 are async-signal-safe. The ends are first copied above 10, as
+        // they may themselves be fds 3 or 4; the copies at 3 and 4 lose close-on-exec.
+        unsafe {
+            c.pre_exec(move || {
+                let (r, w) = (libc::fcntl(r, libc::F_DUPFD, 10), libc::fcntl(w, libc::F_DUPFD, 10));
+                if r < 0 || w < 0 || libc::dup2(r, 3) < 0 || libc::dup2(w, 4) < 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let child = c.spawn().expect("Chromium runs");
+        drop((cmd_r, ans_w));
+        let mut b = Browser { child, to: cmd_w, from: BufReader::new(ans_r), next: 0, session: String::new(), _profile: profile };
+        let targets = b.call("Target.getTargets", serde_json::json!({}));
+        let page = targets["targetInfos"]
+            .as_array()
+            .and_then(|t| t.iter().find(|t| t["type"] == "page"))
+            .unwrap_or_else(|| panic!("no page among {targets}"))["targetId"]
+            .clone();
+        let attached = b.call("Target.attachToTarget", serde_json::json!({"targetId": page, "flatten": true}));
+        b.session = attached["sessionId"].as_str().unwrap().to_string();
+        b
+    }
+
+    /// Sends a command (to the page once attached) and returns its result; events and other
+    /// answers on the way are skipped.
+    fn call(&mut self, method: &str, params: serde_json::Value) -> serde_json::Value {
+        self.next += 1;
+        let mut msg = serde_json::json!({"id": self.next, "method": method, "params": params});
+        if !self.session.is_empty() {
+            msg["sessionId"] = self.session.clone().into();
+        }
+        self.to.write_all(msg.to_string().as_bytes()).unwrap();
+        self.to.write_all(b"\0").unwrap();
+        loop {
+            let mut buf = Vec::new();
+            let n = self.from.read_until(0, &mut buf).unwrap();
+            assert!(n > 0, "Chromium closed its pipe during {method}");
+            let answer: serde_json::Value = serde_json::from_slice(&buf[..buf.len() - 1]).unwrap();
+            if answer["id"] == self.next {
+                assert!(answer.get("error").is_none(), "{method}: {answer}");
+                return answer["result"].clone();
+            }
+        }
+    }
+
+    /// The value of a JavaScript expression on the page.
+    fn eval(&mut self, expression: &str) -> serde_json::Value {
+        let r = self.call("Runtime.evaluate", serde_json::json!({"expression": expression, "returnByValue": true}));
+        r["result"]["value"].clone()
+    }
+
+    /// Polls `expression` until it is true, for at most two minutes of real time.
+    fn wait_for(&mut self, expression: &str) {
+        let start = std::time::Instant::now();
+        while self.eval(expression) != serde_json::Value::Bool(true) {
+            if start.elapsed() > Duration::from_secs(120) {
+                panic!("waited 2 min for {expression}:\n{}", self.eval("document.documentElement.outerHTML"));
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// A left click of the mouse at (x, y) CSS pixels of the window.
+    fn click(&mut self, x: f64, y: f64) {
+        for kind in ["mousePressed", "mouseReleased"] {
+            let p = serde_json::json!({"type": kind, "x": x, "y": y, "button": "left", "clickCount": 1});
+            self.call("Input.dispatchMouseEvent", p);
+        }
+    }
+}
+
 /// The page in a real (headless) browser: it loads, shows a first preview (focused on the
-/// subject at the centre), a mouse click on the background refocuses there, and the preview it shows is byte for byte what `/render`
-/// answers for that click's query (checked through the FNV-1a the page keeps of its bytes).
+/// subject at the centre), a mouse click on the background refocuses there, and the preview it
+/// shows is byte for byte what `/render` answers for that click's query (checked through the
+/// FNV-1a the page keeps of its bytes).
 #[test]
 fn the_page_refocuses_where_clicked_in_a_browser() {
     let t = tempfile::tempdir().unwrap();
     let d = t.path();
     scene(d);
     let server = Server::start(d, &["image.exr", "--depth", "depth.exr", "--matte", "matte.png"]);
-    // The first preview focuses at the centre (on the subject); then a click on the background
-    // at pixel (55, 40) of the 64x48 photo, given as fractions of the shown image.
-    let url = format!("http://{}/#click={},{}", server.addr, 55.5 / 64.0, 40.5 / 48.0);
-    let profile = tempfile::tempdir().unwrap();
-    let out = chromium()
-        .args(["--no-sandbox", "--disable-gpu", "--window-size=900,700", "--dump-dom", "--virtual-time-budget=60000"])
-        .arg(format!("--user-data-dir={}", profile.path().display()))
-        .arg(&url)
-        .output()
-        .expect("Chromium runs");
-    let dom = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(out.status.success() && dom.contains("id=\"status\""), "Chromium failed: {}\n{dom}", String::from_utf8_lossy(&out.stderr));
-    let attr = |name: &str| -> String {
-        let key = format!("{name}=\"");
-        let at = dom.find(&key).unwrap_or_else(|| panic!("no {name} on the page:\n{dom}")) + key.len();
-        dom[at..at + dom[at..].find('"').unwrap()].replace("&amp;", "&")
-    };
-    let (query, renders) = (attr("data-query"), attr("data-renders"));
-    assert_eq!(renders, "2", "a first preview, then the click's: {dom}");
+    let mut browser = Browser::open(&format!("http://{}/", server.addr));
+    let status = |b: &mut Browser, key: &str| b.eval(&format!("document.getElementById('status').dataset.{key} || ''"));
+    browser.wait_for("document.getElementById('status').dataset.renders === '1'");
+    let first = status(&mut browser, "sum");
+    // A click on the background at pixel (55, 40) of the 64x48 photo, placed on the image as
+    // the page shows it.
+    let r = browser.eval(
+        "(() => { const r = document.getElementById('view').getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()",
+    );
+    let r: Vec<f64> = r.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(r[2] >= 64.0 && r[3] >= 48.0, "the preview is shown whole: {r:?}");
+    browser.click(r[0] + 55.5 / 64.0 * r[2], r[1] + 40.5 / 48.0 * r[3]);
+    browser.wait_for("document.getElementById('status').dataset.renders === '2'");
+    let query = status(&mut browser, "query").as_str().unwrap().to_string();
     // The browser places the click within a pixel of (55, 40) (the shown image's position is
     // fractional): on the background either way.
     let xy = query.split('&').find_map(|kv| kv.strip_prefix("focus_at=")).unwrap_or_else(|| panic!("{query}")).replace("%2C", ",");
@@ -279,9 +384,9 @@ fn the_page_refocuses_where_clicked_in_a_browser() {
     assert!((x - 55).abs() <= 1 && (y - 40).abs() <= 1, "the click focuses near 55,40: {query}");
     let (_, j) = server.json("GET", &format!("/depth?x={x}&y={y}"));
     assert!(j["disparity"].as_f64().unwrap() < 0.5, "the click is on the background: {j}");
-    let (status, png) = server.request("GET", &format!("/render?{query}"));
-    assert_eq!(status, 200);
-    assert_eq!(attr("data-bytes"), png.len().to_string());
-    assert_eq!(attr("data-sum"), fnv1a(&png).to_string(), "the preview shown is /render's answer");
-    assert_ne!(attr("data-first-sum"), attr("data-sum"), "the click changed the preview");
+    let (code, png) = server.request("GET", &format!("/render?{query}"));
+    assert_eq!(code, 200);
+    assert_eq!(status(&mut browser, "bytes"), png.len().to_string());
+    assert_eq!(status(&mut browser, "sum"), fnv1a(&png).to_string(), "the preview shown is /render's answer");
+    assert_ne!(first, status(&mut browser, "sum"), "the click changed the preview");
 }
