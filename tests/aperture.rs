@@ -34,51 +34,12 @@ fn blades(n: u32, rot: f64) -> impl Fn(f64, f64) -> bool {
     }
 }
 
-/// A five-pointed star (outer radius 1, inner 0.45), a point up: even-odd crossing test on
-/// its ten vertices.
-fn in_star(x: f64, y: f64) -> bool {
-    let v: Vec<(f64, f64)> = (0..10)
-        .map(|k| {
-            let (r, t) = (if k % 2 == 0 { 1.0 } else { 0.45 }, PI / 2.0 + PI * k as f64 / 5.0);
-            (r * t.cos(), r * t.sin())
-        })
-        .collect();
-    let mut inside = false;
-    for i in 0..10 {
-        let ((x1, y1), (x2, y2)) = (v[i], v[(i + 1) % 10]);
-        if (y1 > y) != (y2 > y) && x < x1 + (y - y1) * (x2 - x1) / (y2 - y1) {
-            inside = !inside;
-        }
-    }
-    inside
-}
-
-/// The star as a 128 × 128 grey image (supersampled 4 × 4 per cell, top row up).
-fn star_mask() -> (usize, Vec<f32>) {
-    let n = 128;
-    let mut v = vec![0f32; n * n];
-    for row in 0..n {
-        for col in 0..n {
-            let mut hit = 0;
-            for i in 0..4 {
-                for j in 0..4 {
-                    let x = -1.0 + 2.0 * (col as f64 + (i as f64 + 0.5) / 4.0) / n as f64;
-                    let y = 1.0 - 2.0 * (row as f64 + (j as f64 + 0.5) / 4.0) / n as f64;
-                    hit += in_star(x, y) as usize;
-                }
-            }
-            v[row * n + col] = hit as f32 / 16.0;
-        }
-    }
-    (n, v)
-}
-
 fn aperture(spec: &str, anamorphic: f32) -> Aperture {
     Aperture::new(&ShapeSpec::parse(spec, "--aperture").unwrap(), anamorphic, "--aperture").unwrap()
 }
 
 fn cases() -> Vec<Case> {
-    let (n, star) = star_mask();
+    let (n, star) = common::star_mask();
     let star_cells = star.clone();
     vec![
         Case { name: "disc", aperture: Aperture::DISC, inside: open(|x: f64, y: f64| x * x + y * y <= 1.0) },

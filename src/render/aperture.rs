@@ -8,6 +8,7 @@
 
 pub mod polygon;
 pub mod shape;
+pub mod sources;
 pub use shape::{Aperture, CatEye, ShapeSpec};
 
 /// One tap of the lens window: row offset `di`, column offset `dj`, distance `r` in pixels.

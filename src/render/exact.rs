@@ -10,6 +10,7 @@
 
 use super::aperture::Tap;
 use super::aperture::shape::Geometry;
+use super::aperture::sources::ShapedSources;
 use super::layer::{A, CHANNELS, D, Layer};
 use super::lens::{self, Profile, energy, focal_defocus, occlusion, scatter_radius, visibility_half_size, weight_unit};
 use super::{RawLayer, RenderSettings, Role, raw};
@@ -85,18 +86,13 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     let d: Vec<f32> = img.data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
     // The thin lens's CoC, capped far beyond any image so ratios stay finite.
     let radius: Vec<f32> = d.iter().map(|&d| lens::coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
-    // The disc's own ramp, or the aperture's pixel-integrated shape (`aperture::shape`).
-    let shape = s.aperture.geometry();
-    // A cat's eye: each source's second circle, from its position (a source beyond the
-    // border, replicated, takes its border pixel's), and the area it leaves.
-    let cat = s.aperture.cat_eye(w, h);
-    let cuts: Option<Vec<[f32; 2]>> = cat.map(|c| (0..w * h).into_par_iter().map(|j| c.offset((j % w) as f32, (j / w) as f32)).collect());
+    // The disc's own ramp, or the aperture's pixel-integrated shape (`aperture::sources`).
+    let shape = ShapedSources::new(s.aperture, w, h);
     let norm: Vec<f32> = (0..w * h)
         .into_par_iter()
-        .map(|j| match (shape, cat, &cuts) {
-            (None, ..) => lens::disk_norm(radius[j]),
-            (Some(g), Some(cat), Some(cuts)) => g.norm_cut(radius[j], cat.norm_disc(cuts[j], radius[j], d[j] > 0.0)),
-            (Some(g), ..) => g.norm(radius[j]),
+        .map(|j| match &shape {
+            None => lens::disk_norm(radius[j]),
+            Some(g) => g.norm(j, radius[j], d[j] > 0.0),
         })
         .collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];
@@ -111,14 +107,11 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
                 let j = yy * w + xx;
                 let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
-                let cov = match shape {
+                let cov = match &shape {
                     None => lens::disk_coverage(radius[j], t.r),
-                    // The target sits (-dj, -di) from the source, (-dj, di) with y up; a source
-                    // in front of the focal plane (d > 0) shows the shape point-reflected.
-                    Some(g) => match &cuts {
-                        None => tables.coverage(g, radius[j], d[j] > 0.0, p, t),
-                        Some(cuts) => g.coverage_cut(radius[j], -t.dj as f32, t.di as f32, d[j] > 0.0, Some(cuts[j])),
-                    },
+                    // A source in front of the focal plane (d > 0) shows the shape point-reflected.
+                    Some(g) if g.cut() => g.coverage(j, radius[j], d[j] > 0.0, t),
+                    Some(g) => tables.coverage(g.geometry(), radius[j], d[j] > 0.0, p, t),
                 };
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;

@@ -475,6 +475,12 @@ impl Geometry {
     /// (unit frame, y up, before the point reflection: a cat's eye's second circle,
     /// [`CatEye::offset`]); None is the whole shape.
     pub fn coverage_cut(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<[f32; 2]>) -> f32 {
+        self.coverage_cut_f64(r, x, y, flip, cut) as f32
+    }
+
+    /// [`Geometry::coverage_cut`] before its rounding to f32: what differences in `r` take
+    /// ([`super::sources`]).
+    pub(crate) fn coverage_cut_f64(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<[f32; 2]>) -> f64 {
         if r < POINT_COC_PX {
             return if x == 0.0 && y == 0.0 { 1.0 } else { 0.0 };
         }
@@ -518,7 +524,7 @@ impl Geometry {
             }
         }
         // A bubble's rim (or centre) is brighter than 1.
-        ((acc / (n * n) as f64) as f32).clamp(0.0, 1.0 + self.bubble.abs())
+        (acc / (n * n) as f64).clamp(0.0, (1.0 + self.bubble.abs()) as f64)
     }
 
     /// The bubble profile's intensity at the unit-frame point `(x, y)` (y up, not reflected):

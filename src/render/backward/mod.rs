@@ -180,7 +180,6 @@ impl<'a> Tape<'a> {
     /// [`Tape::record`]; a usage error if `ray_test` is asked of the official profile.
     pub fn record_with(layers: &'a [Layer], s: &RenderSettings, smoothing: Smoothing, ray_test: bool) -> Result<Self> {
         validate(layers, s)?;
-        check_differentiable_aperture(s)?;
         smoothing.validate()?;
         if ray_test && s.profile != Profile::Physical {
             return Err(Error::usage("the ray test is a term of the physical profile's depth groups: use the physical profile"));
@@ -381,15 +380,16 @@ fn saturate(v: f64) -> f32 {
     v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32
 }
 
-/// The backward pass differentiates the disc only: a render with another aperture is refused
-/// here rather than differentiated as a disc (a wrong gradient with no error). Chromatic
-/// aberration is differentiated by [`Tape`] (per channel).
-pub(crate) fn check_differentiable_aperture(s: &RenderSettings) -> Result<()> {
+/// The span tape differentiates the disc only (its per-row spans are the disc's): a render
+/// with another aperture is refused there rather than differentiated as a disc (a wrong
+/// gradient with no error). [`Tape`] differentiates every aperture; chromatic aberration per
+/// channel.
+pub(crate) fn check_span_aperture(s: &RenderSettings) -> Result<()> {
     if s.aperture.is_disc() {
         return Ok(());
     }
     Err(crate::error::Error::usage(format!(
-        "aperture {}: the differentiable renders (and depth from defocus) support the disc only so far",
+        "aperture {}: the fast differentiable render (depth from defocus's fast kernel) draws the disc only; the exact kernel (dfd --kernel exact, Tape) differentiates any aperture",
         s.aperture.label()
     )))
 }

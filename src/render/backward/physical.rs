@@ -15,17 +15,22 @@
 use super::Smoothing;
 use super::accum::{self, PixelGrad};
 use crate::render::aperture::Tap;
+use crate::render::aperture::sources::ShapedSources;
 use crate::render::layer::{A, CHANNELS, D, Layer};
 use crate::render::lens::{self, coc_radius, depth_groups_with_grad, disk_coverage_smooth, disk_coverage_smooth_grad, disk_norm_smooth};
 use crate::render::{RawLayer, RenderSettings, Role, raw};
 use rayon::prelude::*;
 
 /// Per-pixel terms of a layer's sources: relative disparity, CoC radius, flux norm and its
-/// derivative in the radius.
+/// derivative in the radius, and the footprint: the smooth disk, or a shape
+/// ([`ShapedSources`], whose coverage is already continuous in the radius: the smoothing's
+/// edge width does not apply to it).
 struct Sources {
     d: Vec<f32>,
     radius: Vec<f32>,
     norm: Vec<(f32, f32)>,
+    shape: Option<ShapedSources>,
+    edge_width: f32,
 }
 
 impl Sources {
@@ -33,8 +38,34 @@ impl Sources {
         let d: Vec<f32> = layer.image().data.chunks_exact(CHANNELS).map(|px| px[D] - s.focus).collect();
         // The thin lens's CoC, capped far beyond any image so ratios stay finite.
         let radius: Vec<f32> = d.iter().map(|&d| coc_radius(d, s.blur).min(lens::MAX_RADIUS)).collect();
-        let norm = radius.par_iter().map(|&r| disk_norm_smooth(r, sm.edge_width)).collect();
-        Sources { d, radius, norm }
+        let shape = ShapedSources::new(s.aperture, layer.width(), layer.height());
+        let norm = (0..d.len())
+            .into_par_iter()
+            .map(|j| match &shape {
+                None => disk_norm_smooth(radius[j], sm.edge_width),
+                Some(g) => g.norm_grad(j, radius[j], d[j] > 0.0),
+            })
+            .collect();
+        Sources { d, radius, norm, shape, edge_width: sm.edge_width }
+    }
+
+    /// The coverage of tap `t` by source `j`.
+    #[inline]
+    fn coverage(&self, j: usize, t: &Tap) -> f32 {
+        match &self.shape {
+            None => disk_coverage_smooth(self.radius[j], t.r, self.edge_width),
+            Some(g) => g.coverage(j, self.radius[j], self.d[j] > 0.0, t),
+        }
+    }
+
+    /// `(coverage, ∂coverage/∂R)` of tap `t` by source `j`.
+    #[inline]
+    fn coverage_grad(&self, j: usize, t: &Tap) -> (f32, f32) {
+        let r = self.radius[j];
+        match &self.shape {
+            None => (disk_coverage_smooth(r, t.r, self.edge_width), disk_coverage_smooth_grad(r, t.r, self.edge_width)),
+            Some(g) => g.coverage_grad(j, r, self.d[j] > 0.0, t),
+        }
     }
 }
 
@@ -62,7 +93,7 @@ pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[
             for t in taps {
                 let j = clamped(x, y, t, w, h);
                 let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
-                let cov = disk_coverage_smooth(src.radius[j], t.r, sm.edge_width);
+                let cov = src.coverage(j, t);
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;
                 }
@@ -122,9 +153,7 @@ pub(super) fn backward(
             let mut g_dx = 0f64;
             for t in taps {
                 let j = clamped(x, y, t, w, h);
-                let r = src.radius[j];
-                let cov = disk_coverage_smooth(r, t.r, sm.edge_width);
-                let dcov = disk_coverage_smooth_grad(r, t.r, sm.edge_width);
+                let (cov, dcov) = src.coverage_grad(j, t);
                 if cov == 0.0 && dcov == 0.0 {
                     continue;
                 }

@@ -128,7 +128,7 @@ impl<'a> SpanTape<'a> {
     /// the module notes.
     pub fn record(layer: &'a Layer, s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
         validate(std::slice::from_ref(layer), s)?;
-        crate::render::backward::check_differentiable_aperture(s)?;
+        crate::render::backward::check_span_aperture(s)?;
         if s.aperture.channel_scales().is_some() {
             return Err(crate::error::Error::usage(format!(
                 "aperture {}: the span kernel's differentiable render is achromatic; use the exact kernel (Tape) for chromatic aberration",
