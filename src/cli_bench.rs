@@ -132,7 +132,7 @@ pub fn trace(args: TraceArgs) -> anyhow::Result<()> {
         })
         .collect::<Result<Vec<_>, Error>>()?;
     let mut s = TraceSettings::new(args.blur, args.focus, args.spp, args.seed);
-    s.aperture = aperture_config(&args.aperture).resolve().map_err(as_flags)?;
+    s.aperture = args.aperture.config().resolve().map_err(as_flags)?;
     s.footprint = match args.footprint {
         FootprintArg::Analytic => Footprint::Analytic,
         FootprintArg::Sampled => Footprint::Sampled,
@@ -264,7 +264,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
         return Err(Error::usage("--scenes must be at least 1").into());
     }
     // Checked (an image aperture read) before the report folder is made.
-    let aperture = aperture_config(&args.aperture);
+    let aperture = args.aperture.config();
     aperture.resolve().map_err(as_flags)?;
     let opts = BenchOptions {
         scenes,
@@ -340,13 +340,6 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
     eprint!("{}", drbokeh::bench::dfd_report::acceptance(&res.rows));
     eprintln!("wrote {}", opts.out.join("report.md").display());
     Ok(())
-}
-
-/// `[aperture]` as the flags give it (the tracer and the bench read no pipeline.toml).
-fn aperture_config(args: &ApertureArgs) -> drbokeh::config::ApertureConfig {
-    let mut cfg = drbokeh::config::ApertureConfig::default();
-    args.apply(&mut cfg);
-    cfg
 }
 
 #[cfg(test)]

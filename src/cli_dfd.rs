@@ -1,7 +1,7 @@
 //! The `dfd` subcommand (depth from defocus): flag parsing, the progress bar and the summary;
 //! the work is in `drbokeh::diff::dfd_job`.
 
-use crate::{ProfileArg, as_flags, flag_names, print_json, set_threads};
+use crate::{ApertureArgs, ProfileArg, as_flags, flag_names, print_json, set_threads};
 use clap::{Args, ValueEnum};
 use drbokeh::Error;
 use drbokeh::diff::dfd::{self, DfdKernel, DfdOptions, Event, LossVariant};
@@ -127,6 +127,11 @@ pub struct DfdArgs {
     /// Print a machine-readable summary (JSON) to stdout.
     #[arg(long)]
     json: bool,
+    // The lens's aperture, as the photos were taken (a coded aperture makes depth better
+    // posed): a shape other than the disc, or chromatic aberration, is inverted with the exact
+    // kernel (`auto` picks exact or ray; `fast` draws the plain disc only).
+    #[command(flatten)]
+    aperture: ApertureArgs,
 }
 
 pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
@@ -173,7 +178,7 @@ pub fn dfd(args: DfdArgs) -> anyhow::Result<()> {
             lens: 1,
             occlusion: !args.no_occlusion,
             profile: args.profile.into(),
-            aperture: drbokeh::render::Aperture::DISC,
+            aperture: args.aperture.config().resolve().map_err(as_flags)?,
         },
         options,
         limits: ReadLimits::default(),

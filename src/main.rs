@@ -299,7 +299,7 @@ pub(crate) struct PipelineArgs {
     aperture: ApertureArgs,
 }
 
-/// The bokeh's shape, shared by `render`, `batch`, `view`, `trace` and `bench`.
+/// The bokeh's shape, shared by `render`, `batch`, `view`, `trace`, `bench` and `dfd`.
 #[derive(Args)]
 pub(crate) struct ApertureArgs {
     /// The aperture's shape: disc, blades:N[,rotation=DEG][,curvature=C] (3..=64 blades, a
@@ -329,6 +329,13 @@ pub(crate) struct ApertureArgs {
 }
 
 impl ApertureArgs {
+    /// `[aperture]` as the flags alone give it (for the commands that read no pipeline.toml).
+    pub(crate) fn config(&self) -> drbokeh::config::ApertureConfig {
+        let mut cfg = drbokeh::config::ApertureConfig::default();
+        self.apply(&mut cfg);
+        cfg
+    }
+
     /// Overrides `[aperture]` with the flags given.
     pub(crate) fn apply(&self, cfg: &mut drbokeh::config::ApertureConfig) {
         if let Some(a) = &self.aperture {

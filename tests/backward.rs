@@ -626,12 +626,20 @@ fn shaped_apertures_match_directional_differences() {
         ("star image", aperture::Aperture::from_mask(n, n, &star, 1.0, "star").unwrap()),
         (
             "7 rounded blades, anamorphic 1.4, bubble 0.5",
-            aperture::Aperture::with_bubble(&aperture::ShapeSpec::parse("blades:7,rotation=10,curvature=0.5", "test").unwrap(), 1.4, 0.5, "test")
-                .unwrap(),
+            aperture::Aperture::with_bubble(
+                &aperture::ShapeSpec::parse("blades:7,rotation=10,curvature=0.5", "test").unwrap(),
+                1.4,
+                0.5,
+                "test",
+            )
+            .unwrap(),
         ),
         (
             "9 blades, cat's eye 0.8",
-            aperture::Aperture::new(&aperture::ShapeSpec::parse("blades:9", "test").unwrap(), 1.0, "test").unwrap().with_cat_eye(0.8).unwrap(),
+            aperture::Aperture::new(&aperture::ShapeSpec::parse("blades:9", "test").unwrap(), 1.0, "test")
+                .unwrap()
+                .with_cat_eye(0.8)
+                .unwrap(),
         ),
     ];
     for (k, (name, a)) in shapes.into_iter().enumerate() {
@@ -648,7 +656,9 @@ fn shaped_apertures_match_directional_differences() {
         let mean = exact.data.iter().zip(&tape.image().data).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / exact.data.len() as f64;
         assert!(mean < 0.02, "{name}: tape vs exact kernel, mean abs difference {mean}");
         let loss = |p: &Scene, cot: &[f64]| -> f64 {
-            let img = drbokeh::render::render_differentiable(&p.library_layers(), &RenderSettings { aperture: a, ..p.settings() }, p.smooth).unwrap();
+            let img =
+                drbokeh::render::render_differentiable(&p.library_layers(), &RenderSettings { aperture: a, ..p.settings() }, p.smooth)
+                    .unwrap();
             img.data.iter().zip(cot).map(|(&v, c)| v as f64 * c).sum()
         };
         let mut rng = Rng::new(seed);

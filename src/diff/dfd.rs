@@ -241,6 +241,21 @@ fn check_options(aif: &Image, bokeh: &Image, s: &RenderSettings, opts: &DfdOptio
     if !(0.0..=1.0).contains(&opts.init) {
         return Err(Error::usage(format!("dfd.init must be a normalized disparity in [0, 1], got {}", opts.init)));
     }
+    // The exact tape draws every aperture; the span render and the Gaussian PSF the plain disc.
+    if !super::dfd_plan::spans_draw(s) {
+        let a = s.aperture.label();
+        if opts.renderer != DfdRenderer::DrBokeh {
+            return Err(Error::usage(format!(
+                "dfd.renderer {}: the Gaussian-PSF ablation has no aperture shape or chromatic aberration (aperture.shape {a}); use the disc",
+                opts.renderer.name()
+            )));
+        }
+        if opts.kernel == DfdKernel::Fast {
+            return Err(Error::usage(format!(
+                "dfd.kernel fast draws the plain disc only; aperture.shape {a} needs dfd.kernel exact or ray (auto picks them)"
+            )));
+        }
+    }
     Ok(())
 }
 

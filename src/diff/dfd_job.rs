@@ -92,6 +92,9 @@ pub struct DfdReport {
     pub profile: Profile,
     /// False for the no-occlusion ablation.
     pub occlusion: bool,
+    /// The aperture the photos were taken with, as `--aperture` spells it with its options
+    /// (`disc` by default; see [`crate::render::Aperture::label`]).
+    pub aperture: String,
     /// The optimisation's options (`kernel` as given: `auto` by default).
     pub options: DfdOptions,
     /// How the estimate ran: the differentiable render (`auto` resolved), the size it
@@ -191,6 +194,7 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
         blur: job.settings.blur,
         profile: job.settings.profile,
         occlusion: job.settings.occlusion,
+        aperture: job.settings.aperture.label(),
         options: job.options,
         plan: est.plan,
         steps: steps.len(),

@@ -116,7 +116,8 @@ mod tests {
     fn derivatives_in_the_coc_match_wider_differences() {
         let hex = Aperture::new(&ShapeSpec::Blades { n: 6, rotation: 17.0, curvature: 0.0 }, 1.0, "test").unwrap();
         let bubble = Aperture::with_bubble(&ShapeSpec::Blades { n: 7, rotation: 5.0, curvature: 0.4 }, 1.3, 0.5, "test").unwrap();
-        let cat = Aperture::new(&ShapeSpec::Blades { n: 9, rotation: 3.0, curvature: 0.0 }, 1.0, "test").unwrap().with_cat_eye(0.8).unwrap();
+        let cat =
+            Aperture::new(&ShapeSpec::Blades { n: 9, rotation: 3.0, curvature: 0.0 }, 1.0, "test").unwrap().with_cat_eye(0.8).unwrap();
         for a in [hex, bubble, cat] {
             let s = ShapedSources::new(a, 40, 30).unwrap();
             for (j, r, front) in [(0usize, 6.3f32, false), (615, 4.1, true), (1199, 9.7, false)] {

@@ -2,7 +2,8 @@
 //! two hard edges rounded (see [`super::Smoothing`]), and its per-layer backward.
 //!
 //! Forward, per target `x`: each source `y` adds `wt = α_y·cov(R_y, r)/N(R_y)` (smooth disk
-//! edge [`lens::disk_coverage_smooth`], flux norm [`lens::disk_norm_smooth`], `R = K·|d|`),
+//! edge [`lens::disk_coverage_smooth`], flux norm [`lens::disk_norm_smooth`], `R = K·|d|`; or
+//! the aperture's shape and its norm, [`ShapedSources`], as the exact kernel draws them),
 //! split over the depth groups `γ(d_y, d_x)` ([`lens::depth_groups`]; with the ray test, the
 //! behind share times whether the ray from `x` to `y` passes the layer's surface, [`RayTest`]),
 //! to the groups' `[P, a]`; the groups are filled front to back
