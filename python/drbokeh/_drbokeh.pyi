@@ -1,7 +1,7 @@
 """Type stubs of the native module (see the package docstring for the conventions)."""
 
 from os import PathLike
-from typing import List, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -9,6 +9,9 @@ import numpy.typing as npt
 Array = npt.NDArray[np.float32]
 Photo = Union[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16]]
 Path = Union[str, PathLike]
+# A shape as ``--aperture`` spells it ("blades:6,rotation=30", "image:star.png"), or a dict of
+# pipeline.toml's [aperture] keys: shape, anamorphic, bubble, chromatic, cat_eye.
+Aperture = Union[str, Dict[str, Union[str, float]]]
 
 __version__: str
 
@@ -27,6 +30,7 @@ def render(
     layers: Optional[Union[int, str]] = None,
     config: Optional[Path] = None,
     threads: Optional[int] = None,
+    aperture: Optional[Aperture] = None,
 ) -> Array:
     """The whole pipeline, as ``drbokeh render``: H x W x 3 linear RGB float32.
 
@@ -39,7 +43,8 @@ def render(
     blur: K, the CoC radius in pixels per unit of disparity (default 30 x sqrt(megapixels)).
     profile: "physical" (default) or "official"; kernel: "auto", "fast" or "exact";
     layers: 1..8 or "auto"; config: a pipeline.toml whose settings the keywords override;
-    threads: worker threads (default: every core).
+    threads: worker threads (default: every core); aperture: the bokeh's shape (default the
+    disc; the differentiable renders and dfd take every shape too).
     """
 
 def build_layers(
@@ -69,6 +74,7 @@ def render_layers(
     occlusion: Optional[bool] = None,
     lens: Optional[int] = None,
     threads: Optional[int] = None,
+    aperture: Optional[Aperture] = None,
 ) -> Array:
     """Renders given layers as ``drbokeh render --layer``: H x W x 3 linear RGB float32."""
 
@@ -83,6 +89,7 @@ def render_layers_differentiable(
     edge_width: float = 1.0,
     fill_width: float = 0.0,
     threads: Optional[int] = None,
+    aperture: Optional[Aperture] = None,
 ) -> Array:
     """The exact kernel's render that ``render_layers_vjp`` differentiates."""
 
@@ -98,6 +105,7 @@ def render_layers_vjp(
     edge_width: float = 1.0,
     fill_width: float = 0.0,
     threads: Optional[int] = None,
+    aperture: Optional[Aperture] = None,
 ) -> Tuple[List[Array], float, float]:
     """(layer_grads, d_focus, d_blur) for the cotangent dL/dimage (H x W x 3)."""
 
@@ -116,13 +124,15 @@ def dfd(
     profile: Optional[str] = None,
     occlusion: bool = True,
     threads: Optional[int] = None,
+    aperture: Optional[Aperture] = None,
 ) -> npt.NDArray[np.float32]:
     """Depth from defocus, as ``drbokeh dfd``: the H x W disparity map in [0, 1] that turns the
     all-in-focus photo into ``bokeh`` (focused at ``focus`` with blur ``blur``). A list of
     photos with a list of foci (one per photo) is a focal stack, as ``drbokeh dfd AIF B1 B2
     --focus F1 F2``: two focal planes tell near from far.
     loss: "l1-grad", "l1-grad-ssim" or "l1-grad-hssim" (default); kernel: "auto" (default),
-    "fast", "exact" or "ray"; iters per level (default 100), levels (default 3)."""
+    "fast", "exact" or "ray"; iters per level (default 100), levels (default 3); aperture: the
+    lens the photos were taken through (a shape other than the disc runs the exact kernel)."""
 
 def reuse_large_allocations() -> None:
     """Opt-in for the program that owns the process: freed frame-sized buffers are reused

@@ -18,7 +18,8 @@ from . import _drbokeh
 __all__ = ["render_layers"]
 
 
-def render_layers(layers, focus, blur, *, profile=None, occlusion=True, lens=None, edge_width=1.0, fill_width=0.0, threads=None):
+def render_layers(layers, focus, blur, *, profile=None, occlusion=True, lens=None, edge_width=1.0, fill_width=0.0, threads=None,
+                  aperture=None):
     """Renders ``layers`` (a sequence of H x W x 5 float32 arrays, front first) at ``focus``
     (normalized disparity) and ``blur`` (K), differentiably: H x W x 3 linear RGB.
 
@@ -26,9 +27,21 @@ def render_layers(layers, focus, blur, *, profile=None, occlusion=True, lens=Non
     function is traced under ``vmap`` or ``jit`` with layers whose largest blur differs (the
     default lens window is sized from each call's layers)."""
     layers = tuple(jnp.asarray(l, jnp.float32) for l in layers)
+    # Hashable (the options are a static argument): an aperture dict as its sorted items.
+    if isinstance(aperture, dict):
+        aperture = ("dict", tuple(sorted(aperture.items())))
     opts = (("profile", profile), ("occlusion", occlusion), ("lens", lens), ("edge_width", float(edge_width)),
-            ("fill_width", float(fill_width)), ("threads", threads))
+            ("fill_width", float(fill_width)), ("threads", threads), ("aperture", aperture))
     return _render(layers, jnp.asarray(focus, jnp.float32), jnp.asarray(blur, jnp.float32), opts)
+
+
+def _kwargs(opts):
+    """The keywords of the library's calls from the static options."""
+    kw = dict(opts)
+    a = kw["aperture"]
+    if isinstance(a, tuple) and len(a) == 2 and a[0] == "dict":
+        kw["aperture"] = dict(a[1])
+    return kw
 
 
 def _host_layers(ls):
@@ -40,7 +53,7 @@ def _render(layers, focus, blur, opts):
     h, w = layers[0].shape[:2]
 
     def forward(ls, f, k):
-        img = _drbokeh.render_layers_differentiable(_host_layers(ls), float(f), float(k), **dict(opts))
+        img = _drbokeh.render_layers_differentiable(_host_layers(ls), float(f), float(k), **_kwargs(opts))
         return np.asarray(img, np.float32)
 
     return jax.pure_callback(forward, jax.ShapeDtypeStruct((h, w, 3), jnp.float32), layers, focus, blur,
@@ -58,7 +71,7 @@ def _render_bwd(opts, res, cotangent):
 
     def backward(ls, f, k, cot):
         grads, g_focus, g_blur = _drbokeh.render_layers_vjp(_host_layers(ls), float(f), float(k),
-                                                            np.ascontiguousarray(cot, dtype=np.float32), **dict(opts))
+                                                            np.ascontiguousarray(cot, dtype=np.float32), **_kwargs(opts))
         return tuple(np.asarray(g, np.float32) for g in grads), np.float32(g_focus), np.float32(g_blur)
 
     return jax.pure_callback(backward, shapes, layers, focus, blur, cotangent, vmap_method="sequential")

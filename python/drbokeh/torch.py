@@ -15,7 +15,8 @@ from . import _drbokeh
 __all__ = ["render_layers"]
 
 
-def render_layers(layers, focus, blur, *, profile=None, occlusion=True, lens=None, edge_width=1.0, fill_width=0.0, threads=None):
+def render_layers(layers, focus, blur, *, profile=None, occlusion=True, lens=None, edge_width=1.0, fill_width=0.0, threads=None,
+                  aperture=None):
     """Renders ``layers`` (a sequence of H x W x 5, or N x H x W x 5, CPU float32 tensors,
     front first) at ``focus`` (normalized disparity) and ``blur`` (K): H x W x 3 (or
     N x H x W x 3) linear RGB, differentiable with respect to the layers, ``focus`` and
@@ -35,7 +36,7 @@ def render_layers(layers, focus, blur, *, profile=None, occlusion=True, lens=Non
     focus = torch.as_tensor(focus, dtype=torch.float32)
     blur = torch.as_tensor(blur, dtype=torch.float32)
     opts = dict(profile=profile, occlusion=occlusion, lens=lens, edge_width=float(edge_width), fill_width=float(fill_width),
-                threads=threads)
+                threads=threads, aperture=aperture)
     return _RenderLayers.apply(opts, focus, blur, *layers)
 
 

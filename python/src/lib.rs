@@ -9,7 +9,7 @@
 //! H×W×5 (straight, not premultiplied, colour R, G, B; alpha A; normalized disparity D, 0 far
 //! … 1 near), front first.
 
-use drbokeh::config::Config;
+use drbokeh::config::{ApertureConfig, Config};
 use drbokeh::pipeline::{BuildLayers, Focus, Pipeline, Scene};
 use drbokeh::render::backward::{Smoothing, Tape};
 use drbokeh::render::{Layer, RenderSettings};
@@ -149,6 +149,7 @@ struct Settings {
     occlusion: Option<bool>,
     lens: Option<usize>,
     blur: Option<f32>,
+    aperture: Option<ApertureConfig>,
 }
 
 /// One config value from a Python string through the serde definition `pipeline.toml` uses
@@ -184,6 +185,45 @@ fn toml_string(s: &str) -> String {
     out
 }
 
+/// `aperture=`: a shape as `--aperture` spells it (`"blades:6,rotation=30"`), or a dict of
+/// `pipeline.toml`'s `[aperture]` keys (`shape`, `anamorphic`, `bubble`, `chromatic`,
+/// `cat_eye`), read through that table's definition (same names, same messages). None: the
+/// disc.
+fn aperture_of(a: Option<&Bound<'_, PyAny>>) -> PyResult<Option<ApertureConfig>> {
+    let Some(a) = a.filter(|a| !a.is_none()) else { return Ok(None) };
+    if let Ok(shape) = a.extract::<String>() {
+        return Ok(Some(ApertureConfig { shape, ..ApertureConfig::default() }));
+    }
+    let bad = || {
+        PyTypeError::new_err(
+            "aperture: a shape string (\"blades:6,rotation=30\") or a dict of [aperture]'s keys (shape, anamorphic, bubble, chromatic, cat_eye)",
+        )
+    };
+    let dict = a.cast::<pyo3::types::PyDict>().map_err(|_| bad())?;
+    let mut entries = Vec::new();
+    for (k, v) in dict.iter() {
+        let key: String = k.extract().map_err(|_| bad())?;
+        let value = if let Ok(s) = v.extract::<String>() {
+            toml_string(&s)
+        } else if v.is_instance_of::<pyo3::types::PyBool>() {
+            return Err(PyTypeError::new_err(format!("aperture[{key:?}]: a number or a string, not a bool")));
+        } else {
+            let x: f64 = v.extract().map_err(|_| PyTypeError::new_err(format!("aperture[{key:?}]: a number or a string")))?;
+            if !x.is_finite() {
+                return Err(PyValueError::new_err(format!("aperture[{key:?}] = {x}: must be finite")));
+            }
+            format!("{x:?}")
+        };
+        entries.push(format!("{} = {value}", toml_string(&key)));
+    }
+    parse_literal("aperture", &format!("{{ {} }}", entries.join(", ")), &a.repr().map(|r| r.to_string()).unwrap_or_default()).map(Some)
+}
+
+/// The differentiable renders' aperture: the disc without one.
+fn resolved_aperture(a: Option<&ApertureConfig>) -> PyResult<drbokeh::render::Aperture> {
+    a.map_or(Ok(drbokeh::render::Aperture::DISC), |a| a.resolve().map_err(py_err))
+}
+
 impl Settings {
     fn config(&self, py: Python<'_>, layer_count: Option<&Bound<'_, PyAny>>) -> PyResult<Config> {
         let mut cfg = match &self.config {
@@ -208,6 +248,9 @@ impl Settings {
         }
         if self.blur.is_some() {
             r.blur = self.blur;
+        }
+        if let Some(a) = &self.aperture {
+            cfg.aperture = a.clone();
         }
         if let Some(n) = layer_count {
             cfg.segment.layers = if let Ok(s) = n.extract::<String>() {
@@ -308,9 +351,11 @@ fn photo_job(
 }
 
 /// Renders a photo with its depth map: the whole pipeline, the defaults and checks of
-/// `drbokeh render`. Returns H×W×3 linear RGB float32.
+/// `drbokeh render`. Returns H×W×3 linear RGB float32. `aperture`: the bokeh's shape, a
+/// string as `--aperture` spells it or a dict of `[aperture]`'s keys (every function taking
+/// it reads it so).
 #[pyfunction]
-#[pyo3(signature = (image, depth, *, matte=None, focus=None, focus_at=None, focus_depth=None, blur=None, depth_kind="depth", profile=None, kernel=None, layers=None, config=None, threads=None))]
+#[pyo3(signature = (image, depth, *, matte=None, focus=None, focus_at=None, focus_depth=None, blur=None, depth_kind="depth", profile=None, kernel=None, layers=None, config=None, threads=None, aperture=None))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -327,8 +372,9 @@ fn render<'py>(
     layers: Option<&Bound<'py, PyAny>>,
     config: Option<PathBuf>,
     threads: Option<usize>,
+    aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let settings = Settings { config, profile, kernel, blur, ..Settings::default() };
+    let settings = Settings { config, profile, kernel, blur, aperture: aperture_of(aperture)?, ..Settings::default() };
     let (f, cfg, scene) = photo_job(py, (image, depth, matte), (focus, focus_at, focus_depth), depth_kind, settings, layers)?;
     let pipeline = Pipeline::from_config(cfg).map_err(py_err)?;
     let outcome = run(py, threads, || pipeline.run(&scene, f))?;
@@ -370,7 +416,7 @@ fn build_layers<'py>(
 /// (normalized disparity) and `blur` (K, CoC radius in pixels per unit of disparity), as
 /// `drbokeh render --layer`. Returns H×W×3 linear RGB float32.
 #[pyfunction]
-#[pyo3(signature = (layers, focus, blur, *, profile=None, kernel=None, quality=None, occlusion=None, lens=None, threads=None))]
+#[pyo3(signature = (layers, focus, blur, *, profile=None, kernel=None, quality=None, occlusion=None, lens=None, threads=None, aperture=None))]
 #[allow(clippy::too_many_arguments)]
 fn render_layers<'py>(
     py: Python<'py>,
@@ -383,9 +429,11 @@ fn render_layers<'py>(
     occlusion: Option<bool>,
     lens: Option<usize>,
     threads: Option<usize>,
+    aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
     let layers = layers_of(layers)?;
-    let s = Settings { profile, kernel, quality, occlusion, lens, blur: Some(blur), ..Settings::default() };
+    let s =
+        Settings { profile, kernel, quality, occlusion, lens, blur: Some(blur), aperture: aperture_of(aperture)?, ..Settings::default() };
     let cfg = s.config(py, None)?;
     let out = run(py, threads, move || Pipeline::from_config(cfg)?.render_layers(layers, Focus::Disparity(focus)))?;
     warn_all(py, &out.report.warnings)?;
@@ -400,21 +448,24 @@ fn diff_settings(
     profile: Option<&str>,
     occlusion: bool,
     lens: Option<usize>,
+    aperture: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<RenderSettings> {
     let profile = match profile {
         Some(p) => parse_value("profile", p)?,
         None => drbokeh::render::Profile::default(),
     };
     drbokeh::render::check_blur("blur", blur).map_err(py_err)?;
-    let lens = lens.unwrap_or_else(|| drbokeh::render::auto_lens(layers, blur, focus));
-    Ok(RenderSettings { blur, focus, lens, occlusion, profile, aperture: drbokeh::render::Aperture::DISC })
+    let aperture = resolved_aperture(aperture_of(aperture)?.as_ref())?;
+    // The window holds the largest channel's circle (chromatic aberration scales K).
+    let lens = lens.unwrap_or_else(|| drbokeh::render::auto_lens(layers, blur * aperture.max_channel_scale(), focus));
+    Ok(RenderSettings { blur, focus, lens, occlusion, profile, aperture })
 }
 
 /// The function `render_layers_vjp` differentiates: the exact kernel's render of `layers`
 /// (the physical profile's disk edges rounded over `edge_width` pixels, its depth groups' fill
 /// rule over `fill_width`). H×W×3 linear RGB float32.
 #[pyfunction]
-#[pyo3(signature = (layers, focus, blur, *, profile=None, occlusion=true, lens=None, edge_width=1.0, fill_width=0.0, threads=None))]
+#[pyo3(signature = (layers, focus, blur, *, profile=None, occlusion=true, lens=None, edge_width=1.0, fill_width=0.0, threads=None, aperture=None))]
 #[allow(clippy::too_many_arguments)]
 fn render_layers_differentiable<'py>(
     py: Python<'py>,
@@ -427,9 +478,10 @@ fn render_layers_differentiable<'py>(
     edge_width: f32,
     fill_width: f32,
     threads: Option<usize>,
+    aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
     let layers = layers_of(layers)?;
-    let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens)?;
+    let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens, aperture)?;
     let smoothing = Smoothing { edge_width, fill_width };
     let image = run(py, threads, move || Tape::record(&layers, &s, smoothing).map(|t| t.image().clone()))?;
     Ok(to_numpy(py, image))
@@ -439,7 +491,7 @@ fn render_layers_differentiable<'py>(
 /// (H×W×3, ∂loss/∂image), returns `(layer_grads, d_focus, d_blur)`, `layer_grads` one H×W×5
 /// array per layer (∂loss/∂ R, G, B, A, D).
 #[pyfunction]
-#[pyo3(signature = (layers, focus, blur, cotangent, *, profile=None, occlusion=true, lens=None, edge_width=1.0, fill_width=0.0, threads=None))]
+#[pyo3(signature = (layers, focus, blur, cotangent, *, profile=None, occlusion=true, lens=None, edge_width=1.0, fill_width=0.0, threads=None, aperture=None))]
 #[allow(clippy::too_many_arguments)]
 fn render_layers_vjp<'py>(
     py: Python<'py>,
@@ -453,10 +505,11 @@ fn render_layers_vjp<'py>(
     edge_width: f32,
     fill_width: f32,
     threads: Option<usize>,
+    aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Arrays<'py>, f32, f32)> {
     let layers = layers_of(layers)?;
     let cot = image_of("cotangent", cotangent, &[3])?;
-    let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens)?;
+    let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens, aperture)?;
     let smoothing = Smoothing { edge_width, fill_width };
     let g = run(py, threads, move || Tape::record(&layers, &s, smoothing)?.vjp(&cot))?;
     Ok((g.layers.into_iter().map(|l| to_numpy(py, l)).collect(), g.focus, g.blur))
@@ -468,7 +521,7 @@ fn render_layers_vjp<'py>(
 /// to fine). Photos: uint8/uint16 sRGB or float32 linear, H×W×3. `loss`: "l1-grad",
 /// "l1-grad-ssim" or "l1-grad-hssim"; `kernel`: "auto", "fast", "exact" or "ray".
 #[pyfunction]
-#[pyo3(signature = (aif, bokeh, focus, blur, *, iters=None, levels=None, learning_rate=None, init=None, loss=None, kernel=None, profile=None, occlusion=true, threads=None))]
+#[pyo3(signature = (aif, bokeh, focus, blur, *, iters=None, levels=None, learning_rate=None, init=None, loss=None, kernel=None, profile=None, occlusion=true, threads=None, aperture=None))]
 #[allow(clippy::too_many_arguments)]
 fn dfd<'py>(
     py: Python<'py>,
@@ -485,6 +538,7 @@ fn dfd<'py>(
     profile: Option<String>,
     occlusion: bool,
     threads: Option<usize>,
+    aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
     use drbokeh::diff::dfd::{self as d, DfdOptions, LossVariant};
     let (aif, _) = photo_of(aif, None)?;
@@ -525,7 +579,8 @@ fn dfd<'py>(
         Some(p) => parse_value("profile", p)?,
         None => drbokeh::render::Profile::default(),
     };
-    let s = RenderSettings { blur, focus: foci[0], lens: 1, occlusion, profile, aperture: drbokeh::render::Aperture::DISC };
+    let aperture = resolved_aperture(aperture_of(aperture)?.as_ref())?;
+    let s = RenderSettings { blur, focus: foci[0], lens: 1, occlusion, profile, aperture };
     let est = run(py, threads, move || {
         let shots: Vec<d::Shot> = photos.iter().zip(&foci).map(|(photo, &focus)| d::Shot { photo, focus }).collect();
         d::estimate_stack(&aif, &shots, &s, &opts, |_| {})
