@@ -342,12 +342,18 @@ fn flux_is_conserved_and_front_bokeh_is_reflected() {
 
 /// The thin-lens tracer samples the same aperture: one textured plane with HDR dots, out of
 /// focus behind and in front of the focal plane, traced and rendered agree to the tracer's
-/// noise for every shape (linear PSNR on x/(1+x)).
+/// noise for every shape (linear PSNR on x/(1+x)): at least 45 dB. A cat's eye at least 40:
+/// the lens clips each ray by the pixel it lands on (the tracer), the renderer each source
+/// by its own position with a norm that cancels the difference to second order in
+/// `k = strength · CoC / half-diagonal` (`CatEye::norm_disc`), and this 56 × 48 frame at a
+/// CoC of 12 px puts k at 0.33 for strength 1 (measured 42.6 / 41.5 dB; the pentagon at 0.6:
+/// 45.8 / 46.8); a 12 MP photo's k is ten times smaller.
 #[test]
 fn tracer_and_renderer_agree_on_one_plane() {
     use drbokeh::bench::trace::{Plane, TraceSettings, Window, trace};
     let img = photo();
     let mut failures = Vec::new();
+    let cats: Vec<&str> = cat_cases().into_iter().map(|c| c.0).collect();
     for (case, aperture) in cases().into_iter().map(|c| (c.name, c.aperture)).chain(cat_cases()) {
         for (d, focus) in [(0.25f32, 0.75f32), (0.75, 0.25)] {
             let layer = one_layer(&img, d);
@@ -359,12 +365,48 @@ fn tracer_and_renderer_agree_on_one_plane() {
             let rendered = render::render(std::slice::from_ref(&layer), &s, Kernel::Exact).unwrap();
             let p = psnr_compressed(&rendered, &traced);
             println!("{case:24} d {d}: tracer vs exact {p:6.2} dB");
-            if p.is_nan() || p < 45.0 {
-                failures.push(format!("{case} d {d}: {p:.2} dB (at least 45)"));
+            let bar = if cats.contains(&case) { 40.0 } else { 45.0 };
+            if p.is_nan() || p < bar {
+                failures.push(format!("{case} d {d}: {p:.2} dB (at least {bar})"));
             }
         }
     }
     common::assert_no_failures("tracer against renderer per shape", &failures);
+}
+
+/// A cat's eye in the tracer is the lens's: a ray is clipped by the pixel it lands on, for
+/// every plane it meets, and the pixel is normalized by what passes. So a scene whose every
+/// surface has radiance 1 traces to 1 everywhere, whatever occludes what: here an opaque
+/// foreground half-plane far out of focus in front of an in-focus background. With a cut per
+/// source (each plane normalized by its own lens subset) the foreground's edge let the
+/// background through twice: rims off by up to 0.94 here, and 7% more light than the scene
+/// holds on bench scene s007 (seed 1).
+#[test]
+fn a_cat_eye_keeps_a_uniform_scene_uniform_across_occlusion() {
+    use drbokeh::bench::trace::{Plane, TraceSettings, Window, trace};
+    let (w, h) = (W, H);
+    let layer = |alpha: &dyn Fn(usize) -> f32, d: f32| {
+        let data = (0..w * h).flat_map(|i| {
+            let a = alpha(i);
+            [a, a, a, a, d]
+        });
+        Layer::new(Image::from_vec(w, h, 5, data.collect()).unwrap(), "plane").unwrap()
+    };
+    let front = layer(&|i| if i % w < w / 2 { 1.0 } else { 0.0 }, 1.0);
+    let back = layer(&|_| 1.0, 0.0);
+    let planes = [Plane::from_layer(&front, "front").unwrap(), Plane::from_layer(&back, "back").unwrap()];
+    let mut failures = Vec::new();
+    for (name, aperture) in cat_cases() {
+        let mut ts = TraceSettings::new(6.0, 0.0, 64, 3);
+        ts.aperture = aperture;
+        let traced = trace(&planes, &ts, Window { x0: 0, y0: 0, width: w, height: h }, &|_| {}).unwrap();
+        let worst = traced.data.iter().map(|&v| (v - 1.0).abs()).fold(0.0, f32::max);
+        println!("{name}: traced, largest |value - 1| {worst:e}");
+        if worst > 1e-4 {
+            failures.push(format!("{name}: traced pixel off 1 by {worst}"));
+        }
+    }
+    common::assert_no_failures("a uniform scene under a cat's eye", &failures);
 }
 
 /// Fast (quality 2) against exact on the bench's stress scenes (two layers with HDR
