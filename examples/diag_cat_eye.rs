@@ -1,5 +1,5 @@
 //! Where a cat's eye render leaves the tracer on a generated bench scene: `SCENE=7 SEED=1
-//! STRENGTH=1 cargo run --release --example diag_cat_eye` traces and renders (exact kernel) the
+//! STRENGTH=1 [FAST=2] cargo run --release --example diag_cat_eye` traces and renders (exact kernel) the
 //! scene with and without the cat's eye, prints their PSNRs, the worst pixels and the total
 //! light, and writes sRGB PNGs of both to `$OUT` (default /tmp/diag).
 use drbokeh::Image;
@@ -22,7 +22,7 @@ fn env(k: &str, d: f64) -> f64 {
 fn main() -> drbokeh::Result<()> {
     let (seed, index, strength) = (env("SEED", 1.0) as u64, env("SCENE", 7.0) as usize, env("STRENGTH", 1.0) as f32);
     let out = std::env::var("OUT").unwrap_or_else(|_| "/tmp/diag".into());
-    std::fs::create_dir_all(&out)?;
+    std::fs::create_dir_all(&out).expect("the output folder");
     let sc = generate(seed, index, 128, 128, &[]);
     let inputs = sc.inputs()?;
     println!("{}: blur {} focus {} planes {:?}", sc.name, sc.blur, sc.focus, sc.planes.iter().map(|p| p.disparity).collect::<Vec<_>>());
@@ -32,7 +32,9 @@ fn main() -> drbokeh::Result<()> {
         let gt = trace(&sc.trace_planes(), &ts, sc.window(), &|_| {})?;
         let lens = render::auto_lens(&inputs.plane_layers, sc.blur, sc.focus);
         let s = RenderSettings { blur: sc.blur, focus: sc.focus, lens, occlusion: true, profile: Profile::Physical, aperture: a };
-        let img = render::render(&inputs.plane_layers, &s, Kernel::Exact)?;
+        // `FAST=Q`: the fast kernel at quality Q instead of the exact one.
+        let kernel = std::env::var("FAST").ok().and_then(|q| q.parse().ok()).map_or(Kernel::Exact, |quality| Kernel::Fast { quality });
+        let img = render::render(&inputs.plane_layers, &s, kernel)?;
         let border = sc.max_coc.ceil() as usize;
         let sco = score(&img, &gt, border);
         println!("{name}: psnr linear {:.2}", sco.psnr);
