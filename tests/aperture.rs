@@ -614,13 +614,15 @@ fn lens_area(r1: f64, r2: f64, d: f64) -> f64 {
 /// A uniform opaque surface out of focus with a cat's eye stays uniform and opaque in front of
 /// an empty layer (its coverage sums to 1 where the cut changes across the frame), behind and
 /// in front of the focal plane, in both kernels, away from the frame's border (the replicated
-/// edge has one cut for many sources).
+/// edge has one cut for many sources). Small circles too: the fast kernel's templates per cut
+/// class once left an opaque surface of CoC 2 px 10% see-through where the classes change
+/// (`binned::Bins::cut_step`).
 #[test]
 fn cat_eye_keeps_a_uniform_surface_uniform() {
     let (w, h) = (96usize, 72usize);
     let mut failures = Vec::new();
     for (name, aperture) in cat_cases() {
-        for (coc, front) in [(8.0f32, false), (8.0, true), (14.0, false), (14.0, true)] {
+        for (coc, front) in [(2.0f32, false), (2.0, true), (3.5, false), (8.0, false), (8.0, true), (14.0, false), (14.0, true)] {
             let (d, focus) = if front { (0.75f32, 0.25f32) } else { (0.25, 0.75) };
             let mut data = Vec::with_capacity(w * h * 5);
             for _ in 0..w * h {
@@ -637,8 +639,12 @@ fn cat_eye_keeps_a_uniform_surface_uniform() {
                     .map(|(x, y)| (out.data[(y * w + x) * 3] - 0.5).abs())
                     .fold(0f32, f32::max);
                 println!("{name:24} CoC {coc:4} front {front:5} {:5}: worst |out - 0.5| {worst:.4}", kernel.name());
-                if worst.is_nan() || worst > 0.01 {
-                    failures.push(format!("{name} CoC {coc} front {front} {}: off by {worst:.4} (at most 0.01)", kernel.name()));
+                // The fast kernel's cut classes (a step of 1/32 of the circumradius) move a
+                // 2 px circle's outline by 1/16 px between neighbouring sources: up to ~2% of
+                // its coverage along a class boundary (measured 1.0%).
+                let bar = if coc < 4.0 && kernel != Kernel::Exact { 0.02 } else { 0.01 };
+                if worst.is_nan() || worst > bar {
+                    failures.push(format!("{name} CoC {coc} front {front} {}: off by {worst:.4} (at most {bar})", kernel.name()));
                 }
             }
         }

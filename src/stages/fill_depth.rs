@@ -200,6 +200,17 @@ mod tests {
     use crate::stages::depth_edges::{EdgeWidths, measure};
     use crate::stages::mask::gaussian_blur;
 
+    /// The hard mask is strictly above the threshold: a matte's half-covered edge pixel (alpha
+    /// exactly 0.5) mixes depths and is not the foreground's (a cargo-mutants survivor, `>`
+    /// made `>=`, killed).
+    #[test]
+    fn hard_mask_is_strictly_above_the_threshold() {
+        let alpha = Image::from_vec(4, 1, 1, vec![0.0, 0.5, 0.5001, 1.0]).unwrap();
+        assert_eq!(hard_mask(&alpha, &FillDepthOptions::default()), vec![false, false, true, true]);
+        let opts = FillDepthOptions { threshold: 0.0, ..FillDepthOptions::default() };
+        assert_eq!(hard_mask(&alpha, &opts), vec![false, true, true, true]);
+    }
+
     /// A one-channel plane of `w` × `h` from a function of the pixel.
     fn plane(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Image {
         Image::from_vec(w, h, 1, (0..w * h).map(|i| f(i % w, i / w)).collect()).expect("size")

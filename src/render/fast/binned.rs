@@ -312,13 +312,21 @@ pub(super) struct Cut {
 
 /// Where a cat's eye's cut class starts in a key; 12 bits per axis above it.
 const CUT_SHIFT: u32 = 40;
-/// The cut's centre per axis in steps of `CUT_PX / r` (unit frame; at least 1/2048): the
-/// outline of a template then lies within `CUT_PX / √2` px of the source's own. A coarse
-/// grid (upsampled bilinearly, `2^ℓ` px per cell) quantizes to [`CUT_PX_COARSE`] grid px:
-/// its templates were 78% of a 12 MP cat's-eye render at focus 1 with 0.5.
+/// The cut's centre per axis in steps of `CUT_PX / r` (unit frame; at least 1/2048, at most
+/// [`CUT_STEP_MAX`]): the outline of a template then lies within `CUT_PX / √2` px of the
+/// source's own. A coarse grid (upsampled bilinearly, `2^ℓ` px per cell) quantizes to
+/// [`CUT_PX_COARSE`] grid px: its templates were 78% of a 12 MP cat's-eye render at focus 1
+/// with 0.5.
 const CUT_PX: f32 = 0.25;
 /// [`CUT_PX`] of the coarse grids, grid pixels.
 const CUT_PX_COARSE: f32 = 1.0;
+/// The coarsest cut step (unit frame), whatever the radius. Where neighbouring sources fall
+/// in different classes the templates do not tile: an opaque surface's coverage falls short
+/// by about the outline's move over the radius. `CUT_PX / r` alone made small circles' steps
+/// an eighth of the radius (10% see-through at CoC 2 px, `tests/aperture.rs`); 1/32 keeps it
+/// near 1% (1/64: within 1%, but 3.2x the 12 MP render at focus 1 in template builds; 1/32:
+/// 1.5x, measured 2026-11-27).
+const CUT_STEP_MAX: f32 = 1.0 / 32.0;
 
 impl Bins {
     /// Bins `width` px wide of footprint `shape` in a window of half-size `p`.
@@ -340,7 +348,7 @@ impl Bins {
     /// The quantization step of a cut's centre in bin `k`.
     fn cut_step(&self, k: u64) -> f32 {
         let px = if matches!(self.shape, Shape::CoarseAperture { .. }) { CUT_PX_COARSE } else { CUT_PX };
-        (px / self.radius(k).max(1e-3)).clamp(1.0 / 2048.0, 1.0)
+        (px / self.radius(k).max(1e-3)).clamp(1.0 / 2048.0, CUT_STEP_MAX)
     }
 
     /// The key bits of the cut of a source at full-resolution pixel `at` in bin `k` (0 without
