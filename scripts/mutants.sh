@@ -47,5 +47,7 @@ if [ ${#files[@]} -eq 0 ]; then
 fi
 # The fast tests that exercise these modules; the full suite per mutant would take hours.
 read -r -a tests <<< "${MUTANTS_TESTS:---lib --test cli --test batch --test invariants --test stability --test backward}"
+# A fresh worktree has no target/ yet; cargo-mutants wants the output's parent to exist.
+mkdir -p target
 exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 --minimum-test-timeout 120 \
     --cargo-arg=--profile="${MUTANTS_PROFILE:-mutants}" "${tests[@]/#/--cargo-test-arg=}"
