@@ -101,6 +101,20 @@ def test_build_layers_then_render_layers_is_render():
     assert np.abs(a - b).max() <= 1e-6
 
 
+def check_directions(layers, grads, loss, rng, *, eps, tol):
+    """The VJP's layer gradients against central differences of `loss(layers)` along three
+    random directions in the layers' colour (±1) and disparity (±0.1); alpha only where it is
+    inside (0, 1), so no step leaves its domain."""
+    for trial in range(3):
+        v = [rng.uniform(-1, 1, size=l.shape).astype(np.float32) for l in layers]
+        for x, l in zip(v, layers):
+            x[..., 3] *= (l[..., 3] > 0.01) & (l[..., 3] < 0.99)
+            x[..., 4] *= 0.1
+        fd = (loss([l + eps * x for l, x in zip(layers, v)]) - loss([l - eps * x for l, x in zip(layers, v)])) / (2 * eps)
+        an = sum(float(np.sum(g.astype(np.float64) * x)) for g, x in zip(grads, v))
+        assert abs(fd - an) <= tol * max(abs(fd), abs(an)) + 1e-4, (trial, fd, an)
+
+
 @pytest.mark.parametrize("seed", [2, 3])
 def test_vjp_matches_central_differences(seed):
     rng = np.random.default_rng(seed)
@@ -117,19 +131,7 @@ def test_vjp_matches_central_differences(seed):
         img = drbokeh.render_layers_differentiable(ls, f, k, **smooth)
         return float(np.sum(img.astype(np.float64) * cot))
 
-    # Random directions in the layers' colour (±1) and disparity (±0.1); alpha where it is
-    # inside (0, 1), so no step leaves its domain.
-    for trial in range(3):
-        v = [rng.uniform(-1, 1, size=l.shape).astype(np.float32) for l in layers]
-        for x, l in zip(v, layers):
-            x[..., 3] *= (l[..., 3] > 0.01) & (l[..., 3] < 0.99)
-            x[..., 4] *= 0.1
-        eps = 2e-3
-        plus = [l + eps * x for l, x in zip(layers, v)]
-        minus = [l - eps * x for l, x in zip(layers, v)]
-        fd = (loss(plus, focus, blur) - loss(minus, focus, blur)) / (2 * eps)
-        an = sum(float(np.sum(g.astype(np.float64) * x)) for g, x in zip(grads, v))
-        assert abs(fd - an) <= 0.05 * max(abs(fd), abs(an)) + 1e-4, (trial, fd, an)
+    check_directions(layers, grads, lambda ls: loss(ls, focus, blur), rng, eps=2e-3, tol=0.05)
     for name, (f0, k0), step, an in [("focus", (focus, blur), (1e-3, 0), g_focus), ("blur", (focus, blur), (0, 1e-2), g_blur)]:
         fd = (loss(layers, f0 + step[0], k0 + step[1]) - loss(layers, f0 - step[0], k0 - step[1])) / (2 * (step[0] + step[1]))
         assert abs(fd - an) <= 0.05 * max(abs(fd), abs(an)) + 1e-3, (name, fd, an)
@@ -172,15 +174,7 @@ def test_vjp_through_a_shaped_aperture_matches_differences():
     def loss(ls):
         return float(np.sum(drbokeh.render_layers_differentiable(ls, 0.45, 4.0, **opts).astype(np.float64) * cot))
 
-    for trial in range(3):
-        v = [rng.uniform(-1, 1, size=l.shape).astype(np.float32) for l in layers]
-        for x, l in zip(v, layers):
-            x[..., 3] *= (l[..., 3] > 0.01) & (l[..., 3] < 0.99)
-            x[..., 4] *= 0.1
-        eps = 1e-3
-        fd = (loss([l + eps * x for l, x in zip(layers, v)]) - loss([l - eps * x for l, x in zip(layers, v)])) / (2 * eps)
-        an = sum(float(np.sum(g.astype(np.float64) * x)) for g, x in zip(grads, v))
-        assert abs(fd - an) <= 0.02 * max(abs(fd), abs(an)) + 1e-4, (trial, fd, an)
+    check_directions(layers, grads, loss, rng, eps=1e-3, tol=0.02)
 
 
 def test_bad_apertures_raise():
