@@ -8,7 +8,7 @@
 
 use drbokeh::bench::inputs::{Input, prepare};
 use drbokeh::bench::scenes::generate;
-use drbokeh::stages::light_recovery::{HighlightsOptions, Recovered, recover};
+use drbokeh::stages::light_recovery::{HighlightsOptions, Occluders, Recovered, recover};
 
 fn main() -> drbokeh::Result<()> {
     let args: Vec<String> = std::env::args().collect();
@@ -16,13 +16,26 @@ fn main() -> drbokeh::Result<()> {
     let (seed, scenes, size) = (arg(1, 3) as u64, arg(2, 20), arg(3, 128));
     let input = if args.get(4).is_some_and(|s| s == "psf") { Input::Srgb8Psf } else { Input::Srgb8 };
     let (mut lost_all, mut added_all) = (0.0f64, 0.0f64);
+    // Per matched light: estimated over true radiance (mean of the channels).
+    let mut ratios: Vec<f32> = Vec::new();
     for i in 0..scenes {
         let sc = generate(seed, i, size, size, &[]);
         let linear = sc.inputs()?;
         let prepared = prepare(&linear, input)?;
         let photo = &prepared.scene.aif;
         let lost = prepared.missing_light.unwrap_or(0.0);
-        let Recovered::Changed(out, report) = recover(photo, input.encoding(), &HighlightsOptions::default(), &Default::default())? else {
+        // OCCLUDERS=none|depth|matte (default matte): what the stage knows of the subject.
+        let which = std::env::var("OCCLUDERS").unwrap_or_else(|_| "matte".into());
+        let s = &prepared.scene;
+        let occluders = match which.as_str() {
+            "none" => None,
+            "depth" => Some(Occluders { disparity: &s.realistic_disparity, matte: None }),
+            "exactdepth" => Some(Occluders { disparity: &s.disparity, matte: None }),
+            _ => Some(Occluders { disparity: &s.disparity, matte: Some(&s.matte) }),
+        };
+        let Recovered::Changed(out, report) =
+            recover(photo, input.encoding(), &HighlightsOptions::default(), &Default::default(), occluders)?
+        else {
             println!("{}: nothing clipped", sc.name);
             continue;
         };
@@ -44,6 +57,9 @@ fn main() -> drbokeh::Result<()> {
                 .iter()
                 .min_by(|a, b| (a.cx - m - l.x).hypot(a.cy - m - l.y).total_cmp(&(b.cx - m - l.x).hypot(b.cy - m - l.y)));
             let t = truth.map(|h| (h.cx - m - l.x).hypot(h.cy - m - l.y) < 2.0).unwrap_or(false).then(|| truth.unwrap());
+            if let Some(h) = t {
+                ratios.push((0..3).map(|c| l.radiance[c] / (h.radiance * h.tint[c])).sum::<f32>() / 3.0);
+            }
             println!(
                 "  ({:5.1},{:5.1}) r {:.2} px {:3} radiance {:5.1} {:5.1} {:5.1} added {:7.1} | true: {}",
                 l.x,
@@ -64,6 +80,19 @@ fn main() -> drbokeh::Result<()> {
             );
         }
     }
+    ratios.sort_by(f32::total_cmp);
+    let q = |p: f32| ratios.get(((ratios.len() as f32 - 1.0) * p).round() as usize).copied().unwrap_or(f32::NAN);
+    let within = |tol: f32| ratios.iter().filter(|&&r| (r - 1.0).abs() <= tol).count();
+    println!(
+        "lights matched {}: radiance estimate / truth quartiles {:.2} {:.2} {:.2}, within 15% {}, within 50% {}, over 2x {}",
+        ratios.len(),
+        q(0.25),
+        q(0.5),
+        q(0.75),
+        within(0.15),
+        within(0.5),
+        ratios.iter().filter(|&&r| r > 2.0).count()
+    );
     println!("all: light put back {added_all:.0} of {lost_all:.0} ({:.2}x)", added_all / lost_all.max(1e-9));
     Ok(())
 }

@@ -279,7 +279,13 @@ impl Pipeline {
 
         // The light of clipped highlights, before anything is layered or filled.
         let t = Instant::now();
-        let recovered = light_recovery::recover(&scene.rgb, scene.encoding, &cfg.highlights, &cfg.onnx)?;
+        let recovered = light_recovery::recover(
+            &scene.rgb,
+            scene.encoding,
+            &cfg.highlights,
+            &cfg.onnx,
+            Some(light_recovery::Occluders { disparity: disp, matte: scene.matte.as_ref() }),
+        )?;
         let rgb = match &recovered {
             Recovered::Changed(img, r) => {
                 report.ran("highlights", t, serde_json::to_value(r).ok());

@@ -499,7 +499,7 @@ const SRGB8: PhotoEncoding = PhotoEncoding::Integer { bits: 8, transfer: Transfe
 fn highlights_model_lifts_only_clipped_samples() {
     let photo = clipped_photo(48, 32);
     let opts = highlights(spec("expandnet.onnx", "expandnet"));
-    let (out, report) = match light_recovery::recover(&photo, SRGB8, &opts, &cfg()).unwrap() {
+    let (out, report) = match light_recovery::recover(&photo, SRGB8, &opts, &cfg(), None).unwrap() {
         Recovered::Changed(out, r) => (out, r),
         _ => panic!("the model added no light"),
     };
@@ -529,7 +529,9 @@ fn highlights_model_lifts_only_clipped_samples() {
     assert!(m.model.ends_with("expandnet.onnx") && m.runs == 1 && m.model_size == [32, 48], "{m:?}");
 
     let bgr = highlights(ModelSpec { color: Some(ColorOrder::Bgr), ..spec("expandnet.onnx", "expandnet") });
-    let Recovered::Changed(out_bgr, _) = light_recovery::recover(&photo, SRGB8, &bgr, &cfg()).unwrap() else { panic!("bgr: no light") };
+    let Recovered::Changed(out_bgr, _) = light_recovery::recover(&photo, SRGB8, &bgr, &cfg(), None).unwrap() else {
+        panic!("bgr: no light")
+    };
     assert!(max_diff(&out, &out_bgr) < 1e-5, "bgr differs by {}", max_diff(&out, &out_bgr));
 }
 
@@ -540,10 +542,10 @@ fn highlights_model_lifts_only_clipped_samples() {
 fn highlights_model_runs_only_when_needed_and_fails_clearly() {
     let missing = highlights(spec("does_not_exist.onnx", "expandnet"));
     let dim = Image::filled(40, 30, 3, 0.3);
-    assert!(matches!(light_recovery::recover(&dim, SRGB8, &missing, &cfg()).unwrap(), Recovered::Unchanged(_)));
+    assert!(matches!(light_recovery::recover(&dim, SRGB8, &missing, &cfg(), None).unwrap(), Recovered::Unchanged(_)));
     let photo = clipped_photo(48, 32);
-    assert!(matches!(light_recovery::recover(&photo, PhotoEncoding::Linear, &missing, &cfg()).unwrap(), Recovered::Unchanged(_)));
-    let err = |o: &HighlightsOptions, img: &Image| match light_recovery::recover(img, SRGB8, o, &cfg()) {
+    assert!(matches!(light_recovery::recover(&photo, PhotoEncoding::Linear, &missing, &cfg(), None).unwrap(), Recovered::Unchanged(_)));
+    let err = |o: &HighlightsOptions, img: &Image| match light_recovery::recover(img, SRGB8, o, &cfg(), None) {
         Err(e) => e.to_string(),
         Ok(_) => panic!("no error"),
     };

@@ -84,6 +84,7 @@ pub fn recover_with_model(rgb: &Image, clip: f32, opts: &HighlightsOptions, cfg:
         light_added: added,
         light_added_fraction: if added > 0.0 { added / total_light(rgb) } else { 0.0 },
         brightest: Vec::new(),
+        occluders: None,
         model_scale: Some(scale),
         model: Some(model.report),
     };

@@ -155,6 +155,10 @@ pub struct HighlightsReport {
     pub light_added_fraction: f64,
     /// The brightest recovered lights (at most 100), brightest first.
     pub brightest: Vec<Light>,
+    /// `auto`: what told the fit which of a light's surroundings stand in front of it
+    /// (`"matte and depth"`, `"depth"`); absent when nothing did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub occluders: Option<&'static str>,
     /// `onnx`: the factor that brought the model's output to the photo's linear light (the
     /// median over well-exposed pixels of photo / model luminance).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -175,12 +179,67 @@ pub enum Recovered {
     Unchanged(&'static str),
 }
 
+/// What stands in front of the photo's lights, as the pipeline knows it before layering: the
+/// normalized disparity (0 far … 1 near) and, when the user gave one, the foreground matte.
+/// `auto` leaves a light's surroundings out of its fit where they are nearer than the light (a
+/// light half behind a subject's edge is seen only on its free side: the subject's pixels say
+/// nothing of its radiance and, fitted as the light's fringe, pull it to white).
+#[derive(Clone, Copy)]
+pub struct Occluders<'a> {
+    /// One channel, the photo's size, [0, 1].
+    pub disparity: &'a Image,
+    /// One channel, the photo's size, [0, 1]; None without a matte.
+    pub matte: Option<&'a Image>,
+}
+
+impl Occluders<'_> {
+    /// Per pixel of `window` (frame indices), whether it stands in front of the light seen in
+    /// `blob`: nearer than the blob's farthest pixel by [`FRONT_DISPARITY`], or covered by the
+    /// matte [`FRONT_ALPHA`] more than the blob's least covered pixel. Relative to the blob, so
+    /// a highlight on the subject itself keeps its surroundings.
+    fn in_front(&self, blob: &Blob, window: impl Iterator<Item = usize>) -> Vec<bool> {
+        let floor = |img: &Image| blob.pixels.iter().map(|&i| img.data[i]).fold(f32::INFINITY, f32::min);
+        let d_light = floor(self.disparity);
+        let a_light = self.matte.map(floor);
+        window
+            .map(|i| {
+                self.disparity.data[i] > d_light + FRONT_DISPARITY
+                    || a_light.is_some_and(|a| self.matte.is_some_and(|m| m.data[i] > a + FRONT_ALPHA))
+            })
+            .collect()
+    }
+}
+
+impl Occluders<'_> {
+    /// Per pixel of `blob`, the matte's coverage above the blob's least covered pixel (empty
+    /// without a matte).
+    fn veil(&self, blob: &Blob) -> Vec<f32> {
+        let Some(m) = self.matte else { return Vec::new() };
+        let floor = blob.pixels.iter().map(|&i| m.data[i]).fold(f32::INFINITY, f32::min);
+        blob.pixels.iter().map(|&i| (m.data[i] - floor).clamp(0.0, 1.0)).collect()
+    }
+}
+
+/// Disparity (normalized) by which a sample nearer than a light's farthest pixel stands in
+/// front of it.
+const FRONT_DISPARITY: f32 = 0.05;
+/// Matte coverage by which a sample more covered than a light's least covered pixel stands in
+/// front of it.
+const FRONT_ALPHA: f32 = 0.02;
+
 /// Runs the stage on `rgb` (linear RGB, 3 channels) stored with `encoding`; `onnx` is where a
-/// `mode = "onnx"` model's runtime comes from. Allocates a copy of the photo and a byte per
+/// `mode = "onnx"` model's runtime comes from; `occluders`, when known, keep a subject's pixels
+/// out of the fit of a light behind it. Allocates a copy of the photo and a byte per
 /// pixel when it changes it; `auto` costs O(pixels) plus, per blob, O(its surroundings ×
 /// geometries tried), blobs in parallel. Errors only from the model (`onnx`): its file, its
 /// contract, its output.
-pub fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions, onnx: &crate::onnx::OnnxConfig) -> Result<Recovered> {
+pub fn recover(
+    rgb: &Image,
+    encoding: PhotoEncoding,
+    opts: &HighlightsOptions,
+    onnx: &crate::onnx::OnnxConfig,
+    occluders: Option<Occluders>,
+) -> Result<Recovered> {
     let clip = encoding.transfer().decode(opts.threshold);
     const NOTHING_CLIPPED: &str = "no sample at or above highlights.threshold";
     Ok(match (opts.mode, encoding) {
@@ -193,7 +252,7 @@ pub fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions, o
             Recovered::Changed(img, report)
         }
         (HighlightMode::Auto, PhotoEncoding::Integer { .. }) => {
-            recover_lights(rgb, clip, opts).unwrap_or(Recovered::Unchanged(NOTHING_CLIPPED))
+            recover_lights(rgb, clip, opts, occluders).unwrap_or(Recovered::Unchanged(NOTHING_CLIPPED))
         }
         (HighlightMode::Onnx, PhotoEncoding::Integer { .. }) => {
             super::highlights_onnx::recover_with_model(rgb, clip, opts, onnx)?.unwrap_or(Recovered::Unchanged(NOTHING_CLIPPED))
@@ -237,6 +296,7 @@ fn boost(rgb: &Image, transfer: Transfer, opts: &HighlightsOptions) -> (Image, H
         light_added: added,
         light_added_fraction: added / total_light(rgb),
         brightest: Vec::new(),
+        occluders: None,
         model_scale: None,
         model: None,
     };
@@ -321,7 +381,7 @@ fn blobs(mask: &mut [u8], w: usize, h: usize, max_pixels: usize) -> (Vec<Blob>, 
 
 /// `auto`: every light-sized blob fitted and its clipped samples replaced by the model where
 /// it is brighter. `None` when no sample is clipped.
-fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<Recovered> {
+fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions, occluders: Option<Occluders>) -> Option<Recovered> {
     let (w, h) = (rgb.width, rgb.height);
     let (mut mask, clipped_pixels) = clipped_channels(rgb, clip);
     if clipped_pixels == 0 {
@@ -330,7 +390,7 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<Re
     let max_pixels = (std::f32::consts::PI * MAX_LIGHT_RADIUS * MAX_LIGHT_RADIUS) as usize;
     let (found, large) = blobs(&mut mask, w, h, max_pixels);
     mask.par_iter_mut().for_each(|m| *m &= 7);
-    let seen: Vec<Option<Seen>> = found.par_iter().map(|b| see(rgb, &mask, b, clip)).collect();
+    let seen: Vec<Option<Seen>> = found.par_iter().map(|b| see(rgb, &mask, b, clip, occluders)).collect();
     // The PSF from the largest blobs of light size up to PSF_BLOB_RADIUS: the most fringe to
     // read it from, at a bounded cost (the fit's cost grows with the window).
     let mut sample: Vec<&Seen> = seen.iter().flatten().collect();
@@ -346,7 +406,7 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<Re
         .map(|(b, s)| {
             s.as_ref().map(|s| {
                 let (_, g, excess) = s.fit(clip, sigma);
-                s.light(b, w, g, excess)
+                s.light(b, w, g, excess, clip)
             })
         })
         .collect();
@@ -402,6 +462,7 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions) -> Option<Re
         // The photo's total only when it is divided: a 12 MP sum is ~25 ms.
         light_added_fraction: if light_added > 0.0 { light_added / total_light(rgb) } else { 0.0 },
         brightest: lights,
+        occluders: occluders.map(|o| if o.matte.is_some() { "matte and depth" } else { "depth" }),
         model_scale: None,
         model: None,
     };
@@ -440,11 +501,15 @@ struct Seen {
     cx: f32,
     cy: f32,
     r0: f32,
+    /// Per blob pixel (in `Blob::pixels` order), how much more the matte covers it than the
+    /// blob's least covered pixel: the share of it the subject in front holds. Empty without
+    /// a matte.
+    veiled: Vec<f32>,
 }
 
 /// The window and background of one blob. `None` when the window holds no unclipped sample to
 /// see the light against.
-fn see(rgb: &Image, mask: &[u8], blob: &Blob, clip: f32) -> Option<Seen> {
+fn see(rgb: &Image, mask: &[u8], blob: &Blob, clip: f32, occluders: Option<Occluders>) -> Option<Seen> {
     let (w, h) = (rgb.width, rgb.height);
     let (bx0, by0, bx1, by1) = blob.bbox;
     let (x0, y0) = (bx0.saturating_sub(MARGIN), by0.saturating_sub(MARGIN));
@@ -452,34 +517,41 @@ fn see(rgb: &Image, mask: &[u8], blob: &Blob, clip: f32) -> Option<Seen> {
     let (ww, wh) = (x1 - x0 + 1, y1 - y0 + 1);
     let own: std::collections::HashSet<usize> = blob.pixels.iter().copied().collect();
     let mut win = Window { x0, y0, w: ww, px: Vec::with_capacity(ww * wh) };
+    let window = (y0..=y1).flat_map(|y| (x0..=x1).map(move |x| y * w + x));
+    let front = occluders.map(|o| o.in_front(blob, window.clone()));
     // Background: the median of the unclipped samples at least RING outside the bounding box
-    // (else of every unclipped sample in the window).
-    let mut far: [Vec<f32>; 3] = Default::default();
-    let mut near: [Vec<f32>; 3] = Default::default();
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let i = y * w + x;
-            let v = [rgb.data[i * 3], rgb.data[i * 3 + 1], rgb.data[i * 3 + 2]];
-            let m = mask[i];
-            let used = m == 0 || own.contains(&i);
-            win.px.push((v, m, used));
-            if m == 0 {
-                let dist = bx0.saturating_sub(x).max(x.saturating_sub(bx1)).max(by0.saturating_sub(y)).max(y.saturating_sub(by1));
-                for c in 0..3 {
-                    if dist >= RING {
-                        far[c].push(v[c]);
-                    }
-                    near[c].push(v[c]);
+    // (else of every unclipped sample in the window), of those not in front of the light
+    // (else of all).
+    let mut far: [[Vec<f32>; 3]; 2] = Default::default();
+    let mut near: [[Vec<f32>; 3]; 2] = Default::default();
+    for (k, i) in window.enumerate() {
+        let (x, y) = (i % w, i / w);
+        let v = [rgb.data[i * 3], rgb.data[i * 3 + 1], rgb.data[i * 3 + 2]];
+        let m = mask[i];
+        let hidden = front.as_ref().is_some_and(|f| f[k]);
+        let used = (m == 0 && !hidden) || own.contains(&i);
+        win.px.push((v, m, used));
+        let (far, near) = (&mut far[hidden as usize], &mut near[hidden as usize]);
+        if m == 0 {
+            let dist = bx0.saturating_sub(x).max(x.saturating_sub(bx1)).max(by0.saturating_sub(y)).max(y.saturating_sub(by1));
+            for c in 0..3 {
+                if dist >= RING {
+                    far[c].push(v[c]);
                 }
+                near[c].push(v[c]);
             }
         }
     }
     let mut background = [0.0f32; 3];
     for c in 0..3 {
-        let pool = if far[c].len() >= 8 { &mut far[c] } else { &mut near[c] };
-        if pool.is_empty() {
-            return None;
-        }
+        let [open, hidden] = [0, 1].map(|k| (far[k][c].len() >= 8, near[k][c].len()));
+        let pool = match (open, hidden) {
+            ((true, _), _) => &mut far[0][c],
+            ((false, n), _) if n > 0 => &mut near[0][c],
+            (_, (true, _)) => &mut far[1][c],
+            (_, (false, n)) if n > 0 => &mut near[1][c],
+            _ => return None,
+        };
         let k = pool.len() / 2;
         background[c] = *pool.select_nth_unstable_by(k, f32::total_cmp).1;
     }
@@ -493,7 +565,8 @@ fn see(rgb: &Image, mask: &[u8], blob: &Blob, clip: f32) -> Option<Seen> {
     let n = blob.pixels.len() as f32;
     let cx = blob.pixels.iter().map(|&i| (i % w) as f32 + 0.5).sum::<f32>() / n;
     let cy = blob.pixels.iter().map(|&i| (i / w) as f32 + 0.5).sum::<f32>() / n;
-    Some(Seen { win, background, zero_error, cx, cy, r0: (n / std::f32::consts::PI).sqrt() })
+    let veiled = occluders.map(|o| o.veil(blob)).unwrap_or_default();
+    Some(Seen { win, background, zero_error, cx, cy, r0: (n / std::f32::consts::PI).sqrt(), veiled })
 }
 
 impl Seen {
@@ -544,7 +617,7 @@ impl Seen {
 
     /// The fitted light: radiance per channel and the model's value at each of the blob's
     /// pixels (in `blob.pixels` order).
-    fn light(&self, blob: &Blob, frame_width: usize, g: Geometry, excess: [f32; 3]) -> Fit {
+    fn light(&self, blob: &Blob, frame_width: usize, g: Geometry, excess: [f32; 3], clip: f32) -> Fit {
         let mut cover = Vec::new();
         self.win.footprint(g, &mut cover);
         let mut f = vec![0.0f32; self.win.px.len()];
@@ -552,12 +625,17 @@ impl Seen {
             f[k as usize] = fk;
         }
         let b = self.background;
+        // Where the matte says the subject covers part of a clipped pixel, the light shows only
+        // through the rest: the subject's share is taken at white (the most a clipped sample
+        // says of it).
         let core = blob
             .pixels
             .iter()
-            .map(|&i| {
+            .enumerate()
+            .map(|(j, &i)| {
                 let k = (i / frame_width - self.win.y0) * self.win.w + (i % frame_width - self.win.x0);
-                [0, 1, 2].map(|c| b[c] + excess[c] * f[k])
+                let a = self.veiled.get(j).copied().unwrap_or(0.0);
+                [0, 1, 2].map(|c| a * clip + (1.0 - a) * (b[c] + excess[c] * f[k]))
             })
             .collect();
         Fit { g, radiance: [0, 1, 2].map(|c| b[c] + excess[c]), core }

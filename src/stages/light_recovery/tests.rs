@@ -2,7 +2,12 @@ use super::*;
 
 /// The stage without a model (every mode but `onnx`).
 fn recover(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions) -> Recovered {
-    super::recover(rgb, encoding, opts, &crate::onnx::OnnxConfig::default()).expect("no model, no error")
+    recover_behind(rgb, encoding, opts, None)
+}
+
+/// [`recover`] told what stands in front of the lights.
+fn recover_behind(rgb: &Image, encoding: PhotoEncoding, opts: &HighlightsOptions, occluders: Option<super::Occluders>) -> Recovered {
+    super::recover(rgb, encoding, opts, &crate::onnx::OnnxConfig::default(), occluders).expect("no model, no error")
 }
 
 /// The table against a direct 2D quadrature of the Gaussian over the disc.
@@ -82,14 +87,35 @@ struct Disc {
 /// model), blurred by a Gaussian PSF of `sigma` px, then stored as 8-bit sRGB (clipped)
 /// and decoded. Returns (photo, true linear image).
 fn photo(w: usize, h: usize, discs: &[Disc], sigma: f32, seed: u32) -> (Image, Image) {
+    let (stored, truth, _) = photo_behind(w, h, discs, sigma, seed, &|_, _| None);
+    (stored, truth)
+}
+
+/// [`photo`] with a subject in front: `subject(x, y)` is its colour where it covers the point.
+/// Also returns the subject's matte (its coverage of each pixel, supersampled like the rest).
+fn photo_behind(
+    w: usize,
+    h: usize,
+    discs: &[Disc],
+    sigma: f32,
+    seed: u32,
+    subject: &dyn Fn(f32, f32) -> Option<[f32; 3]>,
+) -> (Image, Image, Image) {
     let ss = 8;
     let (sw, sh) = (w * ss, h * ss);
     let mut hi = vec![[0.0f32; 3]; sw * sh];
+    let mut matte = Image::filled(w, h, 1, 0.0);
     for j in 0..sh {
         for i in 0..sw {
             let (x, y) = ((i as f32 + 0.5) / ss as f32, (j as f32 + 0.5) / ss as f32);
             let light = discs.iter().find(|d| (x - d.cx).powi(2) + (y - d.cy).powi(2) <= d.r * d.r);
-            hi[j * sw + i] = light.map_or_else(|| ground(x, y, seed), |d| d.radiance);
+            hi[j * sw + i] = match subject(x, y) {
+                Some(c) => {
+                    matte.data[(j / ss) * w + i / ss] += 1.0 / (ss * ss) as f32;
+                    c
+                }
+                None => light.map_or_else(|| ground(x, y, seed), |d| d.radiance),
+            };
         }
     }
     if sigma > 0.0 {
@@ -133,7 +159,7 @@ fn photo(w: usize, h: usize, discs: &[Disc], sigma: f32, seed: u32) -> (Image, I
     }
     let mut stored = truth.clone();
     stored.map_inplace(|v| Transfer::Srgb.decode((Transfer::Srgb.encode(v.clamp(0.0, 1.0)) * 255.0).round() / 255.0));
-    (stored, truth)
+    (stored, truth, matte)
 }
 
 const SRGB8: PhotoEncoding = PhotoEncoding::Integer { bits: 8, transfer: Transfer::Srgb };
@@ -197,6 +223,68 @@ fn clipped_discs_get_their_light_back() {
     }
     eprintln!("{}", lines.join("\n"));
     assert!(!failed, "{}", lines.join("\n"));
+}
+
+/// Lights half behind a subject's edge (the bench's generated scenes put two thirds of their
+/// lights there): fitted with the subject's pixels as their fringe, the dark subject pulls
+/// each light's radiance towards white. Told the matte and the depth, the fit keeps to the
+/// light's free side. Truth: discs drawn 8×8 supersampled behind a dark straight edge
+/// (independent of the fitter's model), with and without a lens PSF; the light put back is
+/// counted where the subject covers nothing.
+#[test]
+fn lights_behind_a_subject_are_fitted_on_their_free_side() {
+    let at = |k: usize| (14.3 + 22.0 * (k % 4) as f32 + 0.37 * k as f32, 14.6 + 22.0 * (k / 4) as f32 - 0.29 * k as f32);
+    let lights = [(2.4f32, [12.0f32, 9.0, 6.0]), (2.7, [30.0, 30.0, 24.0]), (3.1, [16.0, 15.0, 15.5]), (2.2, [30.0, 25.0, 20.0])];
+    let discs: Vec<Disc> = lights.iter().enumerate().map(|(k, &(r, radiance))| Disc { cx: at(k).0, cy: at(k).1, r, radiance }).collect();
+    // The subject covers each disc's right third: everything right of a slanted line through it.
+    let cut: Vec<(f32, f32)> = discs.iter().map(|d| (d.cx + 0.35 * d.r, d.cy)).collect();
+    let subject = |x: f32, y: f32| -> Option<[f32; 3]> {
+        let k = cut.iter().enumerate().min_by(|a, b| (a.1.0 - x).hypot(a.1.1 - y).total_cmp(&(b.1.0 - x).hypot(b.1.1 - y)))?.0;
+        let (ex, ey) = cut[k];
+        // Below the lights, slanted cards: straight edges to read the camera's PSF from.
+        let card = y > 30.0 && ((x + 0.3 * y) % 24.0) < 11.0;
+        (card || ((x - ex) + 0.2 * (y - ey) > 0.0 && (x - ex) < 6.0 && (y - ey).abs() < 8.0)).then_some([0.05, 0.04, 0.03])
+    };
+    let mut lines = Vec::new();
+    for sigma in [0.0f32, 0.7] {
+        let (photo, truth, matte) = photo_behind(96, 56, &discs, sigma, 5, &subject);
+        let disparity = Image::from_vec(96, 56, 1, matte.data.iter().map(|&a| if a >= 0.5 { 0.9 } else { 0.1 }).collect()).unwrap();
+        // The light lost and put back on the free side (the matte's zero), as a ratio.
+        let put_back = |out: &Image| -> f64 {
+            let (mut lost, mut got) = (0.0f64, 0.0f64);
+            for i in (0..96 * 56).filter(|&i| matte.data[i] == 0.0) {
+                for c in 0..3 {
+                    lost += (truth.data[i * 3 + c] - photo.data[i * 3 + c]) as f64;
+                    got += (out.data[i * 3 + c] - photo.data[i * 3 + c]) as f64;
+                }
+            }
+            got / lost
+        };
+        let ratio = |occluders| match recover_behind(&photo, SRGB8, &HighlightsOptions::default(), occluders) {
+            Recovered::Changed(out, _) => {
+                assert!(out.all_finite());
+                // Nowhere the subject covers whole is any light added (without a PSF: with
+                // one, the light's glow reaches over the subject's edge).
+                let added = (0..96 * 56)
+                    .filter(|&i| matte.data[i] >= 0.999 && (0..3).any(|c| out.data[i * 3 + c] != photo.data[i * 3 + c]))
+                    .count();
+                assert!(sigma > 0.0 || added == 0, "σ {sigma}: light added on {added} pixels of the subject");
+                put_back(&out)
+            }
+            _ => 0.0,
+        };
+        let blind = ratio(None);
+        let told = ratio(Some(super::Occluders { disparity: &disparity, matte: Some(&matte) }));
+        let depth_only = ratio(Some(super::Occluders { disparity: &disparity, matte: None }));
+        lines.push(format!("σ {sigma}: light put back {blind:.2}x blind, {told:.2}x with the matte, {depth_only:.2}x with the depth only"));
+        // Measured (2026-11-27): σ 0: 0.26x blind, 0.69x with the matte, 1.25x with the depth;
+        // σ 0.7 (read as 0.58): 0.05x, 0.19x, 0.18x: behind a PSF the fit still takes a wide
+        // faint disc for a narrow bright one (issue 35, open). The bounds keep what is reached.
+        let (gain, band) = if sigma == 0.0 { (0.3, 0.5..=1.6) } else { (0.1, 0.1..=1.6) };
+        assert!(told > blind + gain && depth_only > blind + gain, "{}", lines.join("\n"));
+        assert!(band.contains(&told) && band.contains(&depth_only), "{}", lines.join("\n"));
+    }
+    eprintln!("{}", lines.join("\n"));
 }
 
 /// A photo as an 8-bit file would hold it (sRGB, quantized, clipped), from linear `f(x, y)`.
