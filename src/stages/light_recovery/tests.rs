@@ -287,6 +287,46 @@ fn lights_behind_a_subject_are_fitted_on_their_free_side() {
     eprintln!("{}", lines.join("\n"));
 }
 
+/// What stands in front of a light is judged against the light's own pixels: a light behind
+/// the subject loses the subject's pixels from its fit (nearer by more than FRONT_DISPARITY,
+/// or more covered by the matte than FRONT_ALPHA); a highlight on the subject keeps them; the
+/// matte's share of each of the light's pixels is its veil.
+#[test]
+fn occluders_are_relative_to_the_light() {
+    // A 6x1 strip: background (disparity 0.1, matte 0) on the left, subject (0.8, 1) on the
+    // right, one mixed pixel between.
+    let disparity = Image::from_vec(6, 1, 1, vec![0.1, 0.1, 0.12, 0.5, 0.8, 0.8]).unwrap();
+    let matte = Image::from_vec(6, 1, 1, vec![0.0, 0.0, 0.01, 0.5, 1.0, 1.0]).unwrap();
+    let all = || 0..6usize;
+    let behind = Blob { pixels: vec![1, 2], bbox: (1, 0, 2, 0) };
+    let on = Blob { pixels: vec![4], bbox: (4, 0, 4, 0) };
+    let both = super::Occluders { disparity: &disparity, matte: Some(&matte) };
+    let depth = super::Occluders { disparity: &disparity, matte: None };
+    assert_eq!(both.in_front(&behind, all()), [false, false, false, true, true, true]);
+    assert_eq!(depth.in_front(&behind, all()), [false, false, false, true, true, true]);
+    assert_eq!(both.in_front(&on, all()), [false; 6]);
+    // Just within the margins: 0.1 + 0.05 and 0 + 0.02 are not in front; beyond them they are.
+    let edge_d = Image::from_vec(2, 1, 1, vec![0.1, 0.1 + super::FRONT_DISPARITY]).unwrap();
+    let edge_m = Image::from_vec(2, 1, 1, vec![0.0, super::FRONT_ALPHA]).unwrap();
+    let one = Blob { pixels: vec![0], bbox: (0, 0, 0, 0) };
+    assert_eq!(super::Occluders { disparity: &edge_d, matte: Some(&edge_m) }.in_front(&one, 0..2), [false, false]);
+    let past_d = Image::from_vec(2, 1, 1, vec![0.1, 0.1 + super::FRONT_DISPARITY + 1e-3]).unwrap();
+    assert_eq!(depth_of(&past_d).in_front(&one, 0..2), [false, true]);
+    let flat = Image::from_vec(2, 1, 1, vec![0.1, 0.1]).unwrap();
+    let past_m = Image::from_vec(2, 1, 1, vec![0.0, super::FRONT_ALPHA + 1e-3]).unwrap();
+    assert_eq!(super::Occluders { disparity: &flat, matte: Some(&past_m) }.in_front(&one, 0..2), [false, true]);
+    // The veil: the matte above the light's least covered pixel.
+    let mixed = Blob { pixels: vec![2, 3], bbox: (2, 0, 3, 0) };
+    let veil = both.veil(&mixed);
+    assert!((veil[0] - 0.0).abs() < 1e-6 && (veil[1] - 0.49).abs() < 1e-6, "{veil:?}");
+    assert!(depth.veil(&mixed).is_empty());
+}
+
+/// Occluders from a disparity map alone.
+fn depth_of(d: &Image) -> super::Occluders<'_> {
+    super::Occluders { disparity: d, matte: None }
+}
+
 /// A photo as an 8-bit file would hold it (sRGB, quantized, clipped), from linear `f(x, y)`.
 fn srgb8(w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> Image {
     let mut img = Image::filled(w, h, 3, 0.0);
