@@ -9,6 +9,9 @@
 #   scripts/mutants.sh --list           # list the mutants only
 #   MUTANTS_IN_PLACE=1 scripts/mutants.sh ...  # mutate this tree (a spare worktree) and reuse
 #                                       # its target/ instead of a cold build in a copy
+#   MUTANTS_RE='in (boost|solve_radiance)$' scripts/mutants.sh ...  # only the mutants whose
+#                                       # name matches (cargo-mutants --re: a file's rules by function)
+#   MUTANTS_TESTS="--lib light_recovery" ...   # a test-name filter after the targets
 #   MUTANTS_PROFILE=release scripts/mutants.sh ...  # another cargo profile (default: `mutants`,
 #                                       # Cargo.toml: opt-level 1, incremental)
 #
@@ -31,6 +34,7 @@ export DRBOKEH_SHARED=${DRBOKEH_SHARED:-$(cd "$root/../shared" && pwd)}
 list=()
 files=()
 [ -n "${MUTANTS_IN_PLACE:-}" ] && list+=(--in-place)
+[ -n "${MUTANTS_RE:-}" ] && list+=(--re "$MUTANTS_RE")
 for a in "$@"; do
     case "$a" in
         --list) list+=(--list) ;;
@@ -39,7 +43,7 @@ for a in "$@"; do
 done
 if [ ${#files[@]} -eq 0 ]; then
     for f in src/stages/highlight_completion.rs src/stages/fill_depth.rs src/stages/contamination.rs \
-        src/stages/highlights.rs src/stages/background.rs src/render/lens.rs src/render/composite.rs \
+        src/stages/highlights.rs src/stages/light_recovery.rs src/stages/background.rs src/render/lens.rs src/render/composite.rs \
         src/diff/loss.rs src/batch.rs src/io/atomic.rs src/io/guard.rs src/io/dynamic_depth.rs src/io/xmp.rs \
         src/focus_pull.rs src/view.rs src/diff/dfd_confidence.rs src/io/heif.rs src/io/heif_depth.rs; do
         files+=(--file "$f")

@@ -402,6 +402,45 @@ fn large_clipped_areas_and_extremes() {
     assert!(sum(&out) > sum(&grey), "the grey light got nothing back");
 }
 
+/// `boost` on a photo larger than one of its parallel chunks (4,096 pixels), in colour: every
+/// pixel scaled by one factor for its three channels (the hue kept), the factor the ramp's
+/// formula gives for its largest stored value, and the report counting the pixels strictly
+/// above the threshold (one exactly at it gets a factor of 1 and is not counted).
+#[test]
+fn boost_keeps_each_pixels_hue_across_the_frame() {
+    let (w, h) = (100, 50);
+    let at_threshold = 0.6f32;
+    let t = Transfer::Srgb.encode(at_threshold);
+    let opts = HighlightsOptions { mode: HighlightMode::Boost, threshold: t, gain: 4.0, ..Default::default() };
+    let px = |i: usize| -> [f32; 3] {
+        if i % 97 == 0 {
+            return [at_threshold, 0.3, 0.1];
+        }
+        let u = (i % 251) as f32 / 250.0;
+        [u, 0.8 * u * ((i % 7) as f32 / 6.0), 0.5 * u]
+    };
+    let img = Image::from_vec(w, h, 3, (0..w * h).flat_map(px).collect()).unwrap();
+    let Recovered::Changed(out, report) = recover(&img, SRGB8, &opts) else { panic!("boost did nothing") };
+    let mut above = 0;
+    for i in 0..w * h {
+        let p = px(i);
+        let e = Transfer::Srgb.encode(p[0].max(p[1]).max(p[2]));
+        let k = if e > t {
+            above += 1;
+            let u = ((e - t) / (1.0 - t)).min(1.0);
+            1.0 + 3.0 * u * u * (3.0 - 2.0 * u)
+        } else {
+            1.0
+        };
+        for c in 0..3 {
+            let (got, want) = (out.data[i * 3 + c], p[c] * k);
+            assert!((got - want).abs() <= 1e-5 * want.max(1.0), "pixel {i} channel {c}: {got}, want {want}");
+        }
+    }
+    assert!(above > 1000, "the test needs pixels above the threshold: {above}");
+    assert_eq!(report.clipped_pixels, above, "pixels boosted");
+}
+
 /// `boost`: no step anywhere (the factor is continuous and monotone in the stored value),
 /// nothing below the threshold changes, `gain` reached at white.
 #[test]
