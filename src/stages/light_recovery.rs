@@ -198,26 +198,25 @@ impl Occluders<'_> {
     /// matte [`FRONT_ALPHA`] more than the blob's least covered pixel. Relative to the blob, so
     /// a highlight on the subject itself keeps its surroundings.
     fn in_front(&self, blob: &Blob, window: impl Iterator<Item = usize>) -> Vec<bool> {
-        let floor = |img: &Image| blob.pixels.iter().map(|&i| img.data[i]).fold(f32::INFINITY, f32::min);
-        let d_light = floor(self.disparity);
-        let a_light = self.matte.map(floor);
+        let d_light = least(self.disparity, blob);
+        let matte = self.matte.map(|m| (m, least(m, blob)));
         window
-            .map(|i| {
-                self.disparity.data[i] > d_light + FRONT_DISPARITY
-                    || a_light.is_some_and(|a| self.matte.is_some_and(|m| m.data[i] > a + FRONT_ALPHA))
-            })
+            .map(|i| self.disparity.data[i] > d_light + FRONT_DISPARITY || matte.is_some_and(|(m, a)| m.data[i] > a + FRONT_ALPHA))
             .collect()
     }
-}
 
-impl Occluders<'_> {
     /// Per pixel of `blob`, the matte's coverage above the blob's least covered pixel (empty
     /// without a matte).
     fn veil(&self, blob: &Blob) -> Vec<f32> {
         let Some(m) = self.matte else { return Vec::new() };
-        let floor = blob.pixels.iter().map(|&i| m.data[i]).fold(f32::INFINITY, f32::min);
+        let floor = least(m, blob);
         blob.pixels.iter().map(|&i| (m.data[i] - floor).clamp(0.0, 1.0)).collect()
     }
+}
+
+/// The least value of the one-channel `img` over `blob`'s pixels.
+fn least(img: &Image, blob: &Blob) -> f32 {
+    blob.pixels.iter().map(|&i| img.data[i]).fold(f32::INFINITY, f32::min)
 }
 
 /// Disparity (normalized) by which a sample nearer than a light's farthest pixel stands in

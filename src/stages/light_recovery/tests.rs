@@ -413,7 +413,7 @@ fn boost_keeps_each_pixels_hue_across_the_frame() {
     let t = Transfer::Srgb.encode(at_threshold);
     let opts = HighlightsOptions { mode: HighlightMode::Boost, threshold: t, gain: 4.0, ..Default::default() };
     let px = |i: usize| -> [f32; 3] {
-        if i % 97 == 0 {
+        if i.is_multiple_of(97) {
             return [at_threshold, 0.3, 0.1];
         }
         let u = (i % 251) as f32 / 250.0;
@@ -432,8 +432,8 @@ fn boost_keeps_each_pixels_hue_across_the_frame() {
         } else {
             1.0
         };
-        for c in 0..3 {
-            let (got, want) = (out.data[i * 3 + c], p[c] * k);
+        for (c, &v) in p.iter().enumerate() {
+            let (got, want) = (out.data[i * 3 + c], v * k);
             assert!((got - want).abs() <= 1e-5 * want.max(1.0), "pixel {i} channel {c}: {got}, want {want}");
         }
     }
