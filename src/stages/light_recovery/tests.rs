@@ -405,7 +405,8 @@ fn large_clipped_areas_and_extremes() {
 /// `boost` on a photo larger than one of its parallel chunks (4,096 pixels), in colour: every
 /// pixel scaled by one factor for its three channels (the hue kept), the factor the ramp's
 /// formula gives for its largest stored value, and the report counting the pixels strictly
-/// above the threshold (one exactly at it gets a factor of 1 and is not counted).
+/// above the threshold (one exactly at it gets a factor of 1 and is not counted) and the
+/// light added.
 #[test]
 fn boost_keeps_each_pixels_hue_across_the_frame() {
     let (w, h) = (100, 50);
@@ -421,7 +422,7 @@ fn boost_keeps_each_pixels_hue_across_the_frame() {
     };
     let img = Image::from_vec(w, h, 3, (0..w * h).flat_map(px).collect()).unwrap();
     let Recovered::Changed(out, report) = recover(&img, SRGB8, &opts) else { panic!("boost did nothing") };
-    let mut above = 0;
+    let (mut above, mut added) = (0, 0.0f64);
     for i in 0..w * h {
         let p = px(i);
         let e = Transfer::Srgb.encode(p[0].max(p[1]).max(p[2]));
@@ -434,11 +435,15 @@ fn boost_keeps_each_pixels_hue_across_the_frame() {
         };
         for (c, &v) in p.iter().enumerate() {
             let (got, want) = (out.data[i * 3 + c], v * k);
+            added += (v * (k - 1.0)) as f64;
             assert!((got - want).abs() <= 1e-5 * want.max(1.0), "pixel {i} channel {c}: {got}, want {want}");
         }
     }
     assert!(above > 1000, "the test needs pixels above the threshold: {above}");
     assert_eq!(report.clipped_pixels, above, "pixels boosted");
+    assert!((report.light_added - added).abs() <= 1e-4 * added, "light added {}, want {added}", report.light_added);
+    let before: f64 = img.data.iter().map(|&v| v as f64).sum();
+    assert!((report.light_added_fraction - added / before).abs() <= 1e-4 * added / before, "{report:?}");
 }
 
 /// `boost`: no step anywhere (the factor is continuous and monotone in the stored value),
