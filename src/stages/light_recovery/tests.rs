@@ -446,6 +446,29 @@ fn boost_keeps_each_pixels_hue_across_the_frame() {
     assert!((report.light_added_fraction - added / before).abs() <= 1e-4 * added / before, "{report:?}");
 }
 
+/// The clipped-channel mask over a frame larger than one of its parallel blocks (16,384
+/// pixels): each pixel's bits say which of its channels are at or above the clip level, and
+/// the count is of pixels with any.
+#[test]
+fn clipped_channels_marks_each_channel_across_blocks() {
+    let (w, h) = (200, 100);
+    let clip = 0.9f32;
+    // Pixel i: channel c at the clip level when bit c of (i mod 8) is set (every 8th pixel has
+    // none), else just below it.
+    let img = Image::from_vec(
+        w,
+        h,
+        3,
+        (0..w * h).flat_map(|i| [0, 1, 2].map(|c| if (i % 8) >> c & 1 == 1 { clip } else { clip - 1e-4 })).collect(),
+    )
+    .unwrap();
+    let (mask, count) = super::clipped_channels(&img, clip);
+    for (i, &m) in mask.iter().enumerate() {
+        assert_eq!(m, (i % 8) as u8, "pixel {i}");
+    }
+    assert_eq!(count, w * h - w * h / 8);
+}
+
 /// `boost`: no step anywhere (the factor is continuous and monotone in the stored value),
 /// nothing below the threshold changes, `gain` reached at white.
 #[test]
