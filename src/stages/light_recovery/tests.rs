@@ -469,6 +469,32 @@ fn clipped_channels_marks_each_channel_across_blocks() {
     assert_eq!(count, w * h - w * h / 8);
 }
 
+/// [`solve_radiance`]'s two rules on a window built by hand: a clipped sample the model covers
+/// less than [`MIN_BOUND_COVERAGE`] does not raise the light (here the unclipped sample alone
+/// sets it), and nothing lifts a light above [`MAX_RADIANCE`].
+#[test]
+fn radiance_ignores_slivers_and_stays_under_the_cap() {
+    let (clip, b) = (0.9f32, 0.2f32);
+    let seen = |px: Vec<([f32; 3], u8, bool)>| Seen {
+        win: Window { x0: 0, y0: 0, w: px.len(), px },
+        background: [b; 3],
+        zero_error: 0.0,
+        cx: 0.0,
+        cy: 0.0,
+        r0: 1.0,
+        veiled: Vec::new(),
+    };
+    // A clipped sample covered 2%, an unclipped one covered 50% at 0.05 over the background.
+    let sliver = seen(vec![([clip; 3], 7, true), ([b + 0.05; 3], 0, true)]);
+    let (_, x) = solve_radiance(&sliver, &[(0, 0.02), (1, 0.5)], clip);
+    assert!(x.iter().all(|&x| (x - 0.1).abs() < 1e-4), "excess {x:?}: the sliver raised it");
+    // An unclipped sample the model barely reaches, bright: it asks for 0.65 / 0.005 = 130
+    // over the background; the cap gives MAX_RADIANCE in all.
+    let faint = seen(vec![([0.85; 3], 0, true)]);
+    let (_, x) = solve_radiance(&faint, &[(0, 0.005)], clip);
+    assert!(x.iter().all(|&x| (b + x - MAX_RADIANCE).abs() < 1e-3), "excess {x:?}");
+}
+
 /// `boost`: no step anywhere (the factor is continuous and monotone in the stored value),
 /// nothing below the threshold changes, `gain` reached at white.
 #[test]
