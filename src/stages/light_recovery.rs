@@ -193,6 +193,22 @@ pub struct Occluders<'a> {
 }
 
 impl Occluders<'_> {
+    /// A usage error unless both maps are one channel of `rgb`'s size: a library caller's
+    /// mistake, told as such rather than met as an index out of bounds inside a blob's fit.
+    fn check(&self, rgb: &Image) -> Result<()> {
+        let maps = [("disparity", Some(self.disparity)), ("matte", self.matte)];
+        for (name, map) in maps {
+            let Some(m) = map else { continue };
+            if (m.width, m.height, m.channels) != (rgb.width, rgb.height, 1) {
+                return Err(Error::usage(format!(
+                    "highlights: the occluders' {name} is {}x{} with {} channel(s); the photo is {}x{} (one channel expected)",
+                    m.width, m.height, m.channels, rgb.width, rgb.height
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// Per pixel of `window` (frame indices), whether it stands in front of the light seen in
     /// `blob`: nearer than the blob's farthest pixel by [`FRONT_DISPARITY`], or covered by the
     /// matte [`FRONT_ALPHA`] more than the blob's least covered pixel. Relative to the blob, so
@@ -230,8 +246,8 @@ const FRONT_ALPHA: f32 = 0.02;
 /// `mode = "onnx"` model's runtime comes from; `occluders`, when known, keep a subject's pixels
 /// out of the fit of a light behind it. Allocates a copy of the photo and a byte per
 /// pixel when it changes it; `auto` costs O(pixels) plus, per blob, O(its surroundings ×
-/// geometries tried), blobs in parallel. Errors only from the model (`onnx`): its file, its
-/// contract, its output.
+/// geometries tried), blobs in parallel. Errors: occluders not one channel of the photo's
+/// size (usage), and from the model (`onnx`): its file, its contract, its output.
 pub fn recover(
     rgb: &Image,
     encoding: PhotoEncoding,
@@ -239,6 +255,9 @@ pub fn recover(
     onnx: &crate::onnx::OnnxConfig,
     occluders: Option<Occluders>,
 ) -> Result<Recovered> {
+    if let Some(o) = &occluders {
+        o.check(rgb)?;
+    }
     let clip = encoding.transfer().decode(opts.threshold);
     const NOTHING_CLIPPED: &str = "no sample at or above highlights.threshold";
     Ok(match (opts.mode, encoding) {

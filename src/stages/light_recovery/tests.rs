@@ -322,6 +322,26 @@ fn occluders_are_relative_to_the_light() {
     assert!(depth.veil(&mixed).is_empty());
 }
 
+/// Occluders of the wrong size or channel count are a usage error naming the map, not a panic.
+#[test]
+fn occluders_of_another_size_are_a_usage_error() {
+    let photo = Image::filled(8, 6, 3, 1.0);
+    let fits = Image::filled(8, 6, 1, 0.5);
+    let small = Image::filled(4, 3, 1, 0.5);
+    let rgb = Image::filled(8, 6, 3, 0.5);
+    let run =
+        |o: super::Occluders| super::recover(&photo, SRGB8, &HighlightsOptions::default(), &crate::onnx::OnnxConfig::default(), Some(o));
+    for (o, name) in [
+        (super::Occluders { disparity: &small, matte: None }, "disparity"),
+        (super::Occluders { disparity: &rgb, matte: None }, "disparity"),
+        (super::Occluders { disparity: &fits, matte: Some(&small) }, "matte"),
+    ] {
+        let err = run(o).err().expect("a mismatched map must be refused");
+        assert!(matches!(err, Error::Usage(_)) && err.to_string().contains(name), "{err}");
+    }
+    assert!(run(super::Occluders { disparity: &fits, matte: Some(&fits) }).is_ok());
+}
+
 /// Occluders from a disparity map alone.
 fn depth_of(d: &Image) -> super::Occluders<'_> {
     super::Occluders { disparity: d, matte: None }
