@@ -134,10 +134,11 @@ for _, label, folder in DFD_REPORTS:
 readme = replace_between(readme, "<!-- dfd-acceptance -->\n", "<!-- /dfd-acceptance -->", "\n\n".join(acc) + "\n")
 # Issue 35: the highlights stage on the 8-bit inputs, from docs/highlights/*/report.csv
 # (`drbokeh bench --methods pipeline,scatter,gather --scenes 20 --size 128x128 --seed S`,
-# and `--groundtruth ../shared/groundtruth`; each report's own "Inputs compared" section has
-# the per-category tables).
+# `--groundtruth ../shared/groundtruth` and `--groundtruth target/heldout` (docs/heldout/README.md
+# makes those scenes); each report's own "Inputs compared" section has the per-category tables).
 HIGHLIGHT_SETS = [("seed 3 (tuned on)", "docs/highlights/seed3"), ("seed 4 (held out)", "docs/highlights/seed4"),
-                  ("Mitsuba scenes (not tuned on)", "docs/highlights/mitsuba")]
+                  ("Mitsuba scenes (not tuned on)", "docs/highlights/mitsuba"),
+                  ("held-out Mitsuba set (never tuned on)", "docs/highlights/heldout")]
 
 
 def highlights_table():
