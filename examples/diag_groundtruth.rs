@@ -9,10 +9,15 @@
 //! photo shows); `BLOBS=1` lists them one by one; `BANDS=1` sums the squared error by distance
 //! to the solid matte.
 //!
+//! `INPUT=srgb8|srgb8-psf` feeds the pipeline the bench's 8-bit photo instead of the linear
+//! one (`HIGHLIGHTS=off` turns its highlights stage off).
+//!
 //! `cargo run --release --example diag_groundtruth -- SCENE_DIR...`
 use drbokeh::bench::groundtruth::GtScene;
+use drbokeh::bench::inputs::{Input, prepare};
 use drbokeh::bench::metrics::srgb;
 use drbokeh::bench::run::score;
+use drbokeh::bench::scenes::SceneInputs;
 use drbokeh::config::{Config, KernelChoice};
 use drbokeh::render::{self, Kernel, Layer, Profile, RenderSettings};
 use drbokeh::stages::depth::Disparity;
@@ -50,11 +55,24 @@ fn main() -> drbokeh::Result<()> {
             let mut cfg = Config::default();
             cfg.render.blur = Some(blur);
             cfg.render.kernel = KernelChoice::Fast;
+            if std::env::var("HIGHLIGHTS").is_ok_and(|v| v == "off") {
+                cfg.highlights.mode = drbokeh::stages::light_recovery::HighlightMode::Off;
+            }
+            let input = std::env::var("INPUT").ok().and_then(|v| Input::parse(&v)).unwrap_or(Input::Linear);
+            let linear = SceneInputs {
+                aif: sc.aif.clone(),
+                disparity: sc.disparity.clone(),
+                matte: sc.alpha.clone(),
+                realistic_disparity: sc.disparity.clone(),
+                two_layers: exact.clone(),
+                plane_layers: Vec::new(),
+            };
+            let photo = prepare(&linear, input)?.scene.aif.clone();
             let scene = Scene {
-                rgb: sc.aif.clone(),
+                rgb: photo,
                 disparity: Disparity { map: sc.disparity.clone(), z_range: None, filled_fraction: 0.0 },
                 matte: Some(sc.alpha.clone()),
-                encoding: drbokeh::PhotoEncoding::Linear,
+                encoding: input.encoding(),
             };
             let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
             let p = |img: &Image| score(img, &s.gt, border).psnr_srgb;
@@ -194,6 +212,9 @@ fn main() -> drbokeh::Result<()> {
                 let stem = format!("{d}/{}_{}", sc.name, s.name);
                 save(&s.gt, &format!("{stem}_gt.png"));
                 save(&out.image, &format!("{stem}_pipe.png"));
+                for (k, l) in out.layers.iter().enumerate() {
+                    save(l.image(), &format!("{stem}_layer{k}.png"));
+                }
                 let (a, b) = (srgb(&out.image), srgb(&s.gt));
                 let err: Vec<f32> = a
                     .data

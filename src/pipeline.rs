@@ -91,6 +91,9 @@ struct PeelSpec<'a> {
     what: &'a str,
     /// The edge band's rule for this layer (`[inpaint] edge_band`, or kept for a binary matte).
     edge_band: EdgeBand,
+    /// [`InpaintOptions::lights_above`]: the recovered lights' floor, when the highlights
+    /// stage changed an integer photo.
+    lights_above: Option<f32>,
 }
 
 /// The opaque scene behind a peeled layer: its colour (linear RGB) and disparity, inpainted,
@@ -286,6 +289,8 @@ impl Pipeline {
             &cfg.onnx,
             Some(light_recovery::Occluders { disparity: disp, matte: scene.matte.as_ref() }),
         )?;
+        // An integer photo holds nothing above white: what the stage put there is a light.
+        let lights_above = (matches!(recovered, Recovered::Changed(..)) && scene.encoding != PhotoEncoding::Linear).then_some(1.0);
         let rgb = match &recovered {
             Recovered::Changed(img, r) => {
                 report.ran("highlights", t, serde_json::to_value(r).ok());
@@ -361,7 +366,7 @@ impl Pipeline {
                             "refine": refined
                         })),
                     );
-                    self.peel_layers((rgb, disp), alpha, (focus, blur, max_coc), edge_band, &mut report)?
+                    self.peel_layers((rgb, disp), alpha, (focus, blur, max_coc), (edge_band, lights_above), &mut report)?
                 }
             }
         };
@@ -386,7 +391,7 @@ impl Pipeline {
         (rgb, disp): (&Image, &Image),
         alpha: Image,
         (focus, blur, max_coc): (f32, f32, f32),
-        edge_band: EdgeBand,
+        (edge_band, lights_above): (EdgeBand, Option<f32>),
         report: &mut Report,
     ) -> Result<Vec<Layer>> {
         let cfg = &self.config;
@@ -410,7 +415,7 @@ impl Pipeline {
         // A fill that more slices are cut from must be complete: a pixel left unfilled deep under
         // a layer keeps that layer's depth and would be taken for a nearer slice.
         let whole = !cuts.thresholds.is_empty();
-        let spec = PeelSpec { focus, blur, max_coc, whole, what: "foreground layer", edge_band };
+        let spec = PeelSpec { focus, blur, max_coc, whole, what: "foreground layer", edge_band, lights_above };
         let first = self.peel(rgb, disp, alpha, edges, spec, report)?;
         report.stages.push(StageReport::ran("fill_depth", edges_ms + first.fill_ms, Some(first.fill_detail)));
         report.stages.push(StageReport::ran("inpaint", first.inpaint_ms, Some(first.inpaint_detail)));
@@ -428,7 +433,8 @@ impl Pipeline {
                 let (rgb, disp) = behind.into_frame(&frame.0, &frame.1);
                 let alpha = slices::slice_alpha(&disp, cut, cfg.segment.edge_softness);
                 let whole = k + 1 < cuts.thresholds.len();
-                let spec = PeelSpec { focus, blur, max_coc, whole, what: "background slice", edge_band: cfg.inpaint.edge_band };
+                let spec =
+                    PeelSpec { focus, blur, max_coc, whole, what: "background slice", edge_band: cfg.inpaint.edge_band, lights_above };
                 let p = self.peel(&rgb, &disp, alpha, None, spec, report)?;
                 peeled.push(serde_json::json!({"cut": cut, "fill_depth": p.fill_detail, "inpaint": p.inpaint_detail}));
                 layers.push(p.layer);
@@ -547,9 +553,9 @@ impl Pipeline {
         within: Option<(&Image, &Image, work_box::Window)>,
         report: &mut Report,
     ) -> Result<Peeled> {
-        let PeelSpec { focus, blur, max_coc, whole, what, edge_band } = spec;
+        let PeelSpec { focus, blur, max_coc, whole, what, edge_band, lights_above } = spec;
         let cfg = &self.config;
-        let inpaint = InpaintOptions { edge_band, ..cfg.inpaint.clone() };
+        let inpaint = InpaintOptions { edge_band, lights_above, ..cfg.inpaint.clone() };
         // Band pixels no blur of this render can reach keep the photo's colour.
         let band = (edges.outside_px, BandReach::Render { disparity: disp, focus, blur });
         let t = Instant::now();
@@ -843,7 +849,8 @@ mod tests {
             for (focus, blur) in [(0.85f32, 12.0f32), (0.2, 24.0)] {
                 let edges = p.edge_widths(&disp, &alpha);
                 let mut report = Report::default();
-                let spec = PeelSpec { focus, blur, max_coc: blur, whole: false, what: "fg", edge_band: EdgeBand::Tested };
+                let spec =
+                    PeelSpec { focus, blur, max_coc: blur, whole: false, what: "fg", edge_band: EdgeBand::Tested, lights_above: None };
                 let boxed = p.peel(&rgb, &disp, alpha.clone(), None, spec, &mut report).unwrap();
                 let carried = p.carry(&rgb, &alpha).unwrap();
                 let whole = p.peel_frame(&rgb, &disp, (alpha.clone(), carried, edges), spec, None, &mut report).unwrap();
