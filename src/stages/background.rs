@@ -66,9 +66,9 @@ pub struct InpaintOptions {
     pub method: super::inpaint_onnx::InpaintMethod,
     /// `[inpaint.onnx]`: the model used by `method = "onnx"`.
     pub onnx: crate::onnx::ModelSpec,
-    /// Set by the pipeline, never by `pipeline.toml`: where the highlights stage put back an
-    /// 8/16-bit photo's clipped lights, a sample above this (the photo's white, 1) is such a
-    /// light, and the fill keeps it out of its sources like a point highlight. The point test
+    /// Set by the pipeline, never by `pipeline.toml`: where the highlights stage (`auto`) put
+    /// back an 8/16-bit photo's clipped lights, a sample above this (the photo's white, 1) is
+    /// such a light, and the fill keeps it out of its sources like a point highlight. The point test
     /// misses a recovered light's rim: in a window the light itself fills, the rim is not 3x the
     /// window's upper quartile, and Telea smeared it across the hole behind the subject, where
     /// a blurred subject's edge shows it (held-out Mitsuba `ho_profile`, background in focus,
