@@ -91,8 +91,8 @@ struct PeelSpec<'a> {
     what: &'a str,
     /// The edge band's rule for this layer (`[inpaint] edge_band`, or kept for a binary matte).
     edge_band: EdgeBand,
-    /// [`InpaintOptions::lights_above`]: the recovered lights' floor, when the highlights
-    /// stage changed an integer photo.
+    /// [`InpaintOptions::lights_above`]: the recovered lights' floor, when highlights `auto`
+    /// changed an integer photo.
     lights_above: Option<f32>,
 }
 
