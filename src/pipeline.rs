@@ -289,12 +289,10 @@ impl Pipeline {
             &cfg.onnx,
             Some(light_recovery::Occluders { disparity: disp, matte: scene.matte.as_ref() }),
         )?;
-        // An integer photo holds nothing above white: what `auto` put there is a light (it lifts
-        // light-sized blobs only; `boost` and a model lift skies and walls too, which must
-        // stay fill sources).
-        let lights_above = matches!(&recovered, Recovered::Changed(_, r) if r.mode == light_recovery::HighlightMode::Auto)
-            .then_some(1.0)
-            .filter(|_| scene.encoding != PhotoEncoding::Linear);
+        // `auto` changes integer photos only, which hold nothing above white: what it put there
+        // is a light (it lifts light-sized blobs only; `boost` and a model lift skies and walls
+        // too, which must stay fill sources).
+        let lights_above = matches!(&recovered, Recovered::Changed(_, r) if r.mode == light_recovery::HighlightMode::Auto).then_some(1.0);
         let rgb = match &recovered {
             Recovered::Changed(img, r) => {
                 report.ran("highlights", t, serde_json::to_value(r).ok());
