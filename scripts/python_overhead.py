@@ -11,14 +11,16 @@ rounds, the sides alternated; medians. The render stage `drbokeh render --json` 
 printed too (the kernels alone, in a fresh process).
 
     cargo build --release --example refocus
-    .venv/bin/python scripts/python_overhead.py [N] [--reuse]
+    .venv/bin/python scripts/python_overhead.py [N]
 
-`--reuse` calls `drbokeh.reuse_large_allocations()` first (the allocator tuning the binary
-applies to itself; opt-in for a Python program).
+Also printed: the interpreter's resident memory after the Python side's renders (what the
+extension's allocator keeps for the next render) and after `drbokeh.release_memory()`, and
+its peak.
 """
 
 import json
 import pathlib
+import resource
 import subprocess
 import sys
 import tempfile
@@ -33,11 +35,13 @@ BIN = ROOT / "target" / "release" / "drbokeh"
 REFOCUS = ROOT / "target" / "release" / "examples" / "refocus"
 
 
+def resident_mb():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize() / 2**20
+
+
 def main():
-    args = [a for a in sys.argv[1:] if a != "--reuse"]
-    n = int(args[0]) if args else 5
-    if "--reuse" in sys.argv[1:]:
-        drbokeh.reuse_large_allocations()
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 5
     h, w = 1000, 1000
     rng = np.random.default_rng(0)
     yy, xx = np.mgrid[0:h, 0:w]
@@ -66,12 +70,16 @@ def main():
             stage.append(next(s["ms"] for s in rep["stages"] if s["name"] == "render"))
     mp, ml, ms = (float(np.median(v)) for v in (py, lib, stage))
     runs = lambda v: ", ".join(f"{x:.0f}" for x in v)  # noqa: E731
-    reuse = " (drbokeh.reuse_large_allocations() called)" if "--reuse" in sys.argv[1:] else ""
-    print(f"1 MP, 2 layers, K = {blur}, focus {focus}: 3 rounds of {n} warm renders per side, the sides alternated{reuse}")
+    kept = resident_mb()
+    drbokeh.release_memory()
+    released = resident_mb()
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"1 MP, 2 layers, K = {blur}, focus {focus}: 3 rounds of {n} warm renders per side, the sides alternated")
     print(f"drbokeh.render_layers (Python, whole call): median {mp:.1f} ms  ({runs(py)})")
     print(f"library call (Refocuser::render):            median {ml:.1f} ms  ({runs(lib)})")
     print(f"render stage alone (drbokeh render --json):  median {ms:.1f} ms  ({runs(stage)})")
     print(f"Python / library call: {mp / ml:.3f} ({(mp / ml - 1) * 100:+.1f}%)")
+    print(f"interpreter resident: {kept:.0f} MB after the renders, {released:.0f} MB after release_memory(); peak {peak:.0f} MB")
 
 
 if __name__ == "__main__":

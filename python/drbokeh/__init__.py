@@ -27,7 +27,7 @@ from ._drbokeh import (  # noqa: F401
     render_layers,
     render_layers_differentiable,
     render_layers_vjp,
-    reuse_large_allocations,
+    release_memory,
 )
 
 __all__ = [
@@ -37,5 +37,5 @@ __all__ = [
     "render_layers",
     "render_layers_differentiable",
     "render_layers_vjp",
-    "reuse_large_allocations",
+    "release_memory",
 ]

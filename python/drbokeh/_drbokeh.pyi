@@ -134,7 +134,7 @@ def dfd(
     "fast", "exact" or "ray"; iters per level (default 100), levels (default 3); aperture: the
     lens the photos were taken through (a shape other than the disc runs the exact kernel)."""
 
-def reuse_large_allocations() -> None:
-    """Opt-in for the program that owns the process: freed frame-sized buffers are reused
-    (glibc) instead of mapped afresh each render; faster repeated renders, the process keeps its
-    largest footprint mapped."""
+def release_memory() -> None:
+    """Hands the memory the extension keeps for its next render back to the system (it keeps
+    the pages of its largest render between calls, so repeated renders do not map them afresh).
+    Returned arrays stay valid; the next render maps what it needs again."""

@@ -21,6 +21,16 @@ use pyo3::exceptions::{PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 
+/// The extension's own allocator (its Rust allocations only; the interpreter and NumPy keep
+/// theirs). A render allocates and frees frame-sized buffers stage after stage; glibc, in an
+/// interpreter whose earlier allocations moved its mmap threshold, maps each afresh and pays
+/// page faults and zeroing on every call (+16-21% over the same render from Rust, 1 MP; issue
+/// 37). mimalloc keeps freed pages for the next buffer: -1 to -9%, the peak 3% higher at 6 MP,
+/// and the pages kept between calls (`release_memory` hands them back). Measured with
+/// `scripts/python_overhead.py`; `docs/python.md` has the figures.
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// The library's error as the Python exception a user expects.
 fn py_err(e: Error) -> PyErr {
     match e {
@@ -591,14 +601,16 @@ fn dfd<'py>(
     Ok(arr.into_pyarray(py))
 }
 
-/// Opt-in, for the program that owns the process (a library leaves the allocator to its host):
-/// freed frame-sized buffers are kept on glibc's heap and reused instead of being mapped from
-/// the kernel afresh each render (the tuning `drbokeh render` applies to itself). Renders
-/// repeated in one process get faster (1 MP, two layers, here: about 190 → 165 ms a call);
-/// the price is that the process keeps its largest footprint mapped. Does nothing off glibc.
+/// Hands the memory the extension's allocator keeps for its next render back to the system.
+/// Between calls the extension keeps the pages of its largest render (about 1 GB after a 6 MP
+/// render of two layers; `docs/python.md`), so that the next render does not fault them in
+/// again; a program that renders once, or seldom, and lives on can call this after. Results
+/// already returned stay valid (NumPy owns them). The next render is slower by what it must map
+/// afresh.
 #[pyfunction]
-fn reuse_large_allocations() {
-    drbokeh::resources::reuse_large_allocations();
+fn release_memory(py: Python<'_>) {
+    // SAFETY: `mi_collect` only frees pages no live allocation uses; any thread may call it.
+    py.detach(|| unsafe { libmimalloc_sys::mi_collect(true) });
 }
 
 /// The native module.
@@ -610,7 +622,7 @@ fn _drbokeh(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_layers_differentiable, m)?)?;
     m.add_function(wrap_pyfunction!(render_layers_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(dfd, m)?)?;
-    m.add_function(wrap_pyfunction!(reuse_large_allocations, m)?)?;
+    m.add_function(wrap_pyfunction!(release_memory, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
