@@ -2,7 +2,7 @@
 //! the true outline of the depth split and of its refinement, from the realistic depth map.
 //!
 //! `cargo run --release --example diag_matting -- SEED SCENES SIZE` (defaults 3 20 128);
-//! `DUMP=DIR` writes the photo, the true matte, the split and the refined matte as PNGs.
+//! `DUMP=DIR` writes the photo, the true matte, the split, the trimap, the band's fit and the refined matte as PNGs.
 use drbokeh::bench::outline::Outline;
 use drbokeh::bench::scenes::generate;
 use drbokeh::color::Transfer;
@@ -51,7 +51,9 @@ fn main() -> drbokeh::Result<()> {
             std::fs::create_dir_all(dir).ok();
             let p = |name: &str| dir.join(format!("s{i:03}_{name}.png"));
             write_png(&p("photo"), &inp.aif, 8, Transfer::Srgb)?;
-            for (name, a) in [("true", &inp.matte), ("split", &coarse), ("refined", &refined)] {
+            let tri = matting::trimap(&coarse, matting::band_for(&edges)).unwrap_or_else(|| coarse.clone());
+            let (fitted, _) = matting::fit(&inp.aif, &coarse, matting::band_for(&edges), cfg.segment.refine.solver());
+            for (name, a) in [("true", &inp.matte), ("split", &coarse), ("refined", &refined), ("trimap", &tri), ("fit", &fitted)] {
                 write_png(&p(name), a, 8, Transfer::Linear)?;
             }
         }

@@ -14,7 +14,7 @@
 //! `AT=X,Y` (with `REGION=1`) prints the region around a pixel, `CUT=1` lists each background highlight the matte cuts with its hidden light (true /
 //! estimated), `TWIN=1` traces the scene without the highlights hidden behind full cover (same inputs) and
 //! prints how far apart the two truths lie,
-//! `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
+//! `NOMATTE=1` runs the pipeline without the matte (the depth split), `DUMP=DIR` writes sRGB PNGs of the inputs, layers and renders, `FIRST=I` starts at scene I.
 use drbokeh::bench::run::score;
 use drbokeh::bench::scenes::generate;
 use drbokeh::bench::trace::{TraceSettings, trace_split};
@@ -74,7 +74,7 @@ fn main() -> drbokeh::Result<()> {
         let scene = Scene {
             rgb: inp.aif.clone(),
             disparity: Disparity { map: depth_in, z_range: None, filled_fraction: 0.0 },
-            matte: Some(inp.matte.clone()),
+            matte: if std::env::var("NOMATTE").is_ok() { None } else { Some(inp.matte.clone()) },
             encoding: drbokeh::PhotoEncoding::Linear,
         };
         let out = Pipeline::from_config(cfg)?.run(&scene, Focus::Disparity(focus))?;
@@ -339,6 +339,8 @@ fn main() -> drbokeh::Result<()> {
             save(&gt, "gt");
             save(&out.image, "pipe");
             if est.len() == 2 {
+                let a: Vec<f32> = (0..size * size).map(|i| est[0].alpha(i)).collect();
+                save(&Image::from_vec(size, size, 1, a).unwrap(), "est_alpha");
                 save(est[1].image(), "est_bg");
                 save(inp.two_layers[1].image(), "true_bg");
             }
