@@ -356,7 +356,8 @@ impl Browser {
 /// The page in a real (headless) browser: it loads, shows a first preview (focused on the
 /// subject at the centre), a mouse click on the background refocuses there, and the preview it
 /// shows is byte for byte what `/render` answers for that click's query (checked through the
-/// FNV-1a the page keeps of its bytes).
+/// FNV-1a the page keeps of its bytes), after a quick one at quality 1 that is `/render`'s
+/// answer to the same query at quality 1.
 #[test]
 fn the_page_refocuses_where_clicked_in_a_browser() {
     let t = tempfile::tempdir().unwrap();
@@ -389,4 +390,12 @@ fn the_page_refocuses_where_clicked_in_a_browser() {
     assert_eq!(status(&mut browser, "bytes"), png.len().to_string());
     assert_eq!(status(&mut browser, "sum"), fnv1a(&png).to_string(), "the preview shown is /render's answer");
     assert_ne!(first, status(&mut browser, "sum"), "the click changed the preview");
+    // Before it, the page showed the quick preview of the same click: the same query at
+    // quality 1 (the default quality is 2), byte for byte /render's answer to it.
+    let quick = status(&mut browser, "quickQuery").as_str().unwrap().to_string();
+    assert_eq!(quick, query.replace("quality=2", "quality=1"), "the quick preview is the click's query at quality 1");
+    assert!(query.contains("quality=2"), "{query}");
+    let (code, png) = server.request("GET", &format!("/render?{quick}"));
+    assert_eq!(code, 200);
+    assert_eq!(status(&mut browser, "quickSum"), fnv1a(&png).to_string(), "the quick preview shown is /render's answer");
 }
