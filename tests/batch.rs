@@ -124,7 +124,11 @@ fn shards_partition_the_collection() {
             .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let s = summary(&out, &format!("drbokeh-batch.shard-{i}-of-3.json"));
-        seen.extend(s["items"].as_array().unwrap().iter().map(|it| it["image"].as_str().unwrap().to_string()));
+        let mine: Vec<String> = s["items"].as_array().unwrap().iter().map(|it| it["image"].as_str().unwrap().to_string()).collect();
+        // The guide's rule: shard I takes every N-th image of the sorted list (I, I + N, ...),
+        // not a contiguous run, which would also partition the collection.
+        assert_eq!(mine, (i..5).step_by(3).map(|k| format!("img{k}.png")).collect::<Vec<_>>(), "shard {i}/3");
+        seen.extend(mine);
     }
     seen.sort();
     assert_eq!(seen, (0..5).map(|k| format!("img{k}.png")).collect::<Vec<_>>());
@@ -622,6 +626,16 @@ fn keyframes_interpolate_the_focus_and_smoothing_steadies_it() {
     let lib = drbokeh::focus_pull::smooth_foci(&want.map(|v| v as f32), 3.0);
     assert!(smooth.iter().zip(&lib).all(|(a, b)| (a - *b as f64).abs() < 1e-6), "{smooth:?} vs {lib:?}");
     assert!(smooth[0] > 0.2 && smooth[5] < 0.8 && smooth.windows(2).all(|w| w[1] >= w[0]), "{smooth:?}");
+    // σ is seconds × --fps frames: 0.2 s at 15 fps is the same σ of 3 frames (the default of
+    // 30 fps alone would not show a batch that ignores --fps).
+    let (code, s, err) = batch_json(
+        &inp,
+        &out,
+        &["--manifest", m.to_str().unwrap(), "--keyframes", "--blur", "4", "--focus-smoothing", "0.2", "--fps", "15"],
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let at15 = foci(&s);
+    assert!(at15.iter().zip(&lib).all(|(a, b)| (a - *b as f64).abs() < 1e-6), "--fps 15: {at15:?} vs {lib:?}");
     // Without a focus value to interpolate from, or smoothing focus_at: exit 2 naming why.
     let bad = t.path().join("bad.csv");
     std::fs::write(&bad, "image,focus_at\nf1.png,\"3,4\"\n").unwrap();
@@ -631,4 +645,82 @@ fn keyframes_interpolate_the_focus_and_smoothing_steadies_it() {
     let o = batch_json_output(&inp, &out, &["--focus-at", "3,4", "--focus-smoothing", "0.5"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("focus_at"), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// A 32x24 matte of the left half of `scene`'s square only: a foreground the depth map alone
+/// would not give, so a render that ignores it is another picture.
+fn half_matte(path: &Path) {
+    let (w, h) = (32, 24);
+    let inside = |x: usize, y: usize| (10..16).contains(&x) && (6..18).contains(&y);
+    let m = Image::from_vec(w, h, 1, (0..w * h).map(|i| inside(i % w, i / w) as u8 as f32).collect()).unwrap();
+    write_png(path, &m, 8, Transfer::Linear).unwrap();
+}
+
+/// The guide's pairing rules for mattes: a photo's `NAME_matte.*` is its matte, and a
+/// manifest's `matte` cell (relative to INPUT_DIR) gives one to a photo that has none by name.
+/// Each output must equal a single `drbokeh render` with that `--matte`, and differ from the
+/// render without it: the other batch tests pair mattes but never look at what they did.
+#[test]
+fn mattes_by_name_and_by_manifest_are_used() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(inp.join("mattes")).unwrap();
+    scene(&inp, "a", Some("a.depth.exr"), None);
+    scene(&inp, "b", Some("b_depth.exr"), None);
+    half_matte(&inp.join("a_matte.png"));
+    half_matte(&inp.join("mattes/half.png"));
+    let m = t.path().join("m.csv");
+    std::fs::write(&m, "image,matte\nb.png,mattes/half.png\n").unwrap();
+    let (code, s, err) = batch_json(&inp, &out, &["--focus", "0", "--blur", "6", "--manifest", m.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(statuses(&s).iter().all(|(_, st, _)| st == "ok"), "{s}");
+    let render = |args: &[&str]| {
+        let one = t.path().join("one.png");
+        let o = bin().current_dir(&inp).arg("render").args(args).args(["--focus", "0", "--blur", "6", "-o"]).arg(&one).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(&one).unwrap()
+    };
+    for (stem, depth, matte) in [("a", "a.depth.exr", "a_matte.png"), ("b", "b_depth.exr", "mattes/half.png")] {
+        let got = std::fs::read(out.join(format!("{stem}_bokeh.png"))).unwrap();
+        let photo = format!("{stem}.png");
+        assert!(got == render(&[&photo, "--depth", depth, "--matte", matte]), "{stem}: not the render with --matte {matte}");
+        assert!(got != render(&[&photo, "--depth", depth]), "{stem}: the matte changes nothing here; the test proves nothing");
+    }
+}
+
+/// The guide's resume rules beyond blur and focus: the matte is one of the inputs (a newer
+/// one redoes its image only, "inputs changed"); the parameters' hash takes the configuration
+/// without `[batch]`, so a `[batch]` setting (the memory budget) redoes nothing while a
+/// rendering setting (`[render] quality`) redoes everything.
+#[test]
+fn resume_follows_the_matte_and_the_configuration_but_not_batch_settings() {
+    let t = tempfile::tempdir().unwrap();
+    let (inp, out) = (t.path().join("in"), t.path().join("out"));
+    std::fs::create_dir_all(&inp).unwrap();
+    scene(&inp, "a", Some("a.depth.exr"), Some("a.matte.png"));
+    scene(&inp, "b", Some("b.depth.exr"), None);
+    let (batch_cfg, render_cfg) = (t.path().join("batch.toml"), t.path().join("render.toml"));
+    std::fs::write(&batch_cfg, "[batch]\nmemory_budget_mb = 512\n").unwrap();
+    std::fs::write(&render_cfg, "[render]\nquality = 3\n").unwrap();
+    let run = |cfg: Option<&Path>| {
+        let mut args = vec!["--focus", "1", "--blur", "4"];
+        if let Some(c) = cfg {
+            args.extend(["--config", c.to_str().unwrap()]);
+        }
+        let (code, s, err) = batch_json(&inp, &out, &args);
+        assert_eq!(code, Some(0), "{err}");
+        statuses(&s)
+    };
+    assert!(run(None).iter().all(|(_, st, _)| st == "ok"));
+    let st = run(Some(&batch_cfg));
+    assert!(st.iter().all(|(_, st, _)| st == "skipped"), "a [batch] setting redid outputs: {st:?}");
+    let st = run(Some(&render_cfg));
+    assert!(st.iter().all(|(_, st, why)| st == "ok" && why.contains("parameters changed")), "{st:?}");
+    // A newer matte, same content: its image is redone, the other one is not.
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    std::fs::write(inp.join("a.matte.png"), std::fs::read(inp.join("a.matte.png")).unwrap()).unwrap();
+    let st = run(Some(&render_cfg));
+    assert_eq!((st[0].0.as_str(), st[0].1.as_str()), ("a.png", "ok"), "{st:?}");
+    assert!(st[0].2.contains("inputs changed"), "{st:?}");
+    assert_eq!(st[1].1, "skipped", "{st:?}");
 }
