@@ -235,7 +235,7 @@ fn parse_size(s: &str) -> Result<(usize, usize), String> {
 }
 
 /// Accepted frame sides of generated bench scenes.
-const BENCH_SIDES: std::ops::RangeInclusive<usize> = 8..=4096;
+const BENCH_SIDES: std::ops::RangeInclusive<usize> = 16..=4096;
 /// Peak bytes per pixel of one bench scene (planes, exact layers, traced truth, every
 /// method's render and the crops), with margin.
 const BENCH_BYTES_PER_PIXEL: u64 = 600;

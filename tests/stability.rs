@@ -200,6 +200,41 @@ fn long_thin_image_with_huge_blur_is_finite() {
     }
 }
 
+/// Colours beyond `render::SAFE_COLOUR` are rendered scaled by a power of two: the render is
+/// linear in colour, so layers whose colours are 2^110 (about 1.3e33) times another's render to
+/// 2^110 times its render, on every profile and kernel, occluding layers included.
+#[test]
+fn colours_beyond_the_safe_range_render_as_scaled_copies() {
+    let layers = make_layers(24, 18, DispKind::Random, AlphaKind::Random, false, 11, false);
+    let up = 2f32.powi(110);
+    assert!(up > render::SAFE_COLOUR);
+    let huge: Vec<Layer> = layers
+        .iter()
+        .map(|l| {
+            let mut img = l.image().clone();
+            img.data.chunks_exact_mut(5).for_each(|px| px[..3].iter_mut().for_each(|c| *c *= up));
+            Layer::new(img, "huge").unwrap()
+        })
+        .collect();
+    for profile in PROFILES {
+        for kernel in [Kernel::Exact, Kernel::Fast { quality: 2 }] {
+            let s = RenderSettings {
+                blur: 6.0,
+                focus: 0.5,
+                lens: render::auto_lens(&layers, 6.0, 0.5),
+                occlusion: true,
+                profile,
+                aperture: drbokeh::render::Aperture::DISC,
+            };
+            let (a, b) = (render::render(&layers, &s, kernel).unwrap(), render::render(&huge, &s, kernel).unwrap());
+            let peak = a.data.iter().fold(0f32, |m, v| m.max(v.abs()));
+            for (x, y) in a.data.iter().zip(&b.data) {
+                assert!((y / up - x).abs() <= 1e-6 * peak, "{profile:?} {kernel:?}: {x} vs {}", y / up);
+            }
+        }
+    }
+}
+
 /// The largest windows' weight sums, accumulated in f32 as the official code does, against
 /// f64: the relative error is reported; the exact kernel accumulates in f64 for this reason.
 #[test]

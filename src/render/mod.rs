@@ -262,11 +262,16 @@ pub fn render(layers: &[Layer], s: &RenderSettings, kernel: Kernel) -> Result<Im
 /// colour channel ([`chromatic::per_channel`]); the stats are the green (unscaled) pass's.
 pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     validate(layers, s)?;
-    let Some(scales) = s.aperture.channel_scales() else { return render_pass(layers, s, kernel) };
+    let ranges: Vec<[[f32; 2]; 3]> = layers.iter().map(|l| l.colour_range()).collect();
+    let peak = ranges.iter().flatten().flatten().fold(0f32, |m, v| m.max(v.abs()));
+    if peak > SAFE_COLOUR {
+        return render_scaled(layers, s, kernel, peak);
+    }
+    let Some(scales) = s.aperture.channel_scales() else { return render_pass(layers, &ranges, s, kernel) };
     let mut green = Vec::new();
     let [image] = chromatic::per_channel(scales, |scale, c| {
         let sc = RenderSettings { blur: s.blur * scale, aperture: s.aperture.achromatic(), ..*s };
-        let (image, stats) = render_pass(layers, &sc, kernel)?;
+        let (image, stats) = render_pass(layers, &ranges, &sc, kernel)?;
         if c == 1 {
             green = stats;
         }
@@ -275,15 +280,47 @@ pub fn render_with_stats(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) 
     Ok((image, green))
 }
 
-/// One achromatic pass of [`render_with_stats`] (the caller has validated).
-fn render_pass(layers: &[&Layer], s: &RenderSettings, kernel: Kernel) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
+/// Largest colour magnitude the kernels sum as given: the render is linear in colour, and
+/// larger ones (up to `f32::MAX`, which overflowed the official profile's fast sums) are
+/// rendered scaled down by a power of two ([`render_scaled`]). 1e30 leaves the sums a factor
+/// of 3e8 of headroom (a window of 801² taps is 6.4e5).
+pub const SAFE_COLOUR: f32 = 1e30;
+
+/// [`render_with_stats`] of layers whose colours reach `peak` > [`SAFE_COLOUR`]: the colours
+/// scaled by 2^-k below it (exact but for values 2^-k-fold below the smallest normal, which no
+/// pixel of such a render shows), rendered, and the result scaled back, held within
+/// `±f32::MAX` (a blur of colours at `f32::MAX` can round above it). Copies the layers.
+fn render_scaled(layers: &[&Layer], s: &RenderSettings, kernel: Kernel, peak: f32) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
+    let k = (peak / SAFE_COLOUR).log2().ceil() as i32;
+    let down = 2f32.powi(-k);
+    let scaled = layers
+        .iter()
+        .map(|l| {
+            let mut image = l.image().clone();
+            image.data.par_chunks_exact_mut(layer::CHANNELS).for_each(|px| px[..3].iter_mut().for_each(|c| *c *= down));
+            Layer::new(image, "a layer scaled into the renderer's range")
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (mut out, stats) = render_with_stats(&scaled.iter().collect::<Vec<_>>(), s, kernel)?;
+    let up = 2f32.powi(k);
+    out.data.par_iter_mut().for_each(|v| *v = (*v * up).clamp(-f32::MAX, f32::MAX));
+    Ok((out, stats))
+}
+
+/// One achromatic pass of [`render_with_stats`] (the caller has validated), with each layer's
+/// [`Layer::colour_range`].
+fn render_pass(
+    layers: &[&Layer],
+    ranges: &[[[f32; 2]; 3]],
+    s: &RenderSettings,
+    kernel: Kernel,
+) -> Result<(Image, Vec<Option<fast::FastStats>>)> {
     let (w, h) = (layers[0].width(), layers[0].height());
     let mut acc = composite::accumulator(w, h);
     let mut stats = Vec::with_capacity(layers.len());
     let taps = if kernel == Kernel::Exact { aperture::disk_taps(s.lens) } else { Vec::new() };
-    for (n, l) in layers.iter().enumerate() {
-        let range = l.colour_range();
-        let over = |raw: &raw::Pixel, px: &mut [f32]| composite::over(raw, &range, px);
+    for (n, (l, range)) in layers.iter().zip(ranges).enumerate() {
+        let over = |raw: &raw::Pixel, px: &mut [f32]| composite::over(raw, range, px);
         match kernel {
             Kernel::Exact => {
                 let raw = exact::scatter_layer(l, s, &taps, Role::of(n, layers.len()));
