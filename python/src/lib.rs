@@ -24,10 +24,11 @@ use std::path::PathBuf;
 /// The extension's own allocator (its Rust allocations only; the interpreter and NumPy keep
 /// theirs). A render allocates and frees frame-sized buffers stage after stage; glibc, in an
 /// interpreter whose earlier allocations moved its mmap threshold, maps each afresh and pays
-/// page faults and zeroing on every call (+16-21% over the same render from Rust, 1 MP; issue
-/// 37). mimalloc keeps freed pages for the next buffer: -1 to -9%, the peak 3% higher at 6 MP,
-/// and the pages kept between calls (`release_memory` hands them back). Measured with
-/// `scripts/python_overhead.py`; `docs/python.md` has the figures.
+/// page faults and zeroing on every call (+28-51% over the same render from Rust, 1 MP, idle
+/// machine; issue 37). mimalloc keeps freed pages for the next buffer: +6.5-8.1% in the same
+/// window, the peak 3% higher at 6 MP, and the pages kept between calls (`release_memory`
+/// hands them back). Measured with `scripts/python_overhead.py`; `docs/python.md` has the
+/// figures.
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
