@@ -416,22 +416,25 @@ fn main() -> ExitCode {
         Ok(Ok(code)) => code,
         Ok(Err(e)) => {
             // Library errors already name their cause; other errors show their chain.
-            let user = match e.downcast_ref::<Error>() {
-                Some(err) => {
-                    eprintln!("error: {err}");
-                    err.is_user_error()
-                }
-                None => {
-                    eprintln!("error: {e:#}");
-                    false
-                }
-            };
-            ExitCode::from(if user { 2 } else { 1 })
+            match e.downcast_ref::<Error>() {
+                Some(err) => eprintln!("error: {err}"),
+                None => eprintln!("error: {e:#}"),
+            }
+            ExitCode::from(exit_code(&e))
         }
         Err(_) => {
             eprintln!("error: internal error (a bug): please report it with the command line");
             ExitCode::from(1)
         }
+    }
+}
+
+/// The exit status of a failed command (docs/guide.md): 2 for bad input or usage (the
+/// library's user errors), 1 for an internal error or any other failure.
+fn exit_code(e: &anyhow::Error) -> u8 {
+    match e.downcast_ref::<Error>() {
+        Some(err) if err.is_user_error() => 2,
+        _ => 1,
     }
 }
 
@@ -703,5 +706,18 @@ mod tests {
             }
         }
         assert_eq!(flag_names("render.focus_at 3,4 and render.focus"), "--focus-at 3,4 and --focus");
+    }
+
+    /// The guide's exit statuses: 2 for bad input and usage, 1 for an internal error (no
+    /// command line is known to reach one, so the end-to-end tests cannot read it) and for a
+    /// failure from outside the library.
+    #[test]
+    fn internal_errors_exit_1_and_user_errors_2() {
+        assert_eq!(exit_code(&anyhow::Error::new(Error::Internal("a bug".into()))), 1);
+        assert_eq!(exit_code(&anyhow::Error::new(Error::usage("bad flag"))), 2);
+        assert_eq!(exit_code(&anyhow::Error::new(Error::input("photo.png", "truncated"))), 2);
+        assert_eq!(exit_code(&anyhow::anyhow!("some other failure")), 1);
+        // Context added at the command-line edge keeps the library's error and its status.
+        assert_eq!(exit_code(&anyhow::Error::new(Error::usage("bad")).context("while rendering")), 2);
     }
 }
