@@ -347,24 +347,6 @@ impl Budget {
     }
 }
 
-/// Width and height from an image file's header, without decoding (None when unknown). NPY
-/// files (H x W or H x W x C) through their header, the rest through the `image` crate.
-fn probe_dims(path: &Path) -> Option<(u64, u64)> {
-    if ext_of(path).as_deref() == Some("npy") {
-        let npy = npyz::NpyFile::new(std::io::BufReader::new(std::fs::File::open(path).ok()?)).ok()?;
-        return match npy.shape() {
-            [h, w] | [h, w, _] => Some((*w, *h)),
-            _ => None,
-        };
-    }
-    if crate::io::detect_format(path).ok()? == crate::io::FileFormat::Heif {
-        let (w, h) = crate::io::inspect::raster_size(path, &crate::io::ReadLimits::unlimited()).ok()?;
-        return Some((w as u64, h as u64));
-    }
-    let (w, h) = image::ImageReader::open(path).ok()?.with_guessed_format().ok()?.into_dimensions().ok()?;
-    Some((w as u64, h as u64))
-}
-
 /// An item with everything resolved before any image runs (manifest applied, values checked),
 /// so that a bad value stops the batch with a usage error instead of failing every image.
 struct Plan {
@@ -717,7 +699,7 @@ fn stale_reason(output: &Path, image: &Path, fp: &Fingerprint) -> Option<String>
     if bytes == 0 || bytes != record.output_bytes {
         return Some(format!("the existing output is {bytes} bytes, {} were written; made again", record.output_bytes));
     }
-    match (probe_dims(output), probe_dims(image)) {
+    match (crate::io::inspect::probe_size(output), crate::io::inspect::probe_size(image)) {
         (None, _) => Some("the existing output's header is unreadable; made again".into()),
         (Some(o), Some(i)) if o != i => Some(format!("the existing output is {}x{}, the image {}x{}; made again", o.0, o.1, i.0, i.1)),
         _ => None,
@@ -761,7 +743,7 @@ fn process(opts: &BatchOptions, plan: &Plan, budget: &Budget) -> ItemResult {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(Error::io(&record, e)),
             _ => {}
         }
-        let bytes = probe_dims(&item.image).map_or(0, |(w, h)| w * h).saturating_mul(BYTES_PER_PIXEL);
+        let bytes = crate::io::inspect::probe_size(&item.image).map_or(0, |(w, h)| w * h).saturating_mul(BYTES_PER_PIXEL);
         budget.acquire(bytes);
         // A bug in one image must not take the batch down with it.
         let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {

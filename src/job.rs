@@ -426,7 +426,7 @@ fn preflight(job: &Job, cfg: &Config) -> Result<()> {
     {
         check_writable_folder(&dir.join("x"))?;
     }
-    let probe = crate::resources::probe_dimensions;
+    let probe = io::inspect::probe_size;
     if let Some((image, (w, h))) = job.image.as_ref().and_then(|p| probe(p).map(|d| (p, d))) {
         for map in job.depth.iter().chain(&job.matte) {
             if let Some((mw, mh)) = probe(map) {

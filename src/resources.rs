@@ -8,7 +8,6 @@
 //! none is readable the check passes (the allocator then has the last word).
 
 use crate::error::{Error, Result};
-use std::path::Path;
 
 /// Makes freed buffers of any size reusable by later allocations of the process, instead of
 /// unmapped at once and mapped afresh (glibc on Linux; elsewhere it does nothing). A run
@@ -107,21 +106,6 @@ fn check_memory_against(what: &str, needed: u64, available: Option<u64>) -> Resu
         ))),
         _ => Ok(()),
     }
-}
-
-/// Width and height from a raster's header, without decoding (PNG, JPEG, TIFF, EXR, ...);
-/// None when the header cannot be read (the reader then reports the problem).
-pub fn probe_dimensions(path: &Path) -> Option<(u64, u64)> {
-    // Opening a FIFO would block.
-    crate::io::check_regular_file(path).ok()?;
-    let is_exr = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr"));
-    if is_exr {
-        let meta = exr::meta::MetaData::read_from_file(path, false).ok()?;
-        let h = meta.headers.first()?;
-        return Some((h.layer_size.0 as u64, h.layer_size.1 as u64));
-    }
-    let (w, h) = image::ImageReader::open(path).ok()?.with_guessed_format().ok()?.into_dimensions().ok()?;
-    Some((w as u64, h as u64))
 }
 
 /// Most worker threads accepted: more than this many per core only adds overhead (and a

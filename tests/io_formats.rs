@@ -991,9 +991,27 @@ fn garbage_bytes_with_every_extension() {
     assert!(e.contains("garbage.dat") && e.contains("unrecognised") && e.contains(".png") && e.contains(".exr"), "{e}");
     // A known but unsupported format is named.
     let p = dir.path().join("pic.bmp");
-    image::RgbImage::new(2, 2).save(&p).unwrap();
+    std::fs::write(&p, bmp_1x1()).unwrap();
     let e = err_of(read_photo(&p, Transfer::Srgb, &lim()));
     assert!(e.contains("Bmp") && e.contains("not supported"), "{e}");
+}
+
+/// A 1x1 24-bit BMP (file header, BITMAPINFOHEADER, one padded row), written by hand: the
+/// `image` crate here has no BMP encoder.
+fn bmp_1x1() -> Vec<u8> {
+    let mut b = Vec::new();
+    b.extend_from_slice(b"BM");
+    b.extend_from_slice(&58u32.to_le_bytes()); // file size
+    b.extend_from_slice(&[0; 4]);
+    b.extend_from_slice(&54u32.to_le_bytes()); // pixel data offset
+    b.extend_from_slice(&40u32.to_le_bytes()); // info header size
+    b.extend_from_slice(&1i32.to_le_bytes()); // width
+    b.extend_from_slice(&1i32.to_le_bytes()); // height
+    b.extend_from_slice(&1u16.to_le_bytes()); // planes
+    b.extend_from_slice(&24u16.to_le_bytes()); // bits per pixel
+    b.extend_from_slice(&[0; 24]); // no compression, sizes and palette left at 0
+    b.extend_from_slice(&[0x20, 0x40, 0x80, 0]); // one BGR pixel, row padded to 4 bytes
+    b
 }
 
 #[test]

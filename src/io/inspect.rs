@@ -157,12 +157,48 @@ fn write_map<'a>(
     Ok(format!("{what}, {w}x{h}, {how}"))
 }
 
-/// The size (width, height) of the raster `path`, from its header where the format has one
-/// the `image` crate reads (PNG, JPEG, TIFF: no pixels decoded), else decoded in full; checked
-/// against `limits`.
+/// The size (width, height) of the raster `path`, from its header (PNG, JPEG, TIFF, HEIF, EXR
+/// and NPY: no pixels decoded; a TIFF the header reader declines is decoded in full); checked
+/// against `limits`. The size is the one the readers decode: an EXR's first part with flat
+/// samples, an NPY array's first two axes (H x W or H x W x C).
 pub fn raster_size(path: &Path, limits: &ReadLimits) -> Result<(usize, usize)> {
-    let h = photo_header(path, detect_format(path)?, limits)?;
-    Ok((h.width, h.height))
+    let format = detect_format(path)?;
+    let (width, height) = match format {
+        FileFormat::Exr => {
+            let meta = exr::meta::MetaData::read_from_file(path, false)
+                .map_err(|e| Error::input(path, format!("cannot read the EXR header: {e}")))?;
+            let part = meta
+                .headers
+                .iter()
+                .find(|h| !h.deep)
+                .ok_or_else(|| Error::input(path, "EXR file has only deep-data parts; not supported"))?;
+            (part.layer_size.0, part.layer_size.1)
+        }
+        FileFormat::Npy => {
+            let npy = npyz::NpyFile::new(super::format::open(path)?)
+                .map_err(|e| Error::input(path, format!("cannot read the NPY header: {e}")))?;
+            match npy.shape() {
+                [h, w] | [h, w, _] => (*w as usize, *h as usize),
+                shape => return Err(Error::input(path, format!("NPY array has shape {shape:?}; expected H x W or H x W x C"))),
+            }
+        }
+        _ => {
+            let h = photo_header(path, format, limits)?;
+            (h.width, h.height)
+        }
+    };
+    limits.check(path, width as u64, height as u64)?;
+    Ok((width, height))
+}
+
+/// [`raster_size`] without limits, for estimates and checks made before a file is read (memory
+/// needed, matching aspect ratios, an existing output's size): None when the path is not a
+/// regular file (opening a FIFO would block) or its header cannot be read; the reader then
+/// reports the problem.
+pub fn probe_size(path: &Path) -> Option<(u64, u64)> {
+    super::format::check_regular_file(path).ok()?;
+    let (w, h) = raster_size(path, &ReadLimits::unlimited()).ok()?;
+    Some((w as u64, h as u64))
 }
 
 /// A raster's size and sample layout.
@@ -231,4 +267,48 @@ pub fn write_extracted_depth(out: &Path, e: &EmbeddedDepth) -> Result<String> {
         scaled.map_inplace(|d| d / far as f32);
         Ok((std::borrow::Cow::Owned(scaled), 16, format!("16-bit grey of depth / Far (Far = {far})")))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::color::Transfer;
+
+    /// Every format's size comes from its header, as the readers decode it; what is not a
+    /// readable raster (text, a folder, a FIFO) probes as unknown instead of failing or blocking.
+    #[test]
+    fn sizes_come_from_every_format_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = |name: &str| dir.path().join(name);
+        let img = Image::filled(7, 5, 3, 0.25);
+        crate::io::write_png(&p("a.png"), &img, 8, Transfer::Srgb).unwrap();
+        crate::io::write_exr(&p("a.exr"), &img, &["R", "G", "B"]).unwrap();
+        crate::io::save_npy(&p("a.npy"), &Image::filled(7, 5, 1, 0.5)).unwrap();
+        let grey = vec![90u8; 7 * 5 * 3];
+        for name in ["a.jpg", "a.tif"] {
+            image::save_buffer(p(name), &grey, 7, 5, image::ExtendedColorType::Rgb8).unwrap();
+        }
+        for name in ["a.png", "a.exr", "a.npy", "a.jpg", "a.tif"] {
+            assert_eq!(raster_size(&p(name), &ReadLimits::unlimited()).unwrap(), (7, 5), "{name}");
+            assert_eq!(probe_size(&p(name)), Some((7, 5)), "{name}");
+            let read = crate::io::read_decoded(&p(name), &ReadLimits::unlimited()).unwrap().image;
+            assert_eq!((read.width, read.height), (7, 5), "{name}");
+        }
+        let small = ReadLimits { max_pixels: 34 };
+        for name in ["a.png", "a.exr", "a.npy"] {
+            let e = raster_size(&p(name), &small).unwrap_err().to_string();
+            assert!(e.contains(name), "{e}");
+        }
+        std::fs::write(p("notes.txt"), "not an image").unwrap();
+        assert_eq!(probe_size(&p("notes.txt")), None);
+        assert_eq!(probe_size(dir.path()), None);
+        #[cfg(unix)]
+        {
+            let fifo = p("pipe.png");
+            let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+            // SAFETY: a valid NUL-terminated path.
+            assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+            assert_eq!(probe_size(&fifo), None);
+        }
+    }
 }
