@@ -66,6 +66,44 @@ pub(super) fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], radii: [f6
     }
 }
 
+/// Area of the convex polygon `pts` (counterclockwise) inside the circle of radius `radius`
+/// centred `centre`: exact, the circle not polygonized (a cat's eye's second circle). O(vertices):
+/// the sum over edges of the signed area of the triangle (centre, edge) inside the circle.
+pub(super) fn polygon_circle_area(pts: &[[f64; 2]], centre: [f64; 2], radius: f64) -> f64 {
+    let n = pts.len();
+    let rel = |p: [f64; 2]| [p[0] - centre[0], p[1] - centre[1]];
+    (0..n).map(|i| triangle_circle_area(rel(pts[i]), rel(pts[(i + 1) % n]), radius)).sum::<f64>().max(0.0)
+}
+
+/// Signed area of the triangle (origin, `a`, `b`) inside the circle of radius `radius` about
+/// the origin (positive counterclockwise): the chord of `ab` inside the circle is a triangle,
+/// the parts outside are circular sectors.
+fn triangle_circle_area(a: [f64; 2], b: [f64; 2], radius: f64) -> f64 {
+    let cross = |u: [f64; 2], v: [f64; 2]| u[0] * v[1] - u[1] * v[0];
+    let sector = |u: [f64; 2], v: [f64; 2]| 0.5 * radius * radius * cross(u, v).atan2(u[0] * v[0] + u[1] * v[1]);
+    let d = [b[0] - a[0], b[1] - a[1]];
+    let dd = d[0] * d[0] + d[1] * d[1];
+    if dd == 0.0 {
+        return 0.0;
+    }
+    // |a + t·d|² = radius²: t = (-a·d ± √disc) / dd.
+    let ad = a[0] * d[0] + a[1] * d[1];
+    let disc = ad * ad - dd * (a[0] * a[0] + a[1] * a[1] - radius * radius);
+    if disc <= 0.0 {
+        return sector(a, b);
+    }
+    let root = disc.sqrt();
+    let (t0, t1) = ((-ad - root) / dd, (-ad + root) / dd);
+    if t1 <= 0.0 || t0 >= 1.0 {
+        return sector(a, b);
+    }
+    let at = |t: f64| [a[0] + t * d[0], a[1] + t * d[1]];
+    let (p, q) = (at(t0.max(0.0)), at(t1.min(1.0)));
+    let before = if t0 > 0.0 { sector(a, p) } else { 0.0 };
+    let after = if t1 < 1.0 { sector(q, b) } else { 0.0 };
+    before + 0.5 * cross(p, q) + after
+}
+
 /// Appends to `out` the convex polygon `poly` clipped to the half-plane `n·p ≤ c`
 /// (Sutherland–Hodgman, one plane).
 pub(super) fn clip_half_plane(poly: &[[f64; 2]], [nx, ny, c]: [f64; 3], out: &mut impl Extend<[f64; 2]>) {
@@ -231,5 +269,47 @@ impl Sectors {
             }
         };
         planes[first].iter().chain(planes[wrap].iter())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The exact circle's area inside a polygon against closed forms and a fine grid count
+    /// (an independent quadrature), for polygons inside, around, across and outside the circle.
+    #[test]
+    fn polygon_circle_area_matches_closed_forms_and_a_grid() {
+        let square = |x0: f64, x1: f64, y0: f64, y1: f64| vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+        let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol;
+        // Inside the circle: the polygon's own area. Around it: the circle's.
+        assert!(close(polygon_circle_area(&square(-0.3, 0.4, -0.2, 0.1), [0.0, 0.0], 1.0), 0.21, 1e-12));
+        assert!(close(polygon_circle_area(&square(-3.0, 3.0, -3.0, 3.0), [0.5, -0.2], 2.0), 4.0 * PI, 1e-12));
+        // Half the circle, a quarter, nothing.
+        assert!(close(polygon_circle_area(&square(0.0, 2.0, -2.0, 2.0), [0.0, 0.0], 1.0), PI / 2.0, 1e-12));
+        assert!(close(polygon_circle_area(&square(1.0, 5.0, 2.0, 5.0), [1.0, 2.0], 1.5), PI * 2.25 / 4.0, 1e-12));
+        assert!(close(polygon_circle_area(&square(2.0, 3.0, 0.0, 1.0), [0.0, 0.0], 1.0), 0.0, 1e-12));
+        // A circular segment: the strip x ≥ 0.5 of the unit circle.
+        let segment = 0.5f64.acos() - 0.5 * 0.75f64.sqrt();
+        assert!(close(polygon_circle_area(&square(0.5, 2.0, -2.0, 2.0), [0.0, 0.0], 1.0), segment, 1e-12));
+        // A pentagon across the circle's edge, against a 2000 x 2000 grid of cell centres.
+        let pentagon: Vec<[f64; 2]> =
+            (0..5).map(|k| 0.3 + 2.0 * PI * k as f64 / 5.0).map(|t| [0.4 + 0.9 * t.cos(), -0.1 + 0.9 * t.sin()]).collect();
+        let (c, r) = ([-0.2, 0.15], 0.8);
+        let n = 2000;
+        let inside_polygon = |p: [f64; 2]| {
+            (0..5).all(|i| {
+                let (a, b) = (pentagon[i], pentagon[(i + 1) % 5]);
+                (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]) >= 0.0
+            })
+        };
+        let cell = 4.0 / n as f64;
+        let count = (0..n * n)
+            .map(|k| [-2.0 + (k % n) as f64 * cell + 0.5 * cell, -2.0 + (k / n) as f64 * cell + 0.5 * cell])
+            .filter(|&p| inside_polygon(p) && (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) <= r * r)
+            .count();
+        let grid = count as f64 * cell * cell;
+        let exact = polygon_circle_area(&pentagon, c, r);
+        assert!(exact > 0.3 && close(exact, grid, 2e-3), "{exact} vs grid {grid}");
     }
 }

@@ -24,7 +24,7 @@
 //! [`Aperture`] is a `Copy` handle that render settings can carry.
 
 use super::polygon::{
-    Area, CURVE_VERTICES, Clip, Poly, Sectors, blades, circle, clip_convex, clip_half_plane, polygon_rect_area, shoelace,
+    Area, CURVE_VERTICES, Clip, Poly, Sectors, blades, circle, clip_convex, polygon_circle_area, polygon_rect_area, shoelace,
 };
 use crate::error::{Error, Result};
 use std::path::Path;
@@ -507,8 +507,8 @@ impl Geometry {
             Area::Part(0.0) => return 0.0,
             _ => {}
         }
-        // A cat's eye's cut shape is clipped by two polygons per offset and built into a
-        // template per source class: 2 × 2 offsets (the tiling, hence the flux, stays exact;
+        // A cat's eye's cut shape (the outline's polygon, then the exact cut circle per offset)
+        // is built into a template per source class: 2 × 2 offsets (the tiling, hence the flux, stays exact;
         // the outline's half-maximum stays on it: tests/aperture.rs).
         let n = if cut.is_some() { 2 } else { 4 };
         let mut acc = 0f64;
@@ -563,11 +563,17 @@ impl Geometry {
                 if a == Clip::Empty {
                     return Area::Part(0.0);
                 }
-                let Kind::Polygon { planes, bbox, radii, sectors, .. } = unit_circle() else { unreachable!("a polygon") };
-                match (a, clip_convex(planes, bbox, *radii, sectors, v, rect, &mut poly, &mut next)) {
-                    (_, Clip::Empty) => Area::Part(0.0),
-                    (Clip::Untouched, Clip::Untouched) => Area::Inside,
-                    _ => Area::Part(shoelace(&poly).max(0.0)),
+                // The rectangle's farthest and nearest points from the cut circle's centre.
+                let far = |a: f64, b: f64| a.abs().max(b.abs());
+                let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
+                let [cx0, cx1, cy0, cy1] = [x0 - v[0], x1 - v[0], y0 - v[1], y1 - v[1]];
+                let (fx, fy, nx, ny) = (far(cx0, cx1), far(cy0, cy1), near(cx0, cx1), near(cy0, cy1));
+                if nx * nx + ny * ny >= 1.0 {
+                    Area::Part(0.0)
+                } else if fx * fx + fy * fy <= 1.0 {
+                    if a == Clip::Untouched { Area::Inside } else { Area::Part(shoelace(&poly).max(0.0)) }
+                } else {
+                    Area::Part(polygon_circle_area(&poly, v, 1.0))
                 }
             }
             // A cat's eye is refused for images (`Aperture::with_cat_eye`).
@@ -578,7 +584,7 @@ impl Geometry {
     /// The norm of a cut shape: its area inside the circle of radius `radius` centred `centre`
     /// (unit frame, y up; [`CatEye::norm_disc`]) times `r²`; 1 below [`POINT_COC_PX`]. With
     /// the cut's own circle (radius 1) it is the lattice sum of [`Geometry::coverage_cut`]'s
-    /// weights. O(vertices · 256).
+    /// weights. O(vertices).
     pub fn norm_cut(&self, r: f32, (centre, radius): ([f32; 2], f32)) -> f32 {
         if r < POINT_COC_PX {
             return 1.0;
@@ -587,24 +593,10 @@ impl Geometry {
     }
 
     /// The unit-frame area of the shape intersected with the circle of radius `radius` centred
-    /// `v`.
+    /// `v` (an exact circle, as [`Geometry::coverage_cut`]'s).
     fn area_cut(&self, v: [f64; 2], radius: f64) -> f64 {
         let Kind::Polygon { pts, .. } = &self.kind else { return self.area };
-        let Kind::Polygon { planes, .. } = unit_circle() else { unreachable!("a polygon") };
-        let (mut poly, mut next) = (pts.clone(), Vec::with_capacity(pts.len() + 8));
-        for &[nx, ny, c] in planes {
-            let c = c * radius + nx * v[0] + ny * v[1];
-            if poly.iter().all(|p| nx * p[0] + ny * p[1] <= c) {
-                continue;
-            }
-            next.clear();
-            clip_half_plane(&poly, [nx, ny, c], &mut next);
-            std::mem::swap(&mut poly, &mut next);
-            if poly.len() < 3 {
-                return 0.0;
-            }
-        }
-        shoelace(&poly).max(0.0)
+        polygon_circle_area(pts, v, radius)
     }
 
     /// An area-preserving map from the unit square to a polygon's inside (unit frame, y up),
@@ -669,12 +661,6 @@ impl Geometry {
         };
         cap.min(2.0 * p) as f32
     }
-}
-
-/// The unit circle as a polygon (a cat's eye's second circle), built once.
-fn unit_circle() -> &'static Kind {
-    static CIRCLE: std::sync::OnceLock<Kind> = std::sync::OnceLock::new();
-    CIRCLE.get_or_init(|| Kind::polygon(circle(CURVE_VERTICES)))
 }
 
 /// Optical vignetting over one frame (`Aperture::with_cat_eye`): where each source's second
