@@ -68,40 +68,66 @@ pub(super) fn polygon_rect_area(planes: &[[f64; 3]], bbox: &[f64; 4], radii: [f6
 
 /// Area of the convex polygon `pts` (counterclockwise) inside the circle of radius `radius`
 /// centred `centre`: exact, the circle not polygonized (a cat's eye's second circle). O(vertices):
-/// the sum over edges of the signed area of the triangle (centre, edge) inside the circle.
+/// the sum over edges of the signed area of the triangle (centre, edge) inside the circle, a
+/// triangle where the edge is inside and a circular sector where it is outside.
+///
+/// Consecutive sectors merge into one (one `atan2` per run instead of per edge: a 256-gon's
+/// norm took 5% of a 12 MP cat's-eye render); a run is cut where its next point leaves the
+/// half-plane facing its first, so that its angle stays within ±π/2 and `atan2` of its two
+/// ends is the angle it sweeps.
 pub(super) fn polygon_circle_area(pts: &[[f64; 2]], centre: [f64; 2], radius: f64) -> f64 {
     let n = pts.len();
-    let rel = |p: [f64; 2]| [p[0] - centre[0], p[1] - centre[1]];
-    (0..n).map(|i| triangle_circle_area(rel(pts[i]), rel(pts[(i + 1) % n]), radius)).sum::<f64>().max(0.0)
-}
-
-/// Signed area of the triangle (origin, `a`, `b`) inside the circle of radius `radius` about
-/// the origin (positive counterclockwise): the chord of `ab` inside the circle is a triangle,
-/// the parts outside are circular sectors.
-fn triangle_circle_area(a: [f64; 2], b: [f64; 2], radius: f64) -> f64 {
     let cross = |u: [f64; 2], v: [f64; 2]| u[0] * v[1] - u[1] * v[0];
-    let sector = |u: [f64; 2], v: [f64; 2]| 0.5 * radius * radius * cross(u, v).atan2(u[0] * v[0] + u[1] * v[1]);
-    let d = [b[0] - a[0], b[1] - a[1]];
-    let dd = d[0] * d[0] + d[1] * d[1];
-    if dd == 0.0 {
-        return 0.0;
+    let dot = |u: [f64; 2], v: [f64; 2]| u[0] * v[0] + u[1] * v[1];
+    let sector = |u: [f64; 2], v: [f64; 2]| 0.5 * radius * radius * cross(u, v).atan2(dot(u, v));
+    let rel = |p: [f64; 2]| [p[0] - centre[0], p[1] - centre[1]];
+    let mut total = 0.0;
+    // The pending run of sectors, from its first point to its last.
+    let mut run: Option<([f64; 2], [f64; 2])> = None;
+    let arc = |total: &mut f64, run: &mut Option<([f64; 2], [f64; 2])>, from: [f64; 2], to: [f64; 2]| {
+        *run = Some(match *run {
+            Some((first, _)) if dot(first, to) > 0.0 => (first, to),
+            Some((first, last)) => {
+                *total += sector(first, last);
+                (from, to)
+            }
+            None => (from, to),
+        });
+    };
+    let flush = |total: &mut f64, run: &mut Option<([f64; 2], [f64; 2])>| {
+        if let Some((first, last)) = run.take() {
+            *total += sector(first, last);
+        }
+    };
+    for i in 0..n {
+        let (a, b) = (rel(pts[i]), rel(pts[(i + 1) % n]));
+        let d = [b[0] - a[0], b[1] - a[1]];
+        let dd = dot(d, d);
+        if dd == 0.0 {
+            continue;
+        }
+        // |a + t·d|² = radius²: t = (-a·d ± √disc) / dd.
+        let ad = dot(a, d);
+        let disc = ad * ad - dd * (dot(a, a) - radius * radius);
+        let root = disc.max(0.0).sqrt();
+        let (t0, t1) = ((-ad - root) / dd, (-ad + root) / dd);
+        if disc <= 0.0 || t1 <= 0.0 || t0 >= 1.0 {
+            arc(&mut total, &mut run, a, b);
+            continue;
+        }
+        let at = |t: f64| [a[0] + t * d[0], a[1] + t * d[1]];
+        let (p, q) = (at(t0.max(0.0)), at(t1.min(1.0)));
+        if t0 > 0.0 {
+            arc(&mut total, &mut run, a, p);
+        }
+        flush(&mut total, &mut run);
+        total += 0.5 * cross(p, q);
+        if t1 < 1.0 {
+            arc(&mut total, &mut run, q, b);
+        }
     }
-    // |a + t·d|² = radius²: t = (-a·d ± √disc) / dd.
-    let ad = a[0] * d[0] + a[1] * d[1];
-    let disc = ad * ad - dd * (a[0] * a[0] + a[1] * a[1] - radius * radius);
-    if disc <= 0.0 {
-        return sector(a, b);
-    }
-    let root = disc.sqrt();
-    let (t0, t1) = ((-ad - root) / dd, (-ad + root) / dd);
-    if t1 <= 0.0 || t0 >= 1.0 {
-        return sector(a, b);
-    }
-    let at = |t: f64| [a[0] + t * d[0], a[1] + t * d[1]];
-    let (p, q) = (at(t0.max(0.0)), at(t1.min(1.0)));
-    let before = if t0 > 0.0 { sector(a, p) } else { 0.0 };
-    let after = if t1 < 1.0 { sector(q, b) } else { 0.0 };
-    before + 0.5 * cross(p, q) + after
+    flush(&mut total, &mut run);
+    total.max(0.0)
 }
 
 /// Appends to `out` the convex polygon `poly` clipped to the half-plane `n·p ≤ c`
@@ -292,6 +318,28 @@ mod tests {
         // A circular segment: the strip x ≥ 0.5 of the unit circle.
         let segment = 0.5f64.acos() - 0.5 * 0.75f64.sqrt();
         assert!(close(polygon_circle_area(&square(0.5, 2.0, -2.0, 2.0), [0.0, 0.0], 1.0), segment, 1e-12));
+        // A 256-gon around a small circle (one turn of merged sectors, off centre), inside a
+        // large one, and across one: against the closed forms and the 256-gon's own clip.
+        let gon = circle(CURVE_VERTICES);
+        assert!(close(polygon_circle_area(&gon, [0.3, -0.2], 0.25), PI * 0.0625, 1e-12));
+        assert!(close(polygon_circle_area(&gon, [0.1, 0.0], 1.5), shoelace(&gon), 1e-12));
+        let (v, r) = ([0.6, 0.5], 0.9);
+        let mut clipped = gon.clone();
+        for [nx, ny, c] in circle(4096).iter().enumerate().map(|(k, _)| {
+            let t = 2.0 * PI * (k as f64 + 0.5) / 4096.0;
+            [t.cos(), t.sin(), r * (PI / 4096.0).cos() + t.cos() * v[0] + t.sin() * v[1]]
+        }) {
+            let mut next = Vec::new();
+            clip_half_plane(&clipped, [nx, ny, c], &mut next);
+            clipped = next;
+        }
+        // The 4096-gon inscribed in the circle falls short of it by ~4e-7 of its area.
+        assert!(
+            close(polygon_circle_area(&gon, v, r), shoelace(&clipped), 2e-6),
+            "{} vs {}",
+            polygon_circle_area(&gon, v, r),
+            shoelace(&clipped)
+        );
         // A pentagon across the circle's edge, against a 2000 x 2000 grid of cell centres.
         let pentagon: Vec<[f64; 2]> =
             (0..5).map(|k| 0.3 + 2.0 * PI * k as f64 / 5.0).map(|t| [0.4 + 0.9 * t.cos(), -0.1 + 0.9 * t.sin()]).collect();
