@@ -85,14 +85,22 @@ pub(super) fn polygon_circle_area(pts: &[[f64; 2]], centre: [f64; 2], radius: f6
     // The pending run of sectors, from its first point to its last.
     let mut run: Option<([f64; 2], [f64; 2])> = None;
     let arc = |total: &mut f64, run: &mut Option<([f64; 2], [f64; 2])>, from: [f64; 2], to: [f64; 2]| {
-        *run = Some(match *run {
-            Some((first, _)) if dot(first, to) > 0.0 => (first, to),
-            Some((first, last)) => {
-                *total += sector(first, last);
-                (from, to)
+        match *run {
+            Some((first, _)) if dot(first, to) > 0.0 => {
+                *run = Some((first, to));
+                return;
             }
-            None => (from, to),
-        });
+            Some((first, last)) => *total += sector(first, last),
+            None => {}
+        }
+        // A new run from `from`, kept open only while its points face `from`; else this
+        // sector alone (one edge sweeps less than π).
+        if dot(from, to) > 0.0 {
+            *run = Some((from, to));
+        } else {
+            *total += sector(from, to);
+            *run = None;
+        }
     };
     let flush = |total: &mut f64, run: &mut Option<([f64; 2], [f64; 2])>| {
         if let Some((first, last)) = run.take() {
@@ -340,6 +348,10 @@ mod tests {
             polygon_circle_area(&gon, v, r),
             shoelace(&clipped)
         );
+        // A small circle in a triangle whose first edge sweeps 175° and the next two 100° and
+        // 85°: no run may hold the first two edges (275°, which `atan2` would read as -85°).
+        let polar = |deg: f64| [10.0 * deg.to_radians().cos(), 10.0 * deg.to_radians().sin()];
+        assert!(close(polygon_circle_area(&[polar(190.0), polar(5.0), polar(105.0)], [0.0, 0.0], 0.1), PI * 0.01, 1e-12));
         // A pentagon across the circle's edge, against a 2000 x 2000 grid of cell centres.
         let pentagon: Vec<[f64; 2]> =
             (0..5).map(|k| 0.3 + 2.0 * PI * k as f64 / 5.0).map(|t| [0.4 + 0.9 * t.cos(), -0.1 + 0.9 * t.sin()]).collect();
