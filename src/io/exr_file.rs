@@ -134,8 +134,7 @@ fn read_exr_outputs(
         for h in headers.iter() {
             limits.check(path, h.layer_size.0 as u64, h.layer_size.1 as u64)?;
         }
-        let part =
-            headers.iter().position(|h| !h.deep).ok_or_else(|| Error::input(path, "EXR file has only deep-data parts; not supported"))?;
+        let part = flat_part(path, headers)?;
         let header = &headers[part];
         let (width, height) = (header.layer_size.0, header.layer_size.1);
         let n = width.saturating_mul(height);
@@ -247,6 +246,11 @@ fn read_exr_outputs(
 const GROUP_BYTES: usize = 8 << 20;
 
 /// The compressed bytes of a chunk (for grouping).
+/// The part the readers decode: the first with flat (not deep) samples.
+pub(crate) fn flat_part(path: &Path, headers: &[exr::meta::header::Header]) -> Result<usize> {
+    headers.iter().position(|h| !h.deep).ok_or_else(|| Error::input(path, "EXR file has only deep-data parts; not supported"))
+}
+
 fn chunk_bytes(chunk: &exr::block::chunk::Chunk) -> usize {
     use exr::block::chunk::CompressedBlock as B;
     match &chunk.compressed_block {

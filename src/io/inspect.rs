@@ -167,20 +167,14 @@ pub fn raster_size(path: &Path, limits: &ReadLimits) -> Result<(usize, usize)> {
         FileFormat::Exr => {
             let meta = exr::meta::MetaData::read_from_file(path, false)
                 .map_err(|e| Error::input(path, format!("cannot read the EXR header: {e}")))?;
-            let part = meta
-                .headers
-                .iter()
-                .find(|h| !h.deep)
-                .ok_or_else(|| Error::input(path, "EXR file has only deep-data parts; not supported"))?;
+            let part = &meta.headers[super::exr_file::flat_part(path, &meta.headers)?];
             (part.layer_size.0, part.layer_size.1)
         }
         FileFormat::Npy => {
             let npy = npyz::NpyFile::new(super::format::open(path)?)
                 .map_err(|e| Error::input(path, format!("cannot read the NPY header: {e}")))?;
-            match npy.shape() {
-                [h, w] | [h, w, _] => (*w as usize, *h as usize),
-                shape => return Err(Error::input(path, format!("NPY array has shape {shape:?}; expected H x W or H x W x C"))),
-            }
+            let (h, w, _) = super::npy::hwc(npy.shape()).map_err(|e| Error::input(path, e))?;
+            (w as usize, h as usize)
         }
         _ => {
             let h = photo_header(path, format, limits)?;

@@ -39,16 +39,21 @@ pub(crate) enum NpySamples {
     F32(Vec<f32>),
 }
 
+/// (height, width, channels) of an NPY array's shape: H x W or H x W x C.
+pub(crate) fn hwc(shape: &[u64]) -> std::result::Result<(u64, u64, u64), String> {
+    match *shape {
+        [h, w] => Ok((h, w, 1)),
+        [h, w, c] => Ok((h, w, c)),
+        _ => Err(format!("NPY array has shape {shape:?}; expected H x W or H x W x C")),
+    }
+}
+
 /// Decodes NPY bytes to (width, height, channels, samples); checks as [`decode_npy`].
 pub(crate) fn decode_npy_samples(bytes: &[u8], max_pixels: u64) -> std::result::Result<(usize, usize, usize, NpySamples), String> {
     let data_start = check_header_length(bytes)?;
     let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a valid NPY file ({e})"))?;
     let shape = npy.shape().to_vec();
-    let (h, w, c) = match shape[..] {
-        [h, w] => (h, w, 1),
-        [h, w, c] => (h, w, c),
-        _ => return Err(format!("NPY array has shape {shape:?}; expected H x W or H x W x C")),
-    };
+    let (h, w, c) = hwc(&shape)?;
     if h == 0 || w == 0 || c == 0 {
         return Err(format!("NPY array is empty (shape {shape:?})"));
     }

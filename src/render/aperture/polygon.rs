@@ -189,14 +189,11 @@ pub(super) fn clip_convex(
     if x1 <= bbox[0] || x0 >= bbox[1] || y1 <= bbox[2] || y0 >= bbox[3] {
         return Clip::Empty;
     }
-    // The rectangle's farthest and nearest points from the centre.
-    let far = |a: f64, b: f64| a.abs().max(b.abs());
-    let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
-    let (fx, fy, nx, ny) = (far(x0, x1), far(y0, y1), near(x0, x1), near(y0, y1));
-    if fx * fx + fy * fy < inner * inner * (1.0 - 1e-12) {
+    let (near, far) = rect_reach([x0, x1, y0, y1]);
+    if far < inner * inner * (1.0 - 1e-12) {
         return Clip::Untouched;
     }
-    if nx * nx + ny * ny >= outer * outer {
+    if near >= outer * outer {
         return Clip::Empty;
     }
     let mut cut = false;
@@ -222,6 +219,15 @@ pub(super) fn clip_convex(
         }
     }
     if cut { Clip::Cut } else { Clip::Untouched }
+}
+
+/// The squared distances from the origin to the nearest and the farthest point of
+/// `rect = [x0, x1, y0, y1]` (0 nearest when it holds the origin).
+pub(super) fn rect_reach([x0, x1, y0, y1]: [f64; 4]) -> (f64, f64) {
+    let far = |a: f64, b: f64| a.abs().max(b.abs());
+    let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
+    let (fx, fy, nx, ny) = (far(x0, x1), far(y0, y1), near(x0, x1), near(y0, y1));
+    (nx * nx + ny * ny, fx * fx + fy * fy)
 }
 
 /// A many-sided polygon's edges by angle from the centre: which planes can bound it inside a

@@ -24,7 +24,7 @@
 //! [`Aperture`] is a `Copy` handle that render settings can carry.
 
 use super::polygon::{
-    Area, CURVE_VERTICES, Clip, Poly, Sectors, blades, circle, clip_convex, polygon_circle_area, polygon_rect_area, shoelace,
+    Area, CURVE_VERTICES, Clip, Poly, Sectors, blades, circle, clip_convex, polygon_circle_area, polygon_rect_area, rect_reach, shoelace,
 };
 use crate::error::{Error, Result};
 use std::path::Path;
@@ -507,9 +507,9 @@ impl Geometry {
             Area::Part(0.0) => return 0.0,
             _ => {}
         }
-        // A cat's eye's cut shape (the outline's polygon, then the exact cut circle per offset)
-        // is built into a template per source class: 2 × 2 offsets (the tiling, hence the flux, stays exact;
-        // the outline's half-maximum stays on it: tests/aperture.rs).
+        // A cat's eye's cut shape (the outline's polygon, then the exact cut circle per
+        // offset) is built into a template per source class: 2 × 2 offsets (the tiling, hence
+        // the flux, stays exact; the outline's half-maximum stays on it: tests/aperture.rs).
         let n = if cut.is_some() { 2 } else { 4 };
         let mut acc = 0f64;
         for i in 0..n {
@@ -563,14 +563,11 @@ impl Geometry {
                 if a == Clip::Empty {
                     return Area::Part(0.0);
                 }
-                // The rectangle's farthest and nearest points from the cut circle's centre.
-                let far = |a: f64, b: f64| a.abs().max(b.abs());
-                let near = |a: f64, b: f64| if a <= 0.0 && b >= 0.0 { 0.0 } else { a.abs().min(b.abs()) };
-                let [cx0, cx1, cy0, cy1] = [x0 - v[0], x1 - v[0], y0 - v[1], y1 - v[1]];
-                let (fx, fy, nx, ny) = (far(cx0, cx1), far(cy0, cy1), near(cx0, cx1), near(cy0, cy1));
-                if nx * nx + ny * ny >= 1.0 {
+                // The rectangle seen from the cut circle's centre.
+                let (near, far) = rect_reach([x0 - v[0], x1 - v[0], y0 - v[1], y1 - v[1]]);
+                if near >= 1.0 {
                     Area::Part(0.0)
-                } else if fx * fx + fy * fy <= 1.0 {
+                } else if far <= 1.0 {
                     if a == Clip::Untouched { Area::Inside } else { Area::Part(shoelace(&poly).max(0.0)) }
                 } else {
                     Area::Part(polygon_circle_area(&poly, v, 1.0))
