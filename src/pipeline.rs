@@ -292,6 +292,15 @@ impl Pipeline {
         // `auto` changes integer photos only, which hold nothing above white: what it put there
         // is a light (it lifts light-sized blobs only; `boost` and a model lift skies and walls
         // too, which must stay fill sources).
+        if let Recovered::Changed(_, r) | Recovered::Examined(r) = &recovered
+            && r.over_budget > 0
+        {
+            report.warnings.push(format!(
+                "highlights: {} clipped blobs could be lights; the {} largest were fitted and the rest left as they are (raise [highlights] max_lights to fit more)",
+                cfg.highlights.max_lights + r.over_budget,
+                cfg.highlights.max_lights
+            ));
+        }
         let lights_above = matches!(&recovered, Recovered::Changed(_, r) if r.mode == light_recovery::HighlightMode::Auto).then_some(1.0);
         let rgb = match &recovered {
             Recovered::Changed(img, r) => {

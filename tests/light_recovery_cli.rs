@@ -153,3 +153,19 @@ fn bad_highlight_options_are_refused_by_name() {
     });
     std::fs::remove_file(dir.join("bad.toml")).unwrap();
 }
+
+/// `[highlights] max_lights` below the photo's lights: the largest are fitted, the rest
+/// counted in `--json` and named in a warning that says how to fit them.
+#[test]
+fn max_lights_bounds_the_fits_and_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    std::fs::write(dir.join("few.toml"), "[highlights]\nmax_lights = 4\n").unwrap();
+    let (j, out) = render(dir, "photo8.png", "few.exr", &["--config", "few.toml"]);
+    let d = &stage(&j)["detail"];
+    assert_eq!((d["lights"].as_u64(), d["over_budget"].as_u64()), (Some(4), Some(2)), "{d}");
+    let warned = j["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("max_lights"));
+    assert!(warned, "no warning names max_lights: {j}");
+    assert!(out.all_finite());
+}

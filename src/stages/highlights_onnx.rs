@@ -81,6 +81,7 @@ pub fn recover_with_model(rgb: &Image, clip: f32, opts: &HighlightsOptions, cfg:
         lights: 0,
         psf_sigma: 0.0,
         areas_left: 0,
+        over_budget: 0,
         light_added: added,
         light_added_fraction: if added > 0.0 { added / total_light(rgb) } else { 0.0 },
         brightest: Vec::new(),

@@ -43,7 +43,7 @@ fn piece_sweep_finds_the_minimum() {
     };
     for _ in 0..200 {
         let n = 1 + (rnd() * 12.0) as usize;
-        let mut pieces: Vec<Piece> = (0..n)
+        let pieces: Vec<Piece> = (0..n)
             .map(|_| {
                 let (f, e) = (0.02 + rnd(), rnd() * 2.0 - 0.3);
                 let end = if rnd() < 0.5 { f32::INFINITY } else { e };
@@ -54,7 +54,13 @@ fn piece_sweep_finds_the_minimum() {
         let x_max = 20.0;
         let scan = (0..=200_000).map(|i| x_max * i as f32 / 200_000.0).map(|x| sum(x, &pieces)).fold(f32::INFINITY, f32::min);
         let at_zero = sum(0.0, &pieces);
-        let (x, change) = minimize_pieces(&mut pieces, x_max);
+        let always = pieces.iter().filter(|p| p.breakpoint.is_infinite()).fold(Quadratic::default(), |mut q, p| {
+            q.add(p.f, p.e);
+            q
+        });
+        let mut ending: Vec<Piece> =
+            pieces.iter().filter(|p| p.breakpoint.is_finite()).map(|p| Piece { f: p.f, e: p.e, breakpoint: p.breakpoint }).collect();
+        let (x, change) = minimize_pieces(always, &mut ending, x_max);
         assert!((change + at_zero - scan).abs() < 1e-3, "sweep {} at {x}, scan {scan}", change + at_zero);
         assert!((sum(x, &pieces) - (change + at_zero)).abs() < 1e-3);
     }
@@ -534,4 +540,35 @@ fn boost_is_a_smooth_ramp() {
         prev = k;
     }
     assert!((prev - 3.0).abs() < 1e-5, "gain at white: {prev}");
+}
+
+/// `max_lights` fits the largest blobs and leaves the rest, counted; with room for all, every
+/// light is fitted and the fitted ones come out the same.
+#[test]
+fn max_lights_fits_the_largest_blobs() {
+    let discs: Vec<Disc> = [1.4f32, 3.2, 2.0, 3.8]
+        .iter()
+        .enumerate()
+        .map(|(k, &r)| Disc { cx: 12.4 + 20.0 * k as f32, cy: 14.7, r, radiance: [10.0, 9.0, 8.0] })
+        .collect();
+    let (photo, _) = photo(88, 30, &discs, 0.0, 9);
+    let run = |max_lights: usize| match recover(&photo, SRGB8, &HighlightsOptions { max_lights, ..Default::default() }) {
+        Recovered::Changed(out, report) => (out, report),
+        _ => panic!("nothing recovered with max_lights = {max_lights}"),
+    };
+    let (all_out, all) = run(8);
+    assert_eq!((all.lights, all.over_budget), (4, 0), "{all:?}");
+    let (out, two) = run(2);
+    assert_eq!((two.lights, two.over_budget), (2, 2), "{two:?}");
+    let mut fitted: Vec<f32> = two.brightest.iter().map(|l| l.x).collect();
+    fitted.sort_by(f32::total_cmp);
+    assert!((fitted[0] - discs[1].cx).abs() < 0.5 && (fitted[1] - discs[3].cx).abs() < 0.5, "fitted at x = {fitted:?}");
+    // Around the two smaller discs the photo is as it was; around the larger ones, as with
+    // room for all (each blob's fit is its own).
+    for (i, (o, a)) in out.data.chunks_exact(3).zip(all_out.data.chunks_exact(3)).enumerate() {
+        let x = (i % 88) as f32 + 0.5;
+        let small = discs.iter().enumerate().any(|(k, d)| (k == 0 || k == 2) && (x - d.cx).abs() < 8.0);
+        let expected = if small { &photo.data[i * 3..i * 3 + 3] } else { a };
+        assert_eq!(o, expected, "pixel {i}");
+    }
 }
