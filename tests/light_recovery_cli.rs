@@ -145,13 +145,15 @@ fn bad_highlight_options_are_refused_by_name() {
             run(c)
         });
     }
-    std::fs::write(dir.join("bad.toml"), "[highlights]\ngain = 500.0\n").unwrap();
-    assert_usage_error(dir, "[highlights] gain = 500", &["highlights.gain"], || {
-        let mut c = drbokeh(dir);
-        c.args(base).args(["--config", "bad.toml"]);
-        run(c)
-    });
-    std::fs::remove_file(dir.join("bad.toml")).unwrap();
+    for (line, key) in [("gain = 500.0", "highlights.gain"), ("max_light_radius = 0.0", "highlights.max_light_radius")] {
+        std::fs::write(dir.join("bad.toml"), format!("[highlights]\n{line}\n")).unwrap();
+        assert_usage_error(dir, &format!("[highlights] {line}"), &[key], || {
+            let mut c = drbokeh(dir);
+            c.args(base).args(["--config", "bad.toml"]);
+            run(c)
+        });
+        std::fs::remove_file(dir.join("bad.toml")).unwrap();
+    }
 }
 
 /// `[highlights] max_lights` below the photo's lights: the largest are fitted, the rest

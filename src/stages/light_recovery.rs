@@ -14,7 +14,7 @@
 //!   least-squares fit of the unclipped samples, subject to the model reaching the clip level
 //!   wherever the photo is clipped (a one-sided term: a clipped sample says only "at least").
 //!   Only clipped samples are replaced (by the model, where it is brighter). Blobs larger than
-//!   a light ([`MAX_LIGHT_RADIUS`]: sky, white walls, overexposed skin) are left as they are.
+//!   a light ([`max_light_radius`]: sky, white walls, overexposed skin) are left as they are.
 //!   σ is the camera's, one for the photo ([`super::camera_psf`], from its sharpest edges;
 //!   else from the lights' own fits): a single clipped light cannot tell it.
 //! - [`HighlightMode::Boost`]: the look control of Photoshop's and Lightroom's lens blur: pixels
@@ -71,6 +71,11 @@ pub struct HighlightsOptions {
     /// outright: in the held-out scene of lights through branches they held 18% of the light
     /// put back (-0.34 dB without them).
     pub max_lights: usize,
+    /// `auto`: largest radius (pixels, of a disc of the blob's area) of a clipped blob taken
+    /// for a light; larger blobs are areas and are left as they are. None (the default): from
+    /// the photo's size ([`max_light_radius`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_light_radius: Option<f32>,
     /// `[highlights.onnx]`: the inverse-tone-mapping model of `mode = "onnx"`.
     #[serde(skip_serializing_if = "crate::onnx::ModelSpec::is_default")]
     pub onnx: crate::onnx::ModelSpec,
@@ -78,7 +83,14 @@ pub struct HighlightsOptions {
 
 impl Default for HighlightsOptions {
     fn default() -> Self {
-        HighlightsOptions { mode: HighlightMode::Auto, threshold: 0.98, gain: 4.0, max_lights: 2048, onnx: Default::default() }
+        HighlightsOptions {
+            mode: HighlightMode::Auto,
+            threshold: 0.98,
+            gain: 4.0,
+            max_lights: 2048,
+            max_light_radius: None,
+            onnx: Default::default(),
+        }
     }
 }
 
@@ -91,13 +103,31 @@ impl HighlightsOptions {
         if !(self.gain.is_finite() && (1.0..=100.0).contains(&self.gain)) {
             return Err(Error::usage(format!("{key}.gain must be in [1, 100], got {}", self.gain)));
         }
+        if let Some(r) = self.max_light_radius
+            && !(r.is_finite() && (1.0..=1000.0).contains(&r))
+        {
+            return Err(Error::usage(format!("{key}.max_light_radius must be in [1, 1000] pixels, got {r}")));
+        }
         self.onnx.validate(&format!("{key}.onnx"), crate::onnx::ModelKind::Highlights)
     }
 }
 
-/// Largest radius (pixels) of a clipped blob taken for a light: a blob of more than
-/// π·24² ≈ 1,810 pixels is an area (sky, wall, skin) and is left as it is.
+/// Largest radius (pixels, of a disc of the blob's area) of a clipped blob taken for a light
+/// in a photo whose longer side is at most [`LIGHT_RADIUS_SIDE`]: a blob of more than
+/// π·24² ≈ 1,810 pixels there is an area (sky, wall, skin) and is left as it is.
 pub const MAX_LIGHT_RADIUS: f32 = 24.0;
+/// Longer side (pixels) above which [`max_light_radius`] grows with the photo.
+pub const LIGHT_RADIUS_SIDE: f32 = 1600.0;
+
+/// Largest light radius (pixels) for a photo of `width` x `height`: [`MAX_LIGHT_RADIUS`],
+/// scaled with the longer side beyond [`LIGHT_RADIUS_SIDE`] (4032 px: 60 px). The same street
+/// lamp is 8 times wider in a 12 MP photo than at 480 px: the bundled night scene made at
+/// 4032x2688 had 12 of its 13 lights above 24 px, all left clipped (17.7 dB against its
+/// linear render, as `off`); with 48 px, 21.1 dB. Its cost grows with the window: the 13
+/// fits took ~0.4 s there.
+pub fn max_light_radius(width: usize, height: usize) -> f32 {
+    MAX_LIGHT_RADIUS * (width.max(height) as f32 / LIGHT_RADIUS_SIDE).max(1.0)
+}
 /// Radiance bound of a recovered light, in units of white: far above what the bench's and the
 /// Mitsuba scenes' lights reach (4–50), so it only stops a fit that nothing constrains.
 pub const MAX_RADIANCE: f32 = 64.0;
@@ -416,7 +446,8 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions, occluders: O
     if clipped_pixels == 0 {
         return None;
     }
-    let max_pixels = (std::f32::consts::PI * MAX_LIGHT_RADIUS * MAX_LIGHT_RADIUS) as usize;
+    let max_r = opts.max_light_radius.unwrap_or_else(|| max_light_radius(w, h));
+    let max_pixels = (std::f32::consts::PI * max_r * max_r) as usize;
     let (found, large) = blobs(&mut mask, w, h, max_pixels);
     mask.par_iter_mut().for_each(|m| *m &= 7);
     let mut found = found;
@@ -542,6 +573,50 @@ struct Seen {
     /// blob's least covered pixel: the share of it the subject in front holds. Empty without
     /// a matte.
     veiled: Vec<f32>,
+    /// Per window row, prefix sums along the row (w + 1 entries) of the fit's samples per
+    /// channel: what a run of wholly covered pixels adds to [`solve_radiance`] in O(1).
+    row_sums: Vec<[RunSums; 3]>,
+}
+
+/// Sums over a run of a window row's samples in the fit, one channel: unclipped samples (count,
+/// Σ(v - B)) and clipped ones (count). (Σ(v - B)² is not needed: a term of the error that no X
+/// changes drops out of [`minimize_pieces`]' change from X = 0.)
+#[derive(Clone, Copy, Default)]
+struct RunSums {
+    unclipped: f64,
+    e: f64,
+    clipped: f64,
+}
+
+impl std::ops::Sub for RunSums {
+    type Output = RunSums;
+    fn sub(self, o: RunSums) -> RunSums {
+        RunSums { unclipped: self.unclipped - o.unclipped, e: self.e - o.e, clipped: self.clipped - o.clipped }
+    }
+}
+
+/// [`Seen::row_sums`] of `win` seen against `background`.
+fn row_sums(win: &Window, background: [f32; 3]) -> Vec<[RunSums; 3]> {
+    let mut sums = Vec::with_capacity(win.px.len() + win.px.len() / win.w);
+    for row in win.px.chunks_exact(win.w) {
+        let mut acc = [RunSums::default(); 3];
+        sums.push(acc);
+        for &(v, m, used) in row {
+            if used {
+                for c in 0..3 {
+                    if m >> c & 1 == 0 {
+                        let e = (v[c] - background[c]) as f64;
+                        acc[c].unclipped += 1.0;
+                        acc[c].e += e;
+                    } else {
+                        acc[c].clipped += 1.0;
+                    }
+                }
+            }
+            sums.push(acc);
+        }
+    }
+    sums
 }
 
 /// The window and background of one blob. `None` when the window holds no unclipped sample to
@@ -603,7 +678,8 @@ fn see(rgb: &Image, mask: &[u8], blob: &Blob, clip: f32, occluders: Option<Occlu
     let cx = blob.pixels.iter().map(|&i| (i % w) as f32 + 0.5).sum::<f32>() / n;
     let cy = blob.pixels.iter().map(|&i| (i / w) as f32 + 0.5).sum::<f32>() / n;
     let veiled = occluders.map(|o| o.veil(blob)).unwrap_or_default();
-    Some(Seen { win, background, zero_error, cx, cy, r0: (n / std::f32::consts::PI).sqrt(), veiled })
+    let row_sums = row_sums(&win, background);
+    Some(Seen { win, background, zero_error, cx, cy, r0: (n / std::f32::consts::PI).sqrt(), veiled, row_sums })
 }
 
 impl Seen {
@@ -615,7 +691,7 @@ impl Seen {
     /// with the radius), so a grid alone misses its minimum. O(~500 footprints of the part of
     /// the window the light reaches).
     fn fit(&self, clip: f32, sigma: f32) -> (f32, Geometry, [f32; 3]) {
-        let score = |g: Geometry, cover: &mut Vec<(u32, f32)>| -> (f32, [f32; 3]) {
+        let score = |g: Geometry, cover: &mut Cover| -> (f32, [f32; 3]) {
             self.win.footprint(g, cover);
             solve_radiance(self, cover, clip)
         };
@@ -625,20 +701,25 @@ impl Seen {
         // run in parallel: one large light is otherwise a serial stretch of the stage (issue 39);
         // each is scored alone and the results are taken in order, so any thread count gives
         // the same light.
+        // A blob larger than MAX_LIGHT_RADIUS (a light of a photo larger than LIGHT_RADIUS_SIDE)
+        // is lopsided by a far smaller share of its size: its centroid alone and one start, a
+        // third of the fits (the bundled night scene at 4032x2688: the same 21.1 dB).
+        let large = self.r0 > MAX_LIGHT_RADIUS;
+        let offsets = if large { &CENTRE_OFFSETS[..1] } else { &CENTRE_OFFSETS[..] };
         let mut grid = Vec::new();
         let mut r = (0.5 * self.r0 - 2.0 * sigma).max(0.25);
         while r <= self.r0 + 1.5 {
-            grid.extend(CENTRE_OFFSETS.map(|(dx, dy)| Geometry { cx: self.cx + dx, cy: self.cy + dy, r, sigma }));
+            grid.extend(offsets.iter().map(|(dx, dy)| Geometry { cx: self.cx + dx, cy: self.cy + dy, r, sigma }));
             r *= 1.08;
         }
-        let mut coarse: Vec<(f32, Geometry)> = grid.into_par_iter().map_init(Vec::new, |cover, g| (score(g, cover).0, g)).collect();
+        let mut coarse: Vec<(f32, Geometry)> = grid.into_par_iter().map_init(Cover::default, |cover, g| (score(g, cover).0, g)).collect();
         coarse.sort_by(|a, b| a.0.total_cmp(&b.0));
-        coarse.truncate(STARTS);
+        coarse.truncate(if large { 1 } else { STARTS });
         let first = coarse[0].1;
         let found: Vec<(f32, Geometry)> = coarse
             .into_par_iter()
             .map(|(err, start)| {
-                let mut cover = Vec::new();
+                let mut cover = Cover::default();
                 compass(start, err, &mut |g| score(g, &mut cover).0)
             })
             .collect();
@@ -648,18 +729,22 @@ impl Seen {
                 best = f;
             }
         }
-        let (err, excess) = score(best.1, &mut Vec::new());
+        let (err, excess) = score(best.1, &mut Cover::default());
         (err, best.1, excess)
     }
 
     /// The fitted light: radiance per channel and the model's value at each of the blob's
     /// pixels (in `blob.pixels` order).
     fn light(&self, blob: &Blob, frame_width: usize, g: Geometry, excess: [f32; 3], clip: f32) -> Fit {
-        let mut cover = Vec::new();
+        let mut cover = Cover::default();
         self.win.footprint(g, &mut cover);
         let mut f = vec![0.0f32; self.win.px.len()];
-        for (k, fk) in cover {
+        for &(k, fk) in &cover.band {
             f[k as usize] = fk;
+        }
+        for &(j, a, b) in &cover.core {
+            let row = j as usize * self.win.w;
+            f[row + a as usize..row + b as usize].fill(1.0);
         }
         let b = self.background;
         // Where the matte says the subject covers part of a clipped pixel, the light shows only
@@ -758,57 +843,86 @@ fn compass(start: Geometry, err: f32, error: &mut dyn FnMut(Geometry) -> f32) ->
 }
 
 impl Window {
-    /// The light model's coverage (0 … 1) of the window pixels it reaches, as (window index,
-    /// coverage) into `cover` (cleared first; pixels left out of the fit are skipped), for a
-    /// disc at (cx, cy) (frame pixels) of radius r blurred by a Gaussian of σ, averaged over
-    /// the pixel.
+    /// The light model's coverage (0 … 1) of the window pixels it reaches into `cover`
+    /// (cleared first; pixels left out of the fit are skipped in `band`, counted out of the
+    /// runs by [`Seen::row_sums`]), for a disc at (cx, cy) (frame pixels) of radius r blurred
+    /// by a Gaussian of σ, averaged over the pixel. Pixels wholly inside the disc (farther
+    /// than the PSF's reach from its edge) are runs of `core`; the cost is the edge band's,
+    /// O(r) rather than O(r²).
     ///
     /// A PSF of σ ≥ [`WIDE_PSF`] is much wider than the pixel: the pixel's box is folded into
     /// the Gaussian (variance + 1/12) and the model read at the pixel's centre. A narrower one
     /// is averaged over [`SUB`]² sub-pixels (each box folded in the same way) where the disc's
-    /// edge passes; elsewhere the pixel is wholly inside or outside. With σ = 0 that is the
-    /// pixel's exact area coverage to ~1%.
-    fn footprint(&self, g: Geometry, cover: &mut Vec<(u32, f32)>) {
-        cover.clear();
+    /// edge passes. With σ = 0 that is the pixel's exact area coverage to ~1%.
+    fn footprint(&self, g: Geometry, cover: &mut Cover) {
+        cover.band.clear();
+        cover.core.clear();
         let Geometry { cx, cy, r, sigma } = g;
         let wide = sigma >= WIDE_PSF;
         let s = if wide { (sigma * sigma + PIXEL_VARIANCE).sqrt() } else { (sigma * sigma + PIXEL_VARIANCE / (SUB * SUB) as f32).sqrt() };
         // Beyond this distance from the edge a pixel (half-diagonal 0.71) sees < 1e-5 of it.
         let reach = 0.71 + 4.5 * s;
-        // Only the rows and columns within r + reach of the centre (in the same order as the
-        // window's, so the fit's sums do not depend on the cut).
-        let span = |c: f32, origin: usize, n: usize| {
-            let (lo, hi) = (c - r - reach - 0.5 - origin as f32, c + r + reach - 0.5 - origin as f32);
-            (lo.floor().max(0.0) as usize)..((hi.ceil() + 1.0).max(0.0) as usize).min(n)
+        let height = self.px.len() / self.w;
+        // Window columns whose centres lie within `half` of cx: [lo, hi) (empty when none).
+        let columns = |half: f32, inside: bool| -> (usize, usize) {
+            let (lo, hi) = (cx - half - 0.5 - self.x0 as f32, cx + half - 0.5 - self.x0 as f32);
+            // Inside runs round inwards, outer bounds outwards (each pixel is still tested).
+            let (lo, hi) = if inside { (lo.ceil(), hi.floor() + 1.0) } else { (lo.floor(), hi.ceil() + 1.0) };
+            (lo.clamp(0.0, self.w as f32) as usize, hi.clamp(0.0, self.w as f32) as usize)
         };
-        let (cols, rows) = (span(cx, self.x0, self.w), span(cy, self.y0, self.px.len() / self.w));
-        for (k, px) in rows.flat_map(|j| cols.clone().map(move |i| j * self.w + i)).map(|k| (k, &self.px[k])) {
-            if !px.2 {
-                continue;
+        let outer = r + reach;
+        let rows = {
+            let (lo, hi) = (cy - outer - 0.5 - self.y0 as f32, cy + outer - 0.5 - self.y0 as f32);
+            (lo.floor().clamp(0.0, height as f32) as usize)..(hi.ceil() + 1.0).clamp(0.0, height as f32) as usize
+        };
+        for j in rows {
+            let y = (self.y0 + j) as f32 + 0.5;
+            let dy2 = (y - cy).powi(2);
+            let (a, b) = columns((outer * outer - dy2).max(0.0).sqrt() + 1.0, false);
+            let inner = r - reach;
+            let (ia, ib) = if inner > 0.0 && inner * inner > dy2 { columns((inner * inner - dy2).sqrt(), true) } else { (b, b) };
+            let (ia, ib) = (ia.max(a), ib.clamp(ia.max(a), b));
+            if ib > ia {
+                cover.core.push((j as u32, ia as u32, ib as u32));
             }
-            let (x, y) = ((self.x0 + k % self.w) as f32 + 0.5, (self.y0 + k / self.w) as f32 + 0.5);
-            let rho = ((x - cx).powi(2) + (y - cy).powi(2)).sqrt();
-            let f = if rho - r > reach {
-                continue;
-            } else if wide {
-                footprint(rho / s, r / s)
-            } else if r - rho > reach {
-                1.0
-            } else {
-                let mut acc = 0.0;
-                for j in 0..SUB {
-                    for i in 0..SUB {
-                        let (sx, sy) = (x - 0.5 + (i as f32 + 0.5) / SUB as f32, y - 0.5 + (j as f32 + 0.5) / SUB as f32);
-                        acc += footprint(((sx - cx).powi(2) + (sy - cy).powi(2)).sqrt() / s, r / s);
-                    }
+            for i in (a..ia).chain(ib..b) {
+                let k = j * self.w + i;
+                if !self.px[k].2 {
+                    continue;
                 }
-                acc / (SUB * SUB) as f32
-            };
-            if f > 0.0 {
-                cover.push((k as u32, f));
+                let x = (self.x0 + i) as f32 + 0.5;
+                let rho = ((x - cx).powi(2) + dy2).sqrt();
+                let f = if rho - r > reach {
+                    continue;
+                } else if wide {
+                    footprint(rho / s, r / s)
+                } else if r - rho > reach {
+                    1.0
+                } else {
+                    let mut acc = 0.0;
+                    for sj in 0..SUB {
+                        for si in 0..SUB {
+                            let (sx, sy) = (x - 0.5 + (si as f32 + 0.5) / SUB as f32, y - 0.5 + (sj as f32 + 0.5) / SUB as f32);
+                            acc += footprint(((sx - cx).powi(2) + (sy - cy).powi(2)).sqrt() / s, r / s);
+                        }
+                    }
+                    acc / (SUB * SUB) as f32
+                };
+                if f > 0.0 {
+                    cover.band.push((k as u32, f));
+                }
             }
         }
     }
+}
+
+/// Where a light's model reaches in its window ([`Window::footprint`]).
+#[derive(Default)]
+struct Cover {
+    /// The edge band: (window index, coverage in (0, 1]).
+    band: Vec<(u32, f32)>,
+    /// Runs of pixels covered wholly (coverage 1): (window row, first column, end column).
+    core: Vec<(u32, u32, u32)>,
 }
 
 /// PSF σ (pixels) from which [`Window::footprint`] reads the model at pixel centres (the
@@ -826,7 +940,7 @@ const SUB: usize = 4;
 /// ([`MIN_BOUND_COVERAGE`]).
 /// X in [0, MAX_RADIANCE - B], exactly ([`minimize_pieces`]); O(n + m log m) for n samples
 /// the model reaches, m of them clipped.
-fn solve_radiance(seen: &Seen, cover: &[(u32, f32)], clip: f32) -> (f32, [f32; 3]) {
+fn solve_radiance(seen: &Seen, cover: &Cover, clip: f32) -> (f32, [f32; 3]) {
     let px = &seen.win.px;
     let b = seen.background;
     let t = b.map(|b| clip - b);
@@ -838,7 +952,7 @@ fn solve_radiance(seen: &Seen, cover: &[(u32, f32)], clip: f32) -> (f32, [f32; 3
     // (seed 3): measured, undone.) One pass over the samples for the three channels.
     let mut always = [Quadratic::default(); 3];
     let mut ending: [Vec<Piece>; 3] = Default::default();
-    for &(k, f) in cover {
+    for &(k, f) in &cover.band {
         let (v, m, _) = px[k as usize];
         for c in 0..3 {
             if m >> c & 1 == 0 {
@@ -846,6 +960,25 @@ fn solve_radiance(seen: &Seen, cover: &[(u32, f32)], clip: f32) -> (f32, [f32; 3
             } else if t[c] > 0.0 && f >= MIN_BOUND_COVERAGE {
                 ending[c].push(Piece { f, e: t[c], breakpoint: t[c] / f });
             }
+        }
+    }
+    // The core's runs: coverage 1, so n clipped samples are one piece n·(t - X)², written
+    // as (√n·t - √n·X)².
+    let mut clipped = [0.0f64; 3];
+    let stride = seen.win.w + 1;
+    for &(j, a, e) in &cover.core {
+        let row = &seen.row_sums[j as usize * stride..(j as usize + 1) * stride];
+        for c in 0..3 {
+            let run = row[e as usize][c] - row[a as usize][c];
+            always[c].a += run.unclipped;
+            always[c].b -= 2.0 * run.e;
+            clipped[c] += run.clipped;
+        }
+    }
+    for c in 0..3 {
+        if t[c] > 0.0 && clipped[c] > 0.0 {
+            let n = clipped[c].sqrt() as f32;
+            ending[c].push(Piece { f: n, e: n * t[c], breakpoint: t[c] });
         }
     }
     let mut total = seen.zero_error;

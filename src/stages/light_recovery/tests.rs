@@ -501,23 +501,20 @@ fn clipped_channels_marks_each_channel_across_blocks() {
 #[test]
 fn radiance_ignores_slivers_and_stays_under_the_cap() {
     let (clip, b) = (0.9f32, 0.2f32);
-    let seen = |px: Vec<([f32; 3], u8, bool)>| Seen {
-        win: Window { x0: 0, y0: 0, w: px.len(), px },
-        background: [b; 3],
-        zero_error: 0.0,
-        cx: 0.0,
-        cy: 0.0,
-        r0: 1.0,
-        veiled: Vec::new(),
+    let seen = |px: Vec<([f32; 3], u8, bool)>| {
+        let win = Window { x0: 0, y0: 0, w: px.len(), px };
+        let row_sums = row_sums(&win, [b; 3]);
+        Seen { win, background: [b; 3], zero_error: 0.0, cx: 0.0, cy: 0.0, r0: 1.0, veiled: Vec::new(), row_sums }
     };
+    let band = |band: Vec<(u32, f32)>| Cover { band, core: Vec::new() };
     // A clipped sample covered 2%, an unclipped one covered 50% at 0.05 over the background.
     let sliver = seen(vec![([clip; 3], 7, true), ([b + 0.05; 3], 0, true)]);
-    let (_, x) = solve_radiance(&sliver, &[(0, 0.02), (1, 0.5)], clip);
+    let (_, x) = solve_radiance(&sliver, &band(vec![(0, 0.02), (1, 0.5)]), clip);
     assert!(x.iter().all(|&x| (x - 0.1).abs() < 1e-4), "excess {x:?}: the sliver raised it");
     // An unclipped sample the model barely reaches, bright: it asks for 0.65 / 0.005 = 130
     // over the background; the cap gives MAX_RADIANCE in all.
     let faint = seen(vec![([0.85; 3], 0, true)]);
-    let (_, x) = solve_radiance(&faint, &[(0, 0.005)], clip);
+    let (_, x) = solve_radiance(&faint, &band(vec![(0, 0.005)]), clip);
     assert!(x.iter().all(|&x| (b + x - MAX_RADIANCE).abs() < 1e-3), "excess {x:?}");
 }
 
@@ -571,4 +568,75 @@ fn max_lights_fits_the_largest_blobs() {
         let expected = if small { &photo.data[i * 3..i * 3 + 3] } else { a };
         assert_eq!(o, expected, "pixel {i}");
     }
+}
+
+/// The largest light grows with the photo: a disc of radius 36 px is a light in a photo 3200
+/// px wide (bound 48 px) and an area when the bound is set to 24 px.
+#[test]
+fn the_light_radius_grows_with_the_photo() {
+    assert_eq!(max_light_radius(480, 320), MAX_LIGHT_RADIUS);
+    assert_eq!(max_light_radius(1200, 1600), MAX_LIGHT_RADIUS);
+    assert!((max_light_radius(4032, 3024) - 60.48).abs() < 1e-3);
+    let disc = Disc { cx: 1600.3, cy: 50.4, r: 36.0, radiance: [8.0, 7.0, 6.0] };
+    let (photo, _) = photo(3200, 100, &[disc], 0.0, 4);
+    let Recovered::Changed(out, report) = recover(&photo, SRGB8, &HighlightsOptions::default()) else {
+        panic!("the large light was not fitted")
+    };
+    assert_eq!((report.lights, report.areas_left), (1, 0), "{report:?}");
+    let l = &report.brightest[0];
+    assert!((l.radius - disc.r).abs() < 1.0 && l.radiance.iter().all(|&v| v > 2.0), "{l:?}");
+    assert!(out.all_finite());
+    let fixed = HighlightsOptions { max_light_radius: Some(24.0), ..Default::default() };
+    match recover(&photo, SRGB8, &fixed) {
+        Recovered::Examined(r) => assert_eq!((r.lights, r.areas_left), (0, 1), "{r:?}"),
+        _ => panic!("with max_light_radius = 24 the disc is an area and nothing changes"),
+    }
+}
+
+/// The footprint's runs of wholly covered pixels, summed in O(1) per run, against the same
+/// pixels listed one by one at coverage 1: same radiance and error, for lights small and large,
+/// narrow and wide PSFs, centres off the grid, the window's edge and pixels left out of the fit.
+#[test]
+fn core_runs_sum_like_their_pixels() {
+    let discs = [Disc { cx: 20.3, cy: 18.6, r: 9.5, radiance: [6.0, 5.0, 4.0] }, Disc { cx: 44.7, cy: 12.2, r: 2.2, radiance: [9.0; 3] }];
+    let (photo, _) = photo(56, 32, &discs, 0.8, 11);
+    let clip = Transfer::Srgb.decode(0.98);
+    let (mut mask, _) = clipped_channels(&photo, clip);
+    let (found, _) = blobs(&mut mask, 56, 32, 10_000);
+    mask.iter_mut().for_each(|m| *m &= 7);
+    assert_eq!(found.len(), 2);
+    let mut runs = 0;
+    for blob in &found {
+        let mut seen = see(&photo, &mask, blob, clip, None).expect("a window to fit");
+        // Leave a few pixels out of the fit (as another blob's would be) and re-sum the rows.
+        for k in (0..seen.win.px.len()).step_by(7) {
+            seen.win.px[k].2 = false;
+        }
+        seen.row_sums = row_sums(&seen.win, seen.background);
+        // The second reaches past the blob: unclipped samples in its core.
+        for (dx, dy, dr, sigma) in
+            [(0.0, 0.0, 1.0, 0.0), (0.1, 0.2, 1.7, 0.0), (0.31, -0.27, 0.9, 0.4), (-0.45, 0.12, 1.1, 1.3), (0.2, 0.4, 0.6, 2.0)]
+        {
+            let g = Geometry { cx: seen.cx + dx, cy: seen.cy + dy, r: seen.r0 * dr, sigma };
+            let mut cover = Cover::default();
+            seen.win.footprint(g, &mut cover);
+            runs += cover.core.len();
+            let mut listed = Cover { band: cover.band.clone(), core: Vec::new() };
+            for &(j, a, b) in &cover.core {
+                for i in a..b {
+                    let k = j * seen.win.w as u32 + i;
+                    if seen.win.px[k as usize].2 {
+                        listed.band.push((k, 1.0));
+                    }
+                }
+            }
+            let (e1, x1) = solve_radiance(&seen, &cover, clip);
+            let (e2, x2) = solve_radiance(&seen, &listed, clip);
+            assert!((e1 - e2).abs() <= 1e-4 * e2.abs().max(1.0), "error {e1} vs {e2} at {g:?}");
+            for c in 0..3 {
+                assert!((x1[c] - x2[c]).abs() <= 1e-4 * x2[c].abs().max(1.0), "excess {x1:?} vs {x2:?} at {g:?}");
+            }
+        }
+    }
+    assert!(runs > 10, "the large light must have runs of wholly covered pixels ({runs})");
 }
