@@ -561,8 +561,8 @@ fn max_lights_fits_the_largest_blobs() {
     fitted.sort_by(f32::total_cmp);
     assert!((fitted[0] - discs[1].cx).abs() < 0.5 && (fitted[1] - discs[3].cx).abs() < 0.5, "fitted at x = {fitted:?}");
     // Around the two smaller discs the photo is as it was; the larger ones got light back,
-    // as with room for all. (Not the same light: the photo's PSF is read from the lights
-    // fitted, two here and four there, and the light added to disc 3 differs by 2.4x.)
+    // as with room for all. (Not necessarily the same light: the photo's PSF is read from the
+    // lights fitted, two here and four there; a PSF read differently moves a light's fit.)
     let added = |img: &Image, k: usize| -> f64 {
         let d = discs[k];
         (0..88 * 30)
