@@ -122,9 +122,9 @@ pub const LIGHT_RADIUS_SIDE: f32 = 1600.0;
 /// Largest light radius (pixels) for a photo of `width` x `height`: [`MAX_LIGHT_RADIUS`],
 /// scaled with the longer side beyond [`LIGHT_RADIUS_SIDE`] (4032 px: 60 px). The same street
 /// lamp is 8 times wider in a 12 MP photo than at 480 px: the bundled night scene made at
-/// 4032x2688 had 12 of its 13 lights above 24 px, all left clipped (17.7 dB against its
-/// linear render, as `off`); with 48 px, 21.1 dB. Its cost grows with the window: the 13
-/// fits took ~0.4 s there.
+/// 4032x2688 had 12 of its 13 lights above 24 px, all left clipped (17.7 dB sRGB against its
+/// linear render, as `off`); with the bound at 60 px, 22.1 dB. The 13 fits took ~0.2 s
+/// there.
 pub fn max_light_radius(width: usize, height: usize) -> f32 {
     MAX_LIGHT_RADIUS * (width.max(height) as f32 / LIGHT_RADIUS_SIDE).max(1.0)
 }
