@@ -448,9 +448,8 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions, occluders: O
     }
     let max_r = opts.max_light_radius.unwrap_or_else(|| max_light_radius(w, h));
     let max_pixels = (std::f32::consts::PI * max_r * max_r) as usize;
-    let (found, large) = blobs(&mut mask, w, h, max_pixels);
+    let (mut found, large) = blobs(&mut mask, w, h, max_pixels);
     mask.par_iter_mut().for_each(|m| *m &= 7);
-    let mut found = found;
     let over_budget = found.len().saturating_sub(opts.max_lights);
     if over_budget > 0 {
         // Stable: blobs of one size stay in scan order, so the choice is the same every run.
@@ -691,10 +690,7 @@ impl Seen {
     /// with the radius), so a grid alone misses its minimum. O(~500 footprints of the part of
     /// the window the light reaches).
     fn fit(&self, clip: f32, sigma: f32) -> (f32, Geometry, [f32; 3]) {
-        let score = |g: Geometry, cover: &mut Cover| -> (f32, [f32; 3]) {
-            self.win.footprint(g, cover);
-            solve_radiance(self, cover, clip)
-        };
+        let score = |g: Geometry, cover: &mut Cover| self.score(g, cover, clip);
         // Coarse: radii in 8% steps at the centroid and a third of a pixel around it (a light's
         // clipped blob is lopsided by the pixel grid; a wrong centre makes the right radius look
         // wrong), the best few kept as starts. The candidates, and then the starts' searches,
@@ -737,13 +733,17 @@ impl Seen {
     /// centre and radius alone (no grid, one start): its error and geometry.
     fn refit(&self, clip: f32, sigma: f32, from: Geometry) -> (f32, Geometry) {
         let mut cover = Cover::default();
-        let mut score = |g: Geometry| {
-            self.win.footprint(g, &mut cover);
-            solve_radiance(self, &cover, clip).0
-        };
+        let mut score = |g: Geometry| self.score(g, &mut cover, clip).0;
         let start = Geometry { sigma, ..from };
         let err = score(start);
         compass(start, err, &mut score)
+    }
+
+    /// The error and the excess per channel of the light of geometry `g` ([`Window::footprint`]
+    /// into `cover`, then [`solve_radiance`]).
+    fn score(&self, g: Geometry, cover: &mut Cover, clip: f32) -> (f32, [f32; 3]) {
+        self.win.footprint(g, cover);
+        solve_radiance(self, cover, clip)
     }
 
     /// The fitted light: radiance per channel and the model's value at each of the blob's
