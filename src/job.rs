@@ -99,7 +99,12 @@ pub fn run(pipeline: &Pipeline, job: &Job) -> Result<Report> {
     }
     let format = io::OutputFormat::from_path(output)?;
     preflight(job, cfg)?;
-    let build = if job.save_layers.is_some() || pull.is_some() { BuildLayers::Always } else { BuildLayers::WhenRendered };
+    // A focus pull renders its frames from the layers; a render at the job's focus is not kept.
+    let build = match (&pull, &job.save_layers) {
+        (Some(_), _) => BuildLayers::Only,
+        (None, Some(_)) => BuildLayers::Always,
+        (None, None) => BuildLayers::WhenRendered,
+    };
     let (outcome, read_warnings) = read_and_run(pipeline, job, focus, build)?;
     let Outcome { mut image, layers, mut report } = outcome;
     report.warnings.splice(0..0, read_warnings);
@@ -160,7 +165,8 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
             })
             .collect::<Result<Vec<_>>>()?;
         let read_ms = ms_since(t_read);
-        let mut out = pipeline.render_layers(layers, focus)?;
+        let mut out =
+            if build == BuildLayers::Only { pipeline.check_layers(layers, focus)? } else { pipeline.render_layers(layers, focus)? };
         out.report.stages.insert(0, StageReport::ran("read", read_ms, None));
         out
     } else {
@@ -305,7 +311,7 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
 /// `drbokeh view` serves from, and what `--save-layers` of a render at that focus writes.
 pub fn build_layers(pipeline: &Pipeline, job: &Job, focus: Focus) -> Result<(Vec<Layer>, Report)> {
     preflight(job, pipeline.config())?;
-    let (outcome, warnings) = read_and_run(pipeline, job, focus, BuildLayers::Always)?;
+    let (outcome, warnings) = read_and_run(pipeline, job, focus, BuildLayers::Only)?;
     let Outcome { layers, mut report, .. } = outcome;
     report.warnings.splice(0..0, warnings);
     Ok((layers, report))

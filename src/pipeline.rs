@@ -176,7 +176,13 @@ pub enum BuildLayers {
     WhenRendered,
     /// Always (for `--save-layers`), even when rendering is skipped.
     Always,
+    /// Always, and never rendered: for callers that render the layers themselves (a viewer,
+    /// a focus pull). The outcome's image is then empty (0x0).
+    Only,
 }
+
+/// Why [`BuildLayers::Only`] skips the render.
+const LAYERS_ONLY: &str = "only the layers were asked for";
 
 /// Where the layers given to `render_prepared` come from, which decides who applies the
 /// "nothing out of focus" rule.
@@ -252,7 +258,8 @@ impl Pipeline {
     }
 
     /// [`Pipeline::run`]; with [`BuildLayers::Always`], the layers are built even when nothing
-    /// is out of focus and rendering is skipped (for `--save-layers`).
+    /// is out of focus and rendering is skipped (for `--save-layers`); with
+    /// [`BuildLayers::Only`], they are built and not rendered.
     pub fn run_with(&self, scene: &Scene, focus: Focus, build: BuildLayers) -> Result<Outcome> {
         let t0 = Instant::now();
         let cfg = &self.config;
@@ -381,11 +388,17 @@ impl Pipeline {
                 }
             }
         };
-        if let Some(why) = sharp {
+        if let Some(why) = sharp.as_deref().or((build == BuildLayers::Only).then_some(LAYERS_ONLY)) {
             report.skipped("render", why);
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
             report.total_ms = ms_since(t0);
-            return Ok(Outcome { image: scene.rgb.clone(), layers, report });
+            let image = if build == BuildLayers::Only {
+                self.settings_for(&layers, focus, blur)?;
+                Image::new(0, 0, 3)
+            } else {
+                scene.rgb.clone()
+            };
+            return Ok(Outcome { image, layers, report });
         }
         let mut out = self.render_prepared(layers, focus, blur, report, LayerOrigin::Built)?;
         out.report.total_ms = ms_since(t0);
@@ -674,6 +687,27 @@ impl Pipeline {
         Ok(Outcome { image, layers, report })
     }
 
+    /// Given layers (front first) back unrendered, after the checks a render of them at `focus`
+    /// makes ([`BuildLayers::Only`] for given layers): the outcome's image is empty (0x0).
+    pub fn check_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
+        let t0 = Instant::now();
+        let Some(first) = layers.first() else {
+            return Err(Error::usage("no layers given"));
+        };
+        let (w, h) = (first.width(), first.height());
+        let mut report = Report::default();
+        let focus = Self::resolve_focus(focus, |x, y| disparity_at(&layers, x, y), None, &mut report)?;
+        for name in ["segment", "fill_depth", "inpaint", "slice"] {
+            report.skipped(name, "layers were given");
+        }
+        let blur = self.blur_for(w, h);
+        self.settings_for(&layers, focus, blur)?;
+        report.skipped("render", LAYERS_ONLY);
+        report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), 0.0);
+        report.total_ms = ms_since(t0);
+        Ok(Outcome { image: Image::new(0, 0, 3), layers, report })
+    }
+
     /// Renders borrowed `layers` (front first) at `focus` and `blur` (None: the configured
     /// blur): [`Pipeline::render_layers`] without giving the layers away (an interactive
     /// refocus, [`crate::view`]). The image (linear RGB) and the report.
@@ -729,14 +763,12 @@ impl Pipeline {
             report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), max_coc);
             return Ok((render::alpha_composite(layers), report));
         }
-        // Red's (or blue's) circle of confusion is the widest with chromatic aberration.
-        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur * self.aperture.max_channel_scale(), focus));
-        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile, aperture: self.aperture };
+        let s = self.settings_for(layers, focus, blur)?;
+        let lens = s.lens;
         let (kernel, kernel_name) = match rc.kernel {
             KernelChoice::Exact => (Kernel::Exact, "exact".to_string()),
             KernelChoice::Auto | KernelChoice::Fast => (Kernel::Fast { quality: rc.quality }, format!("fast (quality {})", rc.quality)),
         };
-        render::validate(layers, &s)?;
         if kernel == Kernel::Exact {
             self.check_exact_cost(w, h, lens, layers, &mut report)?;
         }
@@ -760,6 +792,17 @@ impl Pipeline {
         }
         report.params = self.params((w, h), (blur, focus, lens), &kernel_name, layers.len(), max_coc);
         Ok((image, report))
+    }
+
+    /// The settings a render of `layers` at `focus` and `blur` uses (the configured lens, else
+    /// the one the layers need), checked as every render checks them.
+    fn settings_for(&self, layers: &[Layer], focus: f32, blur: f32) -> Result<RenderSettings> {
+        let rc = &self.config.render;
+        // Red's (or blue's) circle of confusion is the widest with chromatic aberration.
+        let lens = rc.lens.unwrap_or_else(|| render::auto_lens(layers, blur * self.aperture.max_channel_scale(), focus));
+        let s = RenderSettings { blur, focus, lens, occlusion: rc.occlusion, profile: rc.profile, aperture: self.aperture };
+        render::validate(layers, &s)?;
+        Ok(s)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -886,5 +929,42 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// `BuildLayers::Only` builds the very layers a render builds, renders nothing (its image is
+    /// empty, its report says why) and still refuses what a render of them would refuse.
+    #[test]
+    fn layers_only_are_the_rendered_layers_without_the_render() {
+        let (rgb, matte, map) = small_subject(false);
+        let scene = Scene {
+            rgb,
+            disparity: crate::stages::depth::Disparity { map, z_range: None, filled_fraction: 0.0 },
+            matte: Some(matte),
+            encoding: PhotoEncoding::Linear,
+        };
+        let p = Pipeline::from_config(Config::default()).unwrap();
+        let focus = Focus::Disparity(0.2);
+        let full = p.run_with(&scene, focus, BuildLayers::Always).unwrap();
+        let only = p.run_with(&scene, focus, BuildLayers::Only).unwrap();
+        assert_eq!(full.layers.len(), 2);
+        assert_eq!(only.layers.len(), full.layers.len());
+        for (a, b) in only.layers.iter().zip(&full.layers) {
+            assert!(a.image().data == b.image().data, "the layers differ");
+        }
+        assert_eq!((only.image.width, only.image.height), (0, 0));
+        let stage = |r: &Report, n: &str| r.stages.iter().find(|s| s.name == n).map(|s| (s.status, s.reason.clone())).unwrap();
+        assert_eq!(stage(&full.report, "render").0, StageStatus::Ran);
+        assert_eq!(stage(&only.report, "render"), (StageStatus::Skipped, Some(LAYERS_ONLY.to_string())));
+        // Given layers: returned as they are, unrendered.
+        let given = p.check_layers(full.layers.clone(), focus).unwrap();
+        assert_eq!(given.layers.len(), 2);
+        assert_eq!(stage(&given.report, "render"), (StageStatus::Skipped, Some(LAYERS_ONLY.to_string())));
+        // A lens the render would refuse is refused without rendering.
+        let mut cfg = Config::default();
+        cfg.render.lens = Some(100_001);
+        let wide = Pipeline::from_config(cfg).unwrap();
+        let e = wide.run_with(&scene, focus, BuildLayers::Only).err().expect("a lens wider than the image is refused");
+        assert!(e.to_string().contains("render.lens"), "{e}");
+        assert!(wide.check_layers(full.layers, focus).is_err());
     }
 }

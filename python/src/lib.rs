@@ -418,7 +418,7 @@ fn build_layers<'py>(
 ) -> PyResult<Arrays<'py>> {
     let settings = Settings { config, blur, ..Settings::default() };
     let (f, cfg, scene) = photo_job(py, (image, depth, matte), (focus, focus_at, focus_depth), depth_kind, settings, layers)?;
-    let out = run(py, threads, move || Pipeline::from_config(cfg)?.run_with(&scene, f, BuildLayers::Always))?;
+    let out = run(py, threads, move || Pipeline::from_config(cfg)?.run_with(&scene, f, BuildLayers::Only))?;
     warn_all(py, &out.report.warnings)?;
     Ok(out.layers.into_iter().map(|l| to_numpy(py, l.into_image())).collect())
 }
