@@ -55,6 +55,25 @@ fn dfd_bench_writes_a_sane_report() {
             assert!(num(scene, m, "rerender_ssim_srgb") > 0.0 && num(scene, m, "time_ms") > 0.0);
         }
     }
+    // The literature's measures where the scene states its depth range (the shared scenes),
+    // empty cells where it does not (the generated ones).
+    assert!(md.contains("## Depth and inverse depth") && md.contains("depth AbsRel"), "{md}");
+    let cols = ["depth_abs_rel", "depth_rmse", "depth_delta1", "inverse_depth_abs_rel", "inverse_depth_rmse", "inverse_depth_delta1"];
+    for scene in ["portrait", "thin_bars"] {
+        for c in cols {
+            let exact = num(scene, "true-disparity", c);
+            assert_eq!(exact, if c.ends_with("delta1") { 1.0 } else { 0.0 }, "{scene} {c}");
+            for m in methods.iter().chain(&["init"]) {
+                let v = num(scene, m, c);
+                assert!(v.is_finite() && v >= 0.0 && (!c.ends_with("delta1") || v <= 1.0), "{scene} {m} {c}: {v}");
+            }
+        }
+        // The constant start is far from a two-depth scene: some error on every measure.
+        assert!(num(scene, "init", "depth_abs_rel") > 0.05 && num(scene, "init", "depth_delta1") < 1.0);
+    }
+    for c in cols {
+        assert_eq!(rows[&("s000".to_string(), "drbokeh-physical".to_string())][c], "", "s000 {c}");
+    }
     // --scenes 0 without ground truth: a usage error naming the flag.
     assert_usage_error(dir, "bench --dfd --scenes 0", &["--scenes"], || {
         let mut c = drbokeh(dir);

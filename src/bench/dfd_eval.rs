@@ -21,6 +21,7 @@
 //! Two reference rows: the true disparity (the best a one-layer re-render can do) and the
 //! optimiser's start (a constant map at [`DfdOptions::init`]).
 
+use super::depth_metrics::{DepthErrors, depth_errors};
 use super::groundtruth::GtScene;
 use super::metrics::luminance;
 use super::metrics::srgb;
@@ -267,6 +268,9 @@ pub struct DfdCase {
     pub border: usize,
     /// Textured pixels ([`textured`]).
     pub textured: Vec<bool>,
+    /// The depths disparity 1 and 0 stand for (`z_min`, `z_max`), when the scene states them
+    /// (the shared scenes; the generated ones have disparities only).
+    pub z_range: Option<(f64, f64)>,
 }
 
 /// One row of report.csv: a case × (method or reference).
@@ -298,6 +302,8 @@ pub struct DfdRow {
     pub mae_textured: f64,
     /// The re-render at `other_focus` against the traced truth there.
     pub rerender: Scores,
+    /// AbsRel, RMSE and δ < 1.25 on depth and inverse depth (cases with a depth range).
+    pub depth: Option<DepthErrors>,
     /// Wall time of the estimate, ms (0 for the references).
     pub time_ms: f64,
 }
@@ -398,6 +404,7 @@ fn generated_case(opts: &DfdBenchOptions, index: usize) -> Result<DfdCase> {
         focus: near,
         other_focus: far,
         border: blur.ceil() as usize,
+        z_range: None,
     })
 }
 
@@ -449,6 +456,7 @@ fn groundtruth_case(dir: &Path, width: usize) -> Result<DfdCase> {
         focus: near.focus,
         other_focus: far.focus,
         border: blur.ceil() as usize,
+        z_range: Some(sc.z_range),
     })
 }
 
@@ -475,6 +483,7 @@ fn score_map(case: &DfdCase, kind: RowKind, d: &Image, time_ms: f64) -> Result<D
         mae: mae(d, &case.truth, b, |_| true),
         mae_textured: mae(d, &case.truth, b, |i| case.textured[i]),
         rerender: score(&img, &case.other, b),
+        depth: case.z_range.and_then(|z| depth_errors(d, &case.truth, z, b)),
         time_ms,
     })
 }

@@ -41,12 +41,13 @@ fn write_text(path: &Path, text: &str) -> Result<()> {
 pub fn csv(rows: &[DfdRow]) -> String {
     let mut s = String::from(
         "scene,source,method,width,height,blur,focus,rerender_focus,border_px,textured_fraction,disparity_mae,disparity_mae_textured,\
-         rerender_psnr_srgb,rerender_ssim_srgb,rerender_psnr_linear,rerender_ssim_linear,time_ms\n",
+         rerender_psnr_srgb,rerender_ssim_srgb,rerender_psnr_linear,rerender_ssim_linear,time_ms,\
+         depth_abs_rel,depth_rmse,depth_delta1,inverse_depth_abs_rel,inverse_depth_rmse,inverse_depth_delta1\n",
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{:.4},{:.4},{:.4},{},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{:.6},{:.1}",
+            "{},{},{},{},{},{:.4},{:.4},{:.4},{},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{:.6},{:.1},{}",
             r.scene,
             r.source.name(),
             r.kind.name(),
@@ -63,7 +64,12 @@ pub fn csv(rows: &[DfdRow]) -> String {
             r.rerender.ssim_srgb,
             r.rerender.psnr,
             r.rerender.ssim,
-            r.time_ms
+            r.time_ms,
+            // Empty cells where the scene states no depth range.
+            match r.depth {
+                Some(e) => [e.depth, e.inverse].map(|q| format!("{:.6},{:.6},{:.6}", q.abs_rel, q.rmse, q.delta1)).join(","),
+                None => ",,,,,".to_string(),
+            }
         );
     }
     s
@@ -101,6 +107,38 @@ pub fn summary_table<'a>(rows: impl Iterator<Item = &'a DfdRow>) -> String {
             mean(g.iter().map(|r| r.rerender.psnr.min(PSNR_CAP))),
             time,
             k.label()
+        );
+    }
+    s
+}
+
+/// The depth-from-defocus literature's measures, means over the cases of `rows` with a depth
+/// range (empty when none has one).
+pub fn depth_table(rows: &[DfdRow]) -> String {
+    let with: Vec<&DfdRow> = rows.iter().filter(|r| r.depth.is_some()).collect();
+    if with.is_empty() {
+        return String::new();
+    }
+    let cases = with.iter().filter(|r| r.kind == RowKind::TrueDisparity).count();
+    let mut s = format!(
+        "Means over the {cases} cases whose scene states its depth range (`z_min`, `z_max` of params.json: disparity 1 and 0; \
+         estimates clamped to [0, 1] first), same border. AbsRel = mean |estimate − truth| / truth, RMSE in the scene's units \
+         (inverse depth: their inverse), δ1 = fraction of pixels with max(estimate / truth, truth / estimate) < 1.25.\n\n\
+         | method | depth AbsRel | depth RMSE | depth δ1 | inverse depth AbsRel | inverse depth RMSE | inverse depth δ1 |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+    );
+    for (k, g) in by_kind(with.into_iter()) {
+        let m = |f: fn(&super::depth_metrics::DepthErrors) -> f64| mean(g.iter().filter_map(|r| r.depth.as_ref()).map(f));
+        let _ = writeln!(
+            s,
+            "| {} | {:.4} | {:.3} | {:.4} | {:.4} | {:.4} | {:.4} |",
+            k.name(),
+            m(|e| e.depth.abs_rel),
+            m(|e| e.depth.rmse),
+            m(|e| e.depth.delta1),
+            m(|e| e.inverse.abs_rel),
+            m(|e| e.inverse.rmse),
+            m(|e| e.inverse.delta1)
         );
     }
     s
@@ -350,6 +388,11 @@ fn markdown(opts: &DfdBenchOptions, res: &DfdBenchResult) -> String {
         s.push_str(&summary_table(rows.iter().filter(|r| r.source == CaseSource::Generated)));
         let _ = writeln!(s, "\n## Shared Mitsuba scenes (mean over {gt})\n");
         s.push_str(&summary_table(rows.iter().filter(|r| r.source == CaseSource::GroundTruth)));
+    }
+    let depth = depth_table(rows);
+    if !depth.is_empty() {
+        s.push_str("\n## Depth and inverse depth (AbsRel, RMSE, δ < 1.25)\n\n");
+        s.push_str(&depth);
     }
     s.push_str("\n## Acceptance (issue 13)\n\n");
     s.push_str(&acceptance(rows));

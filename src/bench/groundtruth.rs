@@ -47,6 +47,8 @@ pub struct GtScene {
     pub bg_disparity: Image,
     /// The focus settings, each with its ground truth.
     pub settings: Vec<GtSetting>,
+    /// The depths (`z_min`, `z_max`, scene units) that normalized disparity 1 and 0 stand for.
+    pub z_range: (f64, f64),
 }
 
 fn num(v: &serde_json::Value, key: &str, file: &Path) -> Result<f64> {
@@ -92,6 +94,7 @@ impl GtScene {
             bg: rgb("bg.exr")?,
             bg_disparity: to_disp(read_depth(&dir.join("bg_depth.exr"), &limits)?),
             settings,
+            z_range: (zmin, zmax),
         })
     }
 

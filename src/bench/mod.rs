@@ -1,6 +1,7 @@
 //! Evaluation: metrics (and, with the benchmark, synthetic scenes and ground truth); the
 //! depth-from-defocus evaluation (`bench --dfd`) in [`dfd_eval`] and [`dfd_report`].
 
+pub mod depth_metrics;
 pub mod dfd_eval;
 pub mod dfd_report;
 pub mod gather;
