@@ -397,9 +397,10 @@ fn levels_are_capped_by_the_photo() {
         &["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "2", "--levels", "1000000", "-o", "d.npy"],
         Duration::from_secs(20),
     );
-    // 32 and 16 px; the 8 px level (K 1) would blur no pixel by more than one.
-    assert_eq!(report["plan"]["levels"], 2);
-    assert_eq!(report["steps"], 4);
+    // 32, 16 and 8 px (K 4, 2 and 1: one pixel of CoC is the least a level may have); a
+    // 4 px level is below the smallest side.
+    assert_eq!(report["plan"]["levels"], 3);
+    assert_eq!(report["steps"], 6);
     assert!(warnings(&report).contains("--levels 1000000"), "{report}");
 }
 

@@ -60,8 +60,9 @@ pub fn undetermined(k: f32, f: f32) -> bool {
 /// (the first level's K) and focus `f`; None when `init` can move. The replacement is half-way
 /// out to the end of the range on the side with more room (behind the focal plane when both
 /// have as much: `disparity_at_radius`), and at least [`LIVE_COC_PX`] of blur out where the
-/// range allows; every level below the finest that the plan keeps has at least two pixels of
-/// CoC over the range (`dfd_plan::MIN_LEVEL_COC`), so half of it is out of the dead band.
+/// range allows; every level below the finest that the plan keeps has at least one pixel of
+/// CoC over the range (`dfd_plan::MIN_LEVEL_COC`), so the replacement, at least
+/// [`LIVE_COC_PX`] out, is clear of the dead band.
 pub fn movable_start(init: f32, k_first: f32, f: f32) -> Option<f32> {
     if coc_radius(init - f, k_first) > DEAD_COC_PX {
         return None;
