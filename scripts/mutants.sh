@@ -51,7 +51,22 @@ if [ ${#files[@]} -eq 0 ]; then
 fi
 # The fast tests that exercise these modules; the full suite per mutant would take hours.
 read -r -a tests <<< "${MUTANTS_TESTS:---lib --test cli --test batch --test invariants --test stability --test backward}"
+# Target selectors (--lib, --test NAME, ...) go to the build as well as to the test run
+# (`--cargo-arg`): without them each mutant's build compiled every test binary and example
+# (~40 targets, 2-4 minutes at nice 19) to run four. Test-name filters go to the run only.
+targets=()
+filters=()
+for ((i = 0; i < ${#tests[@]}; i++)); do
+    case "${tests[$i]}" in
+        --lib | --bins | --tests | --examples | --benches | --all-targets) targets+=(--cargo-arg="${tests[$i]}") ;;
+        --test | --bin | --example | --bench)
+            targets+=(--cargo-arg="${tests[$i]}=${tests[$((i + 1))]}")
+            i=$((i + 1))
+            ;;
+        *) filters+=(--cargo-test-arg="${tests[$i]}") ;;
+    esac
+done
 # A fresh worktree has no target/ yet; cargo-mutants wants the output's parent to exist.
 mkdir -p target
 exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 --minimum-test-timeout 120 \
-    --cargo-arg=--profile="${MUTANTS_PROFILE:-mutants}" "${tests[@]/#/--cargo-test-arg=}"
+    --cargo-arg=--profile="${MUTANTS_PROFILE:-mutants}" "${targets[@]}" "${filters[@]}"

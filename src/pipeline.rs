@@ -53,8 +53,10 @@ pub enum Focus {
 /// The result of a run.
 pub struct Outcome {
     /// Rendered image, linear RGB (3 channels); in gamma mode, still before the inverse gamma.
+    /// Empty (0x0) with [`BuildLayers::Only`].
     pub image: Image,
-    /// The layers that were rendered, front first (empty when rendering was skipped).
+    /// The layers that were rendered (or built, with [`BuildLayers::Always`] and
+    /// [`BuildLayers::Only`]), front first; empty when nothing was built.
     pub layers: Vec<Layer>,
     /// What ran, what was skipped and why, with timings.
     pub report: Report,
