@@ -297,6 +297,27 @@ mod tests {
         }
     }
 
+    /// The visibility reach comes from the core's disparity farthest from the focal plane, on
+    /// either side of it: a core at 0.6-0.7 (a ramp across a block) focused behind it (0.23:
+    /// 0.7 is farthest, CoC 9.4 at K 20) or in front of it (0.97: 0.6 is farthest, CoC 7.4);
+    /// the reach is trunc((CoC + 1) / 2) + 1 px (6 and 5; CoCs away from the integers, where
+    /// the `+ 1` changes the result). (cargo-mutants: `lo - focus` or `hi - focus` turned into
+    /// a sum or a quotient, and the `+ 1`, survived every other test; an over-estimate only
+    /// fills pixels no blur shows.)
+    #[test]
+    fn the_visibility_reach_follows_the_core_side_farthest_from_focus() {
+        let (w, h) = (40usize, 30usize);
+        let inside = |x: usize, y: usize| (10..30).contains(&x) && (8..22).contains(&y);
+        let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.1 });
+        let alpha = plane(w, h, |x, y| inside(x, y) as u8 as f32);
+        let opts = FillDepthOptions { erode: 0.0, edges: DepthEdges::AsGiven, ..FillDepthOptions::default() };
+        for (focus, coc) in [(0.23f32, 9.4f32), (0.97, 7.4)] {
+            let fd = foreground_disparity(&disp, &alpha, &opts, (focus, 20.0), &EdgeWidths::default()).unwrap();
+            let want = ((coc + 1.0) / 2.0).trunc() + 1.0;
+            assert!((fd.visible_reach - want).abs() < 1e-4, "focus {focus}: reach {} for CoC {coc}", fd.visible_reach);
+        }
+    }
+
     /// A disc (radius 20 px, disparity 0.8), a 3 px and a 2 px bar (0.9) on a background at
     /// 0.2, `with_disc` or the bars alone (then no part has an inside plateau), 120 × 80; the
     /// depth map is the exact one smoothed by a Gaussian of `sigma` (0: exact). Returns the
