@@ -693,19 +693,10 @@ impl Pipeline {
     /// makes ([`BuildLayers::Only`] for given layers): the outcome's image is empty (0x0).
     pub fn check_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
         let t0 = Instant::now();
-        let Some(first) = layers.first() else {
-            return Err(Error::usage("no layers given"));
-        };
-        let (w, h) = (first.width(), first.height());
-        let mut report = Report::default();
-        let focus = Self::resolve_focus(focus, |x, y| disparity_at(&layers, x, y), None, &mut report)?;
-        for name in ["segment", "fill_depth", "inpaint", "slice"] {
-            report.skipped(name, "layers were given");
-        }
-        let blur = self.blur_for(w, h);
+        let (mut report, focus, blur) = self.given(&layers, focus, None)?;
         self.settings_for(&layers, focus, blur)?;
         report.skipped("render", LAYERS_ONLY);
-        report.params = self.params((w, h), (blur, focus, 0), "none", layers.len(), 0.0);
+        report.params = self.params((layers[0].width(), layers[0].height()), (blur, focus, 0), "none", layers.len(), 0.0);
         report.total_ms = ms_since(t0);
         Ok(Outcome { image: Image::new(0, 0, 3), layers, report })
     }
@@ -726,19 +717,7 @@ impl Pipeline {
     /// the image and the report.
     fn render_given(&self, layers: &[Layer], focus: Focus, blur: Option<f32>) -> Result<(Image, Report)> {
         let t0 = Instant::now();
-        let Some(first) = layers.first() else {
-            return Err(Error::usage("no layers given"));
-        };
-        let (w, h) = (first.width(), first.height());
-        let mut report = Report::default();
-        let focus = Self::resolve_focus(focus, |x, y| disparity_at(layers, x, y), None, &mut report)?;
-        for name in ["segment", "fill_depth", "inpaint", "slice"] {
-            report.skipped(name, "layers were given");
-        }
-        let blur = match blur {
-            Some(k) => render::check_blur("render.blur", k)?,
-            None => self.blur_for(w, h),
-        };
+        let (mut report, focus, blur) = self.given(layers, focus, blur)?;
         let shown = if self.renders_back_only(layers) {
             report.warnings.push("render.occlusion = false renders only the back layer of the given layers".into());
             &layers[layers.len() - 1..]
@@ -748,6 +727,25 @@ impl Pipeline {
         let (image, mut report) = self.render_borrowed(shown, focus, blur, report, LayerOrigin::Given)?;
         report.total_ms = ms_since(t0);
         Ok((image, report))
+    }
+
+    /// What every use of given layers starts with: a report whose building stages say the
+    /// layers were given, the focus resolved on them and the blur (`blur`, checked, else the
+    /// configured one). A usage error when there are no layers.
+    fn given(&self, layers: &[Layer], focus: Focus, blur: Option<f32>) -> Result<(Report, f32, f32)> {
+        let Some(first) = layers.first() else {
+            return Err(Error::usage("no layers given"));
+        };
+        let mut report = Report::default();
+        let focus = Self::resolve_focus(focus, |x, y| disparity_at(layers, x, y), None, &mut report)?;
+        for name in ["segment", "fill_depth", "inpaint", "slice"] {
+            report.skipped(name, "layers were given");
+        }
+        let blur = match blur {
+            Some(k) => render::check_blur("render.blur", k)?,
+            None => self.blur_for(first.width(), first.height()),
+        };
+        Ok((report, focus, blur))
     }
 
     fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, report: Report, origin: LayerOrigin) -> Result<Outcome> {

@@ -806,12 +806,12 @@ fn photo_psf(seen: &[&Seen], clip: f32) -> f32 {
             row
         })
         .collect();
-    let errs: Vec<Vec<f32>> = fits.iter().map(|row| row.iter().map(|f| f.0).collect()).collect();
+    // Each blob's least error over the grid: its errors are taken relative to it.
+    let lows: Vec<f32> = fits.iter().map(|row| row.iter().map(|f| f.0).fold(f32::INFINITY, f32::min).max(1e-6)).collect();
     let mut total = [0.0f32; PSF_GRID.len()];
-    for e in &errs {
-        let lo = e.iter().copied().fold(f32::INFINITY, f32::min).max(1e-6);
-        for (t, v) in total.iter_mut().zip(e) {
-            *t += v / lo;
+    for (row, lo) in fits.iter().zip(&lows) {
+        for (t, f) in total.iter_mut().zip(row) {
+            *t += f.0 / lo;
         }
     }
     let k = (0..PSF_GRID.len()).min_by(|&a, &b| total[a].total_cmp(&total[b])).unwrap_or(0);
@@ -821,7 +821,7 @@ fn photo_psf(seen: &[&Seen], clip: f32) -> f32 {
     let relative = |sigma: f32| -> f32 {
         let from = nearest(sigma);
         let e: Vec<f32> = seen.par_iter().zip(&fits).map(|(s, row)| s.refit(clip, sigma, row[from].1).0).collect();
-        errs.iter().zip(e).map(|(grid, v)| v / grid.iter().copied().fold(f32::INFINITY, f32::min).max(1e-6)).sum()
+        lows.iter().zip(e).map(|(lo, v)| v / lo).sum()
     };
     let (mut sigma, mut err) = (PSF_GRID[k], total[k]);
     for step in [0.1f32, 0.05] {
