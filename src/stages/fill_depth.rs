@@ -318,6 +318,30 @@ mod tests {
         }
     }
 
+    /// A ramp model that can trust no pixel (its estimate needs alpha ≥ 0.5) falls back to the
+    /// shrunk hard mask: a semi-transparent subject (alpha 0.4 everywhere, a veil) under
+    /// `threshold = 0.3`, with a measured ramp of 3 px per side. The core is the block shrunk by
+    /// `erode`, the fill reaches past the outline, and the pixels just outside it take the
+    /// block's disparity. (cargo-mutants: the guard `valid.iter().any(..)` made `true` left the
+    /// foreground without a core: nothing filled, the background's 0.1 kept; it survived every
+    /// other test.)
+    #[test]
+    fn a_ramp_model_without_trusted_pixels_falls_back_to_the_shrunk_mask() {
+        let (w, h) = (40usize, 30usize);
+        let inside = |x: usize, y: usize| (10..30).contains(&x) && (8..22).contains(&y);
+        let disp = plane(w, h, |x, y| if inside(x, y) { 0.7 } else { 0.1 });
+        let alpha = plane(w, h, |x, y| if inside(x, y) { 0.4 } else { 0.0 });
+        let opts = FillDepthOptions { threshold: 0.3, ..FillDepthOptions::default() };
+        let ramp = EdgeWidths { inside_px: 3.0, outside_px: 3.0, samples: 100 };
+        let fd = foreground_disparity(&disp, &alpha, &opts, (0.0, 10.0), &ramp).unwrap();
+        assert!(!fd.ramp_model, "the ramp model trusted no pixel but was reported as used");
+        assert!(fd.filled > 0, "nothing was filled");
+        for (x, y) in [(9, 15), (30, 15), (20, 7), (20, 22), (8, 15)] {
+            let d = fd.disparity.data[y * w + x];
+            assert!((d - 0.7).abs() < 1e-4, "pixel ({x}, {y}) just outside the subject: {d}, not the subject's 0.7");
+        }
+    }
+
     /// A disc (radius 20 px, disparity 0.8), a 3 px and a 2 px bar (0.9) on a background at
     /// 0.2, `with_disc` or the bars alone (then no part has an inside plateau), 120 × 80; the
     /// depth map is the exact one smoothed by a Gaussian of `sigma` (0: exact). Returns the
