@@ -47,6 +47,21 @@ pub(super) fn blades(n: u32, rotation: f64, c: f64) -> Vec<[f64; 2]> {
     pts
 }
 
+/// A convex polygon's edges (counterclockwise `pts`) as half-planes `n·p ≤ c`, `n` the unit
+/// outward normal.
+pub(super) fn half_planes(pts: &[[f64; 2]]) -> Vec<[f64; 3]> {
+    let n = pts.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (pts[i], pts[(i + 1) % n]);
+            let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+            let len = (ex * ex + ey * ey).sqrt();
+            let (nx, ny) = (ey / len, -ex / len);
+            [nx, ny, nx * a[0] + ny * a[1]]
+        })
+        .collect()
+}
+
 /// Area of a polygon given counterclockwise.
 pub(super) fn shoelace(pts: &[[f64; 2]]) -> f64 {
     let n = pts.len();
@@ -249,26 +264,30 @@ impl Sectors {
             return Sectors { ranges: Vec::new() };
         }
         let sector = |a: f64| (((a.rem_euclid(2.0 * PI)) / (2.0 * PI) * Self::COUNT as f64) as usize).min(Self::COUNT - 1);
-        let mut ranges = vec![(usize::MAX, 0usize); Self::COUNT];
-        for k in 0..n {
-            let (a, b) = (pts[k], pts[(k + 1) % n]);
-            let (sa, sb) = (sector(a[1].atan2(a[0])), sector(b[1].atan2(b[0])));
-            // The edge's sectors, counterclockwise from a's to b's.
-            let mut s = sa;
-            loop {
-                let r = &mut ranges[s];
-                // Edges arrive in order: a sector's edges are consecutive (cyclically).
-                if r.0 == usize::MAX {
-                    *r = (k, k + 1);
-                } else {
-                    r.1 = k + 1;
-                }
-                if s == sb {
-                    break;
-                }
-                s = (s + 1) % Self::COUNT;
-            }
-        }
+        // Each edge's sectors, counterclockwise from its first point's to its last's.
+        let spans: Vec<(usize, usize)> = (0..n)
+            .map(|k| {
+                let (a, b) = (pts[k], pts[(k + 1) % n]);
+                (sector(a[1].atan2(a[0])), sector(b[1].atan2(b[0])))
+            })
+            .collect();
+        let touches = |k: usize, s: usize| {
+            let (a, b) = spans[k % n];
+            (s + Self::COUNT - a) % Self::COUNT <= (b + Self::COUNT - a) % Self::COUNT
+        };
+        // A sector's edges are consecutive, cyclically: its range starts at the edge whose
+        // predecessor misses it, and may run past n (read modulo n). Ranges built in edge
+        // order broke where the run wraps: the first sector took every edge, `(0, n)`, and a
+        // rectangle across angle 0 (from the last sector to the first) then got edges `n − 1`
+        // on only, missing 0, 1, ...: a pixel on the +x axis of the disc's 256-gon was 0.09%
+        // too bright (found by the cat's eye's mirrored templates, which did not match there).
+        let ranges = (0..Self::COUNT)
+            .map(|s| match (0..n).find(|&k| touches(k, s) && !touches(k + n - 1, s)) {
+                Some(a) => (a, (a..a + n).find(|&k| !touches(k, s)).unwrap_or(a + n)),
+                None if touches(0, s) => (0, n),
+                None => (usize::MAX, 0),
+            })
+            .collect();
         Sectors { ranges }
     }
 
@@ -296,15 +315,16 @@ impl Sectors {
                 let count = Self::COUNT as f64;
                 let (s0, s1) = (((mid + lo) / (2.0 * PI) * count).floor() as i64, ((mid + hi) / (2.0 * PI) * count).floor() as i64);
                 let at = |s: i64| self.ranges[s.rem_euclid(Self::COUNT as i64) as usize];
-                // Edges from the first sector's first to the last sector's last, cyclically.
+                // Edges from the first sector's first to the last sector's last, cyclically
+                // (a range's end may pass n); none between them when they meet.
                 let (a, b) = (at(s0).0, at(s1).1);
-                let b = if b <= a { b + n } else { b };
-                if b - a >= n {
+                let count = (b % n + n - a) % n;
+                if count == 0 {
                     all()
-                } else if b <= n {
-                    (a..b, 0..0)
+                } else if a + count <= n {
+                    (a..a + count, 0..0)
                 } else {
-                    (a..n, 0..b - n)
+                    (a..n, 0..a + count - n)
                 }
             }
         };
@@ -377,5 +397,52 @@ mod tests {
         let grid = count as f64 * cell * cell;
         let exact = polygon_circle_area(&pentagon, c, r);
         assert!(exact > 0.3 && close(exact, grid, 2e-3), "{exact} vs grid {grid}");
+    }
+
+    /// [`Sectors::planes`] never leaves out an edge that cuts a rectangle: the clipped area
+    /// with the sectors' edges equals the area with every edge (to 1e-12) for 1-px squares at
+    /// 720 angles around the outline of the disc's 256-gon, rounded 7-blade and 9-blade
+    /// polygons rotated 10° and 180°, and a disc squeezed 2:1, at circumradius 6 and 40 px,
+    /// straddling the outline and across angle 0 (where the first sector's range wraps).
+    /// Before the wrap was kept, the 256-gon's squares across the +x axis missed edges 0-3.
+    #[test]
+    fn sectors_keep_every_edge_that_cuts_a_rectangle() {
+        let squeezed: Vec<[f64; 2]> = circle(CURVE_VERTICES).iter().map(|p| [p[0], 0.5 * p[1]]).collect();
+        for (name, pts) in [
+            ("256-gon", circle(CURVE_VERTICES)),
+            ("7 blades", blades(7, 10f64.to_radians(), 0.6)),
+            ("9 blades", blades(9, PI, 1.0)),
+            ("squeezed disc", squeezed),
+        ] {
+            let n = pts.len();
+            assert!(n > Sectors::ALL_BELOW, "{name}: {n} vertices use no sectors");
+            let planes = half_planes(&pts);
+            let bbox = [-1.0, 1.0, -1.0, 1.0];
+            let radii = [0.0, 1.0];
+            let (sectors, every) = (Sectors::new(&pts), Sectors { ranges: Vec::new() });
+            let mut worst = (0.0f64, 0.0f64, 0.0f64);
+            for r in [6.0f64, 40.0] {
+                for k in 0..720 {
+                    let t = 2.0 * PI * k as f64 / 720.0;
+                    // Where the outline crosses the ray at t, and a square there (1 px, in units of r).
+                    let reach =
+                        planes.iter().map(|p| p[2] / (p[0] * t.cos() + p[1] * t.sin())).filter(|d| *d > 0.0).fold(f64::INFINITY, f64::min);
+                    for off in [-0.6, 0.0, 0.4] {
+                        let (x, y) = ((reach + off / r) * t.cos(), (reach + off / r) * t.sin());
+                        let h = 0.5 / r;
+                        let rect = [x - h, x + h, y - h, y + h];
+                        let area = |s: &Sectors| match polygon_rect_area(&planes, &bbox, radii, s, rect) {
+                            Area::Inside => 4.0 * h * h,
+                            Area::Part(a) => a,
+                        };
+                        let (a, b) = (area(&sectors), area(&every));
+                        if (a - b).abs() > worst.0 {
+                            worst = ((a - b).abs(), t.to_degrees(), r);
+                        }
+                    }
+                }
+            }
+            assert!(worst.0 <= 1e-12, "{name}: area off by {} at {}° (r {})", worst.0, worst.1, worst.2);
+        }
     }
 }

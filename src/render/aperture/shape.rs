@@ -24,7 +24,8 @@
 //! [`Aperture`] is a `Copy` handle that render settings can carry.
 
 use super::polygon::{
-    Area, CURVE_VERTICES, Clip, Poly, Sectors, blades, circle, clip_convex, polygon_circle_area, polygon_rect_area, rect_reach, shoelace,
+    Area, CURVE_VERTICES, Clip, Poly, Sectors, blades, circle, clip_convex, half_planes, polygon_circle_area, polygon_rect_area,
+    rect_reach, shoelace,
 };
 use crate::error::{Error, Result};
 use std::path::Path;
@@ -371,6 +372,10 @@ pub struct Geometry {
     /// Whether the outline equals its point reflection (then foreground and background bokeh
     /// are the same and the fast kernel shares their templates).
     symmetric: bool,
+    /// Whether the outline equals its mirror image in x (x → −x) and in y (y → −y): the fast
+    /// kernel then builds a cat's eye's cut templates for one side of each such axis and
+    /// mirrors them for the other.
+    mirrors: [bool; 2],
 }
 
 #[derive(Debug, PartialEq)]
@@ -385,16 +390,7 @@ enum Kind {
 
 impl Kind {
     fn polygon(pts: Vec<[f64; 2]>) -> Kind {
-        let n = pts.len();
-        let planes: Vec<[f64; 3]> = (0..n)
-            .map(|i| {
-                let (a, b) = (pts[i], pts[(i + 1) % n]);
-                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-                let len = (ex * ex + ey * ey).sqrt();
-                let (nx, ny) = (ey / len, -ex / len);
-                [nx, ny, nx * a[0] + ny * a[1]]
-            })
-            .collect();
+        let planes = half_planes(&pts);
         let fold = |f: fn(f64, f64) -> f64, init: f64, k: usize| pts.iter().map(|p| p[k]).fold(init, f);
         let bbox = [
             fold(f64::min, f64::INFINITY, 0),
@@ -420,12 +416,15 @@ impl Geometry {
                 Kind::Mask(m)
             }
         };
-        let (area, inradius, symmetric) = match &kind {
+        let (area, inradius, symmetric, mirrors) = match &kind {
             Kind::Polygon { pts, planes, .. } => {
                 let area = shoelace(pts);
                 let inradius = planes.iter().map(|p| p[2]).fold(f64::INFINITY, f64::min).max(0.0);
-                let symmetric = pts.iter().all(|p| pts.iter().any(|q| (p[0] + q[0]).abs() < 1e-9 && (p[1] + q[1]).abs() < 1e-9));
-                (area, inradius, symmetric)
+                // Whether every vertex's image under (x, y) → (sx·x, sy·y) is a vertex.
+                let maps = |sx: f64, sy: f64| {
+                    pts.iter().all(|p| pts.iter().any(|q| (sx * p[0] - q[0]).abs() < 1e-9 && (sy * p[1] - q[1]).abs() < 1e-9))
+                };
+                (area, inradius, maps(-1.0, -1.0), [maps(-1.0, 1.0), maps(1.0, -1.0)])
             }
             // A mask's radial profile is by distance from the centre (the circumscribed circle's
             // radius is 1): its flux is the profile-weighted sum of its cells.
@@ -433,14 +432,22 @@ impl Geometry {
                 m.weighted_total(|x, y| profile(bubble, (x * x + y * y).sqrt())) * (4.0 * m.hw * m.hh) / (m.w * m.h) as f64,
                 0.0,
                 m.symmetric(),
+                // A cat's eye is refused for images: their cut templates are never mirrored.
+                [false; 2],
             ),
         };
-        Geometry { spec, anamorphic, bubble, kind, area, inradius, symmetric }
+        Geometry { spec, anamorphic, bubble, kind, area, inradius, symmetric, mirrors }
     }
 
     /// Whether foreground and background bokeh are the same shape.
     pub fn symmetric(&self) -> bool {
         self.symmetric
+    }
+
+    /// Whether the outline is its own mirror image in x (x → −x) and in y (y → −y): the
+    /// disc's polygon both, a hexagon at 0° both, a pentagon at 90° in x only.
+    pub fn mirrors(&self) -> [bool; 2] {
+        self.mirrors
     }
 
     /// The flux of a source of CoC `r` (pixels) spread by coverage: the shape's area

@@ -197,17 +197,53 @@ impl Template {
         // A coarse disk's rows are chords at their centres: its area is divided out the same
         // way, so the aggregate's value keeps the flux of a disk of area π·r² (the factor of
         // `Bins::place` scales that to the source's own radius).
-        t.scale = match shape {
+        t.scale = Template::scale_of(shape, r, phase.1, cut);
+        if t.scale != 1.0 {
+            t.diffs.iter_mut().for_each(|d| d.1 *= t.scale as f64);
+            t.taps.iter_mut().for_each(|c| c.1 *= t.scale);
+        }
+        t
+    }
+
+    /// The factor a template's weights are multiplied by (see [`Template::scale`]).
+    fn scale_of(shape: Shape, r: f32, phase_y: f32, cut: Option<Cut>) -> f32 {
+        match shape {
             Shape::Physical => 1.0 / disk_norm(r),
             Shape::Aperture(g) => 1.0 / cut.map_or_else(|| g.norm(r), |c| g.norm_cut(r, c.norm)),
             // The aggregate's density is of the whole shape's area: the cut's norm instead.
             Shape::CoarseAperture { shape: g, .. } => cut.map_or(1.0, |c| g.norm(r) / g.norm_cut(r, c.norm)),
-            Shape::Coarse { .. } => flux_scale(r, phase.1),
+            Shape::Coarse { .. } => flux_scale(r, phase_y),
             Shape::Official { .. } => 1.0,
-        };
-        if t.scale != 1.0 {
-            t.diffs.iter_mut().for_each(|d| d.1 *= t.scale as f64);
-            t.taps.iter_mut().for_each(|c| c.1 *= t.scale);
+        }
+    }
+
+    /// This aperture template mirrored by `m` ([`Mirror`]) and its weights scaled to `scale`:
+    /// the template of the key `m` was found for. Only an aperture's rows qualify (each
+    /// row's differences close their spans, so they sum to 0). O(size).
+    fn mirrored(&self, m: &Mirror, scale: f32) -> Template {
+        let ratio = scale / self.scale;
+        let [sx, sy] = m.shift;
+        let rr = self.rr + sy;
+        let mut t = Template { scale, rr, rows: Vec::with_capacity(self.rows.len()), diffs: Vec::new(), taps: Vec::new() };
+        let (mut diffs, mut taps) = (Vec::new(), Vec::new());
+        for j in -rr..=rr {
+            diffs.clear();
+            taps.clear();
+            let jc = if m.flip[1] { sy - j } else { j };
+            if jc.abs() <= self.rr {
+                let tr = self.rows[(jc + self.rr) as usize];
+                let (d, c) = (&self.diffs[tr.diffs.0 as usize..tr.diffs.1 as usize], &self.taps[tr.taps.0 as usize..tr.taps.1 as usize]);
+                if m.flip[0] {
+                    // Column c ↦ s − c. A run [a, b) (+1 at a, −1 at b) becomes [s − b + 1,
+                    // s − a + 1): each step −f at s − dx + 1.
+                    diffs.extend(d.iter().rev().map(|&(dx, f)| (sx - dx + 1, -f * ratio as f64)));
+                    taps.extend(c.iter().rev().map(|&(dx, w)| (sx - dx, w * ratio)));
+                } else {
+                    diffs.extend(d.iter().map(|&(dx, f)| (dx, f * ratio as f64)));
+                    taps.extend(c.iter().map(|&(dx, w)| (dx, w * ratio)));
+                }
+            }
+            t.push_row(&diffs, &taps);
         }
         t
     }
@@ -308,6 +344,16 @@ pub(super) struct Bins {
 pub(super) struct Cut {
     v: [f32; 2],
     norm: ([f32; 2], f32),
+}
+
+/// How a cat's-eye template is the mirror image of another key's ([`Bins::mirror_of`]): its
+/// weight at column `dx`, row `j` is the other's at `(flip[0] ? shift[0] − dx : dx,
+/// flip[1] ? shift[1] − j : j)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Mirror {
+    key: u64,
+    flip: [bool; 2],
+    shift: [i64; 2],
 }
 
 /// Where a cat's eye's cut class starts in a key; 12 bits per axis above it.
@@ -432,12 +478,71 @@ impl Bins {
         k as f32 * self.width
     }
 
-    /// The template of `key`, built (O(r)).
-    fn template(&self, key: u64) -> Template {
+    /// A key's bin, point reflection and centre position `(px, py)` (in `1/P` of a pixel).
+    fn parts(&self, key: u64) -> (u64, bool, u64, u64) {
         let n = self.shape.phases() as u64;
         let base = if self.cat.is_some() { key & ((1 << CUT_SHIFT) - 1) } else { key };
         let (k, py, px) = (base / (n * n), base / n % n, base % n);
         let (k, flip) = if self.flips() || matches!(self.shape, Shape::Aperture(_)) { (k / 2, k % 2 == 1) } else { (k, false) };
+        (k, flip, px, py)
+    }
+
+    /// The key of bin `k`, reflection `flip`, centre position `(px, py)` and cut class
+    /// `class` (as stored: 12 bits per axis, offset by 2048).
+    fn key_of(&self, k: u64, flip: bool, (px, py): (u64, u64), class: u64) -> u64 {
+        let n = self.shape.phases() as u64;
+        let kf = if self.flips() || matches!(self.shape, Shape::Aperture(_)) { k * 2 + u64::from(flip) } else { k };
+        ((kf * n + py) * n + px) | (class << CUT_SHIFT)
+    }
+
+    /// The scale of `key`'s template ([`Template::scale`]), without building it.
+    fn scale_of(&self, key: u64) -> f32 {
+        let n = self.shape.phases() as f32;
+        let (k, flip, _, py) = self.parts(key);
+        Template::scale_of(self.shape, self.radius(k), py as f32 / n, self.cut_of(k, key, flip))
+    }
+
+    /// With a cat's eye on a shape that is its own mirror image in x or y
+    /// ([`Geometry::mirrors`]), the key whose template `key`'s mirrors, when it is another:
+    /// the cut's circle centred `v` and the shape mirrored together leave the coverage
+    /// mirrored, so only cuts with `v` on one side of each such axis are built; across the
+    /// frame a cat's eye's `v` points to the centre from every quadrant (a 12 MP render at
+    /// focus 0.2 built ~5,000 templates of ~0.3 ms each). With both mirrors the point
+    /// reflection of a source in front of the focal plane is their product and folds away too.
+    /// A coarse template's centre position mirrors with it (`p ↦ (P − p) mod P`, a column or
+    /// row's shift of one when `p ≠ 0`). Same weights up to rounding: the mirrored outline is
+    /// the same polygon, its vertices computed in another order.
+    fn mirror_of(&self, key: u64) -> Option<Mirror> {
+        let (Some(_), Shape::Aperture(g) | Shape::CoarseAperture { shape: g, .. }) = (self.cat, self.shape) else { return None };
+        let [mx, my] = g.mirrors();
+        if !(mx || my) {
+            return None;
+        }
+        let (k, flip, px, py) = self.parts(key);
+        let class = key >> CUT_SHIFT;
+        let (qx, qy) = (class & 0xFFF, class >> 12);
+        // Mirrors taking the cut's centre to x ≥ 0 and y ≥ 0 (stored class 2048 is 0).
+        let (cx, cy) = (mx && qx < 2048, my && qy < 2048);
+        let canonical_class = (if cy { 4096 - qy } else { qy }) << 12 | if cx { 4096 - qx } else { qx };
+        // The weight at output offset p of a source reflected by F (−1 when `flip`) is the
+        // coverage A(F·p; v) = A(M·F·p; M·v) for the mirrors M. With both mirrors the
+        // canonical template is unreflected and this one is it at M·F·p; otherwise it keeps
+        // its reflection (F commutes with M) and this one is it at M·p.
+        let (flip_c, gx, gy) = if mx && my { (false, cx ^ flip, cy ^ flip) } else { (flip, cx, cy) };
+        if !gx && !gy && flip_c == flip {
+            return None;
+        }
+        let n = self.shape.phases() as u64;
+        let mirror_phase = |p: u64, g: bool| if g { ((n - p) % n, i64::from(p != 0)) } else { (p, 0) };
+        let ((px_c, sx), (py_c, sy)) = (mirror_phase(px, gx), mirror_phase(py, gy));
+        let canonical = self.key_of(k, flip_c, (px_c, py_c), canonical_class);
+        (canonical != key).then_some(Mirror { key: canonical, flip: [gx, gy], shift: [sx, sy] })
+    }
+
+    /// The template of `key`, built (O(r)).
+    fn template(&self, key: u64) -> Template {
+        let n = self.shape.phases() as u64;
+        let (k, flip, px, py) = self.parts(key);
         let cut = self.cut_of(k, key, flip);
         Template::new(self.shape, self.radius(k), (px as f32 / n as f32, py as f32 / n as f32), flip, cut, self.p)
     }
@@ -471,17 +576,18 @@ impl Templates {
 
     fn get(&mut self, bins: &Bins, key: u64) -> &Template {
         if !self.local.contains_key(&key) {
-            let t = match &self.shared {
-                None => Arc::new(bins.template(key)),
-                Some(shared) => {
-                    let found = shared.0.lock().unwrap_or_else(|e| e.into_inner()).get(&key).cloned();
-                    found.unwrap_or_else(|| {
-                        // Built outside the lock; a worker that built it meanwhile wins.
-                        let t = Arc::new(bins.template(key));
-                        Arc::clone(shared.0.lock().unwrap_or_else(|e| e.into_inner()).entry(key).or_insert(t))
-                    })
+            let found = self.shared.as_ref().and_then(|s| s.0.lock().unwrap_or_else(|e| e.into_inner()).get(&key).cloned());
+            let t = found.unwrap_or_else(|| {
+                // Built outside the lock; a worker that built it meanwhile wins.
+                let t = Arc::new(match bins.mirror_of(key) {
+                    Some(m) => self.get(bins, m.key).mirrored(&m, bins.scale_of(key)),
+                    None => bins.template(key),
+                });
+                match &self.shared {
+                    Some(shared) => Arc::clone(shared.0.lock().unwrap_or_else(|e| e.into_inner()).entry(key).or_insert(t)),
+                    None => t,
                 }
-            };
+            });
             self.local.insert(key, t);
         }
         &self.local[&key]
@@ -652,6 +758,72 @@ mod tests {
                     };
                     assert!((total - expected).abs() <= 1e-6 * expected, "{shape:?} r={r}: {total} vs {expected}");
                 }
+            }
+        }
+    }
+
+    /// A cat's eye's templates built as the mirror images of others ([`Bins::mirror_of`]) are
+    /// the templates built directly, weight for weight (within 1e-5 of the largest): full
+    /// resolution and coarse (centres off the lattice), behind and in front of the focal
+    /// plane, cuts from every quadrant of the frame, for the disc's polygon (both mirrors),
+    /// a hexagon at 0° (both), a pentagon at 90° (x only) and a 7-blade at 10° (none: every
+    /// key its own).
+    #[test]
+    fn mirrored_cat_eye_templates_are_the_templates() {
+        use crate::render::aperture::{Aperture, CatEye, ShapeSpec};
+        let dense = |t: &Template| {
+            let mut m = std::collections::HashMap::new();
+            for (row, tr) in t.rows.iter().enumerate() {
+                let (d, c) = (&t.diffs[tr.diffs.0 as usize..tr.diffs.1 as usize], &t.taps[tr.taps.0 as usize..tr.taps.1 as usize]);
+                let j = row as i64 - t.rr;
+                if let (Some(lo), Some(hi)) = (d.iter().map(|e| e.0).min(), d.iter().map(|e| e.0).max()) {
+                    let mut acc = 0.0;
+                    for dx in lo..hi {
+                        acc += d.iter().filter(|e| e.0 == dx).map(|e| e.1).sum::<f64>();
+                        *m.entry((dx, j)).or_insert(0.0) += acc;
+                    }
+                }
+                for &(dx, w) in c {
+                    *m.entry((dx, j)).or_insert(0.0) += w as f64;
+                }
+            }
+            m.retain(|_, w| w.abs() > 1e-12);
+            m
+        };
+        let cat = CatEye::new(1.0, 64, 48);
+        for (name, mirrors) in [
+            ("disc", [true, true]),
+            ("blades:6", [true, true]),
+            ("blades:5,rotation=90", [true, false]),
+            ("blades:7,rotation=10", [false, false]),
+        ] {
+            let spec = ShapeSpec::parse(name, "test").unwrap();
+            let g = Aperture::new(&spec, 1.0, "test").unwrap().with_cat_eye(1.0).unwrap().geometry().unwrap();
+            assert_eq!(g.mirrors(), mirrors, "{name}");
+            for shape in [Shape::Aperture(g), Shape::CoarseAperture { shape: g, window: 12.5 }] {
+                let coarse = matches!(shape, Shape::CoarseAperture { .. });
+                let bins = Bins::new(shape, 0.25, 30).with_cat_eye(Some(cat), if coarse { 4.0 } else { 1.0 });
+                let (mut templates, mut mirrored) = (Templates::default(), 0);
+                for (x, y) in [(3.0f32, 5.0f32), (60.0, 4.0), (5.0, 44.0), (58.0, 41.0), (31.5, 23.5), (31.5, 3.0), (10.0, 23.5)] {
+                    for (r, flip) in [(2.3f32, false), (6.1, true), (9.0, false), (9.0, true)] {
+                        let key = match shape {
+                            Shape::CoarseAperture { .. } => bins.place(x / 4.0 + 0.3, y / 4.0 + 0.55, r, flip, (x, y)).0,
+                            _ => bins.bin_flipped(r, flip, (x, y)).0,
+                        };
+                        mirrored += usize::from(bins.mirror_of(key).is_some());
+                        let (want, got) = (dense(&bins.template(key)), dense(templates.get(&bins, key)));
+                        let top = want.values().fold(0.0f64, |a, w| a.max(w.abs()));
+                        for at in want.keys().chain(got.keys()) {
+                            let (a, b) = (want.get(at).copied().unwrap_or(0.0), got.get(at).copied().unwrap_or(0.0));
+                            assert!(
+                                (a - b).abs() <= 1e-5 * top,
+                                "{name} coarse {coarse} at ({x}, {y}) r {r} flip {flip}: weight at {at:?} {b}, built {a}"
+                            );
+                        }
+                    }
+                }
+                // The mirrors were used where the shape has them.
+                assert_eq!(mirrored > 0, g.mirrors().iter().any(|&m| m), "{name} {shape:?}: {mirrored} mirrored keys");
             }
         }
     }
