@@ -58,7 +58,7 @@ pub struct FilledDepth {
     /// How far (pixels) from the core the fill reached.
     pub reach: f32,
     /// How far (pixels) outside its visible pixels the foreground layer can show: its largest
-    /// visibility box half-size, plus one.
+    /// visibility box half-size, plus one (the box's side; its corners reach √2 times as far).
     pub visible_reach: f32,
     /// The shrink of the hard mask, pixels (`erode`), when the core is the shrunk mask.
     pub erode: f32,
@@ -96,10 +96,14 @@ pub fn core_of(hard: &[bool], w: usize, h: usize, erode_px: f32) -> Vec<bool> {
 /// Why the fill can stop: a pixel of the foreground layer that is not visible (alpha 0) only
 /// matters through its visibility (eq. 4), the mean alpha over a box of half-size σ/2 sized by
 /// its own disparity. With every disparity in the core's range `[lo, hi]`, that box is at most
-/// `r = trunc((max|D - focus|·K + 1)/2)` pixels, so only pixels within `r` of a visible pixel
-/// can show the layer. The fill covers those (measured from the core: the farthest visible
-/// pixel's distance plus `r`, with a margin for the fast-marching metric); every pixel beyond
-/// gets the core disparity nearest the focus, which keeps its box small and its value unseen.
+/// `r = trunc((max|D - focus|·K + 1)/2)` pixels, so only pixels whose square of half-size `r`
+/// holds a visible pixel can show the layer: within `√2·r` of it at the square's corners. The
+/// fill covers those (measured from the core: the farthest visible pixel's distance plus
+/// `√2·(r + 1)`, with a margin for the fast-marching metric); every pixel beyond gets the core
+/// disparity nearest the focus, which keeps its box small and its value unseen. (Until
+/// 2026-11-28 the bound was `r + 1`, the box's side rather than its corner: with
+/// `--profile official`, whose visibility is that box, the bundled scene at K 60 rendered up to
+/// 0.011 away from a full fill; now it is the full fill's render exactly.)
 ///
 /// `ramp` is the measured soft depth edge ([`super::depth_edges`]): with a ramp, the core is
 /// where the foreground's own disparity can be solved from the smoothed map
@@ -149,11 +153,14 @@ pub fn foreground_disparity(
             )
             .reduce(|| 0.0, f32::max)
     };
-    // Every test below reads distances up to `edge + visible_reach`: distances exact up to
+    // Every test below reads distances up to `seen(edge)`: distances exact up to
     // CAPPED_MAX answer when that is within it (about half the exact transform's cost).
+    // How far from the core a pixel can show the layer: the farthest visible pixel, then the
+    // corner of a visibility box around it.
+    let seen = |edge: f32| edge + std::f32::consts::SQRT_2 * visible_reach;
     let capped = BoxDistance::upto(&core, w, bb, CAPPED_MAX);
     let (to_core, edge) = match farthest(&capped) {
-        edge if edge + visible_reach <= CAPPED_MAX => (capped, edge),
+        edge if seen(edge) <= CAPPED_MAX => (capped, edge),
         _ => {
             drop(capped);
             let exact = BoxDistance::new(&core, w, bb);
@@ -161,7 +168,7 @@ pub fn foreground_disparity(
             (exact, edge)
         }
     };
-    let reach = super::mask::marching_reach(edge + visible_reach);
+    let reach = super::mask::marching_reach(seen(edge));
     let unknown: Vec<bool> = core.par_iter().map(|&m| !m).collect();
     drop(core);
     let filled = inpaint_telea(&mut out, &unknown, TeleaOptions { max_distance: Some(reach), ..TeleaOptions::new(opts.radius) })?;
@@ -180,7 +187,7 @@ pub fn foreground_disparity(
                     if !u {
                         continue;
                     }
-                    if d <= edge + visible_reach {
+                    if d <= seen(edge) {
                         *v = v.clamp(lo, hi);
                     } else {
                         *v = quiet;
@@ -339,6 +346,52 @@ mod tests {
         for (x, y) in [(9, 15), (30, 15), (20, 7), (20, 22), (8, 15)] {
             let d = fd.disparity.data[y * w + x];
             assert!((d - 0.7).abs() < 1e-4, "pixel ({x}, {y}) just outside the subject: {d}, not the subject's 0.7");
+        }
+    }
+
+    /// README: the fill reaches "as far as a blur can show the result". Every pixel the
+    /// foreground layer can show, one whose visibility box (half-size below the visibility
+    /// reach) holds a visible pixel (alpha > 0), gets the fill, not the quiet value given to
+    /// pixels no blur shows. A block whose disparity ramps from 0.6 to 0.7 left to right,
+    /// focused at 0 (quiet: 0.6), its matte fading over 12 px on the right (visible, below
+    /// the hard threshold): at K 4 (reach 2 px, the fringe wider than it) and at K 60 (reach 22
+    /// px, beyond the capped distances' 16). On the right (x ≥ 28) the fill is the ramp's
+    /// 0.7 side, so every such pixel is at least 0.66; a pixel beyond the reach is the quiet
+    /// 0.6. (cargo-mutants: the box margin, the farthest visible pixel, the capped/exact
+    /// choice, the fill's and the skip's distance each changed survived every other test.
+    /// Written for them, the test found the bound itself short: at K 60 the box's corners,
+    /// 21 px across and 10 down from the fringe, took the quiet value.)
+    #[test]
+    fn every_pixel_the_layer_can_show_gets_the_fill() {
+        let (w, h) = (110usize, 44usize);
+        let inside = |x: usize, y: usize| (10..30).contains(&x) && (10..34).contains(&y);
+        let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.1 });
+        let alpha = plane(w, h, |x, y| match () {
+            _ if inside(x, y) => 1.0,
+            _ if (30..42).contains(&x) && (10..34).contains(&y) => 0.5 * (42 - x) as f32 / 13.0,
+            _ => 0.0,
+        });
+        let opts = FillDepthOptions { erode: 0.0, edges: DepthEdges::AsGiven, ..FillDepthOptions::default() };
+        let visible: Vec<(usize, usize)> = (0..w * h).filter(|&i| alpha.data[i] > 0.0).map(|i| (i % w, i / w)).collect();
+        for (blur, reach) in [(4.0f32, 2.0f32), (60.0, 22.0)] {
+            let fd = foreground_disparity(&disp, &alpha, &opts, (0.0, blur), &EdgeWidths::default()).unwrap();
+            assert_eq!((fd.visible_reach, fd.quiet), (reach, Some(0.6)), "K {blur}");
+            let half = reach as usize - 1;
+            let shown = |x: usize, y: usize| visible.iter().any(|&(vx, vy)| vx.abs_diff(x) <= half && vy.abs_diff(y) <= half);
+            let mut wrong = Vec::new();
+            for (x, y) in (0..h).flat_map(|y| (28..w).map(move |x| (x, y))) {
+                let v = fd.disparity.data[y * w + x];
+                if !inside(x, y) && shown(x, y) && v < 0.66 {
+                    wrong.push((x, y, v));
+                }
+            }
+            assert!(
+                wrong.is_empty(),
+                "K {blur}: {} pixels the layer shows lack the fill, e.g. {:?}",
+                wrong.len(),
+                &wrong[..wrong.len().min(6)]
+            );
+            assert_eq!(fd.disparity.data[(h - 1) * w + w - 1], 0.6, "K {blur}: a pixel beyond the reach");
         }
     }
 
