@@ -4,8 +4,10 @@ docs/guide.md (*Aperture shapes*, between the aperture-bench markers).
 
 For each shape and seed: `drbokeh bench --methods sliced` on 12 generated scenes of 128 x 128
 (1024 rays per pixel; one exact layer per depth plane, so the layered model is exact and what
-is left is the lens model and the kernels), the tracer sampling the same aperture. Reports go
-to docs/aperture-bench/seedS/SHAPE/ (report.md, report.csv).
+is left is the lens model and the kernels), the tracer sampling the same aperture, on the
+linear view and on its 8-bit sRGB encoding (clipped at white: what clipping costs each shape
+with perfect layers; no highlights stage runs on exact layers). Reports go to
+docs/aperture-bench/seedS/SHAPE/ (report.md, report.csv).
 
     scripts/aperture_bench.py            # run the benches, then write the table
     scripts/aperture_bench.py --table    # rewrite the table from the stored reports
@@ -72,7 +74,7 @@ def run(only=None):
                 continue
             out = os.path.join(OUT, f"seed{seed}", tag(name))
             cmd = [os.path.join(ROOT, "target", "release", "drbokeh"), "bench", "--methods", "sliced", "--scenes", "12", "--size", "128x128",
-                   "--spp", "1024", "--repeats", "1", "--crops", "0", "--inputs", "linear", "--seed", str(seed), "--out", os.path.relpath(out, ROOT)] + flags
+                   "--spp", "1024", "--repeats", "1", "--crops", "0", "--inputs", "linear,srgb8", "--seed", str(seed), "--out", os.path.relpath(out, ROOT)] + flags
             print(" ".join(cmd[1:]), flush=True)
             subprocess.run(cmd, cwd=ROOT, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             plot = os.path.join(out, "error_vs_time.png")
@@ -80,21 +82,24 @@ def run(only=None):
                 os.remove(plot)
 
 
-def mean_psnr(seed, name, variant):
+def mean_psnr(seed, name, variant, input="linear"):
     with open(os.path.join(OUT, f"seed{seed}", tag(name), "report.csv")) as f:
-        vals = [float(r["psnr_linear"]) for r in csv.DictReader(f) if r["method"] == "drbokeh-sliced" and r["variant"] == variant]
+        vals = [float(r["psnr_linear"]) for r in csv.DictReader(f)
+                if r["method"] == "drbokeh-sliced" and r["variant"] == variant and r["input"] == input]
     return sum(vals) / len(vals)
 
 
 def table():
-    lines = ["| aperture | seed 1: exact / fast (linear dB) | seed 2: exact / fast | fast, against the disc (seed 1 / 2) |", "| --- | ---: | ---: | ---: |"]
+    lines = ["| aperture | seed 1: exact / fast (linear dB) | seed 2: exact / fast | fast, against the disc (seed 1 / 2) | 8-bit input: fast (seed 1 / 2) |",
+             "| --- | ---: | ---: | ---: | ---: |"]
     disc = {s: mean_psnr(s, "disc", "physical-fast-q2") for s in SEEDS}
     for name, _ in SHAPES:
         cells = []
         for s in SEEDS:
             cells.append(f"{mean_psnr(s, name, 'physical-exact'):.2f} / {mean_psnr(s, name, 'physical-fast-q2'):.2f}")
         delta = " / ".join(f"{mean_psnr(s, name, 'physical-fast-q2') - disc[s]:+.2f}" for s in SEEDS)
-        lines.append(f"| `{name}` | {cells[0]} | {cells[1]} | {delta if name != 'disc' else '—'} |")
+        clipped = " / ".join(f"{mean_psnr(s, name, 'physical-fast-q2', 'srgb8'):.2f}" for s in SEEDS)
+        lines.append(f"| `{name}` | {cells[0]} | {cells[1]} | {delta if name != 'disc' else '—'} | {clipped} |")
     guide = os.path.join(ROOT, "docs", "guide.md")
     text = open(guide).read()
     a, b = "<!-- aperture-bench -->\n", "<!-- /aperture-bench -->"
