@@ -360,15 +360,16 @@ mod tests {
     /// 0.6. (cargo-mutants: the box margin, the farthest visible pixel, the capped/exact
     /// choice, the fill's and the skip's distance each changed survived every other test.
     /// Written for them, the test found the bound itself short: at K 60 the box's corners,
-    /// 21 px across and 10 down from the fringe, took the quiet value.)
+    /// 21 px across and up to 21 up or down from the fringe, took the quiet value; the frame
+    /// holds those corners whole.)
     #[test]
     fn every_pixel_the_layer_can_show_gets_the_fill() {
-        let (w, h) = (110usize, 44usize);
-        let inside = |x: usize, y: usize| (10..30).contains(&x) && (10..34).contains(&y);
+        let (w, h) = (110usize, 80usize);
+        let inside = |x: usize, y: usize| (10..30).contains(&x) && (25..49).contains(&y);
         let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.1 });
         let alpha = plane(w, h, |x, y| match () {
             _ if inside(x, y) => 1.0,
-            _ if (30..42).contains(&x) && (10..34).contains(&y) => 0.5 * (42 - x) as f32 / 13.0,
+            _ if (30..42).contains(&x) && (25..49).contains(&y) => 0.5 * (42 - x) as f32 / 13.0,
             _ => 0.0,
         });
         let opts = FillDepthOptions { erode: 0.0, edges: DepthEdges::AsGiven, ..FillDepthOptions::default() };
