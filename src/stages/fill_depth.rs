@@ -153,11 +153,11 @@ pub fn foreground_disparity(
             )
             .reduce(|| 0.0, f32::max)
     };
-    // Every test below reads distances up to `seen(edge)`: distances exact up to
-    // CAPPED_MAX answer when that is within it (about half the exact transform's cost).
     // How far from the core a pixel can show the layer: the farthest visible pixel, then the
     // corner of a visibility box around it.
     let seen = |edge: f32| edge + std::f32::consts::SQRT_2 * visible_reach;
+    // Every test below reads distances up to `seen(edge)`: distances exact up to
+    // CAPPED_MAX answer when that is within it (about half the exact transform's cost).
     let capped = BoxDistance::upto(&core, w, bb, CAPPED_MAX);
     let (to_core, edge) = match farthest(&capped) {
         edge if seen(edge) <= CAPPED_MAX => (capped, edge),
@@ -315,7 +315,9 @@ mod tests {
     fn the_visibility_reach_follows_the_core_side_farthest_from_focus() {
         let (w, h) = (40usize, 30usize);
         let inside = |x: usize, y: usize| (10..30).contains(&x) && (8..22).contains(&y);
-        let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.1 });
+        // The background at 0.95, above the core's range: a pixel neither filled nor skipped
+        // would read 0.7 (clamped), not the quiet 0.6.
+        let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.95 });
         let alpha = plane(w, h, |x, y| inside(x, y) as u8 as f32);
         let opts = FillDepthOptions { erode: 0.0, edges: DepthEdges::AsGiven, ..FillDepthOptions::default() };
         for (focus, coc) in [(0.23f32, 9.4f32), (0.97, 7.4)] {
@@ -366,7 +368,9 @@ mod tests {
     fn every_pixel_the_layer_can_show_gets_the_fill() {
         let (w, h) = (110usize, 80usize);
         let inside = |x: usize, y: usize| (10..30).contains(&x) && (25..49).contains(&y);
-        let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.1 });
+        // The background at 0.95, above the core's range: a pixel neither filled nor skipped
+        // would read 0.7 (clamped), not the quiet 0.6.
+        let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.95 });
         let alpha = plane(w, h, |x, y| match () {
             _ if inside(x, y) => 1.0,
             _ if (30..42).contains(&x) && (25..49).contains(&y) => 0.5 * (42 - x) as f32 / 13.0,
@@ -374,7 +378,10 @@ mod tests {
         });
         let opts = FillDepthOptions { erode: 0.0, edges: DepthEdges::AsGiven, ..FillDepthOptions::default() };
         let visible: Vec<(usize, usize)> = (0..w * h).filter(|&i| alpha.data[i] > 0.0).map(|i| (i % w, i / w)).collect();
-        for (blur, reach) in [(4.0f32, 2.0f32), (60.0, 22.0)] {
+        // Per case, a pixel beyond the reach (from the core's corner (29, 48): 17.7 px against
+        // 12 + √2·2 = 14.8; 44.1 against 12 + √2·22 = 43.1) but inside the distance transform's
+        // box, where capped distances (exact to 16 px only) would not find it beyond.
+        for (blur, reach, beyond) in [(4.0f32, 2.0f32, (46usize, 53usize)), (60.0, 22.0, (66, 72))] {
             let fd = foreground_disparity(&disp, &alpha, &opts, (0.0, blur), &EdgeWidths::default()).unwrap();
             assert_eq!((fd.visible_reach, fd.quiet), (reach, Some(0.6)), "K {blur}");
             let half = reach as usize - 1;
@@ -393,6 +400,7 @@ mod tests {
                 &wrong[..wrong.len().min(6)]
             );
             assert_eq!(fd.disparity.data[(h - 1) * w + w - 1], 0.6, "K {blur}: a pixel beyond the reach");
+            assert_eq!(fd.disparity.data[beyond.1 * w + beyond.0], 0.6, "K {blur}: the pixel {beyond:?}, beyond the reach");
         }
     }
 
