@@ -357,7 +357,7 @@ mod tests {
     /// pixels no blur shows. A block whose disparity ramps from 0.6 to 0.7 left to right,
     /// focused at 0 (quiet: 0.6), its matte fading over 12 px on the right (visible, below
     /// the hard threshold): at K 4 (reach 2 px, the fringe wider than it) and at K 60 (reach 22
-    /// px, beyond the capped distances' 16). On the right (x ≥ 28) the fill is the ramp's
+    /// px, beyond the capped distances' 16); and at K 60 with a hard matte (no fringe). On the right (x ≥ 28) the fill is the ramp's
     /// 0.7 side, so every such pixel is at least 0.66; a pixel beyond the reach is the quiet
     /// 0.6. (cargo-mutants: the box margin, the farthest visible pixel, the capped/exact
     /// choice, the fill's and the skip's distance each changed survived every other test.
@@ -371,19 +371,24 @@ mod tests {
         // The background at 0.95, above the core's range: a pixel neither filled nor skipped
         // would read 0.7 (clamped), not the quiet 0.6.
         let disp = plane(w, h, |x, y| if inside(x, y) { 0.6 + 0.1 * (x - 10) as f32 / 19.0 } else { 0.95 });
-        let alpha = plane(w, h, |x, y| match () {
-            _ if inside(x, y) => 1.0,
-            _ if (30..42).contains(&x) && (25..49).contains(&y) => 0.5 * (42 - x) as f32 / 13.0,
-            _ => 0.0,
-        });
         let opts = FillDepthOptions { erode: 0.0, edges: DepthEdges::AsGiven, ..FillDepthOptions::default() };
-        let visible: Vec<(usize, usize)> = (0..w * h).filter(|&i| alpha.data[i] > 0.0).map(|i| (i % w, i / w)).collect();
-        // Per case, a pixel beyond the reach (from the core's corner (29, 48): 17.7 px against
-        // 12 + √2·2 = 14.8; 44.1 against 12 + √2·22 = 43.1) but inside the distance transform's
-        // box, where capped distances (exact to 16 px only) would not find it beyond.
-        for (blur, reach, beyond) in [(4.0f32, 2.0f32, (46usize, 53usize)), (60.0, 22.0, (66, 72))] {
+        // Per case, a pixel beyond the reach (from the core's corner (29, 48)) but inside the
+        // distance transform's box, where capped distances (exact to 16 px only) would not find
+        // it beyond: with the fringe 17.7 px against 12 + √2·2 = 14.8 and 44.1 against
+        // 12 + √2·22 = 43.1; without it (a hard matte: the farthest visible pixel is the
+        // core's own, 0) 34.7 against √2·22 = 31.1.
+        for (fringe, blur, reach, beyond) in
+            [(true, 4.0f32, 2.0f32, (46usize, 53usize)), (true, 60.0, 22.0, (66, 72)), (false, 60.0, 22.0, (54, 72))]
+        {
+            let alpha = plane(w, h, |x, y| match () {
+                _ if inside(x, y) => 1.0,
+                _ if fringe && (30..42).contains(&x) && (25..49).contains(&y) => 0.5 * (42 - x) as f32 / 13.0,
+                _ => 0.0,
+            });
+            let visible: Vec<(usize, usize)> = (0..w * h).filter(|&i| alpha.data[i] > 0.0).map(|i| (i % w, i / w)).collect();
+            let case = format!("K {blur}{}", if fringe { ", fringe" } else { ", hard matte" });
             let fd = foreground_disparity(&disp, &alpha, &opts, (0.0, blur), &EdgeWidths::default()).unwrap();
-            assert_eq!((fd.visible_reach, fd.quiet), (reach, Some(0.6)), "K {blur}");
+            assert_eq!((fd.visible_reach, fd.quiet), (reach, Some(0.6)), "{case}");
             let half = reach as usize - 1;
             let shown = |x: usize, y: usize| visible.iter().any(|&(vx, vy)| vx.abs_diff(x) <= half && vy.abs_diff(y) <= half);
             let mut wrong = Vec::new();
@@ -395,12 +400,12 @@ mod tests {
             }
             assert!(
                 wrong.is_empty(),
-                "K {blur}: {} pixels the layer shows lack the fill, e.g. {:?}",
+                "{case}: {} pixels the layer shows lack the fill, e.g. {:?}",
                 wrong.len(),
                 &wrong[..wrong.len().min(6)]
             );
-            assert_eq!(fd.disparity.data[(h - 1) * w + w - 1], 0.6, "K {blur}: a pixel beyond the reach");
-            assert_eq!(fd.disparity.data[beyond.1 * w + beyond.0], 0.6, "K {blur}: the pixel {beyond:?}, beyond the reach");
+            assert_eq!(fd.disparity.data[(h - 1) * w + w - 1], 0.6, "{case}: a pixel beyond the reach");
+            assert_eq!(fd.disparity.data[beyond.1 * w + beyond.0], 0.6, "{case}: the pixel {beyond:?}, beyond the reach");
         }
     }
 
