@@ -277,6 +277,11 @@ mod tests {
             let tn = t.file_name().unwrap().to_str().unwrap();
             assert!(tn.len() <= NAME_MAX, "{} bytes: {tn}", tn.len());
             assert!(is_temp_name(tn), "{tn}");
+            // Any sibling's suffix up to the reserve fits, not only a temp's (at most 33 bytes:
+            // cargo-mutants' `- 2` → `+ 2` in the stem's budget fitted those and survived).
+            let s = hidden_sibling(&p, &"s".repeat(SUFFIX_RESERVE));
+            let sn = s.file_name().unwrap().to_str().unwrap();
+            assert!(sn.len() <= NAME_MAX, "{} bytes: {sn}", sn.len());
         }
         assert!(!is_temp_name(".a.png.12-x.drbokeh-tmp"));
         assert!(!is_temp_name("a.png.12-3.drbokeh-tmp"));
