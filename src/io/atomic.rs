@@ -269,9 +269,11 @@ mod tests {
 
     #[test]
     fn temp_names_fit_and_are_recognized() {
-        for len in [1, 200, 213, 214, 250, 255] {
-            // Two-byte characters, so that some cuts fall inside one.
-            let name = format!("{}{}.png", "é".repeat(len / 2), "a".repeat(len % 2));
+        let budget = NAME_MAX - SUFFIX_RESERVE - 2;
+        for (len, lead) in [1, 200, 213, 214, 250, 255].into_iter().flat_map(|len| [(len, ""), (len, "a")]) {
+            // Two-byte characters, so that some cuts fall inside one (a leading `a` puts the
+            // cut inside a character: without it every cut falls between two).
+            let name = format!("{lead}{}{}.png", "é".repeat(len / 2), "a".repeat(len % 2));
             let p = Path::new("/x").join(&name);
             let t = temp_path_for(&p);
             let tn = t.file_name().unwrap().to_str().unwrap();
@@ -282,12 +284,42 @@ mod tests {
             let s = hidden_sibling(&p, &"s".repeat(SUFFIX_RESERVE));
             let sn = s.file_name().unwrap().to_str().unwrap();
             assert!(sn.len() <= NAME_MAX, "{} bytes: {sn}", sn.len());
+            // A long name keeps as much of itself as fits (up to a character's bytes less).
+            let stem = sibling_stem(&p);
+            if name.len() > budget {
+                assert!((budget - 1..=budget).contains(&stem.len()), "{} of {budget} bytes: {stem}", stem.len());
+                assert!(name.starts_with(&stem[..stem.len() - 17]), "{stem}");
+            } else {
+                assert_eq!(stem, name);
+            }
         }
         assert!(!is_temp_name(".a.png.12-x.drbokeh-tmp"));
         assert!(!is_temp_name("a.png.12-3.drbokeh-tmp"));
         // Two long names sharing their first 250 bytes get different stems.
         let (a, b) = (format!("{}a.png", "x".repeat(250)), format!("{}b.png", "x".repeat(250)));
         assert_ne!(sibling_stem(Path::new(&a)), sibling_stem(Path::new(&b)));
+    }
+
+    /// The stored hash is FNV-1a 64 (batch fingerprints are kept on disk across versions):
+    /// its published test vectors.
+    #[test]
+    fn fnv1a64_is_the_published_hash() {
+        assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a64(b"a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a64(b"foobar"), 0x85944171f73967e8);
+    }
+
+    /// A folder where no file can be created (`/proc`: even root gets an error) is the user's
+    /// I/O error naming the output, at once, not an internal error after retrying names: only
+    /// a name another file took is retried. (cargo-mutants: the retry's guard made `true`, or
+    /// its `==` made `!=`, survived.)
+    #[test]
+    #[cfg(target_os = "linux")]
+    fn an_uncreatable_temp_is_an_io_error_naming_the_output() {
+        let out = Path::new("/proc/drbokeh-atomic-test.png");
+        let e = write_atomic(out, |w| w.write_all(b"x").map_err(|e| Error::io(out, e))).unwrap_err();
+        assert!(matches!(e, Error::Io { .. }), "{e:?}");
+        assert!(e.to_string().contains("drbokeh-atomic-test.png"), "{e}");
     }
 
     /// A write that fails half-way (the encoder's error after some bytes) leaves the previous
