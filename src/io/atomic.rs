@@ -300,6 +300,18 @@ mod tests {
         assert_ne!(sibling_stem(Path::new(&a)), sibling_stem(Path::new(&b)));
     }
 
+    /// A finished write, and a failed one, leave nothing of theirs in the registry of
+    /// temporaries the signal handler removes (a batch writes thousands: cargo-mutants'
+    /// `unregister` made a no-op survived).
+    #[test]
+    fn finished_writes_leave_the_registry() {
+        let t = tempfile::tempdir().unwrap();
+        write_atomic(&t.path().join("a.png"), |w| w.write_all(b"x").map_err(|e| Error::io("a.png", e))).unwrap();
+        let _ = write_atomic(&t.path().join("b.png"), |_| Err(Error::Internal("failed".into())));
+        let ours = IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner()).iter().filter(|p| p.starts_with(t.path())).count();
+        assert_eq!(ours, 0);
+    }
+
     /// The stored hash is FNV-1a 64 (batch fingerprints are kept on disk across versions):
     /// its published test vectors.
     #[test]
