@@ -369,6 +369,11 @@ mod tests {
         assert!(destination(t.path()).unwrap_err().to_string().contains("folder"));
         std::os::unix::fs::symlink(t.path().join("none"), t.path().join("d.png")).unwrap();
         assert!(destination(&t.path().join("d.png")).unwrap_err().to_string().contains("does not exist"));
+        // A link to itself is an I/O error (too many levels of links), not "does not exist"
+        // (cargo-mutants: the dangling-link guard made `true` or its `&&` made `||` survived).
+        std::os::unix::fs::symlink(t.path().join("loop.png"), t.path().join("loop.png")).unwrap();
+        let e = destination(&t.path().join("loop.png")).unwrap_err();
+        assert!(matches!(e, Error::Io { .. }), "{e:?}");
     }
 
     #[test]
