@@ -312,6 +312,27 @@ mod tests {
         assert_eq!(ours, 0);
     }
 
+    /// A FIFO with a reader is opened for writing through and switched back to blocking
+    /// writes (a reader slower than the writer must not turn into `EAGAIN` errors); one that
+    /// nobody reads is refused at once. (cargo-mutants: the flag switch's `&`, `!` and `||`
+    /// survived the library's tests.)
+    #[test]
+    #[cfg(unix)]
+    fn a_fifo_is_written_through_in_blocking_mode() {
+        use std::os::unix::fs::OpenOptionsExt;
+        let t = tempfile::tempdir().unwrap();
+        let fifo = t.path().join("pipe.png");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid C string; mkfifo only creates the file.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        assert!(open_stream(&fifo).unwrap_err().to_string().contains("no process is reading"));
+        let _reader = OpenOptions::new().read(true).custom_flags(libc::O_NONBLOCK).open(&fifo).unwrap();
+        let w = open_stream(&fifo).unwrap();
+        // SAFETY: F_GETFL on a descriptor the test owns.
+        let flags = unsafe { libc::fcntl(std::os::fd::AsRawFd::as_raw_fd(&w), libc::F_GETFL) };
+        assert!(flags >= 0 && flags & libc::O_NONBLOCK == 0, "flags {flags:#x}");
+    }
+
     /// The stored hash is FNV-1a 64 (batch fingerprints are kept on disk across versions):
     /// its published test vectors.
     #[test]
