@@ -397,15 +397,15 @@ impl Bins {
         (px / self.radius(k).max(1e-3)).clamp(1.0 / 2048.0, CUT_STEP_MAX)
     }
 
-    /// The key bits of the cut of a source at full-resolution pixel `at` in bin `k` (0 without
-    /// a cat's eye).
+    /// The cut class of a source at full-resolution pixel `at` in bin `k` (as [`Bins::key_of`]
+    /// takes it; 0 without a cat's eye).
     #[inline]
     fn cut_class(&self, k: u64, at: (f32, f32)) -> u64 {
         let Some(cat) = self.cat else { return 0 };
         let [vx, vy] = cat.offset(at.0, at.1);
         let step = self.cut_step(k);
         let q = |v: f32| ((v / step).round().clamp(-2047.0, 2047.0) as i64 + 2048) as u64;
-        ((q(vy) << 12) | q(vx)) << CUT_SHIFT
+        (q(vy) << 12) | q(vx)
     }
 
     /// The cut of a key's class in bin `k`, reflected when `flip` (None without a cat's eye).
@@ -433,7 +433,7 @@ impl Bins {
     #[inline]
     pub(super) fn bin_flipped(&self, r: f32, flip: bool, at: (f32, f32)) -> (u64, f32) {
         let k = self.bin_index(r);
-        ((k * 2 + u64::from(flip && self.flips())) | self.cut_class(k, at), self.factor(k, r))
+        (self.key_of(k, flip && self.flips(), (0, 0), self.cut_class(k, at)), self.factor(k, r))
     }
 
     /// Coarse shape: the template of a disk of radius `rho` centred at `(cx, cy)` (grid
@@ -444,8 +444,8 @@ impl Bins {
         let n = self.shape.phases() as i64;
         let (qx, qy) = ((cx * n as f32).round() as i64, (cy * n as f32).round() as i64);
         let k = self.bin_index(rho);
-        let kf = if self.flips() { k * 2 + u64::from(flip) } else { k };
-        let key = ((kf * n as u64 + qy.rem_euclid(n) as u64) * n as u64 + qx.rem_euclid(n) as u64) | self.cut_class(k, at);
+        let phase = (qx.rem_euclid(n) as u64, qy.rem_euclid(n) as u64);
+        let key = self.key_of(k, flip && self.flips(), phase, self.cut_class(k, at));
         (key, qx.div_euclid(n), qy.div_euclid(n), self.factor(k, rho))
     }
 
@@ -488,7 +488,10 @@ impl Bins {
     }
 
     /// The key of bin `k`, reflection `flip`, centre position `(px, py)` and cut class
-    /// `class` (as stored: 12 bits per axis, offset by 2048).
+    /// `class` (as stored: 12 bits per axis, offset by 2048): the one encoding that
+    /// [`Bins::place`], [`Bins::bin_flipped`] and [`Bins::mirror_of`] write and
+    /// [`Bins::parts`] reads.
+    #[inline]
     fn key_of(&self, k: u64, flip: bool, (px, py): (u64, u64), class: u64) -> u64 {
         let n = self.shape.phases() as u64;
         let kf = if self.flips() || matches!(self.shape, Shape::Aperture(_)) { k * 2 + u64::from(flip) } else { k };
