@@ -193,7 +193,8 @@ pub struct BenchArgs {
     #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
     methods: Vec<MethodArg>,
     /// What the methods are fed (comma-separated): the linear HDR view, and the same view as an
-    /// 8-bit sRGB photo clipped at white, without and with a camera PSF [default: all three].
+    /// 8-bit sRGB photo clipped at white, without and with a camera PSF [default: all three;
+    /// with --dfd: linear, and both photos of a case are fed alike].
     #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
     inputs: Vec<InputArg>,
     /// Report folder (report.csv, report.md, error_vs_time.png, crops/; with --dfd figures/).
@@ -257,9 +258,7 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     let scenes = args.scenes.unwrap_or(50);
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
     let methods = if args.methods.is_empty() { Method::ALL.to_vec() } else { args.methods.iter().map(|&m| m.into()).collect() };
-    let mut inputs: Vec<Input> = if args.inputs.is_empty() { Input::ALL.to_vec() } else { args.inputs.iter().map(|&i| i.into()).collect() };
-    inputs.sort();
-    inputs.dedup();
+    let inputs = inputs_of(&args.inputs, &Input::ALL);
     if scenes == 0 && args.groundtruth.is_none() {
         return Err(Error::usage("--scenes must be at least 1").into());
     }
@@ -306,15 +305,21 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The inputs `--inputs` names, in report order without repeats (`default` when none).
+fn inputs_of(args: &[InputArg], default: &[Input]) -> Vec<Input> {
+    let mut inputs: Vec<Input> = if args.is_empty() { default.to_vec() } else { args.iter().map(|&i| i.into()).collect() };
+    inputs.sort();
+    inputs.dedup();
+    inputs
+}
+
 /// `bench --dfd`: the depth-from-defocus evaluation (the work is `bench::dfd_eval::run`).
 fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
     let d = DfdBenchOptions::default();
     let (w, h) = args.size.unwrap_or((d.width, d.height));
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
-    if !args.methods.is_empty() || !args.inputs.is_empty() || args.textures.is_some() {
-        return Err(
-            Error::usage("--methods, --inputs and --textures are not used with --dfd (every depth-from-defocus method runs)").into()
-        );
+    if !args.methods.is_empty() || args.textures.is_some() {
+        return Err(Error::usage("--methods and --textures are not used with --dfd (every depth-from-defocus method runs)").into());
     }
     if args.iters == 0 || args.levels == 0 {
         return Err(Error::usage("--iters and --levels must be at least 1").into());
@@ -330,6 +335,7 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
         iters: args.iters,
         levels: args.levels,
         methods: d.methods.clone(),
+        inputs: inputs_of(&args.inputs, &d.inputs),
         out: args.out.clone(),
         command: command_line(),
     };

@@ -84,19 +84,47 @@ fn dfd_bench_writes_a_sane_report() {
 
 /// A non-square frame (the figure panels once assumed square ones and the report ended in an
 /// internal error after report.md, leaving no figures): the whole report is written, exit 0.
+/// With `--inputs linear,srgb8` every method and reference has a row per input, and the 8-bit
+/// rows start from the 8-bit photo (the true map's re-render differs; its disparity error
+/// stays 0) and have their own section in report.md.
 #[test]
-fn dfd_bench_takes_a_non_square_frame() {
+fn dfd_bench_takes_a_non_square_frame_and_8bit_photos() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let out = run({
         let mut c = drbokeh(dir);
-        c.args(["bench", "--dfd", "--scenes", "1", "--size", "40x24", "--iters", "5", "--levels", "1", "--spp", "16", "--out", "rep"]);
+        c.args(["bench", "--dfd", "--scenes", "1", "--size", "40x24", "--iters", "5", "--levels", "1", "--spp", "16"]);
+        c.args(["--inputs", "srgb8,linear", "--out", "rep"]);
         c
     });
     assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
     let fig = image::open(dir.join("rep/figures/s000.png")).expect("the figure");
     // Panels of 40x24 at 2x zoom under an 18 px label band.
     assert_eq!(fig.height(), 24 * 2 + 18);
+    let text = std::fs::read_to_string(dir.join("rep/report.csv")).unwrap();
+    let head: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let rows: Vec<BTreeMap<&str, &str>> = text.lines().skip(1).map(|l| head.iter().copied().zip(l.split(',')).collect()).collect();
+    let of = |input: &str, method: &str| -> BTreeMap<&str, &str> {
+        let found: Vec<_> = rows.iter().filter(|r| r["input"] == input && r["method"] == method).collect();
+        assert_eq!(found.len(), 1, "{input} {method}: {} rows", found.len());
+        found[0].clone()
+    };
+    for m in ["drbokeh-physical", "drbokeh-official", "drbokeh-no-occlusion", "gauss-psf", "init", "true-disparity"] {
+        for input in ["linear", "srgb8"] {
+            let r = of(input, m);
+            for c in ["disparity_mae", "rerender_psnr_srgb", "rerender_psnr_linear"] {
+                assert!(r[c].parse::<f64>().unwrap().is_finite(), "{input} {m} {c}: {}", r[c]);
+            }
+        }
+    }
+    assert_eq!(rows.len(), 2 * (7 + 2));
+    let (lin, q) = (of("linear", "true-disparity"), of("srgb8", "true-disparity"));
+    assert_eq!((lin["disparity_mae"], q["disparity_mae"]), ("0.000000", "0.000000"));
+    assert_ne!(lin["rerender_psnr_linear"], q["rerender_psnr_linear"], "the 8-bit row re-renders the 8-bit photo");
+    let md = std::fs::read_to_string(dir.join("rep/report.md")).unwrap();
+    assert!(md.contains("## Input `srgb8`") && md.contains("### Acceptance, input `srgb8`"), "{md}");
+    // The linear input is the primary one whatever the order given.
+    assert!(md.contains("are for `linear`"), "{md}");
 }
 
 /// The ray test (the default plan at this size) fixes the span render's worst failure: on the

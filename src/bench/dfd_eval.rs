@@ -20,9 +20,16 @@
 //!
 //! Two reference rows: the true disparity (the best a one-layer re-render can do) and the
 //! optimiser's start (a constant map at [`DfdOptions::init`]).
+//!
+//! Each case runs once per input ([`DfdBenchOptions::inputs`], `bench --dfd --inputs`): the
+//! linear views as they are, or both photos (all-in-focus and target) as an 8-bit camera
+//! stores them ([`inputs::photo`]: clipped at white, quantized, a PSF first for
+//! `srgb8-psf`). The estimate and every re-render (the references' too) start from the photo
+//! of that input, against the same linear truths: what a user with those files gets.
 
 use super::depth_metrics::{DepthErrors, depth_errors};
 use super::groundtruth::GtScene;
+use super::inputs::{self, Input};
 use super::metrics::luminance;
 use super::metrics::srgb;
 use super::run::{Scores, score};
@@ -206,6 +213,9 @@ pub struct DfdBenchOptions {
     pub levels: usize,
     /// The methods, at least one.
     pub methods: Vec<DfdMethod>,
+    /// What the methods are fed, each a run of every case (at least one; the figures and the
+    /// per-case table show [`inputs::primary_input`]).
+    pub inputs: Vec<Input>,
     /// The report folder (created).
     pub out: PathBuf,
     /// The command line, for the report.
@@ -225,6 +235,7 @@ impl Default for DfdBenchOptions {
             iters: 100,
             levels: 3,
             methods: DfdMethod::ALL.to_vec(),
+            inputs: vec![Input::Linear],
             out: PathBuf::from("dfd-report"),
             command: String::new(),
         }
@@ -280,6 +291,8 @@ pub struct DfdRow {
     pub scene: String,
     /// Where the case comes from.
     pub source: CaseSource,
+    /// What the methods were fed.
+    pub input: Input,
     /// The method or reference.
     pub kind: RowKind,
     /// Frame width, pixels.
@@ -460,9 +473,10 @@ fn groundtruth_case(dir: &Path, width: usize) -> Result<DfdCase> {
     })
 }
 
-/// Scores one disparity map on a case (re-render included).
-fn score_map(case: &DfdCase, kind: RowKind, d: &Image, time_ms: f64) -> Result<DfdRow> {
-    let img = rerender(&case.aif, d, case.blur, case.other_focus)?;
+/// Scores one disparity map on a case (re-render included, from `aif`: the all-in-focus photo
+/// `input` delivers).
+fn score_map(case: &DfdCase, input: Input, aif: &Image, kind: RowKind, d: &Image, time_ms: f64) -> Result<DfdRow> {
+    let img = rerender(aif, d, case.blur, case.other_focus)?;
     if !img.all_finite() {
         return Err(Error::Internal(format!("the re-render of {} on {} is not finite", kind.name(), case.scene)));
     }
@@ -472,6 +486,7 @@ fn score_map(case: &DfdCase, kind: RowKind, d: &Image, time_ms: f64) -> Result<D
     Ok(DfdRow {
         scene: case.scene.clone(),
         source: case.source,
+        input,
         kind,
         width: w,
         height: h,
@@ -498,25 +513,27 @@ fn disparity_panel(d: &Image) -> Image {
 /// Labelled figure panels (linear RGB).
 type Panels = Vec<(String, Image)>;
 
-/// Runs every method on one case: its rows and its figure's panels.
-fn evaluate(case: &DfdCase, opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<(Vec<DfdRow>, Panels)> {
+/// Runs every method on one case fed as `input`: its rows and its figure's panels.
+fn evaluate(case: &DfdCase, input: Input, opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<(Vec<DfdRow>, Panels)> {
     let base = DfdOptions { iters: opts.iters, levels: opts.levels, ..DfdOptions::default() };
+    let (aif, target) = (inputs::photo(&case.aif, input).0, inputs::photo(&case.target, input).0);
     let mut rows = vec![
-        score_map(case, RowKind::TrueDisparity, &case.truth, 0.0)?,
-        score_map(case, RowKind::Init, &Image::filled(case.aif.width, case.aif.height, 1, base.init), 0.0)?,
+        score_map(case, input, &aif, RowKind::TrueDisparity, &case.truth, 0.0)?,
+        score_map(case, input, &aif, RowKind::Init, &Image::filled(case.aif.width, case.aif.height, 1, base.init), 0.0)?,
     ];
-    let mut panels = vec![("AIF".to_string(), case.aif.clone()), (format!("target f={:.2}", case.focus), case.target.clone())];
+    let mut panels = vec![("AIF".to_string(), Image::clone(&aif)), (format!("target f={:.2}", case.focus), Image::clone(&target))];
     for &m in &opts.methods {
         let (s, loss, renderer) = m.setup(case.blur, case.focus);
         let o = DfdOptions { weights: loss.weights(), renderer, kernel: m.kernel(), ..base };
         let t = Instant::now();
-        let d = dfd::estimate(&case.aif, &case.target, &s, &o, |_| {})?;
+        let d = dfd::estimate(&aif, &target, &s, &o, |_| {})?;
         let ms = ms_since(t);
-        let row = score_map(case, RowKind::Estimate(m), &d, ms)?;
+        let row = score_map(case, input, &aif, RowKind::Estimate(m), &d, ms)?;
         log(&format!(
-            "{} {}: disparity MAE {:.4}, re-render PSNR sRGB {:.2} dB, {:.1} s",
+            "{} {} ({}): disparity MAE {:.4}, re-render PSNR sRGB {:.2} dB, {:.1} s",
             case.scene,
             m.name(),
+            input.name(),
             row.mae,
             row.rerender.psnr_srgb,
             ms / 1e3
@@ -552,6 +569,9 @@ pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBench
     if opts.methods.is_empty() {
         return Err(Error::usage("bench.methods: no method selected"));
     }
+    if opts.inputs.is_empty() {
+        return Err(Error::usage("bench.inputs: no input selected"));
+    }
     if opts.scenes == 0 && opts.groundtruth.is_none() {
         return Err(Error::usage("bench.scenes must be at least 1 (or give ground-truth scenes)"));
     }
@@ -565,9 +585,13 @@ pub fn run(opts: &DfdBenchOptions, log: &mut dyn FnMut(&str)) -> Result<DfdBench
     let mut res = DfdBenchResult { rows: Vec::new(), cases: 0, figures: Vec::new() };
     for i in 0..opts.scenes + dirs.len() {
         let case = load_case(opts, &dirs, i, log)?;
-        let (rows, panels) = evaluate(&case, opts, log)?;
-        res.rows.extend(rows);
-        res.figures.push((case.scene.clone(), panels));
+        for &input in &opts.inputs {
+            let (rows, panels) = evaluate(&case, input, opts, log)?;
+            res.rows.extend(rows);
+            if input == inputs::primary_input(&opts.inputs) {
+                res.figures.push((case.scene.clone(), panels));
+            }
+        }
         res.cases += 1;
     }
     Ok(res)

@@ -4,6 +4,7 @@
 //! estimated disparities, truth).
 
 use super::dfd_eval::{CaseSource, DfdBenchOptions, DfdBenchResult, DfdMethod, DfdRow, RowKind, TEXTURE_THRESHOLD, TEXTURE_WINDOW};
+use super::inputs::{Input, primary_input};
 use super::report::write_panels;
 use super::summary::{mean, median, table_head};
 use crate::error::{Error, Result};
@@ -42,12 +43,12 @@ pub fn csv(rows: &[DfdRow]) -> String {
     let mut s = String::from(
         "scene,source,method,width,height,blur,focus,rerender_focus,border_px,textured_fraction,disparity_mae,disparity_mae_textured,\
          rerender_psnr_srgb,rerender_ssim_srgb,rerender_psnr_linear,rerender_ssim_linear,time_ms,\
-         depth_abs_rel,depth_rmse,depth_delta1,inverse_depth_abs_rel,inverse_depth_rmse,inverse_depth_delta1\n",
+         depth_abs_rel,depth_rmse,depth_delta1,inverse_depth_abs_rel,inverse_depth_rmse,inverse_depth_delta1,input\n",
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{:.4},{:.4},{:.4},{},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{:.6},{:.1},{}",
+            "{},{},{},{},{},{:.4},{:.4},{:.4},{},{:.4},{:.6},{:.6},{:.4},{:.6},{:.4},{:.6},{:.1},{},{}",
             r.scene,
             r.source.name(),
             r.kind.name(),
@@ -69,7 +70,9 @@ pub fn csv(rows: &[DfdRow]) -> String {
             match r.depth {
                 Some(e) => [e.depth, e.inverse].map(|q| format!("{:.6},{:.6},{:.6}", q.abs_rel, q.rmse, q.delta1)).join(","),
                 None => ",,,,,".to_string(),
-            }
+            },
+            // Last, so that the reports written before it had the column read the same.
+            r.input.name()
         );
     }
     s
@@ -338,7 +341,8 @@ fn per_case_table(rows: &[DfdRow]) -> String {
 }
 
 fn markdown(opts: &DfdBenchOptions, res: &DfdBenchResult) -> String {
-    let rows = &res.rows;
+    let primary = primary_input(&opts.inputs);
+    let rows: &Vec<DfdRow> = &res.rows.iter().filter(|r| r.input == primary).cloned().collect();
     let mut s = String::from("# Depth from defocus: disparity error and re-render accuracy (paper Table 2)\n\n");
     let _ = writeln!(s, "Command: `{}`\n", opts.command);
     let generated = rows.iter().filter(|r| r.source == CaseSource::Generated && r.kind == RowKind::TrueDisparity).count();
@@ -381,6 +385,16 @@ fn markdown(opts: &DfdBenchOptions, res: &DfdBenchResult) -> String {
          clipped to [0, 1] (SSIM on luminance, 11×11 Gaussian window), PSNR linear with peak 1, same border. `true-disparity` \
          re-renders the true map (the best one opaque layer can do), `init` the optimiser's start. Time: wall time of one estimate.\n"
     );
+    if opts.inputs != [Input::Linear] {
+        let names: Vec<String> = opts.inputs.iter().map(|i| format!("`{}`", i.name())).collect();
+        let _ = writeln!(
+            s,
+            "**Inputs**: {} (`--inputs`). The tables up to the acceptance checks, the per-case table and the figures are for `{}`; \
+             each other input has its own section after them.\n",
+            names.join(", "),
+            primary.name()
+        );
+    }
     let _ = writeln!(s, "## All cases (mean over {} cases)\n", res.cases);
     s.push_str(&summary_table(rows.iter()));
     if generated > 0 && gt > 0 {
@@ -396,6 +410,25 @@ fn markdown(opts: &DfdBenchOptions, res: &DfdBenchResult) -> String {
     }
     s.push_str("\n## Acceptance (issue 13)\n\n");
     s.push_str(&acceptance(rows));
+    for &input in opts.inputs.iter().filter(|&&i| i != primary) {
+        let of: Vec<DfdRow> = res.rows.iter().filter(|r| r.input == input).cloned().collect();
+        let _ = writeln!(
+            s,
+            "\n## Input `{}`: {} (mean over {} cases)\n\nBoth photos (all-in-focus and target) as the camera stores them; \
+             the estimates and every re-render start from that all-in-focus photo, against the same linear truths.\n",
+            input.name(),
+            input.label(),
+            res.cases
+        );
+        s.push_str(&summary_table(of.iter()));
+        let depth = depth_table(&of);
+        if !depth.is_empty() {
+            let _ = writeln!(s, "\n### Depth and inverse depth, input `{}`\n", input.name());
+            s.push_str(&depth);
+        }
+        let _ = writeln!(s, "\n### Acceptance, input `{}`\n", input.name());
+        s.push_str(&acceptance(&of));
+    }
     s.push_str("\n## Per case: disparity MAE overall / textured\n\n");
     s.push_str(&per_case_table(rows));
     s.push_str("\n## Figures (all-in-focus photo | target | estimated disparities | true disparity; 0 black, 1 white)\n\n");

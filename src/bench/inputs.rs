@@ -130,21 +130,32 @@ pub fn prepare(linear: &SceneInputs, input: Input) -> Result<Prepared<'_>> {
         return Ok(Prepared { input, scene: Cow::Borrowed(linear), missing_light: None });
     }
     let sigma = input.psf_sigma();
-    let recorded = match sigma {
-        Some(s) => Cow::Owned(blur_rgb(&linear.aif, s)),
-        None => Cow::Borrowed(&linear.aif),
-    };
-    let (aif, missing) = record(&recorded);
+    let (aif, missing) = photo(&linear.aif, input);
     let layers = |ls: &[Layer]| -> Result<Vec<Layer>> { ls.iter().map(|l| record_layer(l, sigma)).collect() };
     let scene = SceneInputs {
-        aif,
+        aif: aif.into_owned(),
         disparity: linear.disparity.clone(),
         matte: linear.matte.clone(),
         realistic_disparity: linear.realistic_disparity.clone(),
         two_layers: layers(&linear.two_layers)?,
         plane_layers: layers(&linear.plane_layers)?,
     };
-    Ok(Prepared { input, scene: Cow::Owned(scene), missing_light: Some(missing) })
+    Ok(Prepared { input, scene: Cow::Owned(scene), missing_light: missing })
+}
+
+/// The photo `input` delivers of the linear RGB view `linear` (borrowed for the linear
+/// input; for the clipped ones a new image, the PSF applied first when the input has one) and
+/// the light clipping took (see [`Prepared::missing_light`]; None for the linear input).
+pub fn photo(linear: &Image, input: Input) -> (Cow<'_, Image>, Option<f64>) {
+    if !input.is_clipped() {
+        return (Cow::Borrowed(linear), None);
+    }
+    let recorded = match input.psf_sigma() {
+        Some(s) => Cow::Owned(blur_rgb(linear, s)),
+        None => Cow::Borrowed(linear),
+    };
+    let (out, missing) = record(&recorded);
+    (Cow::Owned(out), Some(missing))
 }
 
 /// The photo an 8-bit camera stores of the linear image `linear` (every sample through
