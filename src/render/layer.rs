@@ -21,6 +21,18 @@ pub fn max_rgb(px: &[f32]) -> f32 {
     px[R].max(px[R + 1]).max(px[R + 2])
 }
 
+/// Pixels per block of the whole-layer scans ([`pixel_blocks`]).
+pub const SCAN_BLOCK: usize = 4096;
+
+/// The layer pixels of `data` (a layer image's values, [`CHANNELS`] per pixel) in blocks of
+/// [`SCAN_BLOCK`] pixels for rayon, each block scanned by one plain loop: with a parallel item
+/// per pixel, rayon's bookkeeping cost more than the test each item made (a 2 MP preview's
+/// whole-layer scans were ~10% of its render, 2026-11-28). Block `k` starts at pixel
+/// `k·SCAN_BLOCK`.
+pub fn pixel_blocks(data: &[f32]) -> rayon::slice::Chunks<'_, f32> {
+    data.par_chunks(SCAN_BLOCK * CHANNELS)
+}
+
 /// An RGBA layer with its own disparity: a 5-channel [`Image`] (R, G, B, A, D).
 ///
 /// Colours are linear light, **not** premultiplied; alpha in [0, 1]; D is normalized
@@ -28,6 +40,62 @@ pub fn max_rgb(px: &[f32]) -> f32 {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Layer {
     image: Image,
+    /// What the renderer asks of the whole layer on every render (see [`Stats`]).
+    stats: Stats,
+}
+
+/// A layer's whole-image facts, taken once when it is made (and its colours again when they
+/// change): a refocus from built layers asked them per render, each a pass over the layer's
+/// memory (the viewer's 2 MP preview spent ~15% of its time in those passes, 2026-11-28).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Stats {
+    /// Some pixel has alpha > 0.
+    visible: bool,
+    /// Every pixel has alpha ≥ 1.
+    opaque: bool,
+    /// Per channel `[min, max]` of the visible colours (`[+inf, -inf]` when none).
+    colours: [[f32; 2]; 3],
+    /// `[min, max]` of the visible disparities (`[+inf, -inf]` when none).
+    disparity: [f32; 2],
+}
+
+impl Stats {
+    const EMPTY: Stats = Stats {
+        visible: false,
+        opaque: true,
+        colours: [[f32::INFINITY, f32::NEG_INFINITY]; 3],
+        disparity: [f32::INFINITY, f32::NEG_INFINITY],
+    };
+
+    /// The stats of a layer image's values. One parallel pass.
+    fn of(data: &[f32]) -> Stats {
+        pixel_blocks(data)
+            .map(|b| {
+                let mut st = Stats::EMPTY;
+                for px in b.chunks_exact(CHANNELS) {
+                    st.opaque &= px[A] >= 1.0;
+                    if px[A] > 0.0 {
+                        st.visible = true;
+                        for c in 0..3 {
+                            st.colours[c] = [st.colours[c][0].min(px[R + c]), st.colours[c][1].max(px[R + c])];
+                        }
+                        st.disparity = [st.disparity[0].min(px[D]), st.disparity[1].max(px[D])];
+                    }
+                }
+                st
+            })
+            .reduce(|| Stats::EMPTY, Stats::merge)
+    }
+
+    fn merge(a: Stats, b: Stats) -> Stats {
+        let range = |x: [f32; 2], y: [f32; 2]| [x[0].min(y[0]), x[1].max(y[1])];
+        Stats {
+            visible: a.visible | b.visible,
+            opaque: a.opaque & b.opaque,
+            colours: std::array::from_fn(|c| range(a.colours[c], b.colours[c])),
+            disparity: range(a.disparity, b.disparity),
+        }
+    }
 }
 
 impl Layer {
@@ -54,7 +122,8 @@ impl Layer {
                 ),
             ));
         }
-        Ok(Layer { image })
+        let stats = Stats::of(&image.data);
+        Ok(Layer { image, stats })
     }
 
     /// Builds a layer from linear RGB, alpha and disparity planes of equal size.
@@ -97,34 +166,18 @@ impl Layer {
 
     /// True if no pixel has alpha > 0: such a layer contributes nothing.
     pub fn is_transparent(&self) -> bool {
-        self.image.data.par_chunks_exact(CHANNELS).all(|px| px[A] <= 0.0)
+        !self.stats.visible
     }
 
     /// Per-channel `[min, max]` of the colours of visible pixels (alpha > 0); `[0, 0]` when
     /// nothing is visible.
     pub fn colour_range(&self) -> [[f32; 2]; 3] {
-        let empty = [[f32::INFINITY, f32::NEG_INFINITY]; 3];
-        let r = self
-            .image
-            .data
-            .par_chunks_exact(CHANNELS)
-            .filter(|px| px[A] > 0.0)
-            .fold(
-                || empty,
-                |mut r, px| {
-                    for c in 0..3 {
-                        r[c] = [r[c][0].min(px[c]), r[c][1].max(px[c])];
-                    }
-                    r
-                },
-            )
-            .reduce(|| empty, |a, b| std::array::from_fn(|c| [a[c][0].min(b[c][0]), a[c][1].max(b[c][1])]));
-        r.map(|c| if c[0] <= c[1] { c } else { [0.0, 0.0] })
+        self.stats.colours.map(|c| if c[0] <= c[1] { c } else { [0.0, 0.0] })
     }
 
     /// True if every pixel has alpha ≥ 1.
     pub fn is_opaque(&self) -> bool {
-        self.image.data.par_chunks_exact(CHANNELS).all(|px| px[A] >= 1.0)
+        self.stats.opaque
     }
 
     /// Applies `f` to the colour channels only (e.g. the official naive gamma).
@@ -134,5 +187,58 @@ impl Layer {
                 *c = f(*c);
             }
         }
+        self.stats = Stats::of(&self.image.data);
+    }
+
+    /// `[min, max]` of the disparities of the visible pixels (alpha > 0); None when nothing
+    /// is visible. O(1).
+    pub fn visible_disparity(&self) -> Option<[f32; 2]> {
+        self.stats.visible.then_some(self.stats.disparity)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::{lens, max_scatter_radius};
+
+    /// A `w × h` layer whose pixel `i` is `f(i)`.
+    fn layer(w: usize, h: usize, f: impl Fn(usize) -> [f32; CHANNELS]) -> Layer {
+        let data = (0..w * h).flat_map(&f).collect();
+        Layer::new(Image::from_vec(w, h, CHANNELS, data).unwrap(), "test").unwrap()
+    }
+
+    /// The stats taken when a layer is made answer as a pass over its pixels would: a frame
+    /// of several scan blocks, hidden pixels with the extreme colours and disparities left out,
+    /// the largest scatter radius equal to the largest over the visible pixels at foci inside
+    /// and outside their range, and the colours taken again after `map_colors`.
+    #[test]
+    fn stats_are_the_pixels_own() {
+        let (w, h) = (97, 131);
+        let px = |i: usize| {
+            let t = ((i * 7919) % 1000) as f32 / 1000.0;
+            let a = if i.is_multiple_of(5) { 0.0 } else { 0.25 + 0.75 * t };
+            // Hidden pixels hold values beyond every visible one.
+            if a == 0.0 { [9.0, -9.0, 9.0, 0.0, 5.0] } else { [t, 0.5 * t + 0.1, 2.0 - t, a, 0.2 + 0.6 * t] }
+        };
+        let l = layer(w, h, px);
+        assert!(w * h > 2 * SCAN_BLOCK);
+        let shown: Vec<[f32; CHANNELS]> = (0..w * h).map(px).filter(|p| p[A] > 0.0).collect();
+        let range = |c: usize| shown.iter().fold([f32::INFINITY, f32::NEG_INFINITY], |r, p| [r[0].min(p[c]), r[1].max(p[c])]);
+        assert_eq!(l.colour_range(), [range(0), range(1), range(2)]);
+        assert_eq!(l.visible_disparity(), Some(range(D)));
+        assert!(!l.is_transparent() && !l.is_opaque());
+        for focus in [-0.5, 0.0, 0.2, 0.45, 0.8, 1.3] {
+            let brute = shown.iter().map(|p| lens::scatter_radius(p[D] - focus, 30.0)).fold(1.0, f32::max);
+            assert_eq!(max_scatter_radius(std::slice::from_ref(&l), 30.0, focus), brute, "focus {focus}");
+        }
+        let mut dim = l.clone();
+        dim.map_colors(|c| 0.5 * c);
+        assert_eq!(dim.colour_range(), [range(0), range(1), range(2)].map(|[lo, hi]| [0.5 * lo, 0.5 * hi]));
+        // Nothing visible: no range, radius 1; everything opaque.
+        let clear = layer(3, 2, |_| [0.3, 0.3, 0.3, 0.0, 0.5]);
+        assert!(clear.is_transparent() && clear.visible_disparity().is_none() && clear.colour_range() == [[0.0; 2]; 3]);
+        assert_eq!(max_scatter_radius(&[clear], 30.0, 0.0), 1.0);
+        assert!(layer(3, 2, |_| [0.3, 0.3, 0.3, 1.0, 0.5]).is_opaque());
     }
 }

@@ -135,18 +135,14 @@ pub fn min_visible_radius(img: &Image, sigma: &[f32]) -> f32 {
 }
 
 /// Largest scatter radius `|D - focus|·K + 1` over the pixels a layer actually shows
-/// (alpha > 0), over all layers. 1.0 for an all-transparent scene.
+/// (alpha > 0), over all layers. 1.0 for an all-transparent scene. O(layers): the radius
+/// grows with `|D - focus|`, so it is the larger of the visible disparity range's ends'
+/// ([`Layer::visible_disparity`]), the same value as the largest over the pixels.
 pub fn max_scatter_radius(layers: &[Layer], blur: f32, focus: f32) -> f32 {
     layers
         .iter()
-        .map(|l| {
-            l.image()
-                .data
-                .par_chunks_exact(layer::CHANNELS)
-                .filter(|px| px[layer::A] > 0.0)
-                .map(|px| lens::scatter_radius(px[layer::D] - focus, blur))
-                .reduce(|| 1.0, f32::max)
-        })
+        .filter_map(Layer::visible_disparity)
+        .map(|[lo, hi]| lens::scatter_radius(lo - focus, blur).max(lens::scatter_radius(hi - focus, blur)))
         .fold(1.0, f32::max)
 }
 

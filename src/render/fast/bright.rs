@@ -5,7 +5,7 @@
 //! colour level are drawn exactly ([`super::footprint::rim_disk`]), and the level rises so that
 //! at most ~1% of the visible sources are bright, keeping the cost near-constant per pixel.
 
-use super::super::layer::{A, CHANNELS, max_rgb};
+use super::super::layer::{A, CHANNELS, SCAN_BLOCK, max_rgb, pixel_blocks};
 use crate::Image;
 use rayon::prelude::*;
 
@@ -32,8 +32,9 @@ pub(super) fn is_bright(c: f32, a: f32, level: f32) -> bool {
 /// surroundings, so the brightest sources are the ones that need the exact footprint.
 /// Allocates the colours above [`BRIGHT_MIN`]; O(pixels) (selection, not a sort).
 pub(super) fn bright_level(img: &Image, visible: usize) -> f32 {
-    let mut above: Vec<f32> =
-        img.data.par_chunks_exact(CHANNELS).filter(|px| px[A] > 0.0).map(max_rgb).filter(|&c| c > BRIGHT_MIN).collect();
+    let mut above: Vec<f32> = pixel_blocks(&img.data)
+        .flat_map_iter(|b| b.chunks_exact(CHANNELS).filter(|px| px[A] > 0.0).map(max_rgb).filter(|&c| c > BRIGHT_MIN))
+        .collect();
     let budget = (visible / BRIGHT_FRACTION).max(1);
     if above.len() <= budget {
         return BRIGHT_MIN;
@@ -55,12 +56,12 @@ pub(super) fn bright_sources(img: &Image, visible: usize, any_max: f32, drawn: i
     if level <= BRIGHT_MIN {
         return (level, any_max);
     }
-    let max = img
-        .data
-        .par_chunks_exact(CHANNELS)
+    let max = pixel_blocks(&img.data)
         .enumerate()
-        .filter(|(_, px)| px[A] > 0.0 && is_bright(max_rgb(px), 1.0, level))
-        .map(|(i, _)| drawn(i))
+        .map(|(k, b)| {
+            let bright = b.chunks_exact(CHANNELS).enumerate().filter(|(_, px)| px[A] > 0.0 && is_bright(max_rgb(px), 1.0, level));
+            bright.map(|(i, _)| drawn(k * SCAN_BLOCK + i)).fold(0.0, f32::max)
+        })
         .reduce(|| 0.0, f32::max);
     (level, max)
 }
