@@ -140,6 +140,34 @@ for _, label, folder in DFD_REPORTS:
     md = (root / folder / "report.md").read_text()
     acc.append(f"{label}:\n\n" + section(md, "## Acceptance"))
 readme = replace_between(readme, "<!-- dfd-acceptance -->\n", "<!-- /dfd-acceptance -->", "\n\n".join(acc) + "\n")
+# Depth from defocus on 8-bit photos (`bench --dfd --inputs linear,srgb8,srgb8-psf`): per seed
+# and input, the default method's disparity error against the two ablations and its far-focus
+# re-render against the true map's, from the reports' report.csv (rows with an `input` column).
+def dfd_inputs_table():
+    out = ["| seed | input | cases | disparity MAE: default | no occlusion | Gaussian PSF | "
+           "re-render gap to the true map, linear / sRGB dB (mean) | worst case, linear dB | true map's re-render, linear / sRGB dB |",
+           "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for seed, folder in [(1, "docs/dfd-bench"), (2, "docs/dfd-bench-seed2")]:
+        rows = list(csv.DictReader(open(root / folder / "report.csv")))
+        inputs = list(dict.fromkeys(r.get("input") or "linear" for r in rows))
+        for inp in inputs:
+            by = collections.defaultdict(dict)
+            for r in rows:
+                if (r.get("input") or "linear") == inp:
+                    by[r["method"]][r["scene"]] = r
+            mean = lambda m, col: sum(min(float(r[col]), 100.0) for r in by[m].values()) / len(by[m])
+            truth, ours = by["true-disparity"], by["drbokeh-physical"]
+            gaps = [min(float(truth[k]["rerender_psnr_linear"]), 100.0) - min(float(ours[k]["rerender_psnr_linear"]), 100.0) for k in ours]
+            out.append(f"| {seed} | `{inp}` | {len(ours)} | {mean('drbokeh-physical', 'disparity_mae'):.4f} | "
+                       f"{mean('drbokeh-no-occlusion', 'disparity_mae'):.4f} | {mean('gauss-psf', 'disparity_mae'):.4f} | "
+                       f"{mean('true-disparity', 'rerender_psnr_linear') - mean('drbokeh-physical', 'rerender_psnr_linear'):.2f} / "
+                       f"{mean('true-disparity', 'rerender_psnr_srgb') - mean('drbokeh-physical', 'rerender_psnr_srgb'):.2f} | "
+                       f"{max(gaps):.2f} | {mean('true-disparity', 'rerender_psnr_linear'):.2f} / {mean('true-disparity', 'rerender_psnr_srgb'):.2f} |")
+    return "\n".join(out)
+
+
+if "<!-- dfd-inputs -->\n" in readme:
+    readme = replace_between(readme, "<!-- dfd-inputs -->\n", "<!-- /dfd-inputs -->", dfd_inputs_table() + "\n")
 # Issue 35: the highlights stage on the 8-bit inputs, from docs/highlights/*/report.csv
 # (`drbokeh bench --methods pipeline,scatter,gather --scenes 20 --size 128x128 --seed S`,
 # `--groundtruth ../shared/groundtruth` and `--groundtruth target/heldout` (docs/heldout/README.md
