@@ -128,9 +128,15 @@ mod tests {
         let input = dir.join("depth.exr");
         std::fs::write(&input, b"x").unwrap();
         let guard = InputFiles::new([&input]);
-        assert!(guard.check_write(&input, "output").is_err());
-        // Another spelling of the same path.
-        assert!(guard.check_write(&dir.join("sub/../depth.exr"), "output").is_err());
+        // The input's own name is named once; another spelling names the input as well.
+        let err = guard.check_write(&input, "output").unwrap_err().to_string();
+        assert!(err.contains("is also an input of this run"), "{err}");
+        let err = guard.check_write(&dir.join("sub/../depth.exr"), "output").unwrap_err().to_string();
+        assert!(err.contains("sub/../depth.exr is the input") && err.ends_with("choose another destination"), "{err}");
+        // Every destination is checked, wherever the input is among them.
+        let (fresh, spare) = (dir.join("new.png"), dir.join("spare.png"));
+        assert!(guard.check_writes([fresh.as_path(), input.as_path(), spare.as_path()], "--save-layers file").is_err());
+        assert!(guard.check_writes([fresh.as_path(), spare.as_path()], "--save-layers file").is_ok());
         #[cfg(unix)]
         {
             std::fs::hard_link(&input, dir.join("hard.exr")).unwrap();
