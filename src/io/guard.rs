@@ -163,6 +163,11 @@ mod tests {
         let err = check_distinct(&[(&a, "output"), (&dir.join("o/al.csv"), "dfd.log"), (&b, "dfd.plot")]).unwrap_err().to_string();
         assert!(err.contains("dfd.plot") && err.contains("output") && err.contains("al.npy"), "{err}");
         assert!(check_distinct(&[(&a, "output"), (&dir.join("o/al.csv"), "dfd.log")]).is_ok());
+        // One name in two folders is two files.
+        std::fs::create_dir(dir.join("p")).unwrap();
+        assert!(!same_destination(&a, &dir.join("p/al.npy")));
+        assert!(check_distinct(&[(&a, "output"), (&dir.join("p/al.npy"), "dfd.log")]).is_ok());
+        assert_eq!((folder_of(&a), folder_of(Path::new("al.npy"))), (dir.join("o").as_path(), Path::new(".")));
         // An existing file and a link to it.
         std::fs::write(&a, b"x").unwrap();
         #[cfg(unix)]
