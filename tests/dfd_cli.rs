@@ -303,6 +303,31 @@ fn a_photo_without_blur_says_so() {
     }
 }
 
+/// 8-bit photos whose lights are clipped at white: a warning naming the file and the share of
+/// its pixels there, exit 0; none for the same scene without the white patch.
+#[test]
+fn clipped_lights_are_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let args = ["aif.png", "bokeh.exr", "--focus", "1", "--blur", "4", "--iters", "3", "--levels", "1", "-o", "d.npy"];
+    let (report, _) = dfd_json(dir, &args, Duration::from_secs(60));
+    assert!(!warnings(&report).contains("at white"), "{report}");
+    // A 6x6 light (radiance 3) in the all-in-focus photo, stored as 8 bits.
+    let mut aif = io::read_photo(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
+    for y in 4..10 {
+        for x in 4..10 {
+            aif.pixel_mut(x, y).copy_from_slice(&[3.0, 3.0, 3.0]);
+        }
+    }
+    io::write_png(&dir.join("aif.png"), &aif, 8, Transfer::Srgb).unwrap();
+    let (report, err) = dfd_json(dir, &args, Duration::from_secs(60));
+    let w = warnings(&report);
+    assert!(w.contains("aif.png: ") && w.contains("are at white in its 8-bit samples"), "{w}");
+    assert!(!w.contains("bokeh.exr"), "a linear EXR clips nothing: {w}");
+    assert!(err.contains("at white"), "{err}");
+}
+
 /// Item 10: a focus outside [0, 1] is clamped as `render` clamps it, with a warning naming
 /// --focus; the report gives the focus used.
 #[test]

@@ -6,8 +6,9 @@
 //! Cost: the optimisation's (see [`dfd`]); the log and plot are O(steps).
 
 use super::dfd::{self, DfdOptions, Event, Shot, Step, level_size};
-use crate::color::Transfer;
+use crate::color::{PhotoEncoding, Transfer};
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::io::{self, OutputFormat, ReadLimits};
 use crate::plot::{self, Point, Series, Ticks, XAxis};
 use crate::render::{Profile, RenderSettings};
@@ -120,6 +121,28 @@ pub struct DfdReport {
     pub total_ms: f64,
 }
 
+/// Above this share of a photo's pixels at white, `dfd` warns that the depth near them is less
+/// certain ([`clipped_warning`]).
+pub const CLIPPED_WARN: f64 = 0.001;
+
+/// The warning for an integer photo with more than [`CLIPPED_WARN`] of its pixels at white (a
+/// channel at the largest code): the light there is unknown, so neither photo says how a light
+/// spreads, and on the bench 8-bit pairs cost the estimate most on scenes with bright lights
+/// (`bench --dfd --inputs`, docs/dfd.md). None for linear photos.
+fn clipped_warning(path: &Path, photo: &io::Photo) -> Option<String> {
+    let PhotoEncoding::Integer { bits, transfer } = photo.encoding else { return None };
+    let (img, white) = (&photo.image, transfer.decode(1.0));
+    let n = img.data.chunks_exact(img.channels).filter(|px| px.iter().any(|&v| v >= white)).count();
+    let share = n as f64 / (img.width * img.height).max(1) as f64;
+    (share > CLIPPED_WARN).then(|| {
+        format!(
+            "{}: {n} pixels ({:.1}%) are at white in its {bits}-bit samples: their light is unknown, so the depth near them is less certain (a linear EXR keeps it)",
+            path.display(),
+            100.0 * share
+        )
+    })
+}
+
 /// Runs `job`: checks the destinations against the inputs (usage error), reads the photos
 /// (I/O and input errors name the file), checks they have the same size (usage error naming
 /// both files and sizes), estimates the disparity (telling `on` of the plan, each warning and
@@ -128,12 +151,22 @@ pub struct DfdReport {
 pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     let t0 = Instant::now();
     check_destinations(job)?;
-    let aif = io::read_photo(&job.aif, Transfer::Srgb, &job.limits)?;
+    // What the files tell before the estimate (an ignored alpha, lights clipped at white).
+    let mut told = Vec::new();
+    let mut read = |path: &Path, on: &mut dyn FnMut(Event)| -> Result<Image> {
+        let photo = io::read_photo_file(path, Transfer::Srgb, &job.limits)?;
+        for m in photo.warnings.iter().cloned().chain(clipped_warning(path, &photo)) {
+            on(Event::Warning(&m));
+            told.push(m);
+        }
+        Ok(photo.image)
+    };
+    let aif = read(&job.aif, &mut on)?;
     let shots: Vec<(&PathBuf, f32)> =
         std::iter::once((&job.bokeh, job.settings.focus)).chain(job.stack.iter().map(|(p, f)| (p, *f))).collect();
     let mut photos = Vec::with_capacity(shots.len());
     for (path, _) in &shots {
-        let photo = io::read_photo(path, Transfer::Srgb, &job.limits)?;
+        let photo = read(path, &mut on)?;
         if (aif.width, aif.height) != (photo.width, photo.height) {
             return Err(Error::usage(format!(
                 "the all-in-focus photo {} is {}x{} but the defocused photo {} is {}x{}: they must be the same size",
@@ -200,7 +233,7 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
         steps: steps.len(),
         first: est.first,
         last: est.last,
-        warnings: est.warnings.clone(),
+        warnings: told.into_iter().chain(est.warnings.iter().cloned()).collect(),
         disparity: Range {
             min: disparity.data.iter().copied().fold(f32::INFINITY, f32::min),
             mean: (disparity.sum() / n) as f32,
