@@ -151,11 +151,12 @@ fn clipped_warning(path: &Path, photo: &io::Photo) -> Option<String> {
 pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     let t0 = Instant::now();
     check_destinations(job)?;
-    // What the files tell before the estimate (an ignored alpha, lights clipped at white).
+    // Lights clipped at white, said before the estimate. (The photo's own warning, an ignored
+    // alpha, advises `render`'s --matte: not passed on here.)
     let mut told = Vec::new();
     let mut read = |path: &Path, on: &mut dyn FnMut(Event)| -> Result<Image> {
         let photo = io::read_photo_file(path, Transfer::Srgb, &job.limits)?;
-        for m in photo.warnings.iter().cloned().chain(clipped_warning(path, &photo)) {
+        if let Some(m) = clipped_warning(path, &photo) {
             on(Event::Warning(&m));
             told.push(m);
         }
