@@ -599,7 +599,7 @@ fn dfd<'py>(
     let aperture = resolved_aperture(aperture_of(aperture)?.as_ref())?;
     let s = RenderSettings { blur, focus: foci[0], lens: 1, occlusion, profile, aperture };
     let est = run(py, threads, move || {
-        let shots: Vec<d::Shot> = photos.iter().zip(&foci).map(|(photo, &focus)| d::Shot { photo, focus }).collect();
+        let shots: Vec<d::Shot> = photos.iter().zip(&foci).map(|(photo, &focus)| d::Shot::linear(photo, focus)).collect();
         d::estimate_stack(&aif, &shots, &s, &opts, |_| {})
     })?;
     warn_all(py, &est.warnings)?;

@@ -8,7 +8,7 @@
 //! by [`super::trace`] at a blur K of our choosing; ground-truth cases are the shared Mitsuba scenes, box-downsampled (see
 //! [`DfdBenchOptions::groundtruth`]).
 //!
-//! Every method ([`DfdMethod`]) estimates the disparity with [`dfd::estimate`] from the photo
+//! Every method ([`DfdMethod`]) estimates the disparity with [`dfd::estimate_stack`] from the photo
 //! and the target, and is scored on
 //! - the disparity's mean absolute error (normalized disparity) over the frame less a border
 //!   of `ceil(K)` px (the lens sees off-frame content there that the photo lacks), and over
@@ -25,7 +25,12 @@
 //! linear views as they are, or both photos (all-in-focus and target) as an 8-bit camera
 //! stores them ([`inputs::photo`]: clipped at white, quantized, a PSF first for
 //! `srgb8-psf`). The estimate and every re-render (the references' too) start from the photo
-//! of that input, against the same linear truths: what a user with those files gets.
+//! of that input, against the same linear truths: what a user with those files gets. As
+//! `drbokeh dfd` does with integer photos, the 8-bit inputs' estimates start from the
+//! all-in-focus photo with its clipped lights recovered and checked against the target's light
+//! ([`dfd::aif_light`]) and take the
+//! target's clipped samples as lower bounds ([`dfd::clip_level`]); the re-renders use the
+//! photo as stored (the same for every row, so the rows compare the maps alone).
 
 use super::depth_metrics::{DepthErrors, depth_errors};
 use super::groundtruth::GtScene;
@@ -521,12 +526,17 @@ fn evaluate(case: &DfdCase, input: Input, opts: &DfdBenchOptions, log: &mut dyn 
         score_map(case, input, &aif, RowKind::TrueDisparity, &case.truth, 0.0)?,
         score_map(case, input, &aif, RowKind::Init, &Image::filled(case.aif.width, case.aif.height, 1, base.init), 0.0)?,
     ];
+    // 8-bit inputs are integer photos: dfd recovers the all-in-focus photo's lights and takes
+    // the target's clipped samples as "at least this much", as `drbokeh dfd` does.
+    let encoding = input.encoding();
+    let clip = dfd::clip_level(encoding);
+    let light = dfd::aif_light(&aif, encoding, &[dfd::Shot { photo: &target, focus: case.focus, clip }], case.blur)?;
     let mut panels = vec![("AIF".to_string(), Image::clone(&aif)), (format!("target f={:.2}", case.focus), Image::clone(&target))];
     for &m in &opts.methods {
         let (s, loss, renderer) = m.setup(case.blur, case.focus);
         let o = DfdOptions { weights: loss.weights(), renderer, kernel: m.kernel(), ..base };
         let t = Instant::now();
-        let d = dfd::estimate(&aif, &target, &s, &o, |_| {})?;
+        let d = dfd::estimate_stack(&light, &[dfd::Shot { photo: &target, focus: s.focus, clip }], &s, &o, |_| {})?.disparity;
         let ms = ms_since(t);
         let row = score_map(case, input, &aif, RowKind::Estimate(m), &d, ms)?;
         log(&format!(

@@ -154,20 +154,20 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
     // Lights clipped at white, said before the estimate. (The photo's own warning, an ignored
     // alpha, advises `render`'s --matte: not passed on here.)
     let mut told = Vec::new();
-    let mut read = |path: &Path, on: &mut dyn FnMut(Event)| -> Result<Image> {
+    let mut read = |path: &Path, on: &mut dyn FnMut(Event)| -> Result<(Image, PhotoEncoding)> {
         let photo = io::read_photo_file(path, Transfer::Srgb, &job.limits)?;
         if let Some(m) = clipped_warning(path, &photo) {
             on(Event::Warning(&m));
             told.push(m);
         }
-        Ok(photo.image)
+        Ok((photo.image, photo.encoding))
     };
-    let aif = read(&job.aif, &mut on)?;
+    let (aif, aif_encoding) = read(&job.aif, &mut on)?;
     let shots: Vec<(&PathBuf, f32)> =
         std::iter::once((&job.bokeh, job.settings.focus)).chain(job.stack.iter().map(|(p, f)| (p, *f))).collect();
     let mut photos = Vec::with_capacity(shots.len());
     for (path, _) in &shots {
-        let photo = read(path, &mut on)?;
+        let (photo, encoding) = read(path, &mut on)?;
         if (aif.width, aif.height) != (photo.width, photo.height) {
             return Err(Error::usage(format!(
                 "the all-in-focus photo {} is {}x{} but the defocused photo {} is {}x{}: they must be the same size",
@@ -179,11 +179,12 @@ pub fn run(job: &DfdJob, mut on: impl FnMut(Event)) -> Result<DfdReport> {
                 photo.height
             )));
         }
-        photos.push(photo);
+        photos.push((photo, dfd::clip_level(encoding)));
     }
-    let stack: Vec<Shot> = photos.iter().zip(&shots).map(|(photo, &(_, focus))| Shot { photo, focus }).collect();
+    let stack: Vec<Shot> = photos.iter().zip(&shots).map(|((photo, clip), &(_, focus))| Shot { photo, focus, clip: *clip }).collect();
+    let light = dfd::aif_light(&aif, aif_encoding, &stack, job.settings.blur)?;
     let mut steps = Vec::new();
-    let est = dfd::estimate_stack(&aif, &stack, &job.settings, &job.options, |e| {
+    let est = dfd::estimate_stack(&light, &stack, &job.settings, &job.options, |e| {
         if let Event::Step(s) = e {
             steps.push(s);
         }

@@ -41,6 +41,32 @@ pub fn l1(image: &Image, target: &Image) -> LossGrad {
     LossGrad { value: sum / n, grad }
 }
 
+/// A render as the camera that took `target` would have stored it, where the target lost light
+/// above white: at every sample that `clipped` marks (> 0: the share of the sample's footprint
+/// that was stored at or above the clip level, resized with the photo), a render brighter than
+/// the target is taken as the target itself (a clipped sample says only "at least this much").
+/// Elsewhere the render passes unchanged. Returns the censored render and, per sample, whether
+/// the render passed (the loss's gradient flows there and is 0 where it was censored).
+/// Allocates a copy of the render and a flag per sample. Panics if the shapes differ.
+pub fn censor(render: &Image, target: &Image, clipped: &Image) -> (Image, Vec<bool>) {
+    assert_same_shape(render, target);
+    assert_same_shape(render, clipped);
+    let mut out = render.clone();
+    let passed = out
+        .data
+        .iter_mut()
+        .zip(target.data.iter().zip(&clipped.data))
+        .map(|(r, (&t, &c))| {
+            let over = c > 0.0 && *r > t;
+            if over {
+                *r = t;
+            }
+            !over
+        })
+        .collect();
+    (out, passed)
+}
+
 /// `1 - mean SSIM` over every channel and every `window × window` box that lies wholly inside
 /// the image (uniform weights, population variances). `None` when the window does not fit.
 pub fn ssim(image: &Image, target: &Image, window: usize) -> Option<LossGrad> {
@@ -278,5 +304,22 @@ mod tests {
         check(&d, |x| gradient_smoothness(x).value, &lg.grad, "smoothness");
         let flat = Image::filled(4, 4, 1, 0.3);
         assert_eq!(gradient_smoothness(&flat).value, 0.0);
+    }
+
+    /// A clipped sample bounds the render from below only; unclipped samples compare both ways.
+    #[test]
+    fn censor_takes_a_clipped_sample_as_a_lower_bound() {
+        let render = Image::from_vec(4, 1, 1, vec![3.0, 0.5, 3.0, 0.2]).unwrap();
+        let target = Image::from_vec(4, 1, 1, vec![1.0, 1.0, 0.9, 0.9]).unwrap();
+        let clipped = Image::from_vec(4, 1, 1, vec![1.0, 0.25, 0.0, 0.0]).unwrap();
+        let (seen, passed) = censor(&render, &target, &clipped);
+        // Brighter than a clipped sample: no error. Darker than one (even partly clipped): an
+        // error. Unclipped: the render as it is, brighter or darker.
+        assert_eq!(seen.data, [1.0, 0.5, 3.0, 0.2]);
+        assert_eq!(passed, [false, true, true, true]);
+        assert!((l1(&seen, &target).value - (0.0 + 0.5 + 2.1 + 0.7) / 4.0).abs() < 1e-6);
+        // Nothing clipped: the render unchanged.
+        let none = Image::new(4, 1, 1);
+        assert_eq!(censor(&render, &target, &none).0, render);
     }
 }

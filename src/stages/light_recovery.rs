@@ -368,10 +368,10 @@ pub(super) fn total_light(rgb: &Image) -> f64 {
 }
 
 /// A clipped blob: its pixels (indices into the frame) and bounding box.
-struct Blob {
-    pixels: Vec<usize>,
+pub(crate) struct Blob {
+    pub(crate) pixels: Vec<usize>,
     /// x0, y0, x1, y1 (inclusive).
-    bbox: (usize, usize, usize, usize),
+    pub(crate) bbox: (usize, usize, usize, usize),
 }
 
 /// Per pixel: bit c set when channel c is at or above `clip`; and how many pixels have any bit
@@ -399,7 +399,7 @@ pub(super) fn clipped_channels(rgb: &Image, clip: f32) -> (Vec<u8>, usize) {
 /// `max_pixels` pixels are counted, not kept. Sequential flood fill, O(clipped pixels), from
 /// the rows that hold any (found in parallel: a serial scan of every byte was a serial
 /// stretch of the stage at 12 MP, issue 39); marks visited pixels with bit 7 of `mask`.
-fn blobs(mask: &mut [u8], w: usize, h: usize, max_pixels: usize) -> (Vec<Blob>, usize) {
+pub(crate) fn blobs(mask: &mut [u8], w: usize, h: usize, max_pixels: usize) -> (Vec<Blob>, usize) {
     const SEEN: u8 = 0x80;
     let (mut kept, mut large) = (Vec::new(), 0);
     let mut stack = Vec::new();
