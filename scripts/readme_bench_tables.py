@@ -168,6 +168,43 @@ def dfd_inputs_table():
 
 if "<!-- dfd-inputs -->\n" in readme:
     readme = replace_between(readme, "<!-- dfd-inputs -->\n", "<!-- /dfd-inputs -->", dfd_inputs_table() + "\n")
+# Issue 38: depth from defocus from 8-bit photos before and after the clip model (the lights of
+# the all-in-focus photo recovered and checked against the target, clipped samples taken as
+# lower bounds): docs/dfd-8bit/SET-before/report.csv (the code before it) against the current
+# reports, docs/dfd-bench*/ for the seeds and docs/dfd-8bit/hoNN-after/ for the held-out sets.
+DFD_8BIT_SETS = [("seed 1", "docs/dfd-8bit/seed1-before", "docs/dfd-bench"),
+                 ("seed 2", "docs/dfd-8bit/seed2-before", "docs/dfd-bench-seed2"),
+                 ("held-out set 12", "docs/dfd-8bit/ho12-before", "docs/dfd-8bit/ho12-after"),
+                 ("held-out set 13", "docs/dfd-8bit/ho13-before", "docs/dfd-8bit/ho13-after")]
+
+
+def dfd_8bit_table():
+    out = ["| set | input | cases | default MAE, before → after | better / worse cases | no occlusion, before → after | "
+           "Gaussian PSF, before → after | re-render sRGB dB, before → after |",
+           "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for label, before, after in DFD_8BIT_SETS:
+        runs = []
+        for folder in (before, after):
+            by = collections.defaultdict(dict)
+            for r in csv.DictReader(open(root / folder / "report.csv")):
+                by[(r.get("input") or "linear", r["method"])][r["scene"]] = r
+            runs.append(by)
+        for inp in ["srgb8", "srgb8-psf"]:
+            b, a = runs[0][(inp, "drbokeh-physical")], runs[1][(inp, "drbokeh-physical")]
+            if not b or not a:
+                continue
+            mean = lambda run, m, col: sum(float(r[col]) for r in run[(inp, m)].values()) / len(run[(inp, m)])
+            pair = lambda m, col, f: f"{mean(runs[0], m, col):{f}} → {mean(runs[1], m, col):{f}}"
+            better = sum(float(a[k]["disparity_mae"]) < float(b[k]["disparity_mae"]) for k in a)
+            worse = sum(float(a[k]["disparity_mae"]) > float(b[k]["disparity_mae"]) for k in a)
+            out.append(f"| {label} | `{inp}` | {len(a)} | {pair('drbokeh-physical', 'disparity_mae', '.4f')} | {better} / {worse} | "
+                       f"{pair('drbokeh-no-occlusion', 'disparity_mae', '.4f')} | {pair('gauss-psf', 'disparity_mae', '.4f')} | "
+                       f"{pair('drbokeh-physical', 'rerender_psnr_srgb', '.2f')} |")
+    return "\n".join(out)
+
+
+if "<!-- dfd-8bit -->\n" in readme:
+    readme = replace_between(readme, "<!-- dfd-8bit -->\n", "<!-- /dfd-8bit -->", dfd_8bit_table() + "\n")
 # Issue 35: the highlights stage on the 8-bit inputs, from docs/highlights/*/report.csv
 # (`drbokeh bench --methods pipeline,scatter,gather --scenes 20 --size 128x128 --seed S`,
 # `--groundtruth ../shared/groundtruth` and `--groundtruth target/heldout` (docs/heldout/README.md

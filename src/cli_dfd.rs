@@ -62,7 +62,8 @@ impl From<DfdKernelArg> for DfdKernel {
 
 #[derive(Args)]
 pub struct DfdArgs {
-    /// The all-in-focus photo: PNG/JPEG/TIFF (8/16-bit, sRGB) or EXR/NPY (linear).
+    /// The all-in-focus photo: PNG/JPEG/TIFF (8/16-bit, sRGB; clipped lights are recovered
+    /// and checked against the defocused photos) or EXR/NPY (linear).
     aif: PathBuf,
     /// The same view focused at --focus with blur --blur (same formats, same size). More than
     /// one: a focal stack, each photo focused at its own --focus value (in the same order).

@@ -363,8 +363,12 @@ fn last_loss_is_the_returned_maps() {
     assert_eq!((report["plan"]["kernel"].as_str(), report["plan"]["finest_level"].as_u64()), (Some("ray"), Some(0)));
     assert_eq!(report["last"]["iter"], 3);
     let d = io::read_npy(&dir.join("d.npy"), u64::MAX).unwrap();
-    let aif = io::read_photo(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
+    let photo = io::read_photo_file(&dir.join("aif.png"), Transfer::Srgb, &ReadLimits::default()).unwrap();
     let target = io::read_photo(&dir.join("bokeh.exr"), Transfer::Srgb, &ReadLimits::default()).unwrap();
+    // The 8-bit photo's whites are clipped: the estimate renders it with its lights recovered
+    // and checked against the (linear) defocused photo, as `dfd` does.
+    let shot = drbokeh::diff::dfd::Shot::linear(&target, FOCUS);
+    let aif = drbokeh::diff::dfd::aif_light(&photo.image, photo.encoding, &[shot], BLUR).unwrap();
     let mut s = RenderSettings {
         blur: BLUR,
         focus: FOCUS,
