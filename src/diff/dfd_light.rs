@@ -14,7 +14,7 @@
 use super::dfd::Shot;
 use super::dfd_plan::focus_room;
 use crate::color::PhotoEncoding;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render::lens::coc_radius;
 use crate::stages::highlights::luminance;
@@ -28,8 +28,15 @@ use std::borrow::Cow;
 /// comment); a linear photo, or one with no light to recover, borrowed as it is. Allocates a
 /// copy of the photo and a byte per pixel when it changes it; O(pixels) plus, per recovered
 /// light, O(its window · (shots + 1)). Errors: none in practice (those of
-/// [`recover`] without occluders or a model).
+/// [`recover`] without occluders or a model); photos that are not RGB of one size (usage).
 pub fn aif_light<'a>(aif: &'a Image, encoding: PhotoEncoding, shots: &[Shot], blur: f32) -> Result<Cow<'a, Image>> {
+    let shape = |i: &Image| (i.width, i.height, i.channels);
+    if let Some(s) = shots.iter().find(|s| shape(s.photo) != shape(aif)).or(shots.first().filter(|_| aif.channels != 3)) {
+        let ((w, h, c), (sw, sh, sc)) = (shape(aif), shape(s.photo));
+        return Err(Error::usage(format!(
+            "the all-in-focus photo is {w}x{h} with {c} channels and a defocused one {sw}x{sh} with {sc}: they must be the same size, RGB"
+        )));
+    }
     let mut out = match recover(aif, encoding, &HighlightsOptions::default(), &Default::default(), None)? {
         Recovered::Changed(img, _) => img,
         Recovered::Examined(_) | Recovered::Unchanged(_) => return Ok(Cow::Borrowed(aif)),
@@ -132,5 +139,9 @@ mod tests {
         let none = aif_light(&aif8, encoding, &[Shot { photo: &dark, focus: 1.0, clip }], s.blur).unwrap();
         assert_eq!(none.data, aif8.data);
         assert!(matches!(aif_light(&linear, PhotoEncoding::Linear, &[Shot::linear(&blurred, 1.0)], s.blur).unwrap(), Cow::Borrowed(_)));
+        // Photos of two sizes: a usage error, not an index out of bounds.
+        let small = Image::new(8, 8, 3);
+        let e = aif_light(&aif8, encoding, &[Shot::linear(&small, 1.0)], s.blur).unwrap_err().to_string();
+        assert!(e.contains("40x40") && e.contains("8x8"), "{e}");
     }
 }
