@@ -561,24 +561,7 @@ mod tests {
         };
         let mut linear = Image::from_vec(w, h, 3, (0..w * h * 3).map(|_| 0.1 + 0.4 * rnd()).collect()).unwrap();
         let lights = [(30.3, 9.6), (38.7, 24.2), (27.5, 38.4), (40.2, 41.1)];
-        for y in 0..h {
-            for x in 0..w {
-                // Coverage of a disc of radius 1.25 px, 4x4 samples per pixel.
-                let cover = |cx: f32, cy: f32| {
-                    (0..16)
-                        .filter(|k| {
-                            let (sx, sy) = (x as f32 + (k % 4) as f32 / 4.0 + 0.125, y as f32 + (k / 4) as f32 / 4.0 + 0.125);
-                            (sx - cx).powi(2) + (sy - cy).powi(2) <= 1.25f32.powi(2)
-                        })
-                        .count() as f32
-                        / 16.0
-                };
-                let c: f32 = lights.iter().map(|&(cx, cy)| cover(cx, cy)).sum();
-                for v in &mut linear.data[(y * w + x) * 3..(y * w + x + 1) * 3] {
-                    *v = *v * (1.0 - c) + 12.0 * c;
-                }
-            }
-        }
+        crate::diff::dfd_light::tests::paint_lights(&mut linear, &lights, 1.25, 12.0);
         let truth = Image::from_vec(w, h, 1, (0..w * h).map(|i| if i % w < 16 { 1.0 } else { 0.3 }).collect()).unwrap();
         let s = RenderSettings {
             blur: 8.0,

@@ -88,10 +88,24 @@ fn clipped_in(shot: &Shot, (x0, y0, x1, y1): (usize, usize, usize, usize)) -> bo
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::bench::inputs::{Input, photo};
     use crate::render::{Aperture, Kernel, Layer, Profile, RenderSettings, render};
+
+    /// Paints lights of `radiance` over RGB `img`: discs of `radius` px centred at `centres`
+    /// (pixel centres at +0.5), anti-aliased by 4x4 samples per pixel.
+    pub(crate) fn paint_lights(img: &mut Image, centres: &[(f32, f32)], radius: f32, radiance: f32) {
+        let w = img.width;
+        for (i, px) in img.data.chunks_exact_mut(3).enumerate() {
+            let (x, y) = ((i % w) as f32, (i / w) as f32);
+            let inside = |&(cx, cy): &(f32, f32)| {
+                (0..16).filter(|k| (x + (k % 4) as f32 / 4.0 + 0.125 - cx).hypot(y + (k / 4) as f32 / 4.0 + 0.125 - cy) <= radius).count()
+            };
+            let c = centres.iter().map(inside).sum::<usize>() as f32 / 16.0;
+            px.iter_mut().for_each(|v| *v = *v * (1.0 - c) + radiance * c);
+        }
+    }
 
     /// A light of radiance 4 (a disc 3 px across) on a grey wall at disparity 0.4, clipped in
     /// the 8-bit all-in-focus photo. A defocused photo that shows the light's blur keeps the
@@ -102,20 +116,7 @@ mod tests {
         let (w, h) = (40usize, 40usize);
         let (cx, cy) = (20.3f32, 19.6f32);
         let mut linear = Image::filled(w, h, 3, 0.3);
-        for y in 0..h {
-            for x in 0..w {
-                let cover = (0..16)
-                    .filter(|k| {
-                        let (sx, sy) = (x as f32 + (k % 4) as f32 / 4.0 + 0.125, y as f32 + (k / 4) as f32 / 4.0 + 0.125);
-                        (sx - cx).hypot(sy - cy) <= 1.5
-                    })
-                    .count() as f32
-                    / 16.0;
-                for v in &mut linear.data[(y * w + x) * 3..(y * w + x + 1) * 3] {
-                    *v = 0.3 * (1.0 - cover) + 4.0 * cover;
-                }
-            }
-        }
+        paint_lights(&mut linear, &[(cx, cy)], 1.5, 4.0);
         let s = RenderSettings {
             blur: 8.0,
             focus: 1.0,
