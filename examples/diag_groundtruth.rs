@@ -153,14 +153,14 @@ fn main() -> drbokeh::Result<()> {
                         );
                     }
                 }
-                let mut swapped = eb.image().clone();
+                let mut swapped = eb.image().to_image();
                 for i in 0..w * sc.aif.height {
                     if sc.alpha.data[i] > 0.02 && lum(tb, i) > 2.0 {
                         swapped.data[i * 5..i * 5 + 5].copy_from_slice(&tb.image().data[i * 5..i * 5 + 5]);
                     }
                 }
                 let with_true = score(&rend(&[out.layers[0].clone(), Layer::new(swapped, "x")?])?, &s.gt, border).psnr_srgb;
-                let mut swapped = eb.image().clone();
+                let mut swapped = eb.image().to_image();
                 for i in (0..w * sc.aif.height).filter(|&i| unseen[i]) {
                     swapped.data[i * 5..i * 5 + 5].copy_from_slice(&tb.image().data[i * 5..i * 5 + 5]);
                 }
@@ -213,7 +213,7 @@ fn main() -> drbokeh::Result<()> {
                 save(&s.gt, &format!("{stem}_gt.png"));
                 save(&out.image, &format!("{stem}_pipe.png"));
                 for (k, l) in out.layers.iter().enumerate() {
-                    save(l.image(), &format!("{stem}_layer{k}.png"));
+                    save(&l.image().to_image(), &format!("{stem}_layer{k}.png"));
                 }
                 let (a, b) = (srgb(&out.image), srgb(&s.gt));
                 let err: Vec<f32> = a

@@ -91,7 +91,7 @@ fn main() -> drbokeh::Result<()> {
             // Each background highlight the matte cuts (some of its pixels under α > 0.02,
             // some not): its hidden light, true against the estimated background layer.
             let m = sc.margin as f32;
-            let (tb, eb) = (inp.two_layers[1].image(), est[1].image());
+            let (tb, eb) = (&inp.two_layers[1].image().to_image(), &est[1].image().to_image());
             let lum = |img: &Image, i: usize| {
                 let d = &img.data[i * 5..i * 5 + 3];
                 0.2126 * d[0] + 0.7152 * d[1] + 0.0722 * d[2]
@@ -263,7 +263,7 @@ fn main() -> drbokeh::Result<()> {
         }
         if std::env::var("BGPART").is_ok() && est.len() == 2 {
             let mix = |pick: &dyn Fn(f32) -> bool| -> drbokeh::Result<f64> {
-                let (t, e) = (inp.two_layers[1].image(), est[1].image());
+                let (t, e) = (&inp.two_layers[1].image().to_image(), &est[1].image().to_image());
                 let mut d = e.clone();
                 for i in 0..size * size {
                     if pick(inp.matte.data[i]) {
@@ -274,7 +274,7 @@ fn main() -> drbokeh::Result<()> {
                 Ok(p(&rend(&[inp.two_layers[0].clone(), l], true)?))
             };
             let hl_only = {
-                let (t, e) = (inp.two_layers[1].image(), est[1].image());
+                let (t, e) = (&inp.two_layers[1].image().to_image(), &est[1].image().to_image());
                 let mut d = e.clone();
                 for i in 0..size * size {
                     if inp.matte.data[i] > 0.0 && t.data[i * 5..i * 5 + 3].iter().any(|&v| v > 1.0) {
@@ -290,8 +290,8 @@ fn main() -> drbokeh::Result<()> {
             eprintln!("{} bgpart: true soft {soft:.2} true hidden {hidden:.2} true outside {outside:.2}", sc.name);
         }
         if std::env::var("FGERR").is_ok() && est.len() == 2 {
-            let (tf, ef) = (inp.two_layers[0].image(), est[0].image());
-            let (tb, eb) = (inp.two_layers[1].image(), est[1].image());
+            let (tf, ef) = (&inp.two_layers[0].image().to_image(), &est[0].image().to_image());
+            let (tb, eb) = (&inp.two_layers[1].image().to_image(), &est[1].image().to_image());
             // The five largest of (squared error, pixel), with the pixel's values (red channel).
             let worst = |what: &str, mut v: Vec<(f32, usize)>| {
                 let tot: f32 = v.iter().map(|x| x.0).sum();
@@ -341,8 +341,8 @@ fn main() -> drbokeh::Result<()> {
             if est.len() == 2 {
                 let a: Vec<f32> = (0..size * size).map(|i| est[0].alpha(i)).collect();
                 save(&Image::from_vec(size, size, 1, a).unwrap(), "est_alpha");
-                save(est[1].image(), "est_bg");
-                save(inp.two_layers[1].image(), "true_bg");
+                save(&est[1].image().to_image(), "est_bg");
+                save(&inp.two_layers[1].image().to_image(), "true_bg");
             }
         }
         let opaque = Image::filled(size, size, 1, 1.0);

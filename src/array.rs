@@ -26,14 +26,21 @@
 //! ```
 
 use crate::error::Result;
-use crate::image::Image;
+use crate::image::{Image, ImageRef};
 use crate::render::Layer;
 use ndarray::{Array3, ArrayView3, ArrayViewMut3};
+
+impl<'a> ImageRef<'a> {
+    /// The values as a `(height, width, channels)` view, zero-copy.
+    pub fn view(&self) -> ArrayView3<'a, f32> {
+        ArrayView3::from_shape((self.height, self.width, self.channels), self.data).expect("image size")
+    }
+}
 
 impl Image {
     /// The image as a `(height, width, channels)` view, zero-copy.
     pub fn view(&self) -> ArrayView3<'_, f32> {
-        ArrayView3::from_shape((self.height, self.width, self.channels), &self.data).expect("image size")
+        self.as_image_ref().view()
     }
 
     /// The image as a mutable `(height, width, channels)` view, zero-copy.
@@ -67,14 +74,16 @@ impl Image {
     }
 }
 
-impl Layer {
+impl Layer<'static> {
     /// A layer from a `(height, width, 5)` array of R, G, B, A, D (see
     /// [`crate::render::layer::CHANNELS`]), checked as [`Layer::new`] checks; zero-copy as
     /// [`Image::from_array`].
-    pub fn from_array(a: Array3<f32>, what: &str) -> Result<Layer> {
+    pub fn from_array(a: Array3<f32>, what: &str) -> Result<Layer<'static>> {
         Layer::new(Image::from_array(a), what)
     }
+}
 
+impl Layer<'_> {
     /// The layer as a `(height, width, 5)` view, zero-copy.
     pub fn view(&self) -> ArrayView3<'_, f32> {
         self.image().view()

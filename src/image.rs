@@ -18,18 +18,47 @@ pub struct Image {
     pub data: Vec<f32>,
 }
 
-/// Values per parallel block of the whole-image passes (copies, maps, scans): 64 K floats,
-/// enough work to outweigh a task's overhead.
-const BLOCK: usize = 1 << 16;
+/// A borrowed `width × height × channels` raster, laid out as [`Image`]: what a pass that only
+/// reads needs, whoever owns the values (an [`Image`], or a caller's buffer under a
+/// [`crate::render::Layer`]). `Copy`; allocates nothing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageRef<'a> {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows, top first.
+    pub height: usize,
+    /// Values per pixel.
+    pub channels: usize,
+    /// `height * width * channels` values, interleaved.
+    pub data: &'a [f32],
+}
 
-/// Copies block by block in parallel: a 12 MP photo is ~150 MB, and a serial copy (its page
-/// faults included) was ~60 ms of one core on the end-to-end run's critical path (issue 39).
-/// Allocates the copy.
-impl Clone for Image {
-    fn clone(&self) -> Self {
+impl<'a> From<&'a Image> for ImageRef<'a> {
+    fn from(img: &'a Image) -> Self {
+        img.as_image_ref()
+    }
+}
+
+impl<'a> ImageRef<'a> {
+    /// True when the image has no pixels (zero width or height).
+    pub fn is_empty(&self) -> bool {
+        self.width == 0 || self.height == 0
+    }
+
+    /// The `channels` values of pixel (x, y); `x < width`, `y < height` (beyond the data, panics).
+    #[inline]
+    pub fn pixel(&self, x: usize, y: usize) -> &'a [f32] {
+        let i = (y * self.width + x) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+
+    /// The values copied into an owned [`Image`], block by block in parallel: a 12 MP photo is
+    /// ~150 MB, and a serial copy (its page faults included) was ~60 ms of one core on the
+    /// end-to-end run's critical path (issue 39). Allocates the copy.
+    pub fn to_image(&self) -> Image {
         use rayon::prelude::*;
         let data = if self.data.len() <= BLOCK {
-            self.data.clone()
+            self.data.to_vec()
         } else {
             // Zeroed pages come from the allocator unwritten; each block's first write faults
             // them in on the thread that copies it.
@@ -38,6 +67,35 @@ impl Clone for Image {
             data
         };
         Image { width: self.width, height: self.height, channels: self.channels, data }
+    }
+
+    /// Copies channel `c` out as a one-channel image.
+    pub fn channel(&self, c: usize) -> Image {
+        assert!(c < self.channels, "channel {c} out of range");
+        let data = self.data.iter().skip(c).step_by(self.channels).copied().collect();
+        Image { width: self.width, height: self.height, channels: 1, data }
+    }
+
+    /// Picks channels by index (in the given order) into a new image.
+    pub fn select_channels(&self, which: &[usize]) -> Image {
+        let mut out = Image::new(self.width, self.height, which.len());
+        for (dst, src) in out.data.chunks_exact_mut(which.len()).zip(self.data.chunks_exact(self.channels)) {
+            for (d, &c) in dst.iter_mut().zip(which) {
+                *d = src[c];
+            }
+        }
+        out
+    }
+}
+
+/// Values per parallel block of the whole-image passes (copies, maps, scans): 64 K floats,
+/// enough work to outweigh a task's overhead.
+const BLOCK: usize = 1 << 16;
+
+/// Copies block by block in parallel ([`ImageRef::to_image`]). Allocates the copy.
+impl Clone for Image {
+    fn clone(&self) -> Self {
+        self.as_image_ref().to_image()
     }
 }
 
@@ -55,6 +113,11 @@ impl Image {
     /// Wraps `data`; returns `None` if its length does not match the shape.
     pub fn from_vec(width: usize, height: usize, channels: usize, data: Vec<f32>) -> Option<Self> {
         (data.len() == width * height * channels).then_some(Image { width, height, channels, data })
+    }
+
+    /// The image as a borrowed [`ImageRef`].
+    pub fn as_image_ref(&self) -> ImageRef<'_> {
+        ImageRef { width: self.width, height: self.height, channels: self.channels, data: &self.data }
     }
 
     /// `width * height` (not counting channels).
@@ -76,8 +139,7 @@ impl Image {
     /// The `channels` values of pixel (x, y); `x < width`, `y < height` (beyond the data, panics).
     #[inline]
     pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
-        let i = self.index(x, y);
-        &self.data[i..i + self.channels]
+        self.as_image_ref().pixel(x, y)
     }
 
     /// The `channels` values of pixel (x, y), writable; same bounds as [`Image::pixel`].
@@ -88,22 +150,15 @@ impl Image {
         &mut self.data[i..i + c]
     }
 
-    /// Copies channel `c` out as a one-channel image.
+    /// Copies channel `c` out as a one-channel image ([`ImageRef::channel`]).
     pub fn channel(&self, c: usize) -> Image {
-        assert!(c < self.channels, "channel {c} out of range");
-        let data = self.data.iter().skip(c).step_by(self.channels).copied().collect();
-        Image { width: self.width, height: self.height, channels: 1, data }
+        self.as_image_ref().channel(c)
     }
 
-    /// Picks channels by index (in the given order) into a new image.
+    /// Picks channels by index (in the given order) into a new image
+    /// ([`ImageRef::select_channels`]).
     pub fn select_channels(&self, which: &[usize]) -> Image {
-        let mut out = Image::new(self.width, self.height, which.len());
-        for (dst, src) in out.data.chunks_exact_mut(which.len()).zip(self.data.chunks_exact(self.channels)) {
-            for (d, &c) in dst.iter_mut().zip(which) {
-                *d = src[c];
-            }
-        }
-        out
+        self.as_image_ref().select_channels(which)
     }
 
     /// Stacks images of equal size channel-wise (e.g. RGB + A + D into RGBAD). Parallel over
@@ -207,7 +262,7 @@ impl Image {
     }
 }
 
-impl Image {
+impl ImageRef<'_> {
     /// Triangle-filter resize, any channel count: bilinear when enlarging, the triangle
     /// widened by the scale when shrinking (antialiasing); the same size returns a copy.
     /// Allocates the result and one intermediate (the source's height × the new width).
@@ -218,7 +273,7 @@ impl Image {
     pub fn resized(&self, w: usize, h: usize) -> Image {
         use rayon::prelude::*;
         if (self.width, self.height) == (w, h) {
-            return self.clone();
+            return self.to_image();
         }
         let c = self.channels;
         if self.is_empty() || w == 0 || h == 0 {
@@ -251,6 +306,13 @@ impl Image {
             }
         });
         out
+    }
+}
+
+impl Image {
+    /// Triangle-filter resize ([`ImageRef::resized`]).
+    pub fn resized(&self, w: usize, h: usize) -> Image {
+        self.as_image_ref().resized(w, h)
     }
 }
 

@@ -309,7 +309,7 @@ fn read_and_run(pipeline: &Pipeline, job: &Job, mut focus: Focus, build: BuildLa
 /// The layers of a job's scene (front first), built for `focus` with `pipeline`'s settings,
 /// and the report of their making (stages, warnings, depth source). Nothing is written: what
 /// `drbokeh view` serves from, and what `--save-layers` of a render at that focus writes.
-pub fn build_layers(pipeline: &Pipeline, job: &Job, focus: Focus) -> Result<(Vec<Layer>, Report)> {
+pub fn build_layers(pipeline: &Pipeline, job: &Job, focus: Focus) -> Result<(Vec<Layer<'static>>, Report)> {
     preflight(job, pipeline.config())?;
     let (outcome, warnings) = read_and_run(pipeline, job, focus, BuildLayers::Only)?;
     let Outcome { layers, mut report, .. } = outcome;
@@ -345,7 +345,7 @@ fn render_frames(
     cfg: &Config,
     pull: &FocusPull,
     pattern: &FramePattern,
-    layers: Vec<Layer>,
+    layers: Vec<Layer<'static>>,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<crate::pipeline::FrameReport>> {
     if layers.is_empty() {

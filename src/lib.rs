@@ -34,5 +34,5 @@ pub mod view;
 pub use color::PhotoEncoding;
 pub use config::Config;
 pub use error::{Error, Result};
-pub use image::Image;
+pub use image::{Image, ImageRef};
 pub use pipeline::{Focus, Outcome, Pipeline, Scene};

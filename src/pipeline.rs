@@ -57,7 +57,7 @@ pub struct Outcome {
     pub image: Image,
     /// The layers that were rendered (or built, with [`BuildLayers::Always`] and
     /// [`BuildLayers::Only`]), front first; empty when nothing was built.
-    pub layers: Vec<Layer>,
+    pub layers: Vec<Layer<'static>>,
     /// What ran, what was skipped and why, with timings.
     pub report: Report,
 }
@@ -71,7 +71,7 @@ const NO_OCCLUSION_ONE_LAYER: &str = "render.occlusion = false renders the scene
 
 /// One peel of [`Pipeline::peel`]: a layer, the opaque scene behind it, and what was done.
 struct Peeled {
-    layer: Layer,
+    layer: Layer<'static>,
     /// The scene behind the layer.
     behind: Behind,
     fill_ms: f64,
@@ -130,7 +130,7 @@ impl Behind {
 
     /// The opaque layer of the scene, from the peel's input `photo` and `disp`, without a
     /// frame-sized copy of either on the way.
-    fn into_layer(self, photo: &Image, disp: &Image, what: &str) -> Result<Layer> {
+    fn into_layer(self, photo: &Image, disp: &Image, what: &str) -> Result<Layer<'static>> {
         Layer::new(work_box::opaque_layer(&self.rgb, &self.disparity, photo, disp, self.window), what)
     }
 }
@@ -326,7 +326,7 @@ impl Pipeline {
             }
         };
 
-        let single = |report: &mut Report, why: &str| -> Result<Vec<Layer>> {
+        let single = |report: &mut Report, why: &str| -> Result<Vec<Layer<'static>>> {
             for name in ["fill_depth", "inpaint", "slice"] {
                 report.skipped(name, why.to_string());
             }
@@ -419,7 +419,7 @@ impl Pipeline {
         (focus, blur, max_coc): (f32, f32, f32),
         (edge_band, lights_above): (EdgeBand, Option<f32>),
         report: &mut Report,
-    ) -> Result<Vec<Layer>> {
+    ) -> Result<Vec<Layer<'static>>> {
         let cfg = &self.config;
         let t = Instant::now();
         // The foreground's depth-edge ramp, when the cuts need it first (what they leave out);
@@ -683,7 +683,7 @@ impl Pipeline {
     /// Renders ready-made layers (front first). Colours must be linear; in gamma mode the
     /// caller has already raised them to the gamma. To render the same layers at several foci,
     /// see [`crate::refocus::Refocuser`].
-    pub fn render_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
+    pub fn render_layers(&self, layers: Vec<Layer<'static>>, focus: Focus) -> Result<Outcome> {
         let (image, report) = self.render_given(&layers, focus, None)?;
         let layers = if self.renders_back_only(&layers) { vec![layers.into_iter().next_back().expect("non-empty")] } else { layers };
         Ok(Outcome { image, layers, report })
@@ -691,7 +691,7 @@ impl Pipeline {
 
     /// Given layers (front first) back unrendered, after the checks a render of them at `focus`
     /// makes ([`BuildLayers::Only`] for given layers): the outcome's image is empty (0x0).
-    pub fn check_layers(&self, layers: Vec<Layer>, focus: Focus) -> Result<Outcome> {
+    pub fn check_layers(&self, layers: Vec<Layer<'static>>, focus: Focus) -> Result<Outcome> {
         let t0 = Instant::now();
         let (mut report, focus, blur) = self.given(&layers, focus, None)?;
         self.settings_for(&layers, focus, blur)?;
@@ -748,7 +748,7 @@ impl Pipeline {
         Ok((report, focus, blur))
     }
 
-    fn render_prepared(&self, layers: Vec<Layer>, focus: f32, blur: f32, report: Report, origin: LayerOrigin) -> Result<Outcome> {
+    fn render_prepared(&self, layers: Vec<Layer<'static>>, focus: f32, blur: f32, report: Report, origin: LayerOrigin) -> Result<Outcome> {
         let (image, report) = self.render_borrowed(&layers, focus, blur, report, origin)?;
         Ok(Outcome { image, layers, report })
     }

@@ -32,13 +32,13 @@ use crate::report::Report;
 /// ```
 pub struct Refocuser {
     pipeline: Pipeline,
-    layers: Vec<Layer>,
+    layers: Vec<Layer<'static>>,
 }
 
 impl Refocuser {
     /// Keeps `layers` (front first, linear colours, all one size) for rendering with
     /// `pipeline`'s render settings (blur, kernel, quality, profile, occlusion, lens).
-    pub fn new(pipeline: Pipeline, layers: Vec<Layer>) -> Result<Self> {
+    pub fn new(pipeline: Pipeline, layers: Vec<Layer<'static>>) -> Result<Self> {
         let Some(first) = layers.first() else {
             return Err(Error::usage("no layers given"));
         };
@@ -61,12 +61,12 @@ impl Refocuser {
     }
 
     /// The layers, front first.
-    pub fn layers(&self) -> &[Layer] {
+    pub fn layers(&self) -> &[Layer<'static>] {
         &self.layers
     }
 
     /// Gives the layers back.
-    pub fn into_layers(self) -> Vec<Layer> {
+    pub fn into_layers(self) -> Vec<Layer<'static>> {
         self.layers
     }
 }

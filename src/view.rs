@@ -62,14 +62,14 @@ impl Reply {
 
 /// Layers scaled to a preview width, and their scale.
 struct Preview {
-    layers: Vec<Layer>,
+    layers: Vec<Layer<'static>>,
     scale: f32,
 }
 
 /// What `drbokeh view` serves (see the module doc).
 pub struct Viewer {
     config: Config,
-    layers: Vec<Layer>,
+    layers: Vec<Layer<'static>>,
     blur: f32,
     output: PathBuf,
     /// `drbokeh render` and its input arguments, for the command line `/save` shows.
@@ -98,7 +98,7 @@ impl Viewer {
     /// A viewer of `layers` (front first) rendered with `config`; `blur` the default blur K,
     /// `output` the file `/save` writes, `command` the `drbokeh render ...` arguments that
     /// read the same inputs (without focus, blur and output).
-    pub fn new(config: Config, layers: Vec<Layer>, blur: f32, output: PathBuf, command: Vec<String>) -> Result<Viewer> {
+    pub fn new(config: Config, layers: Vec<Layer<'static>>, blur: f32, output: PathBuf, command: Vec<String>) -> Result<Viewer> {
         let Some(first) = layers.first() else { return Err(Error::usage("no layers to view")) };
         let size = (first.width(), first.height());
         if layers.iter().any(|l| (l.width(), l.height()) != size) {

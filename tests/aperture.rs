@@ -129,7 +129,7 @@ fn photo() -> Image {
     img
 }
 
-fn one_layer(img: &Image, disparity: f32) -> Layer {
+fn one_layer(img: &Image, disparity: f32) -> Layer<'static> {
     let mut data = Vec::with_capacity(W * H * 5);
     for px in img.data.chunks_exact(3) {
         data.extend_from_slice(&[px[0], px[1], px[2], 1.0, disparity]);
@@ -258,14 +258,14 @@ fn fast_matches_exact_on_layered_scenes() {
     let mut combos = Vec::new();
     for dir in common::case_dirs(&common::shared_dir().join("groundtruth")) {
         let scene = GtScene::load(&dir).unwrap();
-        let layers: Vec<Layer> = scene
+        let layers: Vec<Layer<'static>> = scene
             .exact_layers()
             .unwrap()
             .iter()
             .map(|l| {
                 let img = l.image();
                 let (x0, y0) = ((img.width - 112) / 2, (img.height - 112) / 2);
-                Layer::new(img.crop(x0, y0, 112, 112), "crop").unwrap()
+                Layer::new(img.to_image().crop(x0, y0, 112, 112), "crop").unwrap()
             })
             .collect();
         for st in &scene.settings {

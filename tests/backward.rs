@@ -208,7 +208,7 @@ impl Scene {
         self.render().iter().zip(cot).map(|(a, b)| a * b).sum()
     }
 
-    fn library_layers(&self) -> Vec<Layer> {
+    fn library_layers(&self) -> Vec<Layer<'static>> {
         self.layers
             .iter()
             .map(|l| Layer::new(Image::from_vec(self.w, self.h, 5, l.iter().map(|&v| v as f32).collect()).unwrap(), "test").unwrap())
@@ -695,7 +695,7 @@ fn tape_forward_is_the_exact_kernel() {
 
 /// A scene for the extreme grid: hard depth steps (blocks at disparity 0 and 1), HDR colours
 /// (1e4 highlights next to black), alpha exactly 0 and 1 (and one 1e-30), front and backdrop.
-fn extreme_layers(w: usize, h: usize) -> Vec<Layer> {
+fn extreme_layers(w: usize, h: usize) -> Vec<Layer<'static>> {
     let mut front = Vec::new();
     let mut back = Vec::new();
     for y in 0..h {
@@ -775,7 +775,7 @@ fn bad_cotangent_and_smoothing_are_usage_errors() {
 fn tiny_images_and_lens_one() {
     for profile in [Profile::Official, Profile::Physical] {
         for (w, h, lens, n) in [(1usize, 1usize, 1usize, 1usize), (1, 1, 3, 2), (3, 2, 1, 2), (3, 2, 5, 1)] {
-            let layers: Vec<Layer> = (0..n)
+            let layers: Vec<Layer<'static>> = (0..n)
                 .map(|k| {
                     let px: Vec<f32> = (0..w * h).flat_map(|i| [0.5, 1e4, 0.0, (i % 2) as f32, k as f32 * 0.5]).collect();
                     Layer::new(Image::from_vec(w, h, 5, px).unwrap(), "tiny").unwrap()

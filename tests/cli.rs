@@ -182,7 +182,7 @@ fn scene_layers() -> (Image, Image) {
     (fg, bg)
 }
 
-fn layers_of(imgs: &[&Image]) -> Vec<Layer> {
+fn layers_of(imgs: &[&Image]) -> Vec<Layer<'static>> {
     imgs.iter().map(|i| Layer::new((*i).clone(), "test layer").unwrap()).collect()
 }
 

@@ -230,7 +230,7 @@ fn bright_sources_are_exact_and_capped() {
     use drbokeh::render::fast::{FastParams, scatter_layer};
     let (layers, s) = two_layer_scene(120, 90, 24.0, true);
     // Most of the background bright (a bright sky), with a few far brighter points.
-    let mut bg = layers[1].image().clone();
+    let mut bg = layers[1].image().to_image();
     for (i, px) in bg.data.chunks_exact_mut(5).enumerate() {
         let k = if i % 997 == 500 { 40.0 } else { 2.0 };
         px[0] *= k;
@@ -246,7 +246,7 @@ fn bright_sources_are_exact_and_capped() {
     // With only the few highlights bright, every one is drawn exactly. (Off the corners:
     // a corner highlight is replicated by the border padding into a block of copies whose
     // colour magnifies the coarse grids' small weight error there.)
-    let mut few = layers[1].image().clone();
+    let mut few = layers[1].image().to_image();
     for (i, px) in few.data.chunks_exact_mut(5).enumerate() {
         if i % 997 == 500 {
             px[0] = 40.0;

@@ -13,7 +13,7 @@ mod common;
 use drbokeh::config::Config;
 use drbokeh::render::{self, Kernel, Layer, RenderSettings, auto_lens, render_raw};
 use drbokeh::stages::depth::Disparity;
-use drbokeh::{Focus, Image, Pipeline, Scene};
+use drbokeh::{Focus, Image, ImageRef, Pipeline, Scene};
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
@@ -38,7 +38,7 @@ fn random_plane(w: usize, h: usize, seed: u64) -> Image {
 }
 
 /// An RGBAD layer from per-pixel functions.
-fn layer(w: usize, h: usize, rgb: impl Fn(usize, usize) -> [f32; 3], alpha: &Image, disp: &Image) -> Layer {
+fn layer(w: usize, h: usize, rgb: impl Fn(usize, usize) -> [f32; 3], alpha: &Image, disp: &Image) -> Layer<'static> {
     let mut img = Image::new(w, h, 5);
     for y in 0..h {
         for x in 0..w {
@@ -482,7 +482,7 @@ fn more_layers_peel_a_stepped_background() {
     assert!(cut > 0.1 && cut < 0.6, "{slice}");
     // The wall layer: opaque on the wall, transparent over the far plane, at the wall's depth.
     let (wall, far) = (auto.layers[1].image(), auto.layers[2].image());
-    let at = |img: &Image, x: usize, y: usize| img.pixel(x, y).to_vec();
+    let at = |img: ImageRef<'_>, x: usize, y: usize| img.pixel(x, y).to_vec();
     assert!(at(wall, 10, 24)[3] > 0.999 && at(wall, 40, 4)[3] < 1e-3);
     assert!((at(wall, 10, 24)[4] - 0.6).abs() < 1e-3);
     // The far plane goes on behind the wall: opaque, its depth inpainted, not the wall's.
@@ -712,7 +712,7 @@ fn depth_fill_skips_only_what_no_blur_can_show() {
             })
         };
         let mut rng = Rng::new(5);
-        let mut moved = fg.clone();
+        let mut moved = fg.to_image();
         let mut n = 0;
         for y in 0..h {
             for x in 0..w {

@@ -12,7 +12,7 @@ use drbokeh::render::layer::{CHANNELS, D};
 use drbokeh::render::{Layer, Profile, RenderSettings, Smoothing, SpanTape, Tape};
 
 /// A `w × h` opaque layer: noise colours (times `gain`), disparity from `depth(x, y)`.
-fn layer(w: usize, h: usize, seed: u64, gain: f32, depth: impl Fn(usize, usize) -> f32) -> Layer {
+fn layer(w: usize, h: usize, seed: u64, gain: f32, depth: impl Fn(usize, usize) -> f32) -> Layer<'static> {
     let mut rng = Rng::new(seed);
     let mut px = Vec::with_capacity(w * h * CHANNELS);
     for i in 0..w * h {
@@ -23,7 +23,7 @@ fn layer(w: usize, h: usize, seed: u64, gain: f32, depth: impl Fn(usize, usize) 
 
 /// The scenes: (name, layer, blur K, focus). Focus 1 (the nearest plane, as `bench --dfd`)
 /// or just off a plane's disparity (pixels near the focal plane).
-fn scenes() -> Vec<(&'static str, Layer, f32, f32)> {
+fn scenes() -> Vec<(&'static str, Layer<'static>, f32, f32)> {
     let (w, h) = (14, 13);
     // Depths off the bins' lattice (multiples of BIN_STEP relative to the focus), where the
     // interpolation has kinks that central differences straddle.
@@ -205,7 +205,7 @@ fn official_profile_is_close_to_the_tape() {
 
 /// The cases of the central-difference checks: the first four scenes, occlusion on and off,
 /// both profiles (the official one off the bins' lattice, see [`official_fd`]).
-fn fd_cases() -> Vec<(&'static str, Layer, RenderSettings)> {
+fn fd_cases() -> Vec<(&'static str, Layer<'static>, RenderSettings)> {
     let makes: [(bool, Make); 4] = [(true, settings), (false, settings), (true, official_fd), (false, official_fd)];
     scenes()
         .into_iter()
@@ -243,7 +243,7 @@ fn vjp_matches_central_differences() {
         let g = span.disparity_vjp(&cot).unwrap();
         let gmax = g.data.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
         let loss = |i: usize, dv: f32| {
-            let mut img = l.image().clone();
+            let mut img = l.image().to_image();
             img.data[i * CHANNELS + D] += dv;
             dot_loss(&Layer::new(img, "fd").unwrap(), &s, &cot)
         };
@@ -289,7 +289,7 @@ fn colour_focus_and_k_gradients_match_central_differences() {
         for i in (0..w * h).step_by(w * h / 12) {
             for c in 0..3 {
                 let at = |dv: f32| {
-                    let mut img = l.image().clone();
+                    let mut img = l.image().to_image();
                     img.data[i * CHANNELS + c] += dv;
                     loss(&Layer::new(img, "fd").unwrap(), &s)
                 };
@@ -362,7 +362,7 @@ fn extreme_inputs_give_finite_gradients() {
 #[test]
 fn refuses_what_it_does_not_model() {
     let l = layer(6, 5, 1, 1.0, |_, _| 0.5);
-    let mut img = l.image().clone();
+    let mut img = l.image().to_image();
     img.data[3] = 0.5;
     let half = Layer::new(img, "half").unwrap();
     assert!(SpanTape::record(&half, &settings(4.0, 1.0, true), SMOOTH).err().unwrap().to_string().contains("opaque"));

@@ -60,7 +60,7 @@ fn uniform_colour(hdr: bool) -> f32 {
     0.25 * if hdr { 1e6 } else { 1.0 }
 }
 
-fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u64, uniform: bool) -> Vec<Layer> {
+fn make_layers(w: usize, h: usize, d: DispKind, a: AlphaKind, hdr: bool, seed: u64, uniform: bool) -> Vec<Layer<'static>> {
     let mut rnd = uniform01(seed);
     let scale = if hdr { 1e6 } else { 1.0 };
     let mut fg = Vec::new();
@@ -208,10 +208,10 @@ fn colours_beyond_the_safe_range_render_as_scaled_copies() {
     let layers = make_layers(24, 18, DispKind::Random, AlphaKind::Random, false, 11, false);
     let up = 2f32.powi(110);
     assert!(up > render::SAFE_COLOUR);
-    let huge: Vec<Layer> = layers
+    let huge: Vec<Layer<'static>> = layers
         .iter()
         .map(|l| {
-            let mut img = l.image().clone();
+            let mut img = l.image().to_image();
             img.data.chunks_exact_mut(5).for_each(|px| px[..3].iter_mut().for_each(|c| *c *= up));
             Layer::new(img, "huge").unwrap()
         })
@@ -279,7 +279,7 @@ fn channel_means(img: &Image) -> [f64; 3] {
 
 /// A textured opaque background and a soft-edged textured foreground disk, each with its own
 /// depth variation, `w × h`.
-fn disk_scene(w: usize, h: usize, seed: u64, fg_d: f32, bg_d: f32) -> Vec<Layer> {
+fn disk_scene(w: usize, h: usize, seed: u64, fg_d: f32, bg_d: f32) -> Vec<Layer<'static>> {
     let mut rnd = uniform01(seed);
     let (cx, cy, rad) = (w as f32 * 0.45, h as f32 * 0.55, w.min(h) as f32 * 0.3);
     let (mut fg, mut bg) = (Vec::new(), Vec::new());

@@ -125,7 +125,7 @@ fn shared_groundtruth_scenes_are_reproduced() {
     assert!(!dirs.is_empty());
     for dir in dirs {
         let scene = GtScene::load(&dir).unwrap();
-        let layers: Vec<Layer> = gt_plane_layers(&scene).unwrap();
+        let layers: Vec<Layer<'static>> = gt_plane_layers(&scene).unwrap();
         let planes: Vec<Plane> = layers.iter().map(|l| Plane::from_layer(l, "plane").unwrap()).collect();
         for s in &scene.settings {
             let ts = TraceSettings::new(s.blur, s.focus, 512, 1);

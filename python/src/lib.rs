@@ -1,13 +1,14 @@
 //! `drbokeh._drbokeh`: the library's pipeline, renderer and backward pass for NumPy.
 //!
-//! The bindings only translate: arrays become [`Image`]s and [`Layer`]s (one copy in, checked
-//! as the CLI checks files), keyword arguments become a [`Config`] (parsed by the same serde
-//! definitions as `pipeline.toml`, so the same names and messages), and results go back to
-//! NumPy without a copy (the `Vec` becomes the array's buffer). The GIL is released while Rust
-//! works. Errors: usage and input problems raise `ValueError`, I/O `OSError`, each with the
-//! library's message. Conventions: images are H×W×C float32 (linear RGB unless said), layers
-//! H×W×5 (straight, not premultiplied, colour R, G, B; alpha A; normalized disparity D, 0 far
-//! … 1 near), front first.
+//! The bindings only translate: arrays become [`Image`]s (one copy in) and [`Layer`]s (over
+//! NumPy's buffer when it is C-ordered, else a copy), checked as the CLI checks files;
+//! keyword arguments become a [`Config`] (parsed by the same serde definitions as
+//! `pipeline.toml`, so the same names and messages), and results go back to NumPy without a
+//! copy (the `Vec` becomes the array's buffer). The GIL is released while Rust works. Errors:
+//! usage and input problems raise `ValueError`, I/O `OSError`, each with the library's
+//! message. Conventions: images are H×W×C float32 (linear RGB unless said), layers H×W×5
+//! (straight, not premultiplied, colour R, G, B; alpha A; normalized disparity D, 0 far … 1
+//! near), front first.
 
 use drbokeh::config::{ApertureConfig, Config};
 use drbokeh::pipeline::{BuildLayers, Focus, Pipeline, Scene};
@@ -16,7 +17,7 @@ use drbokeh::render::{Layer, RenderSettings};
 use drbokeh::stages::depth::{DepthKind, normalize};
 use drbokeh::{Error, Image, PhotoEncoding};
 use numpy::ndarray::Array3;
-use numpy::{IntoPyArray, PyArray3, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray3, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use rayon::prelude::*;
@@ -42,9 +43,9 @@ fn py_err(e: Error) -> PyErr {
     }
 }
 
-/// A float32 array of `name` as an image: H×W (one channel) or H×W×C, any strides, every
-/// value copied once. `channels`: the counts allowed.
-fn image_of(name: &str, a: &Bound<'_, PyAny>, channels: &[usize]) -> PyResult<Image> {
+/// A float32 array of `name`, H×W (one channel) or H×W×C with C one of `channels`, not empty:
+/// the array borrowed read-only (NumPy's buffer, not copied) and its `(h, w, c)`.
+fn array_of<'py>(name: &str, a: &Bound<'py, PyAny>, channels: &[usize]) -> PyResult<(PyReadonlyArrayDyn<'py, f32>, (usize, usize, usize))> {
     let arr = a.cast::<PyArrayDyn<f32>>().map_err(|_| {
         let dtype = a.getattr("dtype").map(|d| d.to_string()).unwrap_or_else(|_| a.get_type().to_string());
         PyTypeError::new_err(format!("{name} must be a float32 NumPy array, not {dtype}"))
@@ -62,9 +63,21 @@ fn image_of(name: &str, a: &Bound<'_, PyAny>, channels: &[usize]) -> PyResult<Im
     if h == 0 || w == 0 {
         return Err(PyValueError::new_err(format!("{name} is empty (shape {shape:?})")));
     }
-    // A C-ordered buffer is copied as it is, on every thread (a 1 MP layer is 20 MB: one
-    // thread's copy was most of the call's overhead over the library's render, issue 37); any
-    // other layout (Fortran order, strides) in logical row-major order.
+    Ok((ro, (h, w, c)))
+}
+
+/// A float32 array of `name` as an image (see [`array_of`]), any strides, every value copied
+/// once.
+fn image_of(name: &str, a: &Bound<'_, PyAny>, channels: &[usize]) -> PyResult<Image> {
+    let (ro, hwc) = array_of(name, a, channels)?;
+    copied(name, &ro, hwc)
+}
+
+/// The values of `ro` (of shape `(h, w, c)`) copied into an image. A C-ordered buffer is
+/// copied as it is, on every thread (a 1 MP layer is 20 MB: one thread's copy was most of the
+/// call's overhead over the library's render, issue 37); any other layout (Fortran order,
+/// strides) in logical row-major order.
+fn copied(name: &str, ro: &PyReadonlyArrayDyn<'_, f32>, (h, w, c): (usize, usize, usize)) -> PyResult<Image> {
     let data: Vec<f32> = match ro.as_slice() {
         Ok(s) if ro.is_c_contiguous() => {
             let mut v = Vec::new();
@@ -121,20 +134,50 @@ fn to_rgb(name: &str, values: Vec<f32>, shape: &[usize]) -> PyResult<Image> {
     Image::from_vec(w, h, 3, data).ok_or_else(|| PyValueError::new_err(format!("{name}: {w}x{h}x3 is too large")))
 }
 
-/// The layers of a Python list, checked as layer files are.
-fn layers_of(layers: &Bound<'_, PyAny>) -> PyResult<Vec<Layer>> {
-    let list: Vec<Bound<'_, PyAny>> = layers.try_iter()?.collect::<PyResult<_>>()?;
-    if list.is_empty() {
-        return Err(PyValueError::new_err("layers is empty: give at least one H x W x 5 layer"));
-    }
-    list.iter()
-        .enumerate()
-        .map(|(k, a)| {
+/// A Python layer's values for the length of a call: NumPy's buffer itself when the array is
+/// C-ordered (a 1 MP layer is 20 MB: copying two in was most of the call's overhead over the
+/// library's render, issue 37), else a row-major copy.
+enum Held<'py> {
+    Borrowed(PyReadonlyArrayDyn<'py, f32>),
+    Copied(Image),
+}
+
+/// A Python list of H×W×5 float32 arrays, held while a call's layers use them.
+struct HeldLayers<'py>(Vec<(String, (usize, usize), Held<'py>)>);
+
+impl<'py> HeldLayers<'py> {
+    /// The arrays of `layers` (any iterable), checked for type and shape.
+    fn of(layers: &Bound<'py, PyAny>) -> PyResult<Self> {
+        let list: Vec<Bound<'py, PyAny>> = layers.try_iter()?.collect::<PyResult<_>>()?;
+        if list.is_empty() {
+            return Err(PyValueError::new_err("layers is empty: give at least one H x W x 5 layer"));
+        }
+        let held = list.iter().enumerate().map(|(k, a)| {
             let name = format!("layers[{k}]");
-            let img = image_of(&name, a, &[5])?;
-            Layer::new(img, &name).map_err(py_err)
-        })
-        .collect()
+            let (ro, hwc @ (h, w, _)) = array_of(&name, a, &[5])?;
+            let held = if ro.is_c_contiguous() { Held::Borrowed(ro) } else { Held::Copied(copied(&name, &ro, hwc)?) };
+            Ok((name, (w, h), held))
+        });
+        Ok(HeldLayers(held.collect::<PyResult<_>>()?))
+    }
+
+    /// The layers, checked as layer files are (every value finite), over the held values;
+    /// the check runs without the GIL.
+    fn layers(&self, py: Python<'_>) -> PyResult<Vec<Layer<'_>>> {
+        let views: Vec<(&str, (usize, usize), &[f32])> = self
+            .0
+            .iter()
+            .map(|(name, size, held)| {
+                let data = match held {
+                    Held::Borrowed(ro) => ro.as_slice().expect("a C-ordered array is one slice"),
+                    Held::Copied(img) => &img.data[..],
+                };
+                (name.as_str(), *size, data)
+            })
+            .collect();
+        py.detach(|| views.iter().map(|&(name, (w, h), data)| Layer::borrowed(w, h, data, name)).collect::<drbokeh::Result<_>>())
+            .map_err(py_err)
+    }
 }
 
 /// The library's warnings (a clamped focus, an ignored setting...) as Python `UserWarning`s.
@@ -448,13 +491,15 @@ fn render_layers<'py>(
     threads: Option<usize>,
     aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let layers = layers_of(layers)?;
+    let held = HeldLayers::of(layers)?;
+    let layers = held.layers(py)?;
     let s =
         Settings { profile, kernel, quality, occlusion, lens, blur: Some(blur), aperture: aperture_of(aperture)?, ..Settings::default() };
     let cfg = s.config(py, None)?;
-    let out = run(py, threads, move || Pipeline::from_config(cfg)?.render_layers(layers, Focus::Disparity(focus)))?;
-    warn_all(py, &out.report.warnings)?;
-    Ok(to_numpy(py, out.image))
+    // The layers are borrowed: the render gives them back (`refocus`), not the pipeline.
+    let (image, report) = run(py, threads, move || Pipeline::from_config(cfg)?.refocus(&layers, Focus::Disparity(focus), None))?;
+    warn_all(py, &report.warnings)?;
+    Ok(to_numpy(py, image))
 }
 
 /// The differentiable render's settings from keyword arguments.
@@ -497,7 +542,8 @@ fn render_layers_differentiable<'py>(
     threads: Option<usize>,
     aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let layers = layers_of(layers)?;
+    let held = HeldLayers::of(layers)?;
+    let layers = held.layers(py)?;
     let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens, aperture)?;
     let smoothing = Smoothing { edge_width, fill_width };
     let image = run(py, threads, move || Tape::record(&layers, &s, smoothing).map(|t| t.image().clone()))?;
@@ -524,7 +570,8 @@ fn render_layers_vjp<'py>(
     threads: Option<usize>,
     aperture: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Arrays<'py>, f32, f32)> {
-    let layers = layers_of(layers)?;
+    let held = HeldLayers::of(layers)?;
+    let layers = held.layers(py)?;
     let cot = image_of("cotangent", cotangent, &[3])?;
     let s = diff_settings(&layers, focus, blur, profile.as_deref(), occlusion, lens, aperture)?;
     let smoothing = Smoothing { edge_width, fill_width };

@@ -301,6 +301,28 @@ def test_non_contiguous_arrays_give_the_same_render():
         assert np.array_equal(drbokeh.render_layers(ls, 0.5, 5.0), want)
 
 
+def test_layers_are_read_in_place_and_left_unchanged():
+    # C-ordered layers are rendered from NumPy's buffer (no copy): a read-only array, a view
+    # with an offset into a larger one, and one array given twice render as their copies do,
+    # and no call writes to them.
+    layers = random_layers(16, 20, n=2, seed=7)
+    want = drbokeh.render_layers(layers, 0.5, 5.0)
+    big = np.concatenate([np.zeros((3, 20, 5), np.float32), layers[0]], axis=0)
+    offset = big[3:]
+    assert offset.flags["C_CONTIGUOUS"] and not offset.flags["OWNDATA"]
+    frozen = layers[1].copy()
+    frozen.flags.writeable = False
+    kept = [l.copy() for l in layers]
+    assert np.array_equal(drbokeh.render_layers([offset, frozen], 0.5, 5.0), want)
+    assert np.array_equal(drbokeh.render_layers([layers[1], layers[1]], 0.5, 5.0),
+                          drbokeh.render_layers([layers[1], layers[1].copy()], 0.5, 5.0))
+    cot = np.ones((16, 20, 3), np.float32)
+    drbokeh.render_layers_vjp(layers, 0.5, 5.0, cot)
+    drbokeh.render_layers_differentiable(layers, 0.5, 5.0)
+    for a, b in zip(layers, kept):
+        assert np.array_equal(a, b)
+
+
 def test_bad_arrays_raise_and_never_crash():
     good = random_layers(8, 8, n=2, seed=6)
     cases = [

@@ -101,7 +101,7 @@ impl GtScene {
     /// The exact layers: un-premultiplied foreground with its alpha, and the true background.
     /// The foreground's disparity is exact where a foreground surface covers the pixel centre
     /// and Telea-extended elsewhere (the same fill the pipeline uses).
-    pub fn exact_layers(&self) -> Result<Vec<Layer>> {
+    pub fn exact_layers(&self) -> Result<Vec<Layer<'static>>> {
         let mut fg_rgb = self.fg.clone();
         for (px, &a) in fg_rgb.data.chunks_exact_mut(3).zip(&self.alpha.data) {
             for c in px {
@@ -121,7 +121,7 @@ impl GtScene {
     }
 
     /// The all-in-focus image as one opaque layer (input of the classical scatter baseline).
-    pub fn single_layer(&self) -> Result<Layer> {
+    pub fn single_layer(&self) -> Result<Layer<'static>> {
         let opaque = Image::filled(self.aif.width, self.aif.height, 1, 1.0);
         Layer::from_parts(&self.aif, &opaque, &self.disparity, "all-in-focus layer")
     }

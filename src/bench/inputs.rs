@@ -131,7 +131,7 @@ pub fn prepare(linear: &SceneInputs, input: Input) -> Result<Prepared<'_>> {
     }
     let sigma = input.psf_sigma();
     let (aif, missing) = photo(&linear.aif, input);
-    let layers = |ls: &[Layer]| -> Result<Vec<Layer>> { ls.iter().map(|l| record_layer(l, sigma)).collect() };
+    let layers = |ls: &[Layer]| -> Result<Vec<Layer<'static>>> { ls.iter().map(|l| record_layer(l, sigma)).collect() };
     let scene = SceneInputs {
         aif: aif.into_owned(),
         disparity: linear.disparity.clone(),
@@ -175,8 +175,8 @@ fn record(linear: &Image) -> (Image, f64) {
 
 /// A layer as the 8-bit camera would store its colours: blurred by the PSF of σ `sigma` (px)
 /// within the layer when given (normalized convolution, alpha unchanged), then quantized.
-fn record_layer(layer: &Layer, sigma: Option<f32>) -> Result<Layer> {
-    let mut img = layer.image().clone();
+fn record_layer(layer: &Layer, sigma: Option<f32>) -> Result<Layer<'static>> {
+    let mut img = layer.image().to_image();
     if let Some(s) = sigma {
         let alpha = img.channel(A);
         let blurred_alpha = gaussian_blur(&alpha, s);

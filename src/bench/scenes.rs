@@ -590,9 +590,9 @@ pub struct SceneInputs {
     /// `disparity` as a depth estimator would give it ([`realistic_depth`]).
     pub realistic_disparity: Image,
     /// Exact two layers: all foreground planes composited, and the background.
-    pub two_layers: Vec<Layer>,
+    pub two_layers: Vec<Layer<'static>>,
     /// One layer per plane, each at its constant disparity.
-    pub plane_layers: Vec<Layer>,
+    pub plane_layers: Vec<Layer<'static>>,
 }
 
 impl SynthScene {
@@ -696,7 +696,7 @@ impl SynthScene {
 /// depth (within 3 px). Background depths (one, or two for a step) become opaque planes; a
 /// farther background plane is filled with `bg.exr` where a nearer one hides it.
 #[allow(clippy::needless_range_loop)]
-pub fn gt_plane_layers(scene: &GtScene) -> Result<Vec<Layer>> {
+pub fn gt_plane_layers(scene: &GtScene) -> Result<Vec<Layer<'static>>> {
     let (w, h) = (scene.bg.width, scene.bg.height);
     let n = w * h;
     let distinct = |vals: &mut Vec<f32>| {

@@ -8,7 +8,7 @@ use crate::render::{Layer, Profile, RenderSettings, auto_lens};
 /// Two layers (foreground disk + bars, opaque background) of `width × height` and render
 /// settings whose largest CoC radius is `max_coc` px, focused on the foreground
 /// (`focus_fg`) or on the background's near edge.
-pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool) -> (Vec<Layer>, RenderSettings) {
+pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool) -> (Vec<Layer<'static>>, RenderSettings) {
     let (w, h) = (width, height);
     let mut fg = Vec::with_capacity(w * h * 5);
     let mut bg = Vec::with_capacity(w * h * 5);
@@ -52,7 +52,7 @@ pub fn two_layer_scene(width: usize, height: usize, max_coc: f32, focus_fg: bool
 /// bars at disparity 0.5 over its lower 40%, blurred to a CoC of `max_coc` px: the stress
 /// scene's bars in the ground's own layer, where the physical profile's in-layer depth groups
 /// decide what the ground next to a bar receives. Settings: focus 1, official profile.
-pub fn bars_in_one_layer(width: usize, height: usize, max_coc: f32) -> (Vec<Layer>, RenderSettings) {
+pub fn bars_in_one_layer(width: usize, height: usize, max_coc: f32) -> (Vec<Layer<'static>>, RenderSettings) {
     let (w, h) = (width, height);
     let mut px = Vec::with_capacity(w * h * 5);
     for y in 0..h {
@@ -81,7 +81,7 @@ pub fn bars_in_one_layer(width: usize, height: usize, max_coc: f32) -> (Vec<Laye
 /// A depth-from-defocus scene of `n × n` pixels: a seeded noise texture over blocks of 32 px
 /// at seeded disparities in [0, 1] plus a gentle slant, opaque, and the target it is compared
 /// with (seeded noise: only the cost matters). For timing the depth-from-defocus step.
-pub fn dfd_scene(n: usize) -> (Layer, Image) {
+pub fn dfd_scene(n: usize) -> (Layer<'static>, Image) {
     let mut x = 0x2545_F491_4F6C_DD1Du64;
     let mut rnd = move || {
         x ^= x << 13;

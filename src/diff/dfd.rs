@@ -30,10 +30,11 @@ use crate::image::Image;
 use crate::render::lens::coc_radius;
 use crate::render::{Layer, Profile, RenderSettings, SpanTape, Tape, check_blur, check_focus};
 
-/// One recorded forward render of a level's disparity, whichever renderer made it.
+/// One recorded forward render of a level's disparity, whichever renderer made it (the span
+/// tape, the largest, boxed: one allocation per iteration beside its frame-sized buffers).
 enum Recording<'a> {
     DrBokeh(Tape<'a>),
-    Span(SpanTape<'a>),
+    Span(Box<SpanTape<'a>>),
     Gauss(GaussTape),
 }
 
@@ -433,7 +434,7 @@ fn evaluate(aif: &Image, targets: &[Target], d: &Image, opts: &DfdOptions, grad:
     for Target { photo: target, clipped, settings: s } in targets {
         let tape = match &layers {
             Some(layers) => match opts.kernel {
-                DfdKernel::Fast | DfdKernel::Auto => Recording::Span(SpanTape::record(&layers[0], s, opts.smoothing)?),
+                DfdKernel::Fast | DfdKernel::Auto => Recording::Span(Box::new(SpanTape::record(&layers[0], s, opts.smoothing)?)),
                 k => Recording::DrBokeh(Tape::record_with(layers, s, opts.smoothing, k == DfdKernel::Ray)?),
             },
             None => Recording::Gauss(GaussTape::record(aif, d, s.focus, s.blur, window_radius(s.blur, s.focus))?),

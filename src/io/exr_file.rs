@@ -13,7 +13,7 @@
 use super::format::{FileFormat, guarded, open};
 use super::limits::ReadLimits;
 use crate::error::{Error, Result};
-use crate::image::Image;
+use crate::image::{Image, ImageRef};
 use exr::prelude::{self as x, WritableImage};
 use std::path::Path;
 
@@ -497,7 +497,8 @@ const WRITE_ENCODING: x::Encoding =
 /// name per channel (e.g. `["R","G","B"]`, `["R","G","B","A","D"]`, `["Y"]`). The file is
 /// written atomically. Channels are stored in the alphabetical order the format requires;
 /// readers find them by name.
-pub fn write_exr(path: &Path, img: &Image, channel_names: &[&str]) -> Result<()> {
+pub fn write_exr<'a>(path: &Path, img: impl Into<ImageRef<'a>>, channel_names: &[&str]) -> Result<()> {
+    let img = img.into();
     if img.is_empty() {
         return Err(Error::input(path, format!("cannot write an empty {}x{} image", img.width, img.height)));
     }

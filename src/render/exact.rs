@@ -162,7 +162,7 @@ impl ShapeTables {
 
 /// Mean alpha over the `(2n+1)²` box centred on (x, y), replicate-padded (eq. 4), summed in
 /// f64. O(n²): the plain formula, the oracle of the fast kernel's summed-area visibility.
-pub(crate) fn box_alpha(img: &crate::Image, x: usize, y: usize, n: usize) -> f32 {
+pub(crate) fn box_alpha(img: crate::ImageRef<'_>, x: usize, y: usize, n: usize) -> f32 {
     let (w, h) = (img.width as i64, img.height as i64);
     let n = n as i64;
     let mut sum = 0f64;

@@ -1,8 +1,9 @@
 //! A layer of the scene as the renderer sees it.
 
 use crate::error::{Error, Result};
-use crate::image::Image;
+use crate::image::{Image, ImageRef};
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Channels of a layer pixel: R, G, B (linear light, not premultiplied), A, D. A layer image
 /// is row-major, `width·height·CHANNELS` f32, pixel `i` at `data[i·CHANNELS..(i+1)·CHANNELS]`.
@@ -33,13 +34,21 @@ pub fn pixel_blocks(data: &[f32]) -> rayon::slice::Chunks<'_, f32> {
     data.par_chunks(SCAN_BLOCK * CHANNELS)
 }
 
-/// An RGBA layer with its own disparity: a 5-channel [`Image`] (R, G, B, A, D).
+/// An RGBA layer with its own disparity: a 5-channel image (R, G, B, A, D), row-major,
+/// [`CHANNELS`] values per pixel.
 ///
 /// Colours are linear light, **not** premultiplied; alpha in [0, 1]; D is normalized
 /// disparity (1 near … 0 far, before the focus is subtracted). Layers are ordered front first.
+///
+/// A layer owns its pixels ([`Layer::new`], `Layer<'static>`) or borrows them from the caller
+/// ([`Layer::borrowed`]: a Python call renders NumPy's buffers in place; copying two 1 MP
+/// layers in was most of the call's overhead over the library's render, issue 37). Rendering
+/// only reads a layer; [`Layer::map_colors`] copies borrowed pixels first.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Layer {
-    image: Image,
+pub struct Layer<'a> {
+    width: usize,
+    height: usize,
+    data: Cow<'a, [f32]>,
     /// What the renderer asks of the whole layer on every render (see [`Stats`]).
     stats: Stats,
 }
@@ -103,31 +112,14 @@ impl Stats {
     }
 }
 
-impl Layer {
-    /// Checks the shape and that every value is finite. `what` names the source in errors.
+impl Layer<'static> {
+    /// A layer that owns `image`'s pixels. Checks the shape and that every value is finite.
+    /// `what` names the source in errors.
     pub fn new(image: Image, what: &str) -> Result<Self> {
         if image.channels != CHANNELS {
             return Err(Error::input(what, format!("a layer needs 5 channels (R,G,B,A,D), found {}", image.channels)));
         }
-        if image.is_empty() {
-            return Err(Error::input(what, "layer is empty (0 pixels)"));
-        }
-        // One parallel pass for the check and the stats, without an early exit (at 12.2 MP a
-        // layer is 61 M values, and a first-hit search on one thread took tens of ms).
-        let stats = Stats::of(&image.data);
-        if let Some(i) = (!stats.finite).then(|| image.data.iter().position(|v| !v.is_finite())).flatten() {
-            let px = i / CHANNELS;
-            return Err(Error::input(
-                what,
-                format!(
-                    "non-finite value in channel {} at pixel ({}, {})",
-                    "RGBAD".as_bytes()[i % CHANNELS] as char,
-                    px % image.width,
-                    px / image.width
-                ),
-            ));
-        }
-        Ok(Layer { image, stats })
+        Layer::checked(image.width, image.height, Cow::Owned(image.data), what)
     }
 
     /// Builds a layer from linear RGB, alpha and disparity planes of equal size.
@@ -137,35 +129,81 @@ impl Layer {
         }
         Layer::new(Image::stack(&[rgb, alpha, disparity]), what)
     }
+}
 
-    /// The layer's 5-channel image (see [`CHANNELS`]).
-    pub fn image(&self) -> &Image {
-        &self.image
+impl<'a> Layer<'a> {
+    /// A layer over the caller's pixels (`width·height·`[`CHANNELS`] values, the layout of
+    /// [`CHANNELS`]), without a copy; checked as [`Layer::new`] checks.
+    pub fn borrowed(width: usize, height: usize, data: &'a [f32], what: &str) -> Result<Self> {
+        if width.checked_mul(height).and_then(|n| n.checked_mul(CHANNELS)) != Some(data.len()) {
+            return Err(Error::input(
+                what,
+                format!(
+                    "a {width}x{height} layer needs {} values, found {}",
+                    width.saturating_mul(height).saturating_mul(CHANNELS),
+                    data.len()
+                ),
+            ));
+        }
+        Layer::checked(width, height, Cow::Borrowed(data), what)
     }
 
-    /// The layer's 5-channel image, by value.
+    /// The one check of both constructors: some pixels, every value finite (one parallel pass
+    /// that also takes the stats, without an early exit: at 12.2 MP a layer is 61 M values,
+    /// and a first-hit search on one thread took tens of ms).
+    fn checked(width: usize, height: usize, data: Cow<'a, [f32]>, what: &str) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(Error::input(what, "layer is empty (0 pixels)"));
+        }
+        let stats = Stats::of(&data);
+        if let Some(i) = (!stats.finite).then(|| data.iter().position(|v| !v.is_finite())).flatten() {
+            let px = i / CHANNELS;
+            return Err(Error::input(
+                what,
+                format!(
+                    "non-finite value in channel {} at pixel ({}, {})",
+                    "RGBAD".as_bytes()[i % CHANNELS] as char,
+                    px % width,
+                    px / width
+                ),
+            ));
+        }
+        Ok(Layer { width, height, data, stats })
+    }
+
+    /// The same layer owning its pixels (a copy when they were borrowed).
+    pub fn into_owned(self) -> Layer<'static> {
+        Layer { width: self.width, height: self.height, data: Cow::Owned(self.data.into_owned()), stats: self.stats }
+    }
+
+    /// The layer's 5-channel image (see [`CHANNELS`]), borrowed.
+    pub fn image(&self) -> ImageRef<'_> {
+        ImageRef { width: self.width, height: self.height, channels: CHANNELS, data: &self.data }
+    }
+
+    /// The layer as a 5-channel [`Image`], by value (no copy when it owns its pixels).
     pub fn into_image(self) -> Image {
-        self.image
+        Image::from_vec(self.width, self.height, CHANNELS, self.data.into_owned()).expect("a layer's length is its shape")
     }
 
     /// Width in pixels.
     pub fn width(&self) -> usize {
-        self.image.width
+        self.width
     }
 
     /// Height in pixels.
     pub fn height(&self) -> usize {
-        self.image.height
+        self.height
     }
 
     /// Alpha of pixel `i` (row-major index).
     pub fn alpha(&self, i: usize) -> f32 {
-        self.image.data[i * CHANNELS + A]
+        self.data[i * CHANNELS + A]
     }
 
     /// Normalized disparity of pixel `i` (row-major index), before the focus is subtracted.
     pub fn disparity(&self, i: usize) -> f32 {
-        self.image.data[i * CHANNELS + D]
+        self.data[i * CHANNELS + D]
     }
 
     /// True if no pixel has alpha > 0: such a layer contributes nothing.
@@ -186,12 +224,12 @@ impl Layer {
 
     /// Applies `f` to the colour channels only (e.g. the official naive gamma).
     pub fn map_colors(&mut self, f: impl Fn(f32) -> f32) {
-        for px in self.image.data.chunks_exact_mut(CHANNELS) {
+        for px in self.data.to_mut().chunks_exact_mut(CHANNELS) {
             for c in &mut px[..3] {
                 *c = f(*c);
             }
         }
-        self.stats = Stats::of(&self.image.data);
+        self.stats = Stats::of(&self.data);
     }
 
     /// `[min, max]` of the disparities of the visible pixels (alpha > 0); None when nothing
@@ -204,12 +242,48 @@ impl Layer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{lens, max_scatter_radius};
+    use crate::render::{Aperture, Kernel, Profile, RenderSettings, lens, max_scatter_radius, render};
 
     /// A `w × h` layer whose pixel `i` is `f(i)`.
-    fn layer(w: usize, h: usize, f: impl Fn(usize) -> [f32; CHANNELS]) -> Layer {
+    fn layer(w: usize, h: usize, f: impl Fn(usize) -> [f32; CHANNELS]) -> Layer<'static> {
         let data = (0..w * h).flat_map(&f).collect();
         Layer::new(Image::from_vec(w, h, CHANNELS, data).unwrap(), "test").unwrap()
+    }
+
+    /// A borrowed layer is the owned one: the same stats, image and render; its checks name
+    /// the source (a length that is not the shape's, a non-finite value, no pixels); changing
+    /// its colours copies them and leaves the caller's values as they were.
+    #[test]
+    fn a_borrowed_layer_is_the_owned_one_and_never_writes() {
+        let (w, h) = (13, 7);
+        let owned = layer(w, h, |i| [0.1 * (i % 7) as f32, 0.5, 2.0, if i % 3 == 0 { 0.0 } else { 1.0 }, 0.3 + 0.01 * i as f32]);
+        let values = owned.image().data.to_vec();
+        let borrowed = Layer::borrowed(w, h, &values, "caller").unwrap();
+        assert_eq!(borrowed, owned);
+        assert_eq!(
+            (borrowed.colour_range(), borrowed.visible_disparity(), borrowed.is_opaque()),
+            (owned.colour_range(), owned.visible_disparity(), owned.is_opaque())
+        );
+        let s = RenderSettings { blur: 6.0, focus: 0.4, lens: 15, occlusion: true, profile: Profile::Physical, aperture: Aperture::DISC };
+        for k in [Kernel::Fast { quality: 2 }, Kernel::Exact] {
+            assert_eq!(render(std::slice::from_ref(&borrowed), &s, k).unwrap(), render(&[owned.clone()], &s, k).unwrap());
+        }
+        let mut dim = borrowed.clone();
+        dim.map_colors(|c| 0.5 * c);
+        assert_eq!(values, owned.image().data, "the caller's values are untouched");
+        assert_eq!(dim.into_owned().colour_range(), owned.colour_range().map(|[lo, hi]| [0.5 * lo, 0.5 * hi]));
+        let err = |r: Result<Layer<'_>>| r.unwrap_err().to_string();
+        assert!(err(Layer::borrowed(w, h + 1, &values, "caller")).contains("caller"));
+        assert!(err(Layer::borrowed(w, h + 1, &values, "caller")).contains(&format!(
+            "needs {} values, found {}",
+            w * (h + 1) * CHANNELS,
+            values.len()
+        )));
+        assert!(err(Layer::borrowed(0, 0, &[], "nothing")).contains("empty"));
+        let mut nan = values.clone();
+        nan[(2 * w + 5) * CHANNELS + D] = f32::NAN;
+        assert!(err(Layer::borrowed(w, h, &nan, "caller")).contains("channel D at pixel (5, 2)"));
+        assert!(err(Layer::borrowed(usize::MAX, 3, &values, "caller")).contains("needs"));
     }
 
     /// The stats taken when a layer is made answer as a pass over its pixels would: a frame

@@ -15,7 +15,7 @@ pub mod raw;
 pub mod splat;
 
 use crate::error::{Error, Result};
-use crate::image::Image;
+use crate::image::{Image, ImageRef};
 pub use aperture::{Aperture, ShapeSpec};
 pub use backward::{Gradients, Smoothing, SpanGradients, SpanTape, Tape, render_differentiable, vjp};
 pub use layer::Layer;
@@ -124,7 +124,7 @@ impl RawLayer {
 }
 
 /// Smallest scatter radius over a layer's visible pixels (alpha > 0); 1.0 if none.
-pub fn min_visible_radius(img: &Image, sigma: &[f32]) -> f32 {
+pub fn min_visible_radius(img: ImageRef<'_>, sigma: &[f32]) -> f32 {
     let m = sigma
         .iter()
         .zip(img.data.chunks_exact(layer::CHANNELS))
@@ -157,7 +157,7 @@ pub fn auto_lens(layers: &[Layer], blur: f32, focus: f32) -> usize {
 }
 
 /// Checks that the layers agree in size and that the settings are usable.
-pub fn validate<L: Borrow<Layer>>(layers: &[L], s: &RenderSettings) -> Result<()> {
+pub fn validate<'a, L: Borrow<Layer<'a>>>(layers: &[L], s: &RenderSettings) -> Result<()> {
     let Some(first) = layers.first().map(Borrow::borrow) else {
         return Err(Error::usage("nothing to render: no layers"));
     };
@@ -292,7 +292,7 @@ fn render_scaled(layers: &[&Layer], s: &RenderSettings, kernel: Kernel, peak: f3
     let scaled = layers
         .iter()
         .map(|l| {
-            let mut image = l.image().clone();
+            let mut image = l.image().to_image();
             image.data.par_chunks_exact_mut(layer::CHANNELS).for_each(|px| px[..3].iter_mut().for_each(|c| *c *= down));
             Layer::new(image, "a layer scaled into the renderer's range")
         })

@@ -47,7 +47,7 @@ impl Rng {
 
 /// A golden-vector case of ../shared/reference: its layers (colours raised to the case's
 /// gamma as the official inference does), settings, layer names and gamma.
-pub fn golden_case(dir: &std::path::Path) -> (Vec<drbokeh::render::Layer>, drbokeh::render::RenderSettings, Vec<String>, f64) {
+pub fn golden_case(dir: &std::path::Path) -> (Vec<drbokeh::render::Layer<'static>>, drbokeh::render::RenderSettings, Vec<String>, f64) {
     use drbokeh::render::{Layer, RenderSettings};
     let params: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("params.json")).unwrap()).unwrap();
     let gamma = params["gamma"].as_f64().unwrap();

@@ -138,7 +138,7 @@ mod tests {
         }
         let half: Vec<usize> = (0..w * h).map(|i| (i * 5) % (pad + 1)).collect();
         let g: Vec<f64> = (0..w * h).map(|i| ((i * 13) % 7) as f64 - 3.0).collect();
-        let forward: f64 = (0..w * h).map(|i| g[i] * box_alpha(&img, i % w, i / w, half[i]) as f64).sum();
+        let forward: f64 = (0..w * h).map(|i| g[i] * box_alpha(img.as_image_ref(), i % w, i / w, half[i]) as f64).sum();
         let mut out = vec![PixelGrad::default(); w * h];
         box_mean_adjoint(w, h, pad, &half, &g, &mut out);
         let adjoint: f64 = (0..w * h).map(|i| out[i].alpha * img.data[i * CHANNELS + A] as f64).sum();

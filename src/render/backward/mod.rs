@@ -150,7 +150,7 @@ impl Record {
 /// # Ok::<(), drbokeh::Error>(())
 /// ```
 pub struct Tape<'a> {
-    layers: &'a [Layer],
+    layers: &'a [Layer<'a>],
     settings: RenderSettings,
     smoothing: Smoothing,
     ray_test: bool,
@@ -165,7 +165,7 @@ pub struct Tape<'a> {
 impl<'a> Tape<'a> {
     /// Renders `layers` with the exact kernel (the physical profile with `smoothing`'s edges)
     /// and keeps what [`Tape::vjp`] needs. Same checks and errors as [`crate::render::render`].
-    pub fn record(layers: &'a [Layer], s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
+    pub fn record(layers: &'a [Layer<'a>], s: &RenderSettings, smoothing: Smoothing) -> Result<Self> {
         Self::record_with(layers, s, smoothing, false)
     }
 
@@ -178,7 +178,7 @@ impl<'a> Tape<'a> {
     /// layers (a transparent pixel's disparity stops rays as an opaque one would). The VJP
     /// differentiates it (the crossing's position and the surface there included). Errors as
     /// [`Tape::record`]; a usage error if `ray_test` is asked of the official profile.
-    pub fn record_with(layers: &'a [Layer], s: &RenderSettings, smoothing: Smoothing, ray_test: bool) -> Result<Self> {
+    pub fn record_with(layers: &'a [Layer<'a>], s: &RenderSettings, smoothing: Smoothing, ray_test: bool) -> Result<Self> {
         validate(layers, s)?;
         smoothing.validate()?;
         if ray_test && s.profile != Profile::Physical {

@@ -6,7 +6,7 @@
 //! at most ~1% of the visible sources are bright, keeping the cost near-constant per pixel.
 
 use super::super::layer::{A, CHANNELS, SCAN_BLOCK, max_rgb, pixel_blocks};
-use crate::Image;
+use crate::ImageRef;
 use rayon::prelude::*;
 
 /// The lowest colour that counts as bright. Disk edges err by up to ~0.015 for colours up to
@@ -31,8 +31,8 @@ pub(super) fn is_bright(c: f32, a: f32, level: f32) -> bool {
 /// that keeps the brightest 1%. Edge errors grow with a source's value relative to its
 /// surroundings, so the brightest sources are the ones that need the exact footprint.
 /// Allocates the colours above [`BRIGHT_MIN`]; O(pixels) (selection, not a sort).
-pub(super) fn bright_level(img: &Image, visible: usize) -> f32 {
-    let mut above: Vec<f32> = pixel_blocks(&img.data)
+pub(super) fn bright_level(img: ImageRef<'_>, visible: usize) -> f32 {
+    let mut above: Vec<f32> = pixel_blocks(img.data)
         .flat_map_iter(|b| b.chunks_exact(CHANNELS).filter(|px| px[A] > 0.0).map(max_rgb).filter(|&c| c > BRIGHT_MIN))
         .collect();
     let budget = (visible / BRIGHT_FRACTION).max(1);
@@ -48,7 +48,7 @@ pub(super) fn bright_level(img: &Image, visible: usize) -> f32 {
 /// the largest of `drawn` over the visible pixels brighter than `level`. `any_max` is that
 /// largest radius at [`BRIGHT_MIN`] (from the survey); 0 when nothing is bright, and then
 /// the image is not read again.
-pub(super) fn bright_sources(img: &Image, visible: usize, any_max: f32, drawn: impl Fn(usize) -> f32 + Sync) -> (f32, f32) {
+pub(super) fn bright_sources(img: ImageRef<'_>, visible: usize, any_max: f32, drawn: impl Fn(usize) -> f32 + Sync) -> (f32, f32) {
     if any_max <= 0.0 {
         return (BRIGHT_MIN, 0.0);
     }
@@ -56,7 +56,7 @@ pub(super) fn bright_sources(img: &Image, visible: usize, any_max: f32, drawn: i
     if level <= BRIGHT_MIN {
         return (level, any_max);
     }
-    let max = pixel_blocks(&img.data)
+    let max = pixel_blocks(img.data)
         .enumerate()
         .map(|(k, b)| {
             let bright = b.chunks_exact(CHANNELS).enumerate().filter(|(_, px)| px[A] > 0.0 && is_bright(max_rgb(px), 1.0, level));
@@ -69,6 +69,7 @@ pub(super) fn bright_sources(img: &Image, visible: usize, any_max: f32, drawn: i
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Image;
 
     /// A 1-row layer image of the given colours (grey), alpha 1 except every 7th pixel.
     fn layer_of(colours: &[f32]) -> (Image, usize) {
@@ -94,7 +95,7 @@ mod tests {
         // A bright sky: most colours above BRIGHT_MIN.
         let colours: Vec<f32> = (0..20_000).map(|_| 0.5 + 10.0 * uniform()).collect();
         let (img, visible) = layer_of(&colours);
-        let level = bright_level(&img, visible);
+        let level = bright_level(img.as_image_ref(), visible);
         let bright = img.data.chunks_exact(CHANNELS).filter(|px| px[A] > 0.0 && is_bright(max_rgb(px), 1.0, level)).count();
         assert!(level > BRIGHT_MIN);
         assert_eq!(bright, visible / BRIGHT_FRACTION, "level {level}");
@@ -111,11 +112,11 @@ mod tests {
             few[i] = 40.0;
         }
         let (img, visible) = layer_of(&few);
-        assert_eq!(bright_level(&img, visible), BRIGHT_MIN);
-        let (level, max) = bright_sources(&img, visible, 9.0, |i| i as f32);
+        assert_eq!(bright_level(img.as_image_ref(), visible), BRIGHT_MIN);
+        let (level, max) = bright_sources(img.as_image_ref(), visible, 9.0, |i| i as f32);
         assert_eq!((level, max), (BRIGHT_MIN, 9.0));
         let (img, visible) = layer_of(&colours);
-        let (level, max) = bright_sources(&img, visible, 9.0, |i| i as f32);
+        let (level, max) = bright_sources(img.as_image_ref(), visible, 9.0, |i| i as f32);
         let want = img
             .data
             .chunks_exact(CHANNELS)
@@ -124,6 +125,6 @@ mod tests {
             .map(|(i, _)| i as f32)
             .fold(0.0, f32::max);
         assert_eq!(max, want);
-        assert_eq!(bright_sources(&img, visible, 0.0, |_| 1.0), (BRIGHT_MIN, 0.0));
+        assert_eq!(bright_sources(img.as_image_ref(), visible, 0.0, |_| 1.0), (BRIGHT_MIN, 0.0));
     }
 }

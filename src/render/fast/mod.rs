@@ -139,7 +139,7 @@ pub struct FastStats {
 /// Per-layer state shared by every stripe: the settings, the scatter radii and the
 /// thresholds the survey decided.
 struct Ctx<'a> {
-    img: &'a crate::Image,
+    img: crate::ImageRef<'a>,
     s: &'a RenderSettings,
     /// Where the layer sits in the stack (the physical profile's visibility).
     role: Role,
@@ -180,7 +180,7 @@ struct Ctx<'a> {
 impl<'a> Ctx<'a> {
     /// The thresholds of one layer from its survey: weight unit, band nodes, stencil table
     /// and bright level. Reads the image again only when bright sources are many.
-    fn new(img: &'a crate::Image, s: &'a RenderSettings, role: Role, params: FastParams, sigma: Vec<f32>, survey: &Survey) -> Self {
+    fn new(img: crate::ImageRef<'a>, s: &'a RenderSettings, role: Role, params: FastParams, sigma: Vec<f32>, survey: &Survey) -> Self {
         let p = s.lens / 2;
         let stencil_reach = params.stencil_max.min(survey.sigma_max) + STENCIL_TAIL;
         let (bright_level, bright_max) =

@@ -211,7 +211,7 @@ pub(super) struct DepthReach {
 impl DepthReach {
     /// The reach ranges of a layer (`img`, relative to `focus`) whose sources reach at most
     /// `reach` pixels.
-    pub(super) fn new(img: &crate::Image, focus: f32, reach: f32) -> Self {
+    pub(super) fn new(img: crate::ImageRef<'_>, focus: f32, reach: f32) -> Self {
         let (w, h) = (img.width, img.height);
         let (nx, ny) = (w.div_ceil(TILE), h.div_ceil(TILE));
         // Rows of tiles in parallel: the layer is read once, on every core (a serial read of a

@@ -6,7 +6,7 @@ use super::bright::{BRIGHT_MIN, is_bright};
 use super::coarse::level_of;
 use super::footprint::{drawn, source_radius};
 use super::{Ctx, FastParams};
-use crate::Image;
+use crate::ImageRef;
 use crate::render::RenderSettings;
 use crate::render::layer::{A, CHANNELS, D, max_rgb};
 use rayon::prelude::*;
@@ -79,7 +79,7 @@ impl Survey {
 
 /// One parallel pass over the layer: the scatter radius of every pixel (allocated, 4 bytes
 /// per pixel) and the [`Survey`].
-pub(super) fn survey(img: &Image, s: &RenderSettings, params: FastParams) -> (Vec<f32>, Survey) {
+pub(super) fn survey(img: ImageRef<'_>, s: &RenderSettings, params: FastParams) -> (Vec<f32>, Survey) {
     let (w, h) = (img.width, img.height);
     let p = s.lens / 2;
     let mut sigma = vec![0f32; w * h];

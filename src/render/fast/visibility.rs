@@ -3,7 +3,7 @@
 
 use super::super::layer::{A, CHANNELS};
 use super::super::lens::visibility_half_size;
-use crate::Image;
+use crate::ImageRef;
 
 /// Non-focal visibility (eq. 4) of rows `[y0, y1)` into `out`: box means of the
 /// replicate-padded alpha from a summed-area table `sat` (scratch, f64) of just the rows the
@@ -11,7 +11,7 @@ use crate::Image;
 /// O(1) per pixel plus the table, `(rows + 2n)·(w + 2n)` for the stripe's largest box
 /// half-size n; no table at all when every box is one pixel or the rows' alpha is constant.
 #[inline(never)]
-pub(super) fn visibility_rows(img: &Image, sigma: &[f32], p: usize, y0: usize, y1: usize, sat: &mut Vec<f64>, out: &mut Vec<f32>) {
+pub(super) fn visibility_rows(img: ImageRef<'_>, sigma: &[f32], p: usize, y0: usize, y1: usize, sat: &mut Vec<f64>, out: &mut Vec<f32>) {
     let (w, h) = (img.width, img.height);
     let nmax = sigma[y0 * w..y1 * w].iter().map(|&s| visibility_half_size(s, p)).max().unwrap_or(0);
     out.clear();
@@ -61,6 +61,7 @@ pub(super) fn visibility_rows(img: &Image, sigma: &[f32], p: usize, y0: usize, y
 mod tests {
     use super::super::super::exact::box_alpha;
     use super::*;
+    use crate::Image;
 
     #[test]
     fn summed_area_visibility_is_the_box_mean() {
@@ -88,11 +89,11 @@ mod tests {
             let (mut sat, mut out) = (Vec::new(), Vec::new());
             for y0 in (0..h).step_by(64) {
                 let y1 = (y0 + 64).min(h);
-                visibility_rows(&img, &sigma, p, y0, y1, &mut sat, &mut out);
+                visibility_rows(img.as_image_ref(), &sigma, p, y0, y1, &mut sat, &mut out);
                 assert_eq!(out.len(), (y1 - y0) * w);
                 for y in y0..y1 {
                     for x in 0..w {
-                        let want = box_alpha(&img, x, y, visibility_half_size(sigma[y * w + x], p));
+                        let want = box_alpha(img.as_image_ref(), x, y, visibility_half_size(sigma[y * w + x], p));
                         let got = out[(y - y0) * w + x];
                         assert!((got - want).abs() <= 1e-6, "{w}x{h} p={p} ({x},{y}): {got} vs {want}");
                     }

@@ -2,7 +2,7 @@
 //! ([`Model`]) and the per-pixel terms ([`Ctx`]).
 
 use super::bins::Bins;
-use crate::image::Image;
+use crate::image::ImageRef;
 use crate::render::fast::footprint::{RIM, STENCIL_TAIL, smooth_coverage_disk, soft_step_disk};
 use crate::render::layer::{CHANNELS, D, Layer};
 use crate::render::lens::{self, Profile};
@@ -35,7 +35,7 @@ impl Model {
 /// The per-pixel terms every pass reads: relative disparity, footprint radius (`R` or `σ`),
 /// norm `N` (the footprint's value is `cov/N`) and its derivative, `∂R/∂d`.
 pub(super) struct Ctx<'a> {
-    pub(super) img: &'a Image,
+    pub(super) img: ImageRef<'a>,
     pub(super) w: usize,
     pub(super) h: usize,
     /// Lens window half-size (taps `|offset| < p`).
