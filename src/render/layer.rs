@@ -266,7 +266,7 @@ mod tests {
         );
         let s = RenderSettings { blur: 6.0, focus: 0.4, lens: 15, occlusion: true, profile: Profile::Physical, aperture: Aperture::DISC };
         for k in [Kernel::Fast { quality: 2 }, Kernel::Exact] {
-            assert_eq!(render(std::slice::from_ref(&borrowed), &s, k).unwrap(), render(&[owned.clone()], &s, k).unwrap());
+            assert_eq!(render(std::slice::from_ref(&borrowed), &s, k).unwrap(), render(std::slice::from_ref(&owned), &s, k).unwrap());
         }
         let mut dim = borrowed.clone();
         dim.map_colors(|c| 0.5 * c);
