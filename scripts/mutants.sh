@@ -11,7 +11,7 @@
 #                                       # its target/ instead of a cold build in a copy
 #   MUTANTS_RE='in (boost|solve_radiance)$' scripts/mutants.sh ...  # only the mutants whose
 #                                       # name matches (cargo-mutants --re: a file's rules by function)
-#   MUTANTS_TESTS="--lib light_recovery" ...   # a test-name filter after the targets
+#   MUTANTS_TESTS="--lib light_recovery" ...   # test-name filters after the targets (any number)
 #   MUTANTS_PROFILE=release scripts/mutants.sh ...  # another cargo profile (default: `mutants`,
 #                                       # Cargo.toml: opt-level 1, incremental)
 #
@@ -66,6 +66,9 @@ for ((i = 0; i < ${#tests[@]}; i++)); do
         *) filters+=(--cargo-test-arg="${tests[$i]}") ;;
     esac
 done
+# Test-name filters go after `--`: cargo test takes one before it, the test harness any number
+# (`MUTANTS_TESTS="--lib --test embedded_depth dynamic damaged"`).
+[ ${#filters[@]} -gt 0 ] && filters=(--cargo-test-arg=-- "${filters[@]}")
 # A fresh worktree has no target/ yet; cargo-mutants wants the output's parent to exist.
 mkdir -p target
 exec .tools/bin/cargo-mutants mutants "${list[@]}" "${files[@]}" --output target/mutants --timeout-multiplier 3 --minimum-test-timeout 120 \

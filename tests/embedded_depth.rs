@@ -15,7 +15,7 @@ mod gdepth;
 use common::assert_usage_error;
 use drbokeh::Image;
 use drbokeh::io::{self, ReadLimits};
-use dynamic_depth::DynamicDepthJpeg;
+use dynamic_depth::{DynamicDepthJpeg, Item};
 use gdepth::{GDepthJpeg, depth_of, grey_png, normalized, photo_jpeg, quantized};
 use std::path::Path;
 use std::process::{Command, Output};
@@ -598,9 +598,29 @@ fn bad_dynamic_depth_exits_2_naming_the_field() {
         b[..b.len() - png.len() / 2].to_vec()
     };
     let long = (png.len() + 1000).to_string();
+    // Where the item starts, counted from the primary image's end: after the confidence map.
+    let from = format!("from byte {} of the {} bytes", conf.len(), conf.len() + png.len());
+    // The same length, so the APP1 segment's length still holds: the XMP then has no directory.
+    let undirected = {
+        let mut b = good.bytes();
+        let (tag, other) = (b"Container:Directory", b"Container:Directorz");
+        let mut k = 0;
+        while k + tag.len() <= b.len() {
+            if &b[k..k + tag.len()] == tag {
+                b[k..k + tag.len()].copy_from_slice(other);
+            }
+            k += 1;
+        }
+        b
+    };
     let cases: Vec<(&str, Vec<u8>, Vec<&str>)> = vec![
         ("file cut inside the depth item", cut, vec!["Container:Item 2", "android/depthmap", "beyond the file's end"]),
-        ("length beyond the end", good.clone().item_field(2, "Length", Some(&long)).bytes(), vec!["Container:Item 2", "Item:Length"]),
+        (
+            "length beyond the end",
+            good.clone().item_field(2, "Length", Some(&long)).bytes(),
+            vec!["Container:Item 2", "Item:Length", &from],
+        ),
+        ("no directory", undirected, vec!["DepthMap", "no Container:Directory"]),
         (
             "depth URI names no item",
             good.clone().depth_field("DepthURI", Some("android/nothing")).bytes(),
@@ -668,6 +688,17 @@ fn bad_dynamic_depth_exits_2_naming_the_field() {
     std::fs::write(d.join("lower.jpg"), good.clone().depth_field("Format", Some("rangeinverse")).bytes()).unwrap();
     let j = ok_json(d, &["inspect", "lower.jpg", "--json"]);
     assert_eq!(j["depth"]["format"], "RangeInverse", "{j}");
+    // The primary image takes no room after itself, so its Padding is not checked against its
+    // Length; an item of no bytes (no padding either) is allowed where it is not the depth map.
+    let mut empty = good.clone().item_field(0, "Padding", Some("4"));
+    let nothing = Item {
+        fields: vec![("Mime".into(), "image/png".into()), ("Length".into(), "0".into()), ("DataURI".into(), "android/empty".into())],
+        payload: Vec::new(),
+    };
+    empty.items.insert(1, nothing);
+    std::fs::write(d.join("empty.jpg"), empty.bytes()).unwrap();
+    let j = ok_json(d, &["inspect", "empty.jpg", "--json"]);
+    assert_eq!(j["depth"]["container"], "dynamic-depth", "{j}");
     std::fs::write(d.join("seg.jpg"), good.clone().depth_field("ItemSemantic", Some("Segmentation")).bytes()).unwrap();
     let j = ok_json(d, &["inspect", "seg.jpg", "--json"]);
     assert!(j["depth"].is_null(), "{j}");
