@@ -2,9 +2,10 @@
 //! `drbokeh::bench::{trace, run}`.
 
 use crate::{ApertureArgs, as_flags, set_threads};
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, ValueEnum};
 use drbokeh::Error;
-use drbokeh::bench::dfd_eval::{self, DfdBenchOptions};
+use drbokeh::bench::dfd_eval::{self, DfdBenchOptions, DfdMethod};
 use drbokeh::bench::inputs::Input;
 use drbokeh::bench::run::{self as bench_run, BenchOptions, Method};
 use drbokeh::bench::trace::{self, Footprint, Plane, TraceSettings, Window};
@@ -192,6 +193,17 @@ pub struct BenchArgs {
     /// Methods to run (comma-separated) [default: all].
     #[arg(long, value_name = "LIST", value_enum, value_delimiter = ',', num_args = 1.., ignore_case = true)]
     methods: Vec<MethodArg>,
+    /// With --dfd: the depth-from-defocus methods to run (comma-separated, report names)
+    /// [default: all]. The acceptance checks compare the default method with the ablations
+    /// that ran.
+    #[arg(
+        long = "dfd-methods",
+        value_name = "LIST",
+        value_delimiter = ',',
+        num_args = 1..,
+        value_parser = PossibleValuesParser::new(DfdMethod::ALL.map(DfdMethod::name)).map(|s: String| DfdMethod::parse(&s).expect("a listed name")),
+    )]
+    dfd_methods: Vec<DfdMethod>,
     /// What the methods are fed (comma-separated): the linear HDR view, and the same view as an
     /// 8-bit sRGB photo clipped at white, without and with a camera PSF [default: all three;
     /// with --dfd: linear, and both photos of a case are fed alike].
@@ -253,6 +265,9 @@ pub fn bench(args: BenchArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     if args.dfd {
         return bench_dfd(args);
+    }
+    if !args.dfd_methods.is_empty() {
+        return Err(Error::usage("--dfd-methods needs --dfd (--methods chooses the rendering methods)").into());
     }
     let (w, h) = args.size.unwrap_or((256, 256));
     let scenes = args.scenes.unwrap_or(50);
@@ -319,7 +334,7 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
     let (w, h) = args.size.unwrap_or((d.width, d.height));
     drbokeh::resources::check_memory(&format!("a {w}x{h} bench scene"), (w * h) as u64 * BENCH_BYTES_PER_PIXEL)?;
     if !args.methods.is_empty() || args.textures.is_some() {
-        return Err(Error::usage("--methods and --textures are not used with --dfd (every depth-from-defocus method runs)").into());
+        return Err(Error::usage("--methods and --textures are not used with --dfd (--dfd-methods chooses its methods)").into());
     }
     if args.iters == 0 || args.levels == 0 {
         return Err(Error::usage("--iters and --levels must be at least 1").into());
@@ -334,7 +349,11 @@ fn bench_dfd(args: BenchArgs) -> anyhow::Result<()> {
         spp: args.spp.unwrap_or(d.spp).clamp(2, 1 << 20),
         iters: args.iters,
         levels: args.levels,
-        methods: d.methods.clone(),
+        methods: if args.dfd_methods.is_empty() {
+            d.methods.clone()
+        } else {
+            DfdMethod::ALL.into_iter().filter(|m| args.dfd_methods.contains(m)).collect()
+        },
         inputs: inputs_of(&args.inputs, &d.inputs),
         out: args.out.clone(),
         command: command_line(),

@@ -127,6 +127,37 @@ fn dfd_bench_takes_a_non_square_frame_and_8bit_photos() {
     assert!(md.contains("are for `linear`"), "{md}");
 }
 
+/// `--dfd-methods` runs only the methods named (in report order, whatever the order given);
+/// the acceptance checks compare with the ablations that ran. A name it does not know, or the
+/// flag without `--dfd`, is a usage error naming it.
+#[test]
+fn dfd_bench_runs_the_methods_asked_for() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let out = run({
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd", "--scenes", "1", "--size", "24x24", "--iters", "5", "--levels", "1", "--spp", "16"]);
+        c.args(["--dfd-methods", "drbokeh-no-occlusion,drbokeh-physical", "--out", "rep"]);
+        c
+    });
+    assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
+    let text = std::fs::read_to_string(dir.join("rep/report.csv")).unwrap();
+    let methods: Vec<&str> = text.lines().skip(1).map(|l| l.split(',').nth(2).unwrap()).collect();
+    assert_eq!(methods, ["true-disparity", "init", "drbokeh-physical", "drbokeh-no-occlusion"], "{text}");
+    let md = std::fs::read_to_string(dir.join("rep/report.md")).unwrap();
+    assert!(md.contains("**drbokeh-physical** vs **drbokeh-no-occlusion**") && !md.contains("gauss-psf"), "{md}");
+    assert_usage_error(dir, "an unknown method", &["--dfd-methods", "gauss"], || {
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd", "--dfd-methods", "gauss", "--out", "x"]);
+        run(c)
+    });
+    assert_usage_error(dir, "without --dfd", &["--dfd-methods", "--dfd"], || {
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd-methods", "drbokeh-physical", "--out", "x"]);
+        run(c)
+    });
+}
+
 /// The ray test (the default plan at this size) fixes the span render's worst failure: on the
 /// shared Mitsuba portrait at 64 px, whose HDR highlights sit in a textureless sky, the span
 /// render's estimate re-renders the far focus at 19.8 dB linear, the ray test's at 35.5 (the

@@ -95,6 +95,11 @@ impl DfdMethod {
         }
     }
 
+    /// The method named `name` in report.csv ([`DfdMethod::name`]); None for another name.
+    pub fn parse(name: &str) -> Option<DfdMethod> {
+        DfdMethod::ALL.into_iter().find(|m| m.name() == name)
+    }
+
     /// What the method is, for the report.
     pub fn label(self) -> &'static str {
         match self {
