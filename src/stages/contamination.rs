@@ -108,6 +108,20 @@ pub fn contaminated(rgb: &Image, alpha: &Image, clean: impl Fn(usize) -> bool + 
 mod tests {
     use super::*;
 
+    /// Each channel's median is its own: pixel `i` of a 3×3 image is `[i, 8 − i, 5·i mod 9]`,
+    /// and the window without pixels 0 and 1 has the medians 5, 3 and 4 (of three different
+    /// pixels). None when the filter takes no pixel.
+    #[test]
+    fn window_median_is_taken_per_channel() {
+        let data: Vec<f32> = (0..9).flat_map(|i| [i as f32, (8 - i) as f32, ((5 * i) % 9) as f32]).collect();
+        let img = Image::from_vec(3, 3, 3, data).unwrap();
+        let mut scratch = Default::default();
+        assert_eq!(window_median(&img, (1, 1), 1, |j| j > 1, &mut scratch), Some([5.0, 3.0, 4.0]));
+        assert_eq!(window_median(&img, (1, 1), 1, |_| false, &mut scratch), None);
+        // Clipped to the image: the corner's window is its 2×2 block (pixels 0, 1, 3, 4).
+        assert_eq!(window_median(&img, (0, 0), 1, |j| j != 0, &mut scratch), Some([3.0, 5.0, 5.0]));
+    }
+
     #[test]
     fn mixes_and_non_mixes() {
         let (b, f) = ([0.2, 0.3, 0.2], [0.8, 0.1, 0.1]);
