@@ -1,7 +1,8 @@
 //! Where a cat's eye render leaves the tracer on a generated bench scene: `SCENE=7 SEED=1
 //! STRENGTH=1 [FAST=2] cargo run --release --example diag_cat_eye` traces and renders (exact kernel) the
 //! scene with and without the cat's eye, prints their PSNRs, the worst pixels and the total
-//! light, and writes sRGB PNGs of both to `$OUT` (default /tmp/diag).
+//! light, and writes sRGB PNGs of both to `$OUT` (default /tmp/diag). `BUBBLE=B` puts a disc
+//! with the bubble profile `B` in the cat's eye's place.
 use drbokeh::Image;
 use drbokeh::bench::metrics::srgb;
 use drbokeh::bench::run::score;
@@ -26,7 +27,13 @@ fn main() -> drbokeh::Result<()> {
     let sc = generate(seed, index, 128, 128, &[]);
     let inputs = sc.inputs()?;
     println!("{}: blur {} focus {} planes {:?}", sc.name, sc.blur, sc.focus, sc.planes.iter().map(|p| p.disparity).collect::<Vec<_>>());
-    for (name, a) in [("disc", Aperture::DISC), ("cat", Aperture::DISC.with_cat_eye(strength)?)] {
+    let b = env("BUBBLE", 0.0) as f32;
+    let second = if b != 0.0 {
+        ("bubble", Aperture::with_bubble(&drbokeh::render::aperture::ShapeSpec::Disc, 1.0, b, "b")?)
+    } else {
+        ("cat", Aperture::DISC.with_cat_eye(strength)?)
+    };
+    for (name, a) in [("disc", Aperture::DISC), second] {
         let mut ts = TraceSettings::new(sc.blur, sc.focus, 256, seed ^ (index as u64) << 20);
         ts.aperture = a;
         let gt = trace(&sc.trace_planes(), &ts, sc.window(), &|_| {})?;

@@ -27,6 +27,8 @@ SHAPES = [
     ("image:star.png", ["--aperture", "image:" + os.path.relpath(STAR, ROOT)]),
     ("--chromatic 0.05", ["--chromatic", "0.05"]),
     ("--cat-eye 1", ["--cat-eye", "1"]),
+    ("--bubble 0.5", ["--bubble", "0.5"]),
+    ("--bubble -0.5", ["--bubble", "-0.5"]),
 ]
 SEEDS = [1, 2]
 
