@@ -19,6 +19,18 @@ fn read_csv(text: &str) -> BTreeMap<(String, String), BTreeMap<String, String>> 
         .collect()
 }
 
+/// `bench --dfd` on one generated scene of `size`, 5 steps at one level, 16 rays a pixel,
+/// with `more` flags, its report in `dir/rep`; asserts exit 0.
+fn tiny_bench(dir: &std::path::Path, size: &str, more: &[&str]) {
+    let out = run({
+        let mut c = drbokeh(dir);
+        c.args(["bench", "--dfd", "--scenes", "1", "--size", size, "--iters", "5", "--levels", "1", "--spp", "16", "--out", "rep"]);
+        c.args(more);
+        c
+    });
+    assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
+}
+
 #[test]
 fn dfd_bench_writes_a_sane_report() {
     let tmp = tempfile::tempdir().unwrap();
@@ -91,13 +103,7 @@ fn dfd_bench_writes_a_sane_report() {
 fn dfd_bench_takes_a_non_square_frame_and_8bit_photos() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let out = run({
-        let mut c = drbokeh(dir);
-        c.args(["bench", "--dfd", "--scenes", "1", "--size", "40x24", "--iters", "5", "--levels", "1", "--spp", "16"]);
-        c.args(["--inputs", "srgb8,linear", "--out", "rep"]);
-        c
-    });
-    assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
+    tiny_bench(dir, "40x24", &["--inputs", "srgb8,linear"]);
     let fig = image::open(dir.join("rep/figures/s000.png")).expect("the figure");
     // Panels of 40x24 at 2x zoom under an 18 px label band.
     assert_eq!(fig.height(), 24 * 2 + 18);
@@ -134,13 +140,7 @@ fn dfd_bench_takes_a_non_square_frame_and_8bit_photos() {
 fn dfd_bench_runs_the_methods_asked_for() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let out = run({
-        let mut c = drbokeh(dir);
-        c.args(["bench", "--dfd", "--scenes", "1", "--size", "24x24", "--iters", "5", "--levels", "1", "--spp", "16"]);
-        c.args(["--dfd-methods", "drbokeh-no-occlusion,drbokeh-physical", "--out", "rep"]);
-        c
-    });
-    assert!(out.status.success(), "bench --dfd failed: {}", stderr(&out));
+    tiny_bench(dir, "24x24", &["--dfd-methods", "drbokeh-no-occlusion,drbokeh-physical"]);
     let text = std::fs::read_to_string(dir.join("rep/report.csv")).unwrap();
     let methods: Vec<&str> = text.lines().skip(1).map(|l| l.split(',').nth(2).unwrap()).collect();
     assert_eq!(methods, ["true-disparity", "init", "drbokeh-physical", "drbokeh-no-occlusion"], "{text}");

@@ -604,12 +604,8 @@ fn bad_dynamic_depth_exits_2_naming_the_field() {
     let undirected = {
         let mut b = good.bytes();
         let (tag, other) = (b"Container:Directory", b"Container:Directorz");
-        let mut k = 0;
-        while k + tag.len() <= b.len() {
-            if &b[k..k + tag.len()] == tag {
-                b[k..k + tag.len()].copy_from_slice(other);
-            }
-            k += 1;
+        while let Some(k) = b.windows(tag.len()).position(|w| w == tag) {
+            b[k..k + tag.len()].copy_from_slice(other);
         }
         b
     };
