@@ -97,7 +97,12 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
         .collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];
     let p = (s.lens / 2) as i64;
-    out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each_init(ShapeTables::default, |tables, (y, row)| {
+    // Sources with a cut (a cat's eye) each have their own coverage: no tables.
+    let tables = shape
+        .as_ref()
+        .filter(|g| !g.cut())
+        .map(|g| ShapeTables::new(g.geometry(), &radius, |j| d[j] > 0.0, |j| img.data[j * CHANNELS + A] != 0.0, p));
+    out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each(|(y, row)| {
         for x in 0..w {
             let dx = d[y * w + x];
             // [in front, same surface, behind] × [P_r, P_g, P_b, A], f64 as in the official kernel.
@@ -107,13 +112,19 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                 let xx = (x as i64 + t.dj as i64).clamp(0, w as i64 - 1) as usize;
                 let j = yy * w + xx;
                 let px = &img.data[j * CHANNELS..(j + 1) * CHANNELS];
+                // A transparent source adds nothing (skipped before its coverage is formed).
+                if px[A] == 0.0 {
+                    continue;
+                }
                 let cov = match &shape {
                     None => lens::disk_coverage(radius[j], t.r),
                     // A source in front of the focal plane (d > 0) shows the shape point-reflected.
-                    Some(g) if g.cut() => g.coverage(j, radius[j], d[j] > 0.0, t),
-                    Some(g) => tables.coverage(g.geometry(), radius[j], d[j] > 0.0, p, t),
+                    Some(g) => match &tables {
+                        Some(tables) => tables.coverage(g.geometry(), j, radius[j], d[j] > 0.0, p, t),
+                        None => g.coverage(j, radius[j], d[j] > 0.0, t),
+                    },
                 };
-                if px[A] == 0.0 || cov == 0.0 {
+                if cov == 0.0 {
                     continue;
                 }
                 // cov / norm, not cov · (1/norm): an in-focus source's weight is exactly 1.
@@ -133,30 +144,61 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     RawLayer::new(w, h, out, layer)
 }
 
-/// A worker's tables of a shape's coverage over the lens window, one per CoC and side of the
-/// focal plane met (a layer's planes share a few): [`Geometry::coverage`] costs up to 16 area
-/// clips on the outline, a table look-up one index. Past [`ShapeTables::MAX`] tables, new CoCs
-/// (a slanted surface has one per pixel) are evaluated tap by tap; the values are the same.
-#[derive(Default)]
+/// A layer's tables of a shape's coverage over the lens window, one per CoC and side of the
+/// focal plane shared by visible sources (a layer's planes share a few): [`Geometry::coverage`]
+/// costs up to 16 area clips on the outline, a table look-up one index. A table costs one
+/// window of coverages (about the taps one source meets), so only a (CoC, side) met by at least
+/// two visible sources gets one, the [`ShapeTables::MAX`] most common first; the others (a
+/// slanted surface has one CoC per pixel) are evaluated tap by tap. The values are the same.
+///
+/// Built once per layer, in parallel, and looked up through a per-source index: a hash per tap
+/// (the workers' lazily filled maps this replaces) was a fifth of a shaped exact render.
+/// Allocates the tables and one index per pixel.
 struct ShapeTables {
-    tables: std::collections::HashMap<(u32, bool), Vec<f32>>,
+    tables: Vec<Vec<f32>>,
+    /// Per source pixel (row-major), its table in `tables`, or [`ShapeTables::NONE`].
+    of: Vec<u32>,
 }
 
 impl ShapeTables {
     const MAX: usize = 64;
+    const NONE: u32 = u32::MAX;
 
-    /// The coverage of tap `t` by a source of CoC `r` (point-reflected when `flip`) in a
-    /// window of half-size `p`: the target sits `(-dj, di)` from the source (y up).
-    fn coverage(&mut self, g: &Geometry, r: f32, flip: bool, p: i64, t: &Tap) -> f32 {
-        let side = 2 * p + 1;
-        let index = ((t.di as i64 + p) * side + t.dj as i64 + p) as usize;
-        let key = (r.to_bits(), flip);
-        if !self.tables.contains_key(&key) && self.tables.len() >= Self::MAX {
-            return g.coverage(r, -t.dj as f32, t.di as f32, flip);
+    /// The tables of the sources `j` with `visible(j)`, CoC `radius[j]`, point-reflected when
+    /// `flip[j]` (in front of the focal plane), in a window of half-size `p`.
+    fn new(g: &Geometry, radius: &[f32], flip: impl Fn(usize) -> bool, visible: impl Fn(usize) -> bool, p: i64) -> ShapeTables {
+        let key = |j: usize| (radius[j].to_bits(), flip(j));
+        let mut count = std::collections::HashMap::new();
+        for j in (0..radius.len()).filter(|&j| visible(j)) {
+            *count.entry(key(j)).or_insert(0usize) += 1;
         }
-        self.tables.entry(key).or_insert_with(|| {
-            (-p..=p).flat_map(|di| (-p..=p).map(move |dj| (di, dj))).map(|(di, dj)| g.coverage(r, -dj as f32, di as f32, flip)).collect()
-        })[index]
+        let mut keys: Vec<_> = count.into_iter().filter(|&(_, n)| n >= 2).collect();
+        // Most common first; ties by key, so the choice never depends on the map's order.
+        keys.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        keys.truncate(Self::MAX);
+        let tables = keys
+            .par_iter()
+            .map(|&((r, flip), _)| {
+                let r = f32::from_bits(r);
+                (-p..=p)
+                    .flat_map(|di| (-p..=p).map(move |dj| (di, dj)))
+                    .map(|(di, dj)| g.coverage(r, -dj as f32, di as f32, flip))
+                    .collect()
+            })
+            .collect();
+        let index: std::collections::HashMap<_, u32> = keys.iter().enumerate().map(|(k, &(key, _))| (key, k as u32)).collect();
+        let of =
+            (0..radius.len()).map(|j| if visible(j) { index.get(&key(j)).copied().unwrap_or(Self::NONE) } else { Self::NONE }).collect();
+        ShapeTables { tables, of }
+    }
+
+    /// The coverage of tap `t` by source `j` of CoC `r` (point-reflected when `flip`) in a
+    /// window of half-size `p`: the target sits `(-dj, di)` from the source (y up).
+    fn coverage(&self, g: &Geometry, j: usize, r: f32, flip: bool, p: i64, t: &Tap) -> f32 {
+        match self.of[j] {
+            Self::NONE => g.coverage(r, -t.dj as f32, t.di as f32, flip),
+            k => self.tables[k as usize][((t.di as i64 + p) * (2 * p + 1) + t.dj as i64 + p) as usize],
+        }
     }
 }
 
