@@ -5,7 +5,11 @@
 #
 #   scripts/mutants.sh                  # the scoped modules below
 #   scripts/mutants.sh src/io/atomic.rs # one file (repeat for more)
-#   MUTANTS_TESTS="--lib --test cli" scripts/mutants.sh ...   # another test subset
+#   MUTANTS_TESTS="--lib --test suite tests:: cli::" scripts/mutants.sh ...   # another test subset
+#                                       # (the integration tests are one binary, `suite`, a module
+#                                       # per file of tests/: `cli::` picks tests/cli.rs and every
+#                                       # *_cli.rs; name filters apply to --lib's tests too, whose
+#                                       # names hold `tests::`)
 #   scripts/mutants.sh --list           # list the mutants only
 #   MUTANTS_IN_PLACE=1 scripts/mutants.sh ...  # mutate this tree (a spare worktree) and reuse
 #                                       # its target/ instead of a cold build in a copy
@@ -50,7 +54,9 @@ if [ ${#files[@]} -eq 0 ]; then
     done
 fi
 # The fast tests that exercise these modules; the full suite per mutant would take hours.
-read -r -a tests <<< "${MUTANTS_TESTS:---lib --test cli --test batch --test invariants --test stability --test backward}"
+# `tests::` keeps every unit test of --lib (their modules are `tests`); the rest pick files of
+# the integration suite.
+read -r -a tests <<< "${MUTANTS_TESTS:---lib --test suite tests:: cli:: batch:: invariants:: stability:: backward::}"
 # Target selectors (--lib, --test NAME, ...) go to the build as well as to the test run
 # (`--cargo-arg`): without them each mutant's build compiled every test binary and example
 # (~40 targets, 2-4 minutes at nice 19) to run four. Test-name filters go to the run only.
@@ -67,7 +73,7 @@ for ((i = 0; i < ${#tests[@]}; i++)); do
     esac
 done
 # Test-name filters go after `--`: cargo test takes one before it, the test harness any number
-# (`MUTANTS_TESTS="--lib --test embedded_depth dynamic damaged"`).
+# (`MUTANTS_TESTS="--lib --test suite embedded_depth::dynamic embedded_depth::damaged"`).
 [ ${#filters[@]} -gt 0 ] && filters=(--cargo-test-arg=-- "${filters[@]}")
 # A fresh worktree has no target/ yet; cargo-mutants wants the output's parent to exist.
 mkdir -p target

@@ -3,7 +3,7 @@
 //! from the renderer's geometry), fast against exact on layered scenes, flux, and the
 //! conventions README states (vertex direction, point reflection in front of the focal plane).
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::render::{self, Aperture, Kernel, Layer, Profile, RenderSettings, ShapeSpec};

@@ -3,7 +3,7 @@
 //! against the library's f32 forward first), on seeded random small scenes with pixels near the
 //! focal plane and at occlusion boundaries, both profiles; and finiteness on the extreme grid.
 
-mod common;
+use crate::common;
 
 use common::Rng;
 use drbokeh::Image;

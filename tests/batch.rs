@@ -1,6 +1,6 @@
 //! `drbokeh batch`: pairing, resumability, sharding, manifests, failures and exit codes.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::color::Transfer;

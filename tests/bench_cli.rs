@@ -1,7 +1,7 @@
 //! `drbokeh trace` and `drbokeh bench` end to end (tiny sizes), and the metrics on hand-made
 //! pairs.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::bench::metrics::{psnr, rmse, si_rmse, ssim, zncc};

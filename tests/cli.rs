@@ -6,7 +6,7 @@
 //! binary runs with that folder as its working directory. Images are tiny (32x24) so the whole
 //! file runs in seconds.
 
-mod common;
+use crate::common;
 use common::{crc32, list_files, max_abs_diff, run_within, snapshot};
 
 use drbokeh::Image;

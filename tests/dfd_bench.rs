@@ -2,7 +2,7 @@
 //! shared Mitsuba scenes at 32 px, few Adam steps. Checks the report's files and that its
 //! numbers are sane (the true disparity re-renders well, every estimate beats the start).
 
-mod common;
+use crate::common;
 
 use common::{assert_usage_error, drbokeh, run, shared_dir, stderr};
 use std::collections::BTreeMap;

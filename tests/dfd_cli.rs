@@ -2,7 +2,7 @@
 //! map out), the loss log and plot, the ablation, the usage-error contract, and the reliability
 //! rules (a start that can move, what the photo cannot tell, bounded runs, the final loss).
 
-mod common;
+use crate::common;
 
 use common::{Rng, assert_usage_error, drbokeh, run, run_within, stderr};
 use drbokeh::Image;

@@ -6,7 +6,7 @@
 //! with nothing to give depth, the message names the three ways forward. ExifTool (installed
 //! into `.tools/` by `scripts/setup-test-env.sh`) is the independent reader and writer.
 
-mod common;
+use crate::common;
 #[path = "common/dynamic_depth.rs"]
 mod dynamic_depth;
 #[path = "common/gdepth.rs"]

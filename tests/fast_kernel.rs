@@ -1,7 +1,7 @@
 //! The fast kernel against the exact one (the oracle) on the golden-vector layers and the
 //! ground-truth scenes: PSNR (linear, peak 1) and max abs error, worst case reported.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;

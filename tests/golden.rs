@@ -1,7 +1,7 @@
 //! Golden vectors from the official implementation (../shared/reference): the exact kernel
 //! must reproduce every per-layer raw channel and the composited output.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::io::npy::read_npy;

@@ -3,7 +3,7 @@
 //! Scored in linear light (peak 1) and on sRGB-encoded, clipped output, with a border of the
 //! largest CoC left out (the input lacks off-frame content there).
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;

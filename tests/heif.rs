@@ -10,7 +10,7 @@
 //! source distribution, fetched by `scripts/setup-test-env.sh`), whose depth representation
 //! SEI the synthetic files also carry.
 
-mod common;
+use crate::common;
 
 use common::assert_usage_error;
 use drbokeh::Image;

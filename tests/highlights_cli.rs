@@ -5,7 +5,7 @@
 //!
 //! The scene is tiny (48x40, linear EXR), so the file runs in about a second.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::color::Transfer;

@@ -8,7 +8,7 @@
 //!
 //! Scenes are tiny (at most 40x30) and rendered with the exact kernel.
 
-mod common;
+use crate::common;
 
 use drbokeh::config::Config;
 use drbokeh::render::{self, Kernel, Layer, RenderSettings, auto_lens, render_raw};

@@ -2,7 +2,7 @@
 //! colour decoding, depth/matte/layer channel rules, and every error path (missing, garbage,
 //! truncated, empty, oversized files; atomic writes).
 
-mod common;
+use crate::common;
 use common::crc32;
 
 use drbokeh::Image;

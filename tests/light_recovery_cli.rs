@@ -5,7 +5,7 @@
 //! The scene is small (64x48: a textured backdrop with six small lights, a subject in front),
 //! so the file runs in a few seconds.
 
-mod common;
+use crate::common;
 
 use common::{assert_usage_error, drbokeh, run, stderr};
 use drbokeh::Image;

@@ -2,7 +2,7 @@
 //! classical run given the model's matte; classical runs never need ONNX Runtime; runtime and
 //! model errors exit 2 naming the file and write nothing; the committed stubs are up to date.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::color::Transfer;

@@ -4,7 +4,7 @@
 //! seeded small scenes: blocks at several depths (depth edges), a slanted plane and pixels
 //! near the focal plane; finiteness on extreme inputs.
 
-mod common;
+use crate::common;
 
 use common::Rng;
 use drbokeh::Image;

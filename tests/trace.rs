@@ -1,7 +1,7 @@
 //! The thin-lens tracer (`drbokeh::bench::trace`) against analytic answers and against the
 //! Mitsuba 3 renders in ../shared/groundtruth.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::bench::groundtruth::GtScene;

@@ -2,7 +2,7 @@
 //! script uses them. The binary runs with `--port 0 --no-browser`; requests are plain
 //! HTTP/1.0 over a TcpStream.
 
-mod common;
+use crate::common;
 
 use drbokeh::Image;
 use drbokeh::color::Transfer;
