@@ -112,6 +112,16 @@ mod tests {
         }
     }
 
+    /// Rec. 709's weights, each channel's own (the highlight tests use grey pixels, where a
+    /// wrong sign on one weight only scales every luminance alike).
+    #[test]
+    fn luminance_weighs_each_channel_as_rec_709() {
+        assert_eq!(luminance(&[1.0, 0.0, 0.0]), 0.2126);
+        assert_eq!(luminance(&[0.0, 1.0, 0.0]), 0.7152);
+        assert_eq!(luminance(&[0.0, 0.0, 1.0]), 0.0722);
+        assert!((luminance(&[2.0, 2.0, 2.0]) - 2.0).abs() < 1e-6);
+    }
+
     #[test]
     fn a_dot_is_a_highlight_a_stripe_is_not() {
         let (w, h) = (20, 20);
