@@ -22,13 +22,14 @@ const SCENES: usize = 6;
 ///
 /// The bench's own code makes and scores the cases ([`dfd_eval::run`]: scenes of
 /// `bench::scenes::generate`, traced by `bench::trace`) and its report's checks decide
-/// ([`Acceptance`]). Two parts of README's claim are printed, not asserted: they failed at
-/// README's own configuration (64×64, 8 generated scenes) with this code, on the fresh seeds and
-/// on README's seed 2 rerun (with its 2 Mitsuba scenes): a lower disparity error than the
+/// ([`Acceptance`]). Two parts of README's claim are not checked here: they failed at README's
+/// own configuration (64×64, 8 generated scenes) with this code, on the fresh seeds and on
+/// README's seed 2 rerun (with its 2 Mitsuba scenes): a lower disparity error than the
 /// Gaussian-PSF ablation (not on the mean over the frame on seeds 45 and 46, nor over textured
 /// pixels on seeds 44, 45 and 2), and the sRGB re-render within 2 dB (a mean gap of 2.64 dB on
-/// seed 44). At this test's size both held on seeds 44, 45 and 46, so passing here says little
-/// about them.
+/// seed 44). At this test's size both held on seeds 44, 45 and 46, so passing here would say
+/// little about them; `drbokeh bench --dfd` reports both. The Gaussian-PSF ablation is not run
+/// (it was printed only: 25.5 -> 18.3 s alone on 2 cores).
 #[test]
 fn dfd_beats_no_occlusion_and_nears_the_true_rerender_on_unseen_scenes() {
     let tmp = tempfile::tempdir().unwrap();
@@ -37,7 +38,7 @@ fn dfd_beats_no_occlusion_and_nears_the_true_rerender_on_unseen_scenes() {
         width: 64,
         height: 48,
         seed: SEED,
-        methods: vec![DfdMethod::Physical, DfdMethod::NoOcclusion, DfdMethod::GaussPsf],
+        methods: vec![DfdMethod::Physical, DfdMethod::NoOcclusion],
         out: tmp.path().join("report"),
         ..DfdBenchOptions::default()
     };
