@@ -112,6 +112,33 @@ mod tests {
         }
     }
 
+    /// "Above" the bound is strict: a pixel exactly at `RATIO · q + FLOOR` is not a highlight,
+    /// the next brighter value is (the random images above never meet the bound exactly).
+    #[test]
+    fn a_pixel_exactly_at_the_bound_is_not_a_highlight() {
+        let ground = 0.25f32;
+        let bound = RATIO * luminance(&[ground; 3]) + FLOOR;
+        // A grey whose luminance is the bound to the last bit, searched among its neighbours.
+        let mut g = bound;
+        for _ in 0..64 {
+            if luminance(&[g; 3]) >= bound {
+                break;
+            }
+            g = g.next_up();
+        }
+        while luminance(&[g.next_down(); 3]) >= bound {
+            g = g.next_down();
+        }
+        assert_eq!(luminance(&[g; 3]), bound, "no grey meets the bound exactly");
+        let (w, h) = (15, 15);
+        let centre = 7 * w + 7;
+        for (v, want) in [(g, false), (g.next_up(), true)] {
+            let mut img = grey(w, h, ground);
+            img.data[centre * 3..centre * 3 + 3].fill(v);
+            assert_eq!(point_highlights(&img, &[centre]), vec![want], "luminance {} against the bound {bound}", luminance(&[v; 3]));
+        }
+    }
+
     /// Rec. 709's weights, each channel's own (the highlight tests use grey pixels, where a
     /// wrong sign on one weight only scales every luminance alike).
     #[test]
