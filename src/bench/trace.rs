@@ -282,8 +282,8 @@ pub fn trace_split(planes: &[Plane], s: &TraceSettings, window: Window, progress
 /// another subset of the lens, and an occluder's edge would let the background through twice
 /// (each plane normalized by its own subset: a bright rim around a blurred foreground, 7% more
 /// light than the scene has on bench scene s007 of seed 1, 5 dB against the renderer). The
-/// renderer's per-source cuts and norms (`CatEye::norm_disc`) approximate this per-ray cut to
-/// second order in `k = strength · CoC / half-diagonal`.
+/// renderer draws the same rule: a source's rays that pass are those in one circle
+/// (`CatEye::cut`), and each target normalizes what reaches it (`Geometry::cat_gain`).
 struct Vignette {
     cat: crate::render::aperture::CatEye,
     window: Window,

@@ -92,7 +92,7 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
         .into_par_iter()
         .map(|j| match &shape {
             None => lens::disk_norm(radius[j]),
-            Some(g) => g.norm(j, radius[j], d[j] > 0.0),
+            Some(g) => g.norm(radius[j]),
         })
         .collect();
     let mut out = vec![0f32; w * h * raw::CHANNELS];
@@ -105,6 +105,8 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
     out.par_chunks_mut(w * raw::CHANNELS).enumerate().for_each(|(y, row)| {
         for x in 0..w {
             let dx = d[y * w + x];
+            // A cat's eye's target normalizes the light that passes its cut.
+            let gain = shape.as_ref().map_or(1.0, |g| g.target_gain(y * w + x));
             // [in front, same surface, behind] × [P_r, P_g, P_b, A], f64 as in the official kernel.
             let mut groups = [[0f64; 4]; 3];
             for t in taps {
@@ -129,6 +131,7 @@ fn scatter_layer_physical(layer: &Layer, s: &RenderSettings, taps: &[Tap], role:
                 }
                 // cov / norm, not cov · (1/norm): an in-focus source's weight is exactly 1.
                 let wt = (px[A] * (cov / norm[j])) as f64;
+                let wt = if gain == 1.0 { wt } else { wt * ShapedSources::gain_of(radius[j], gain) as f64 };
                 let g = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(d[j], dx) };
                 lens::add_to_groups(&mut groups, wt, g, px);
             }

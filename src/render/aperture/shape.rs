@@ -28,6 +28,7 @@ use super::polygon::{
     polygon_rect_area, rect_reach, shoelace,
 };
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Mutex;
 
@@ -289,13 +290,13 @@ impl Aperture {
     }
 
     /// This aperture with optical vignetting ("cat's eye") of strength `s` in [`CAT_EYE`]:
-    /// a source's bokeh is the shape intersected with a second circle of the same
-    /// circumradius, displaced toward the frame's centre by `s` times the source's distance
-    /// from the centre over the half-diagonal (see [`CatEye`]): round in the middle of the
-    /// frame, cut on the side away from the centre toward the corners, as a real lens's
-    /// barrel clips its pupil off axis (each source normalized so that a surface stays
-    /// uniform: [`CatEye::norm_disc`]). The disc and blade shapes only (an image aperture or a
-    /// bubble profile is refused); 0 = off.
+    /// a ray is clipped by a second circle of the shape's circumradius, displaced toward the
+    /// frame's centre by `s` times the distance of the pixel it lands on from the centre over
+    /// the half-diagonal (see [`CatEye`]): a bokeh is round in the middle of the frame and cut
+    /// on the side away from the centre toward the corners, as a real lens's barrel clips its
+    /// pupil off axis; each pixel's light is normalized by the share of the lens it sees, so a
+    /// surface stays uniform ([`CatEye::cut`], [`Geometry::cat_gain`]). The disc and blade
+    /// shapes only (an image aperture or a bubble profile is refused); 0 = off.
     pub fn with_cat_eye(self, s: f32) -> Result<Aperture> {
         Aperture::check_values(1.0, 0.0, 0.0, s)?;
         if s == 0.0 {
@@ -512,37 +513,37 @@ impl Geometry {
         self.coverage_cut(r, x, y, flip, None)
     }
 
-    /// [`Geometry::coverage`] of the shape intersected with the unit circle centred `cut`
-    /// (unit frame, y up, before the point reflection: a cat's eye's second circle,
-    /// [`CatEye::offset`]); None is the whole shape.
-    pub fn coverage_cut(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<[f32; 2]>) -> f32 {
+    /// [`Geometry::coverage`] of the shape intersected with the circle `cut` (unit frame, y
+    /// up, before the point reflection: a cat's eye's second circle as one source's bokeh
+    /// meets it, [`CatEye::cut`]); None is the whole shape.
+    pub fn coverage_cut(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<CutCircle>) -> f32 {
         self.coverage_cut_f64(r, x, y, flip, cut) as f32
     }
 
     /// [`Geometry::coverage_cut`] before its rounding to f32: what differences in `r` take
     /// ([`super::sources`]).
-    pub(crate) fn coverage_cut_f64(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<[f32; 2]>) -> f64 {
+    pub(crate) fn coverage_cut_f64(&self, r: f32, x: f32, y: f32, flip: bool, cut: Option<CutCircle>) -> f64 {
         if r < POINT_COC_PX {
             return if x == 0.0 && y == 0.0 { 1.0 } else { 0.0 };
         }
         let (x, y) = if flip { (-x, -y) } else { (x, y) };
-        if let Some([vx, vy]) = cut
+        if let Some(CutCircle { centre: [vx, vy], radius }) = cut
             && self.bubble == 0.0
         {
-            // Well inside both outlines (the cut circle is 1 − |v| from the centre at its
-            // nearest): no clipping, most of a large bokeh's pixels.
-            let inner = self.inradius.min(1.0 - ((vx * vx + vy * vy) as f64).sqrt()) * r as f64;
+            // Well inside both outlines (the cut circle is `radius − |v|` from the centre at
+            // its nearest): no clipping, most of a large bokeh's pixels.
+            let inner = self.inradius.min(radius as f64 - ((vx * vx + vy * vy) as f64).sqrt()) * r as f64;
             let (x, y, r) = (x as f64, y as f64, r as f64);
             if (x * x + y * y).sqrt() + std::f64::consts::SQRT_2 < inner {
                 return 1.0;
             }
             // Wholly outside the cut circle: most of the window off axis.
             let (dx, dy) = (x - vx as f64 * r, y - vy as f64 * r);
-            if (dx * dx + dy * dy).sqrt() - std::f64::consts::SQRT_2 > r {
+            if (dx * dx + dy * dy).sqrt() - std::f64::consts::SQRT_2 > radius as f64 * r {
                 return 0.0;
             }
         }
-        let cut = cut.map(|v| [v[0] as f64, v[1] as f64]);
+        let cut = cut.map(|c| ([c.centre[0] as f64, c.centre[1] as f64], c.radius as f64));
         match self.square_area(r, x, y, 1.0, cut) {
             Area::Inside if self.bubble == 0.0 => return 1.0,
             Area::Part(0.0) => return 0.0,
@@ -650,11 +651,11 @@ impl Geometry {
         profile(self.bubble, self.gauge(x as f64, y as f64)) as f32
     }
 
-    /// The unit-frame area of the shape (circumradius `r` px), cut by the unit circle centred
-    /// `cut` if any, inside the square of half-side `half` px centred `(x, y)` px from the
+    /// The unit-frame area of the shape (circumradius `r` px), cut by the circle `cut`
+    /// (centre, radius) if any, inside the square of half-side `half` px centred `(x, y)` px from the
     /// source (y up, not reflected). O(1) inside and outside the shape, O(vertices) on its
     /// outline.
-    fn square_area(&self, r: f32, x: f32, y: f32, half: f32, cut: Option<[f64; 2]>) -> Area {
+    fn square_area(&self, r: f32, x: f32, y: f32, half: f32, cut: Option<([f64; 2], f64)>) -> Area {
         let s = 1.0 / r as f64;
         let (x, y, h) = (x as f64, y as f64, half as f64);
         let rect = [(x - h) * s, (x + h) * s, (y - h) * s, (y + h) * s];
@@ -681,7 +682,7 @@ impl Geometry {
                 }
                 polygon_rect_area(planes, bbox, *radii, sectors, rect)
             }
-            (Kind::Polygon { planes, bbox, radii, sectors, .. }, Some(v)) => {
+            (Kind::Polygon { planes, bbox, radii, sectors, .. }, Some((v, radius))) => {
                 let [x0, x1, y0, y1] = rect;
                 let mut poly: Poly = smallvec::smallvec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
                 let mut next = Poly::new();
@@ -691,12 +692,12 @@ impl Geometry {
                 }
                 // The rectangle seen from the cut circle's centre.
                 let (near, far) = rect_reach([x0 - v[0], x1 - v[0], y0 - v[1], y1 - v[1]]);
-                if near >= 1.0 {
+                if near >= radius * radius {
                     Area::Part(0.0)
-                } else if far <= 1.0 {
+                } else if far <= radius * radius {
                     if a == Clip::Untouched { Area::Inside } else { Area::Part(shoelace(&poly).max(0.0)) }
                 } else {
-                    Area::Part(polygon_circle_area(&poly, v, 1.0))
+                    Area::Part(polygon_circle_area(&poly, v, radius))
                 }
             }
             // A cat's eye is refused for images (`Aperture::with_cat_eye`).
@@ -704,15 +705,11 @@ impl Geometry {
         }
     }
 
-    /// The norm of a cut shape: its area inside the circle of radius `radius` centred `centre`
-    /// (unit frame, y up; [`CatEye::norm_disc`]) times `r²`; 1 below [`POINT_COC_PX`]. With
-    /// the cut's own circle (radius 1) it is the lattice sum of [`Geometry::coverage_cut`]'s
-    /// weights. O(vertices).
-    pub fn norm_cut(&self, r: f32, (centre, radius): ([f32; 2], f32)) -> f32 {
-        if r < POINT_COC_PX {
-            return 1.0;
-        }
-        (self.area_cut([centre[0] as f64, centre[1] as f64], radius as f64) * r as f64 * r as f64) as f32
+    /// The unit-frame area of the shape inside `cut` (the lattice sum of
+    /// [`Geometry::coverage_cut`]'s weights over `r²`): a cat's-eye source's flux, in units
+    /// of the whole shape's over its area. O(vertices).
+    pub fn cut_area(&self, cut: CutCircle) -> f64 {
+        self.area_cut([cut.centre[0] as f64, cut.centre[1] as f64], cut.radius as f64)
     }
 
     /// The unit-frame area of the shape intersected with the circle of radius `radius` centred
@@ -720,6 +717,15 @@ impl Geometry {
     fn area_cut(&self, v: [f64; 2], radius: f64) -> f64 {
         let Kind::Polygon { pts, .. } = &self.kind else { return self.area };
         polygon_circle_area(pts, v, radius)
+    }
+
+    /// What a cat's eye's target pixel whose circle is centred `v` ([`CatEye::offset`])
+    /// multiplies the light reaching it by: the shape's area over its area inside that unit
+    /// circle, the share of the lens the pixel sees (the tracer's per-pixel norm). With each
+    /// source spread at the whole shape's flux norm ([`Geometry::norm`]) through its cut
+    /// ([`CatEye::cut`]), a uniform surface then stays uniform at any CoC. At least 1.
+    pub fn cat_gain(&self, v: [f32; 2]) -> f32 {
+        (self.area / self.area_cut([v[0] as f64, v[1] as f64], 1.0).max(1e-12)) as f32
     }
 
     /// An area-preserving map from the unit square to a polygon's inside (unit frame, y up),
@@ -786,7 +792,18 @@ impl Geometry {
     }
 }
 
-/// Optical vignetting over one frame (`Aperture::with_cat_eye`): where each source's second
+/// A circle that cuts a shape (unit frame: the shape's circumradius is 1; y up, before the
+/// point reflection): a cat's eye's second circle as one source's light meets it
+/// ([`CatEye::cut`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CutCircle {
+    /// Centre, unit frame.
+    pub centre: [f32; 2],
+    /// Radius, unit frame.
+    pub radius: f32,
+}
+
+/// Optical vignetting over one frame (`Aperture::with_cat_eye`): where each pixel's second
 /// circle sits.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CatEye {
@@ -796,6 +813,100 @@ pub struct CatEye {
     cy: f32,
     /// 1 / the half-diagonal, per pixel.
     inv_reach: f32,
+    /// The frame, pixels.
+    width: usize,
+    height: usize,
+}
+
+/// How far (unit frame) a target's circle moves between the pixel lattice points
+/// [`CatEye::gains`] looks the gain up at: every pixel on frames up to ~380 px across at
+/// strength 1. The gain is smooth in the circle's centre `v` but for a cone at 0 (the frame's
+/// middle; the disc's gain is `1 + 2|v|/π` there), which bilinear interpolation at this step
+/// misses by at most ~0.2%.
+const GAIN_STEP: f32 = 1.0 / 192.0;
+
+/// The polar table of [`Geometry::cat_gain`] that [`CatEye::gains`] reads: nodes in `|v|`
+/// over `[0, strength]` and, unless the shape is round, in the angle. Polar, so the cone at
+/// `v = 0` is linear along the radius; a table, because the gain is an O(vertices) area (the
+/// disc is a 256-gon) and a 480 × 320 frame asked it at every pixel: 38% of its cat's-eye
+/// render, 2026-11-29.
+struct GainTable {
+    /// `[radial][angular]`, row-major by radius.
+    values: Vec<f32>,
+    radial: usize,
+    angular: usize,
+    /// Radial nodes per unit of `|v|`.
+    per_unit: f32,
+}
+
+impl GainTable {
+    const RADIAL: usize = 96;
+    const ANGULAR: usize = 96;
+
+    fn new(g: &Geometry, strength: f32) -> GainTable {
+        let radial = Self::RADIAL;
+        let per_unit = (radial - 1) as f32 / strength.max(1e-6);
+        let at = |r: usize, t: usize, angular: usize| {
+            let (rho, theta) = (r as f32 / per_unit, t as f32 * std::f32::consts::TAU / angular as f32);
+            g.cat_gain([rho * theta.cos(), rho * theta.sin()])
+        };
+        // Round (the disc, its anamorphic squeeze aside): the gain along one ray is the gain.
+        let probe: Vec<f32> = (0..8).map(|t| at(radial / 2, t, 8)).chain((0..8).map(|t| at(radial - 1, t, 8))).collect();
+        let round =
+            probe[..8].iter().all(|&p| (p / probe[0] - 1.0).abs() < 1e-5) && probe[8..].iter().all(|&p| (p / probe[8] - 1.0).abs() < 1e-5);
+        let angular = if round { 1 } else { Self::ANGULAR };
+        let values = (0..radial * angular).into_par_iter().map(|k| at(k / angular, k % angular, angular)).collect();
+        GainTable { values, radial, angular, per_unit }
+    }
+
+    /// The gain of circle centre `v` (|v| at most the strength).
+    fn at(&self, v: [f32; 2]) -> f32 {
+        let fr = ((v[0] * v[0] + v[1] * v[1]).sqrt() * self.per_unit).clamp(0.0, (self.radial - 1) as f32);
+        let r0 = (fr as usize).min(self.radial - 2);
+        let wr = fr - r0 as f32;
+        let n = self.angular;
+        let along = |r: usize| {
+            if n == 1 {
+                return self.values[r];
+            }
+            let ft = v[1].atan2(v[0]).rem_euclid(std::f32::consts::TAU) * n as f32 / std::f32::consts::TAU;
+            let t0 = (ft as usize).min(n - 1);
+            let wt = ft - t0 as f32;
+            let (a, b) = (self.values[r * n + t0], self.values[r * n + (t0 + 1) % n]);
+            a + (b - a) * wt
+        };
+        let (a, b) = (along(r0), along(r0 + 1));
+        a + (b - a) * wr
+    }
+}
+
+/// Every pixel's cat's-eye gain over one frame ([`CatEye::gains`]): on a pixel lattice from a
+/// polar table of the gain ([`GainTable`]), bilinear between lattice points.
+#[derive(Clone, Debug)]
+pub struct CatGains {
+    lattice: Vec<f32>,
+    /// Lattice points per row.
+    gw: usize,
+    /// Pixels between lattice points.
+    step: usize,
+}
+
+impl CatGains {
+    /// The gain of pixel `(x, y)` (column, row).
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> f32 {
+        let (s, gw) = (self.step, self.gw);
+        let (cx, cy) = (x / s, y / s);
+        let k = cy * gw + cx;
+        if s == 1 {
+            return self.lattice[k];
+        }
+        let (fx, fy) = ((x % s) as f32 / s as f32, (y % s) as f32 / s as f32);
+        let l = &self.lattice;
+        let top = l[k] + (l[k + 1] - l[k]) * fx;
+        let bottom = l[k + gw] + (l[k + gw + 1] - l[k + gw]) * fx;
+        top + (bottom - top) * fy
+    }
 }
 
 impl CatEye {
@@ -803,28 +914,56 @@ impl CatEye {
     pub fn new(strength: f32, width: usize, height: usize) -> CatEye {
         let (w, h) = (width as f32, height as f32);
         let reach = 0.5 * (w * w + h * h).sqrt();
-        CatEye { strength, cx: (w - 1.0) / 2.0, cy: (h - 1.0) / 2.0, inv_reach: 1.0 / reach.max(0.5) }
+        CatEye {
+            strength,
+            cx: (w - 1.0) / 2.0,
+            cy: (h - 1.0) / 2.0,
+            inv_reach: 1.0 / reach.max(0.5),
+            width: width.max(1),
+            height: height.max(1),
+        }
     }
 
-    /// The circle (centre, radius; unit frame) whose area of the shape normalizes a source
-    /// whose cut is centred `v`, of CoC `r` px, in front of the focal plane when `front`.
+    /// The part of the lens that source pixel `v`'s light (its [`CatEye::offset`]) crosses on
+    /// its way to the pixels it reaches, for a CoC of `r` px, in front of the focal plane when
+    /// `front`: a circle in the shape's frame (before the point reflection), which
+    /// [`Geometry::coverage_cut`] intersects the shape with.
     ///
-    /// The cut moves with the source, so the sources that reach one pixel of a surface at one
-    /// CoC are those whose offsets lie in the shape and in the cut circle scaled by
-    /// `1 / (1 − k)` (behind; `1 / (1 + k)` in front, reflected) about the pixel's own cut,
-    /// `k = strength · r / half-diagonal`: normalizing each source by the shape's area inside
-    /// that circle rather than inside its own cut keeps an opaque surface opaque and a uniform
-    /// one uniform (to second order), as a lens's pupil does, where unit flux per source would
-    /// make them `1 ± k`-ish (k reaches 0.2 on the bench's 128 px frames). Each source's light
-    /// is then its cut's area over that circle's.
-    ///
-    /// The pixels a source reaches see cuts moved by `k` times their offset from it, about
-    /// `v·r/2` on average (the cut shape's centroid, reflected in front): the circle is taken
-    /// about `v·(1 ∓ k/2)`, which cancels that first-order term as well.
-    pub fn norm_disc(&self, v: [f32; 2], r: f32, front: bool) -> ([f32; 2], f32) {
-        let k = (self.strength * r * self.inv_reach).min(0.9);
-        let (scale, shift) = if front { (1.0 / (1.0 + k), 1.0 + 0.5 * k) } else { (1.0 / (1.0 - k), 1.0 - 0.5 * k) };
-        ([v[0] * shift * scale, v[1] * shift * scale], scale)
+    /// A lens's barrel clips a ray by the pixel it lands on (the tracer's rule): lens point
+    /// `a` (unit frame) of a source lands `∓r·a` from it (reflected in front) at a pixel whose
+    /// own circle is centred `v ± k·a`, `k = strength · r / half-diagonal` (the offsets are
+    /// linear across the frame). The ray passes where `|a − v ∓ k·a| ≤ 1`: a circle of
+    /// radius `1 / |1 ∓ k|` centred `v / (1 ∓ k)` (− in front). Exact for every source
+    /// inside the frame; the light that passes is then normalized at each target by
+    /// [`Geometry::cat_gain`], as the tracer normalizes a pixel by the lens it sees.
+    pub fn cut(&self, v: [f32; 2], r: f32, front: bool) -> CutCircle {
+        let k = self.strength * r * self.inv_reach;
+        // At |1 ∓ k| → 0 (a CoC as wide as the half-diagonal in front) every ray passes: the
+        // circle grows without bound; 1e-3 keeps it finite and holds the shape whole.
+        let s = if front { 1.0 - k } else { 1.0 + k };
+        let s = if s.abs() < 1e-3 { 1e-3f32.copysign(s) } else { s };
+        CutCircle { centre: [v[0] / s, v[1] / s], radius: 1.0 / s.abs() }
+    }
+
+    /// Every target pixel's gain ([`Geometry::cat_gain`]) over the frame, for shape `g`.
+    pub fn gains(&self, g: &Geometry) -> CatGains {
+        // The pixel lattice whose step moves the circle's centre by at most `GAIN_STEP`.
+        let step = (GAIN_STEP / (self.strength * self.inv_reach)).floor().clamp(1.0, 1e6) as usize;
+        let (gw, gh) = ((self.width - 1) / step + 2, (self.height - 1) / step + 2);
+        let table = GainTable::new(g, self.strength);
+        let lattice =
+            (0..gw * gh).into_par_iter().map(|k| table.at(self.offset(((k % gw) * step) as f32, ((k / gw) * step) as f32))).collect();
+        CatGains { lattice, gw, step }
+    }
+
+    /// The frame's width, pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// The frame's height, pixels.
+    pub fn height(&self) -> usize {
+        self.height
     }
 
     /// The strength: how far (unit frame) the second circle moves at the corners.
@@ -832,7 +971,7 @@ impl CatEye {
         self.strength
     }
 
-    /// The centre of the second circle (unit frame: circumradius 1, y up) for a source at
+    /// The centre of the second circle (unit frame: circumradius 1, y up) for the pixel (source or target) at
     /// pixel `(x, y)` (column, row; may lie outside the frame): toward the frame's centre,
     /// the strength times the source's distance from the centre over the half-diagonal (1 at
     /// most, so the cut shape always holds the source's own point).

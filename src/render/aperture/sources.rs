@@ -6,8 +6,10 @@
 //!
 //! Conventions as [`Geometry::coverage`]: a tap `(di, dj)` puts the target `(-dj, di)` from
 //! the source (y up); a source in front of the focal plane (`d > 0`) shows the shape
-//! point-reflected; with a cat's eye each source carries its cut ([`CatEye::offset`], from
-//! its pixel, replicated at the border) and its own norm circle ([`CatEye::norm_disc`]).
+//! point-reflected; with a cat's eye each source's light crosses its cut of the lens
+//! ([`CatEye::cut`] of its pixel's [`CatEye::offset`], replicated at the border), spread at
+//! the whole shape's flux norm, and each target multiplies what reaches it by its gain
+//! ([`ShapedSources::gain`]).
 //!
 //! Derivatives: a shape's coverage is an area of the outline (a polygon, a mask, a bubble's
 //! weighted area) integrated over pixel squares, continuous in the CoC `r` and smooth between
@@ -18,19 +20,21 @@
 //! cannot drift from the forward; at a kink it is the mean of the two one-sided slopes.
 //! Truncation error ~1e-6 of the slope where smooth. Three coverage evaluations per tap.
 
-use super::shape::{CatEye, Geometry, POINT_COC_PX};
+use super::shape::{CatEye, CatGains, CutCircle, Geometry, POINT_COC_PX};
 use super::{Aperture, Tap};
 use rayon::prelude::*;
 
 /// Relative step of the central differences in the CoC.
 const STEP: f64 = 1e-3;
 
-/// The shaped sources of one `width × height` layer. Allocates one cut per pixel with a
-/// cat's eye, nothing otherwise.
+/// The shaped sources of one `width × height` layer. Allocates one cut per pixel and a
+/// lattice of gains with a cat's eye, nothing otherwise.
 pub struct ShapedSources {
     shape: &'static Geometry,
     cat: Option<CatEye>,
     cuts: Option<Vec<[f32; 2]>>,
+    gains: Option<CatGains>,
+    width: usize,
 }
 
 impl ShapedSources {
@@ -38,8 +42,10 @@ impl ShapedSources {
     pub fn new(aperture: Aperture, width: usize, height: usize) -> Option<ShapedSources> {
         let shape = aperture.geometry()?;
         let cat = aperture.cat_eye(width, height);
-        let cuts = cat.map(|c| (0..width * height).into_par_iter().map(|j| c.offset((j % width) as f32, (j / width) as f32)).collect());
-        Some(ShapedSources { shape, cat, cuts })
+        let cuts: Option<Vec<[f32; 2]>> =
+            cat.map(|c| (0..width * height).into_par_iter().map(|j| c.offset((j % width) as f32, (j / width) as f32)).collect());
+        let gains = cat.map(|c| c.gains(shape));
+        Some(ShapedSources { shape, cat, cuts, gains, width })
     }
 
     /// The shape.
@@ -53,36 +59,49 @@ impl ShapedSources {
         self.cuts.is_some()
     }
 
-    /// The flux norm of source `j` (row-major) of CoC `r` px, in front of the focal plane
-    /// when `front` (see [`Geometry::norm`], [`Geometry::norm_cut`]).
-    pub fn norm(&self, j: usize, r: f32, front: bool) -> f32 {
-        match (&self.cat, &self.cuts) {
-            (Some(cat), Some(cuts)) => self.shape.norm_cut(r, cat.norm_disc(cuts[j], r, front)),
-            _ => self.shape.norm(r),
-        }
+    /// The flux norm of a source of CoC `r` px (see [`Geometry::norm`]): the whole shape's,
+    /// with or without a cat's eye (whose targets normalize the light that passes,
+    /// [`ShapedSources::gain`]).
+    pub fn norm(&self, r: f32) -> f32 {
+        self.shape.norm(r)
+    }
+
+    /// What target `t` (row-major) multiplies the light of the sources reaching it by: a
+    /// cat's eye's [`Geometry::cat_gain`] of its pixel, 1 otherwise. A source that stays in
+    /// its own pixel takes none ([`ShapedSources::gain_of`]).
+    #[inline]
+    pub fn target_gain(&self, t: usize) -> f32 {
+        self.gains.as_ref().map_or(1.0, |g| g.at(t % self.width, t / self.width))
+    }
+
+    /// The factor of a source of CoC `r` at a target of gain `target` ([`Self::target_gain`]):
+    /// the gain, but 1 for a source that stays in its own pixel (CoC below [`POINT_COC_PX`]),
+    /// which is the target's own light whole, as every ray of an in-focus point lands there.
+    #[inline]
+    pub fn gain_of(r: f32, target: f32) -> f32 {
+        if r < POINT_COC_PX { 1.0 } else { target }
+    }
+
+    /// The cut of source `j` of CoC `r` (see [`CatEye::cut`]); None without a cat's eye.
+    fn cut_of(&self, j: usize, r: f32, front: bool) -> Option<CutCircle> {
+        Some(self.cat?.cut(self.cuts.as_ref()?[j], r, front))
     }
 
     /// The coverage of tap `t` by source `j` of CoC `r` (see [`Geometry::coverage_cut`]).
     pub fn coverage(&self, j: usize, r: f32, front: bool, t: &Tap) -> f32 {
-        self.shape.coverage_cut(r, -t.dj as f32, t.di as f32, front, self.cuts.as_ref().map(|c| c[j]))
+        self.shape.coverage_cut(r, -t.dj as f32, t.di as f32, front, self.cut_of(j, r, front))
     }
 
-    /// `(norm, ∂norm/∂r)`: the area `A·r²` has the slope `2·A·r`; a cut norm (whose circle
-    /// moves with `r`) by central difference.
-    pub fn norm_grad(&self, j: usize, r: f32, front: bool) -> (f32, f32) {
-        if self.cuts.is_none() {
-            let n = self.shape.norm(r);
-            return (n, if r < POINT_COC_PX { 0.0 } else { 2.0 * n / r });
-        }
-        let (v, g) = central(r, |r| self.norm(j, r, front) as f64);
-        (v as f32, g as f32)
+    /// `(norm, ∂norm/∂r)`: the area `A·r²` has the slope `2·A·r`.
+    pub fn norm_grad(&self, r: f32) -> (f32, f32) {
+        let n = self.shape.norm(r);
+        (n, if r < POINT_COC_PX { 0.0 } else { 2.0 * n / r })
     }
 
     /// `(coverage, ∂coverage/∂r)` of tap `t` by source `j` (central difference, see the
-    /// module's comment).
+    /// module's comment; a cat's eye's cut moves with `r`).
     pub fn coverage_grad(&self, j: usize, r: f32, front: bool, t: &Tap) -> (f32, f32) {
-        let cut = self.cuts.as_ref().map(|c| c[j]);
-        let (v, g) = central(r, |r| self.shape.coverage_cut_f64(r, -t.dj as f32, t.di as f32, front, cut));
+        let (v, g) = central(r, |r| self.shape.coverage_cut_f64(r, -t.dj as f32, t.di as f32, front, self.cut_of(j, r, front)));
         (v as f32, g as f32)
     }
 }
@@ -111,7 +130,8 @@ mod tests {
     use crate::render::aperture::ShapeSpec;
 
     /// The derivative agrees with a wide central difference away from kinks, for a rotated
-    /// hexagon (no axis-parallel edges), a bubble, and a cat's eye's cut norm and coverage.
+    /// hexagon (no axis-parallel edges), a bubble, and a cat's eye's coverage (its cut moves
+    /// with the CoC).
     #[test]
     fn derivatives_in_the_coc_match_wider_differences() {
         let hex = Aperture::new(&ShapeSpec::Blades { n: 6, rotation: 17.0, curvature: 0.0 }, 1.0, "test").unwrap();
@@ -121,9 +141,9 @@ mod tests {
         for a in [hex, bubble, cat] {
             let s = ShapedSources::new(a, 40, 30).unwrap();
             for (j, r, front) in [(0usize, 6.3f32, false), (615, 4.1, true), (1199, 9.7, false)] {
-                let (n, dn) = s.norm_grad(j, r, front);
-                assert_eq!(n, s.norm(j, r, front));
-                let wide = (s.norm(j, r * 1.01, front) as f64 - s.norm(j, r * 0.99, front) as f64) / (0.02 * r as f64);
+                let (n, dn) = s.norm_grad(r);
+                assert_eq!(n, s.norm(r));
+                let wide = (s.norm(r * 1.01) as f64 - s.norm(r * 0.99) as f64) / (0.02 * r as f64);
                 assert!((dn as f64 - wide).abs() < 2e-3 * wide.abs().max(1.0), "{a:?} norm slope {dn} vs {wide}");
                 for (di, dj) in [(0, 0), (2, -3), (-4, 1), (5, 5), (0, -8)] {
                     let t = Tap { di, dj, r: ((di * di + dj * dj) as f32).sqrt() };

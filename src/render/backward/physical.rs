@@ -44,7 +44,7 @@ impl Sources {
             .into_par_iter()
             .map(|j| match &shape {
                 None => disk_norm_smooth(radius[j], sm.edge_width),
-                Some(g) => g.norm_grad(j, radius[j], d[j] > 0.0),
+                Some(g) => g.norm_grad(radius[j]),
             })
             .collect();
         Sources { d, radius, norm, shape, edge_width: sm.edge_width }
@@ -57,6 +57,19 @@ impl Sources {
             None => disk_coverage_smooth(self.radius[j], t.r, self.edge_width),
             Some(g) => g.coverage(j, self.radius[j], self.d[j] > 0.0, t),
         }
+    }
+
+    /// What target `i` multiplies the weights reaching it by (a cat's eye's gain, see
+    /// [`ShapedSources::target_gain`]; 1 otherwise).
+    #[inline]
+    fn target_gain(&self, i: usize) -> f32 {
+        self.shape.as_ref().map_or(1.0, |g| g.target_gain(i))
+    }
+
+    /// Source `j`'s factor at a target of gain `target`.
+    #[inline]
+    fn gain(&self, j: usize, target: f32) -> f64 {
+        ShapedSources::gain_of(self.radius[j], target) as f64
     }
 
     /// `(coverage, ∂coverage/∂R)` of tap `t` by source `j`.
@@ -90,6 +103,7 @@ pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[
     out.par_chunks_mut(w * raw::CHANNELS).zip(groups.par_chunks_mut(w)).enumerate().for_each(|(y, (row, grow))| {
         for x in 0..w {
             let dx = src.d[y * w + x];
+            let gain = src.target_gain(y * w + x);
             let g = &mut grow[x];
             for t in taps {
                 let j = clamped(x, y, t, w, h);
@@ -98,7 +112,7 @@ pub(super) fn record(layer: &Layer, s: &RenderSettings, sm: &Smoothing, taps: &[
                 if px[A] == 0.0 || cov == 0.0 {
                     continue;
                 }
-                let wt = (px[A] * (cov / src.norm[j].0)) as f64;
+                let wt = (px[A] * (cov / src.norm[j].0)) as f64 * src.gain(j, gain);
                 let mut split = if (t.di == 0 && t.dj == 0) || !s.occlusion { [0.0, 1.0, 0.0] } else { lens::depth_groups(src.d[j], dx) };
                 if ray && split[2] > 0.0 {
                     split[2] *= RayTest::new(&src.d, w, h, (x, y), j, t, reach).map_or(1.0, |r| r.clear);
@@ -151,6 +165,7 @@ pub(super) fn backward(
             }
             let gg = lens::over_groups_smooth_vjp(&rec.groups[i], sm.fill_width as f64, &[c[0], c[1], c[2], c[3]]);
             let dx = src.d[i];
+            let gain = src.target_gain(i);
             let mut g_dx = 0f64;
             for t in taps {
                 let j = clamped(x, y, t, w, h);
@@ -172,7 +187,8 @@ pub(super) fn backward(
                 let hg: [f64; 3] =
                     std::array::from_fn(|k| gg[k][0] * px[0] as f64 + gg[k][1] * px[1] as f64 + gg[k][2] * px[2] as f64 + gg[k][3]);
                 let g_wt: f64 = (0..3).map(|k| split[k] as f64 * hg[k]).sum();
-                let (norm, dnorm) = (src.norm[j].0 as f64, src.norm[j].1 as f64);
+                // The gain divides the norm: u = cov·gain / N.
+                let (norm, dnorm) = (src.norm[j].0 as f64 / src.gain(j, gain), src.norm[j].1 as f64 / src.gain(j, gain));
                 let u = cov as f64 / norm;
                 let sg = band.at(j);
                 sg.alpha += g_wt * u;

@@ -55,6 +55,7 @@ mod stripe;
 mod survey;
 mod visibility;
 
+use super::aperture::shape::CatGains;
 use super::aperture::{disk_tap_count, disk_taps_within};
 use super::layer::{A, CHANNELS, D, Layer};
 use super::lens::{Profile, density, disk_norm, weight_unit};
@@ -175,6 +176,9 @@ struct Ctx<'a> {
     bins: Option<binned::Bins>,
     /// Their templates, built once for every worker.
     templates: std::sync::Arc<binned::SharedTemplates>,
+    /// A cat's eye (physical profile): what each target multiplies the light reaching it by
+    /// ([`crate::render::aperture::sources::ShapedSources::gain`]).
+    cat_gains: Option<CatGains>,
 }
 
 impl<'a> Ctx<'a> {
@@ -235,7 +239,17 @@ impl<'a> Ctx<'a> {
                 binned::Bins::new(shape, width, p).with_cat_eye(cat, 1.0)
             }),
             templates: Default::default(),
+            cat_gains: match (s.profile, s.aperture.geometry(), s.aperture.cat_eye(img.width, img.height)) {
+                (Profile::Physical, Some(g), Some(cat)) => Some(cat.gains(g)),
+                _ => None,
+            },
         }
+    }
+
+    /// Target `(x, y)`'s cat's-eye gain (1 without a cat's eye).
+    #[inline]
+    fn gain(&self, x: usize, y: usize) -> f32 {
+        self.cat_gains.as_ref().map_or(1.0, |g| g.at(x, y))
     }
 
     /// The radius a source of footprint radius `radius` is drawn with (see [`footprint::drawn`]).

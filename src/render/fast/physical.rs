@@ -36,6 +36,7 @@ use super::footprint::{EDGE, coverage_disk};
 use super::scratch::Scratch;
 use super::survey::Survey;
 use super::{Counts, Ctx};
+use crate::render::aperture::shape::POINT_COC_PX;
 use crate::render::layer::{A, CHANNELS, D, max_rgb};
 use crate::render::lens::{self, disk_norm};
 use crate::render::{RenderSettings, Role, raw};
@@ -82,9 +83,11 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
                 // A non-disc aperture: every full-resolution source through its shape's
                 // templates (per radius bin, point-reflected in front of the focal plane).
                 n_sp += own;
-                if true_r < crate::render::aperture::shape::POINT_COC_PX {
+                if true_r < POINT_COC_PX {
+                    // Its own pixel's light whole: a cat's eye's gain there is divided out.
+                    let g = if own == 1 { 1.0 / ctx.gain(sx as usize, sy as usize) } else { 1.0 };
                     for &(slot, f) in &sc.dests {
-                        sc.accs[slot].pixels(sy, sx, sx, v.map(|c| c * f));
+                        sc.accs[slot].pixels(sy, sx, sx, v.map(|c| c * f * g));
                     }
                     ops += sc.dests.len() as u64;
                 } else {
@@ -280,7 +283,10 @@ pub(super) fn split_row(ctx: &Ctx, y: usize, q: &[f32], front: &[f32], behind: &
         let dt = ctx.d(i);
         let own = ctx.base(i).map_or([0.0; 4], |v| {
             let r = ctx.sigma[i];
-            v.map(|c| c * lens::disk_coverage(r, 0.0) / disk_norm(r))
+            // With a cat's eye's gain, as every pass got it (a point source's own light was
+            // divided by it when scattered).
+            let g = if r >= POINT_COC_PX { ctx.gain(x, y) } else { 1.0 };
+            v.map(|c| c * lens::disk_coverage(r, 0.0) / disk_norm(r) * g)
         });
         let (sf, sb) = (band.interpolated(Side::Front, dt, dt), band.interpolated(Side::Behind, dt, dt));
         let mut groups = [[0f64; 4]; 3];

@@ -257,6 +257,13 @@ fn combine_rows(
         }
         let q = &sc.q[r * w..(r + 1) * w];
         let out = &mut raw[r * w * RAW..(r + 1) * w * RAW];
+        // A cat's eye's targets normalize the light that reaches them (every pass alike).
+        if ctx.cat_gains.is_some() {
+            for (x, v) in row_a.chunks_exact_mut(4).enumerate() {
+                let g = ctx.gain(x, y);
+                v.iter_mut().for_each(|c| *c *= g);
+            }
+        }
         for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
             o[..4].copy_from_slice(&row_a[x * 4..x * 4 + 4]);
             o[raw::VISIBILITY] = sc.vis[r * w + x];
@@ -271,6 +278,12 @@ fn combine_rows(
         rows.side(Side::Front, row_b, row_u, tmp);
         if ctx.s.profile == Profile::Physical {
             rows.side(Side::Behind, row_h, row_u, tmp);
+            if ctx.cat_gains.is_some() {
+                for &x in &sc.band_x {
+                    let g = ctx.gain(x, y);
+                    row_b[x * 4..x * 4 + 4].iter_mut().chain(&mut row_h[x * 4..x * 4 + 4]).for_each(|c| *c *= g);
+                }
+            }
             split += physical::split_row(ctx, y, q, row_b, row_h, out);
             continue;
         }
