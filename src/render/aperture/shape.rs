@@ -971,10 +971,10 @@ impl CatEye {
         self.strength
     }
 
-    /// The centre of the second circle (unit frame: circumradius 1, y up) for the pixel (source or target) at
-    /// pixel `(x, y)` (column, row; may lie outside the frame): toward the frame's centre,
-    /// the strength times the source's distance from the centre over the half-diagonal (1 at
-    /// most, so the cut shape always holds the source's own point).
+    /// The centre of the second circle (unit frame: circumradius 1, y up) of pixel `(x, y)`
+    /// (column, row; may lie outside the frame; a target's, or a source's for its cut):
+    /// toward the frame's centre, the strength times the pixel's distance from the centre
+    /// over the half-diagonal (1 at most, so the cut shape always holds the pixel's own point).
     #[inline]
     pub fn offset(&self, x: f32, y: f32) -> [f32; 2] {
         let (ux, uy) = ((x - self.cx) * self.inv_reach, (self.cy - y) * self.inv_reach);
