@@ -509,7 +509,7 @@ fn half_max_edge(img: &Image, (x, y): (f64, f64), (ex, ey): (f64, f64), plateau:
 /// normalizes the light that reaches it by the share of the lens its circle passes (the
 /// tracer's rule): the points' light is the integral, over the lens points that pass, of
 /// the gain `π / lens(|v(t)|)` at the pixel `t` each lands on, computed here by quadrature on
-/// the lens. The points' layer is faint (alpha 0.05) and in front of an empty one, so the
+/// the lens, for each point and in all. The points' layer is faint (alpha 0.05) and in front of an empty one, so the
 /// image is its premultiplied sums.
 #[test]
 fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
@@ -549,7 +549,7 @@ fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
                     PI / lens_area(1.0, 1.0, v)
                 };
                 let s = if front { 1.0 - strength * coc / reach } else { 1.0 + strength * coc / reach };
-                let want: f64 = points
+                let wants: Vec<f64> = points
                     .iter()
                     .map(|&(x, y)| {
                         // The point's circle (image axes; the geometry is symmetric in y), then
@@ -570,11 +570,27 @@ fn cat_eye_bokeh_is_the_intersection_of_two_discs() {
                         }
                         (alpha * value) as f64 * sum * (2.0 / n as f64).powi(2) / PI
                     })
-                    .sum();
-                // The fast kernel's cut is quantized (binned::CUT_PX), its area with it.
+                    .collect();
+                let want: f64 = wants.iter().sum();
                 if ((total - want) / want).abs() > 3e-3 {
                     failures
                         .push(format!("CoC {coc} front {front} {}: the points' light sums to {total:.5} (want {want:.5})", kernel.name()));
+                }
+                // Each point's own light, in a window that holds its bokeh alone: the fast
+                // kernel's cut is quantized (binned::CUT_PX) and each source's value corrected
+                // for its own cut's flux (a light 2-3% off without it): within 0.1% (measured 0.04%).
+                for (&(x, y), &want) in points.iter().zip(&wants) {
+                    let reach = coc as i64 + 3;
+                    let (x, y) = (x as i64, y as i64);
+                    let got: f64 = (y - reach..=y + reach)
+                        .flat_map(|yy| (x - reach..=x + reach).map(move |xx| (xx, yy)))
+                        .map(|(xx, yy)| out.data[(yy as usize * w + xx as usize) * 3] as f64)
+                        .sum();
+                    println!("CoC {coc:2} front {front:5} {:5} point ({x:3}, {y:3}): light {got:.6} want {want:.6}", kernel.name());
+                    if ((got - want) / want).abs() > 1e-3 {
+                        failures
+                            .push(format!("CoC {coc} front {front} {} point ({x}, {y}): light {got:.6} (want {want:.6})", kernel.name()));
+                    }
                 }
                 for &(x, y) in &points {
                     // The radial axis outward (image coordinates) and the cut's offset |v|.
