@@ -534,9 +534,10 @@ impl Bins {
     /// the cut's circle centred `v` and the shape mirrored together leave the coverage
     /// mirrored, so only cuts with `v` on one side of each such axis are built; across the
     /// frame a cat's eye's `v` points to the centre from every quadrant (a 12 MP render at
-    /// focus 0.2 built ~5,000 templates of ~0.3 ms each). With both mirrors the point
-    /// reflection of a source in front of the focal plane is their product and folds away too.
-    /// A coarse template's centre position mirrors with it (`p ↦ (P − p) mod P`, a column or
+    /// focus 0.2 built ~5,000 templates of ~0.3 ms each). The point reflection of a source
+    /// in front of the focal plane does not fold into a source behind it (their product with
+    /// both mirrors), as it did until 2026-11-29: a source in front meets another cut
+    /// ([`CatEye::cut`]). A coarse template's centre position mirrors with it (`p ↦ (P − p) mod P`, a column or
     /// row's shift of one when `p ≠ 0`). Same weights up to rounding: the mirrored outline is
     /// the same polygon, its vertices computed in another order.
     fn mirror_of(&self, key: u64) -> Option<Mirror> {
