@@ -9,7 +9,7 @@
 //! point-reflected; with a cat's eye each source's light crosses its cut of the lens
 //! ([`CatEye::cut`] of its pixel's [`CatEye::offset`], replicated at the border), spread at
 //! the whole shape's flux norm, and each target multiplies what reaches it by its gain
-//! ([`ShapedSources::gain`]).
+//! ([`ShapedSources::target_gain`]).
 //!
 //! Derivatives: a shape's coverage is an area of the outline (a polygon, a mask, a bubble's
 //! weighted area) integrated over pixel squares, continuous in the CoC `r` and smooth between
@@ -61,7 +61,7 @@ impl ShapedSources {
 
     /// The flux norm of a source of CoC `r` px (see [`Geometry::norm`]): the whole shape's,
     /// with or without a cat's eye (whose targets normalize the light that passes,
-    /// [`ShapedSources::gain`]).
+    /// [`ShapedSources::target_gain`]).
     pub fn norm(&self, r: f32) -> f32 {
         self.shape.norm(r)
     }

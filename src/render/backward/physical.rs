@@ -188,7 +188,8 @@ pub(super) fn backward(
                     std::array::from_fn(|k| gg[k][0] * px[0] as f64 + gg[k][1] * px[1] as f64 + gg[k][2] * px[2] as f64 + gg[k][3]);
                 let g_wt: f64 = (0..3).map(|k| split[k] as f64 * hg[k]).sum();
                 // The gain divides the norm: u = cov·gain / N.
-                let (norm, dnorm) = (src.norm[j].0 as f64 / src.gain(j, gain), src.norm[j].1 as f64 / src.gain(j, gain));
+                let gj = src.gain(j, gain);
+                let (norm, dnorm) = (src.norm[j].0 as f64 / gj, src.norm[j].1 as f64 / gj);
                 let u = cov as f64 / norm;
                 let sg = band.at(j);
                 sg.alpha += g_wt * u;

@@ -136,10 +136,10 @@ impl Template {
     /// The footprint of radius `r` (CoC, scatter radius or disk radius, per `shape`) in a
     /// window of half-size `p`, centred `phase` (x, y; in `[0, 1)`, coarse shape only) past a
     /// lattice point: the rows, spans and taps the one-by-one draw of such a source makes.
-    /// An aperture's shape is point-reflected when `flip`, and cut by a cat's eye's second
-    /// circle centred `cut` (see [`Geometry::coverage_cut`]).
-    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, cut: Option<Cut>, p: i64) -> Self {
-        let v = cut.map(|c| c.circle);
+    /// An aperture's shape is point-reflected when `flip`, and cut by a cat's eye's circle
+    /// `cut` (the one its sources' light crosses, [`CatEye::cut`]; see
+    /// [`Geometry::coverage_cut`]).
+    fn new(shape: Shape, r: f32, phase: (f32, f32), flip: bool, cut: Option<CutCircle>, p: i64) -> Self {
         let mut t = Template { flux_grad: [0.0; 2], scale: 1.0, rr: 0, rows: Vec::new(), diffs: Vec::new(), taps: Vec::new() };
         match shape {
             Shape::Physical => {
@@ -187,8 +187,8 @@ impl Template {
             }
             // The lens window's taps (|offset| < p, as the exact kernel's), or the coarse
             // window's disk around the off-lattice centre.
-            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, v, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
-            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, v, |j| {
+            Shape::Aperture(g) => t.shape_rows(g, r, (0.0, 0.0), flip, cut, |j| lattice_row_reach(p, j).map(|m| (-m as f32, m as f32))),
+            Shape::CoarseAperture { shape: g, window } => t.shape_rows(g, r, phase, flip, cut, |j| {
                 Window::Disk(window).half_width(j as f32 - phase.1).map(|hw| (phase.0 - hw, phase.0 + hw))
             }),
         }
@@ -212,7 +212,7 @@ impl Template {
     fn scale_of(shape: Shape, r: f32, phase_y: f32) -> f32 {
         match shape {
             Shape::Physical => 1.0 / disk_norm(r),
-            // A cat's eye's cut too: its targets normalize what passes (`Ctx::cat_gains`).
+            // A cat's eye's cut too: its targets normalize what passes (`fast::Ctx::cat_gains`).
             Shape::Aperture(g) => 1.0 / g.norm(r),
             // The aggregate's density is of the whole shape's area already.
             Shape::CoarseAperture { .. } => 1.0,
@@ -348,12 +348,6 @@ pub(super) struct Bins {
     px_per_unit: f32,
 }
 
-/// A template's cat's-eye cut: the circle its sources' light crosses ([`CatEye::cut`]).
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Cut {
-    circle: CutCircle,
-}
-
 /// How a cat's-eye template is the mirror image of another key's ([`Bins::mirror_of`]): its
 /// weight at column `dx`, row `j` is the other's at `(flip[0] ? shift[0] − dx : dx,
 /// flip[1] ? shift[1] − j : j)`.
@@ -429,10 +423,10 @@ impl Bins {
     }
 
     /// The cut of a key's class in bin `k`, reflected when `flip` (None without a cat's eye).
-    fn cut_of(&self, k: u64, key: u64, flip: bool) -> Option<Cut> {
+    fn cut_of(&self, k: u64, key: u64, flip: bool) -> Option<CutCircle> {
         let cat = self.cat?;
         let v = self.class_centre(k, key);
-        Some(Cut { circle: cat.cut(v, self.radius(k) * self.px_per_unit, flip) })
+        Some(cat.cut(v, self.radius(k) * self.px_per_unit, flip))
     }
 
     /// The bin of radius `r` (a source centred on a lattice point) and the factor that scales

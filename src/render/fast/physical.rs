@@ -37,6 +37,7 @@ use super::scratch::Scratch;
 use super::survey::Survey;
 use super::{Counts, Ctx};
 use crate::render::aperture::shape::POINT_COC_PX;
+use crate::render::aperture::sources::ShapedSources;
 use crate::render::layer::{A, CHANNELS, D, max_rgb};
 use crate::render::lens::{self, disk_norm};
 use crate::render::{RenderSettings, Role, raw};
@@ -285,7 +286,7 @@ pub(super) fn split_row(ctx: &Ctx, y: usize, q: &[f32], front: &[f32], behind: &
             let r = ctx.sigma[i];
             // With a cat's eye's gain, as every pass got it (a point source's own light was
             // divided by it when scattered).
-            let g = if r >= POINT_COC_PX { ctx.gain(x, y) } else { 1.0 };
+            let g = ShapedSources::gain_of(r, ctx.gain(x, y));
             v.map(|c| c * lens::disk_coverage(r, 0.0) / disk_norm(r) * g)
         });
         let (sf, sb) = (band.interpolated(Side::Front, dt, dt), band.interpolated(Side::Behind, dt, dt));
