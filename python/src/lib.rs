@@ -663,8 +663,13 @@ fn dfd<'py>(
 /// afresh.
 #[pyfunction]
 fn release_memory(py: Python<'_>) {
+    // Each rayon worker has its own heap, and mi_collect frees only the calling thread's (and
+    // abandoned segments): so every worker collects, then this thread.
     // SAFETY: `mi_collect` only frees pages no live allocation uses; any thread may call it.
-    py.detach(|| unsafe { libmimalloc_sys::mi_collect(true) });
+    py.detach(|| {
+        rayon::broadcast(|_| unsafe { libmimalloc_sys::mi_collect(true) });
+        unsafe { libmimalloc_sys::mi_collect(true) }
+    });
 }
 
 /// The native module.
