@@ -128,7 +128,7 @@ def main():
     # Batch throughput.
     batch = None
     if a.batch:
-        t = sh(["scripts/batch_throughput.sh", str(a.batch)])
+        t = sh(["scripts/batch_throughput.sh", str(a.batch)], env=dict(os.environ, LOOP="0"))
         m = re.search(r"(\d+) of (\d+) images of (\S+) in ([\d.]+) s: ([\d.]+) images/minute", t)
         c = re.search(r"CPU (\d+)%", t)
         batch = (m.group(1), m.group(2), m.group(3), m.group(4), m.group(5), c.group(1) if c else "?")

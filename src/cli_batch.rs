@@ -44,11 +44,16 @@ pub struct BatchArgs {
     /// Also process subfolders (mirrored in the output folder).
     #[arg(long)]
     recursive: bool,
-    /// Images processed at once, or `auto` (one per core): each image's stages and render use
-    /// every core, and several images in flight overlap one's serial parts with another's
-    /// parallel ones. Memory stays under [batch] memory_budget_mb.
+    /// Images processed at once, or `auto`: one per core when there are images enough and
+    /// [batch] memory_budget_mb holds them (fewer for a short batch or large photos). Each
+    /// image runs on its own share of the cores (--threads-per-image); --threads caps the
+    /// whole batch.
     #[arg(long, value_name = "N|auto", default_value = "auto")]
     jobs: String,
+    /// Threads of each image's stages and render, or `auto`: the batch's threads (--threads,
+    /// else one per core) split evenly among the images in flight, at least one each.
+    #[arg(long, value_name = "N|auto", default_value = "auto")]
+    threads_per_image: String,
     /// Redo images whose output is up to date (same inputs and parameters).
     #[arg(long)]
     force: bool,
@@ -72,7 +77,8 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         recursive: args.recursive,
         force: args.force,
         shard: args.shard,
-        jobs: parse_jobs(&args.jobs)?,
+        jobs: parse_count(&args.jobs, "--jobs")?,
+        threads_per_image: parse_count(&args.threads_per_image, "--threads-per-image")?,
         focus: args.focus.map(Focus::Disparity).or(args.focus_at.map(|(x, y)| Focus::At(x, y))),
         manifest: args.manifest.clone(),
         keyframes: args.keyframes,
@@ -121,12 +127,13 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
         crate::print_json(&summary)?;
     } else {
         eprintln!(
-            "{} ok, {} skipped, {} failed{} in {:.1} s; summary in {}",
+            "{} ok, {} skipped, {} failed{} in {:.1} s ({}); summary in {}",
             summary.ok,
             summary.skipped,
             summary.failed,
             if summary.cancelled > 0 { format!(", {} cancelled", summary.cancelled) } else { String::new() },
             summary.seconds,
+            in_flight(&summary.threads_per_image),
             batch::summary_path(&args.output, args.shard).display()
         );
         for r in summary.items.iter().filter(|r| r.status == Status::Failed) {
@@ -142,11 +149,19 @@ pub fn batch(args: BatchArgs) -> anyhow::Result<ExitCode> {
     })
 }
 
-/// `--jobs`: a count (bounded as `--threads`) or `auto`, one image per core.
-fn parse_jobs(v: &str) -> anyhow::Result<usize> {
+/// "4 images at a time, 4 threads each" (or "… 6 or 5 threads each").
+fn in_flight(threads: &[usize]) -> String {
+    let (lo, hi) = (threads.iter().min().copied().unwrap_or(1), threads.iter().max().copied().unwrap_or(1));
+    let each = if lo == hi { format!("{hi}") } else { format!("{hi} or {lo}") };
+    let (n, s) = (threads.len(), if hi == 1 { "" } else { "s" });
+    format!("{n} image{} at a time, {each} thread{s} each", if n == 1 { "" } else { "s" })
+}
+
+/// `--jobs` and `--threads-per-image`: a count (bounded as `--threads`), or `auto` (`None`).
+fn parse_count(v: &str, flag: &str) -> anyhow::Result<Option<usize>> {
     if v == "auto" {
-        return Ok(std::thread::available_parallelism().map_or(1, |c| c.get()));
+        return Ok(None);
     }
-    let n = v.parse::<usize>().map_err(|_| drbokeh::Error::usage(format!("--jobs must be a whole number or 'auto', got '{v}'")))?;
-    Ok(drbokeh::resources::check_threads(n, "--jobs")?)
+    let n = v.parse::<usize>().map_err(|_| drbokeh::Error::usage(format!("{flag} must be a whole number or 'auto', got '{v}'")))?;
+    Ok(Some(drbokeh::resources::check_threads(n, flag)?))
 }

@@ -58,8 +58,21 @@ pub struct BatchConfig {
     /// Output format, also the outputs' extension: "png", "exr" or "npy".
     pub output_format: OutputFormat,
     /// Images in flight never need more than this much memory (estimated from their size:
-    /// about 200 bytes per pixel); one image is always allowed.
-    pub memory_budget_mb: u64,
+    /// about 200 bytes per pixel); one image is always allowed. Unset: half the memory
+    /// available when the batch starts ([`BatchConfig::memory_budget_bytes`]).
+    pub memory_budget_mb: Option<u64>,
+}
+
+impl BatchConfig {
+    /// The budget in bytes: `memory_budget_mb`, else half of what the system says is available
+    /// ([`crate::resources::available_bytes`]: memory, cgroup, address space), at least 1 GiB;
+    /// 4 GiB where nothing says.
+    pub fn memory_budget_bytes(&self) -> u64 {
+        match self.memory_budget_mb {
+            Some(mb) => mb.saturating_mul(1 << 20),
+            None => crate::resources::available_bytes().map_or(4 << 30, |b| (b / 2).max(1 << 30)),
+        }
+    }
 }
 
 impl Default for BatchConfig {
@@ -69,7 +82,7 @@ impl Default for BatchConfig {
             matte_patterns: vec!["{stem}.matte".into(), "{stem}_matte".into()],
             output_pattern: "{stem}_bokeh".into(),
             output_format: OutputFormat::Png,
-            memory_budget_mb: 4096,
+            memory_budget_mb: None,
         }
     }
 }
@@ -379,6 +392,24 @@ fn edit_distance(a: &str, b: &str) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `[batch] memory_budget_mb` as set, else half of what is available, at least 1 GiB.
+    #[test]
+    fn the_batch_budget_is_the_set_one_or_half_the_available_memory() {
+        let set = BatchConfig { memory_budget_mb: Some(512), ..Default::default() };
+        assert_eq!(set.memory_budget_bytes(), 512 << 20);
+        let auto = BatchConfig::default().memory_budget_bytes();
+        match crate::resources::available_bytes() {
+            // MemAvailable moves between the two reads: within 10%.
+            Some(b) => {
+                let want = (b / 2).max(1 << 30) as f64;
+                assert!((auto as f64 / want - 1.0).abs() < 0.1, "{auto} bytes against {want}");
+            }
+            None => assert_eq!(auto, 4 << 30),
+        }
+        let parsed: Config = toml::from_str("[batch]\nmemory_budget_mb = 2048\n").unwrap();
+        assert_eq!(parsed.batch.memory_budget_mb, Some(2048));
+    }
 
     #[test]
     fn unknown_key_suggests_closest() {

@@ -386,9 +386,9 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };
-    if matches!(cli.command, Command::Render(_)) {
-        // One frame at a time: its freed buffers serve the next stage (see the function; a
-        // batch keeps several frames in flight and gained nothing there, 10-20% more peak RSS).
+    if matches!(cli.command, Command::Render(_) | Command::Batch(_)) {
+        // A frame's freed buffers serve its next stage, and in a batch the next image (see
+        // the function).
         drbokeh::resources::reuse_large_allocations();
     }
     let result = std::panic::catch_unwind(|| match cli.command {

@@ -16,11 +16,14 @@ use crate::error::{Error, Result};
 /// cost page faults and zeroing again (the kernel's page clearing alone was 16% of the
 /// 12.2 MP render command's CPU). Taken from the heap (and the heap not trimmed), they reuse
 /// memory the run already touched: `scripts/e2e_timing.sh`'s command 3.64-3.93 s against
-/// 3.08-3.39 s, same peak RSS (three alternated runs). The price: a long-running process keeps
-/// its largest footprint mapped (reused, not grown), and with several frames in flight the
-/// reuse fragments: `drbokeh batch` (30 photos of 2.1 MP, `--jobs auto`) ran no faster and
-/// peaked 10-20% higher, so the binary calls this for `render` only. For programs; a library
-/// leaves the allocator to its host.
+/// 3.08-3.39 s, same peak RSS (three alternated runs). In a batch, images in flight on their
+/// own threads (issue 43) mapped and unmapped their buffers through the process's one memory
+/// map: with this, 16 photos of 12.2 MP at a time on 16 cores made 111 images/minute against
+/// 99 (system time 27 s against 45; one window), 2.1 MP photos on 2 cores +5% (two alternated
+/// runs each, `scripts/batch_throughput.sh`). The price: a long-running process
+/// keeps its largest footprint mapped (reused, not grown), and with several images in flight
+/// the reuse fragments (peak RSS +15-20%). For programs (the binary calls it for `render` and
+/// `batch`); a library leaves the allocator to its host.
 pub fn reuse_large_allocations() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: `mallopt` only sets allocator parameters; called before any thread starts.

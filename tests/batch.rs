@@ -410,6 +410,8 @@ fn usage_errors_stop_before_any_image() {
     // Unbounded counts are refused too.
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--jobs", "100000"], &["--jobs", "100000"]);
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--jobs", "many"], &["--jobs", "many", "auto"]);
+    assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads-per-image", "0"], &["--threads-per-image", "0"]);
+    assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads-per-image", "x"], &["--threads-per-image", "auto"]);
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads", "100000"], &["--threads"]);
 }
 
@@ -478,10 +480,12 @@ fn output_names_near_the_length_limit() {
     assert_eq!((code, s["skipped"].as_u64()), (Some(0), Some(1)), "{err}");
 }
 
-/// Issue 14: images in flight at once (`--jobs`) change nothing but the time: the outputs are
-/// byte-identical to one at a time, and the summary lists the images in plan order.
+/// Issues 14 and 43: images in flight at once (`--jobs`) and the threads each gets
+/// (`--threads-per-image`) change nothing but the time: the outputs are byte-identical to one
+/// at a time, and the summary lists the images in plan order. The summary says the schedule
+/// each asked for (the tests' binary sees 2 threads: `RAYON_NUM_THREADS`).
 #[test]
-fn jobs_change_only_the_time() {
+fn jobs_and_threads_per_image_change_only_the_time() {
     let t = tempfile::tempdir().unwrap();
     let inp = t.path().join("in");
     std::fs::create_dir_all(&inp).unwrap();
@@ -489,18 +493,31 @@ fn jobs_change_only_the_time() {
         scene(&inp, stem, Some(&format!("{stem}.depth.exr")), Some(&format!("{stem}.matte.png")));
     }
     let mut runs = Vec::new();
-    for jobs in ["1", "3", "auto"] {
-        let out = t.path().join(format!("out-{jobs}"));
-        let (code, s, err) = batch_json(&inp, &out, &["--focus", "1", "--blur", "6", "--jobs", jobs]);
-        assert_eq!(code, Some(0), "--jobs {jobs}: {err}");
+    let cases: [(&[&str], &[u64]); 5] = [
+        // One image on both threads; three on one each (more than the cores, as asked); auto:
+        // one per core; one per two threads; both given.
+        (&["--jobs", "1"], &[2]),
+        (&["--jobs", "3"], &[1, 1, 1]),
+        (&["--jobs", "auto"], &[1, 1]),
+        (&["--threads-per-image", "2"], &[2]),
+        (&["--jobs", "2", "--threads-per-image", "3"], &[3, 3]),
+    ];
+    for (i, (flags, schedule)) in cases.iter().enumerate() {
+        let out = t.path().join(format!("out-{i}"));
+        let mut args = vec!["--focus", "1", "--blur", "6"];
+        args.extend_from_slice(flags);
+        let (code, s, err) = batch_json(&inp, &out, &args);
+        assert_eq!(code, Some(0), "{flags:?}: {err}");
+        let got: Vec<u64> = s["threads_per_image"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+        assert_eq!(&got, schedule, "{flags:?}: threads per image in flight");
         let order: Vec<String> = statuses(&s).into_iter().map(|(image, status, _)| format!("{image} {status}")).collect();
         let outputs: Vec<Vec<u8>> =
             ["a", "b", "c", "d", "e"].iter().map(|n| std::fs::read(out.join(format!("{n}_bokeh.png"))).unwrap()).collect();
-        runs.push((jobs, order, outputs));
+        runs.push((flags, order, outputs));
     }
-    for (jobs, order, outputs) in &runs[1..] {
-        assert_eq!(order, &runs[0].1, "--jobs {jobs}: summary order");
-        assert!(outputs == &runs[0].2, "--jobs {jobs}: outputs differ from --jobs 1");
+    for (flags, order, outputs) in &runs[1..] {
+        assert_eq!(order, &runs[0].1, "{flags:?}: summary order");
+        assert!(outputs == &runs[0].2, "{flags:?}: outputs differ from --jobs 1");
     }
 }
 
