@@ -562,8 +562,12 @@ pub fn run(
     let done = std::sync::atomic::AtomicUsize::new(0);
     let limit = cfg.batch.memory_budget_bytes();
     let budget = Budget { limit, used: Mutex::new(0), freed: Condvar::new() };
-    let machine =
-        schedule::Machine { cores: rayon::current_num_threads(), items: total, image_bytes: typical_image_bytes(&plans), budget: limit };
+    let machine = schedule::Machine {
+        cores: rayon::current_num_threads(),
+        items: total,
+        image_bytes: typical_image_bytes(plans.len(), |i| image_bytes(&plans[i].item.image)),
+        budget: limit,
+    };
     let schedule = schedule::schedule(machine, opts.jobs, opts.threads_per_image);
     let pools = schedule
         .threads
@@ -628,11 +632,12 @@ pub fn run(
     Ok(summary)
 }
 
-/// Estimated render memory of a typical image of the batch: the median over up to 31 images
-/// spread through the plan (their headers only), so one outlier does not set the schedule.
-fn typical_image_bytes(plans: &[Plan]) -> u64 {
-    let step = plans.len().div_ceil(31).max(1);
-    let mut sizes: Vec<u64> = plans.iter().step_by(step).map(|p| image_bytes(&p.item.image)).collect();
+/// Estimated render memory of a typical image of the batch: the median over up to 31 of the
+/// `n` images, spread through the plan (`bytes_of(i)` reads image i's header), so that one
+/// outlier does not set the schedule and a long batch is not read twice.
+fn typical_image_bytes(n: usize, bytes_of: impl Fn(usize) -> u64) -> u64 {
+    let step = n.div_ceil(31).max(1);
+    let mut sizes: Vec<u64> = (0..n).step_by(step).map(bytes_of).collect();
     sizes.sort_unstable();
     sizes.get(sizes.len() / 2).copied().unwrap_or(0)
 }
@@ -839,6 +844,24 @@ mod tests {
             }
         });
         most.into_inner()
+    }
+
+    /// The schedule's typical image: the median of a sample spread through the batch, read
+    /// once each; an outlier does not move it.
+    #[test]
+    fn the_typical_image_is_the_median_of_a_spread_sample() {
+        let reads = std::sync::atomic::AtomicUsize::new(0);
+        let size = |i: usize| {
+            reads.fetch_add(1, Ordering::SeqCst);
+            if i == 0 { 1_000_000 } else { 100 + i as u64 }
+        };
+        assert_eq!(typical_image_bytes(5, size), 103);
+        assert_eq!(reads.swap(0, Ordering::SeqCst), 5);
+        // 100 images: every 4th (25 read: 0, 4, ..., 96), the outlier among them; the median
+        // is the 13th of the sorted 25.
+        assert_eq!(typical_image_bytes(100, size), 100 + 52);
+        assert_eq!(reads.load(Ordering::SeqCst), 25);
+        assert_eq!(typical_image_bytes(0, size), 0);
     }
 
     /// `[batch] memory_budget_mb`: images whose estimates together exceed the budget never run
