@@ -206,7 +206,8 @@ where
     };
     rayon::in_place_scope(|s| {
         // Helpers only where there is more than one band: a small image stays on this thread.
-        for _ in 0..rayon::current_num_threads().min(bands - 1) {
+        // This thread is one of the `--threads` workers: with one, it encodes alone.
+        for _ in 0..(rayon::current_num_threads() - 1).min(bands - 1) {
             s.spawn(|_| {
                 let mut scratch = Scratch::default();
                 while work(&mut scratch) {}
