@@ -115,10 +115,15 @@ fn check_memory_against(what: &str, needed: u64, available: Option<u64>) -> Resu
 /// huge count spent minutes creating threads before any work).
 pub const MAX_THREADS_PER_CORE: usize = 16;
 
-/// Checks a user-given worker-thread count: 1 ..= max(64, 16 × cores).
-pub fn check_threads(n: usize, flag: &str) -> Result<usize> {
+/// The most worker threads a run accepts: max(64, 16 × cores); and the core count.
+pub fn max_threads() -> (usize, usize) {
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
-    let max = (MAX_THREADS_PER_CORE * cores).max(64);
+    ((MAX_THREADS_PER_CORE * cores).max(64), cores)
+}
+
+/// Checks a user-given worker-thread count: 1 ..= [`max_threads`].
+pub fn check_threads(n: usize, flag: &str) -> Result<usize> {
+    let (max, cores) = max_threads();
     if n == 0 || n > max {
         return Err(Error::usage(format!("{flag} must be between 1 and {max} ({cores} cores here), got {n}")));
     }

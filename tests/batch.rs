@@ -412,6 +412,14 @@ fn usage_errors_stop_before_any_image() {
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--jobs", "many"], &["--jobs", "many", "auto"]);
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads-per-image", "0"], &["--threads-per-image", "0"]);
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads-per-image", "x"], &["--threads-per-image", "auto"]);
+    // Each count within bounds, their product not: refused before a thread starts.
+    assert_usage_error(
+        root,
+        &inp,
+        &out,
+        &["--focus", "1", "--jobs", "64", "--threads-per-image", "64"],
+        &["--jobs", "--threads-per-image", "threads in all"],
+    );
     assert_usage_error(root, &inp, &out, &["--focus", "1", "--threads", "100000"], &["--threads"]);
 }
 

@@ -552,6 +552,25 @@ pub fn run(
     if let Some((i, n)) = opts.shard {
         plans = plans.into_iter().enumerate().filter(|(k, _)| k % n == i).map(|(_, p)| p).collect();
     }
+    // The schedule (a usage error surfaces before anything is written).
+    let limit = cfg.batch.memory_budget_bytes();
+    let budget = Budget { limit, used: Mutex::new(0), freed: Condvar::new() };
+    let machine = schedule::Machine {
+        cores: rayon::current_num_threads(),
+        items: plans.len(),
+        image_bytes: typical_image_bytes(plans.len(), |i| image_bytes(&plans[i].item.image)),
+        budget: limit,
+    };
+    let schedule = schedule::schedule(machine, opts.jobs, opts.threads_per_image);
+    let (max, cores) = crate::resources::max_threads();
+    let threads: usize = schedule.threads.iter().sum();
+    if threads > max {
+        return Err(Error::usage(format!(
+            "{} images at a time (--jobs, at most one per image) with --threads-per-image {} each asks for {threads} threads in all: at most {max} ({cores} cores here)",
+            schedule.threads.len(),
+            schedule.threads[0]
+        )));
+    }
     std::fs::create_dir_all(&opts.output_dir).map_err(|e| Error::io(&opts.output_dir, e))?;
     // Once per folder, not per image: one read_dir each.
     let out_dirs: BTreeSet<&Path> = plans.iter().filter_map(|p| p.item.output.parent()).chain([opts.output_dir.as_path()]).collect();
@@ -560,15 +579,6 @@ pub fn run(
     }
     let total = plans.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let limit = cfg.batch.memory_budget_bytes();
-    let budget = Budget { limit, used: Mutex::new(0), freed: Condvar::new() };
-    let machine = schedule::Machine {
-        cores: rayon::current_num_threads(),
-        items: total,
-        image_bytes: typical_image_bytes(plans.len(), |i| image_bytes(&plans[i].item.image)),
-        budget: limit,
-    };
-    let schedule = schedule::schedule(machine, opts.jobs, opts.threads_per_image);
     let pools = schedule
         .threads
         .iter()
