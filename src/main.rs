@@ -391,6 +391,10 @@ fn main() -> ExitCode {
         // the function).
         drbokeh::resources::reuse_large_allocations();
     }
+    if matches!(cli.command, Command::Render(_)) {
+        // One image's workers reuse each other's freed buffers (see the function).
+        drbokeh::resources::few_allocator_arenas();
+    }
     let result = std::panic::catch_unwind(|| match cli.command {
         Command::Render(args) => render(args).map(|()| ExitCode::SUCCESS),
         Command::Trace(args) => cli_bench::trace(args).map(|()| ExitCode::SUCCESS),

@@ -33,6 +33,28 @@ pub fn reuse_large_allocations() {
     }
 }
 
+/// How many glibc malloc arenas a one-image run shares among its threads.
+pub const ONE_IMAGE_ARENAS: i32 = 2;
+
+/// Lets a one-image run's threads share [`ONE_IMAGE_ARENAS`] malloc arenas instead of one
+/// each (glibc on Linux; elsewhere it does nothing). By default glibc gives each thread its
+/// own arena, up to 8 per core, and a block freed in one arena serves only the threads of
+/// that arena: the buffers one stage's workers free stay resident beside the next stage's,
+/// allocated by other workers in other arenas. With [`reuse_large_allocations`] nothing is
+/// handed back, so the 12.2 MP render command's peak grew with the threads: on 2 cores at
+/// `--threads 16`, 1.40-1.51 GB (four runs) against 1.05 GB at one thread, and 1.14-1.20 GB
+/// with two arenas, at the same speed (2.51-2.56 s against 2.56-2.59 s; `--threads 2`:
+/// 2.31-2.37 s against 2.36-2.51 s; four alternated runs each). One arena measured the same
+/// here; two halve what contention a many-core machine could show. Not for a batch: its
+/// images in flight run on threads of their own and each reuses what its thread freed.
+pub fn few_allocator_arenas() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: `mallopt` only sets an allocator parameter; called before any thread starts.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, ONE_IMAGE_ARENAS);
+    }
+}
+
 /// Peak bytes per pixel of one photo + depth (+ matte) render with the classical stages:
 /// measured 97 B/px for the whole 12 MP command (README, Performance), plus margin.
 pub const RENDER_BYTES_PER_PIXEL: u64 = 120;

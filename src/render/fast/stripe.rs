@@ -38,20 +38,42 @@ pub(super) fn render_stripes(
         }
         let y0 = si * STRIPE_ROWS;
         let y1 = (y0 + STRIPE_ROWS).min(ctx.h);
-        render_stripe(ctx, coarse, empty, y0, y1, &mut sc, counts);
-        // Hand the finished pixels over.
-        for (k, px) in chunk.chunks_exact_mut(stride).enumerate() {
-            let r: &raw::Pixel = sc.raw[k * raw::CHANNELS..(k + 1) * raw::CHANNELS].try_into().expect("raw pixel");
-            finish(r, px);
-        }
+        let mut sink = Sink { ctx, out: chunk, stride, finish };
+        render_stripe(ctx, coarse, empty, y0, y1, &mut sc, &mut sink, counts);
         if let Ok(mut p) = pool.lock() {
             p.push(sc);
         }
     });
 }
 
-/// Renders rows `[y0, y1)` into `sc.raw` as raw pixels.
-fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: usize, sc: &mut Scratch, counts: &Counts) {
+/// Where a stripe's finished rows go: each raw pixel of row `r` (of the stripe) to `finish`
+/// with its `stride` values of `out` (the stripe's rows of the caller's buffer).
+struct Sink<'a, 'o> {
+    ctx: &'a Ctx<'a>,
+    out: &'o mut [f32],
+    stride: usize,
+    finish: &'a (dyn Fn(&raw::Pixel, &mut [f32]) + Sync),
+}
+
+impl Sink<'_, '_> {
+    /// Hands over row `r`'s raw pixels (`raw`, one row), finished first for the physical
+    /// profile ([`physical::finish_rows`]).
+    fn row(&mut self, r: usize, raw: &mut [f32]) {
+        if self.ctx.s.profile == Profile::Physical {
+            physical::finish_rows(self.ctx, raw);
+        }
+        let w = self.ctx.w;
+        let out = &mut self.out[r * w * self.stride..(r + 1) * w * self.stride];
+        for (px, o) in raw.chunks_exact(raw::CHANNELS).zip(out.chunks_exact_mut(self.stride)) {
+            (self.finish)(px.try_into().expect("raw pixel"), o);
+        }
+    }
+}
+
+/// Renders rows `[y0, y1)` and hands each row's raw pixels to `sink` as it is finished: a
+/// worker holds one row of them, not the stripe's (12.2 MP: 80 kB against 5 MB).
+#[allow(clippy::too_many_arguments)]
+fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: usize, sc: &mut Scratch, sink: &mut Sink, counts: &Counts) {
     let w = ctx.w;
     let rows = y1 - y0;
     let physical = ctx.s.profile == Profile::Physical;
@@ -60,17 +82,16 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
     } else {
         visibility_rows(ctx.img, &ctx.sigma, ctx.p, y0, y1, &mut sc.sat, &mut sc.vis);
     }
-    let mut raw = std::mem::take(&mut sc.raw);
-    raw.clear();
-    raw.resize(rows * w * raw::CHANNELS, 0.0);
     if empty {
-        for (o, &v) in raw.chunks_exact_mut(raw::CHANNELS).zip(&sc.vis) {
-            o[raw::VISIBILITY] = v;
+        let raw = &mut sc.raw;
+        for r in 0..rows {
+            raw.clear();
+            raw.resize(w * raw::CHANNELS, 0.0);
+            for (o, &v) in raw.chunks_exact_mut(raw::CHANNELS).zip(&sc.vis[r * w..(r + 1) * w]) {
+                o[raw::VISIBILITY] = v;
+            }
+            sink.row(r, raw);
         }
-        if physical {
-            physical::finish_rows(ctx, &mut raw);
-        }
-        sc.raw = raw;
         return;
     }
 
@@ -118,12 +139,8 @@ fn render_stripe(ctx: &Ctx, coarse: &[Vec<Coarse>], empty: bool, y0: usize, y1: 
     } else {
         scan_sources(ctx, nodes, y0, y1, sc, counts);
     }
-    combine_rows(ctx, coarse, nodes, y0, y1, sc, &mut raw, counts);
-    if physical {
-        physical::finish_rows(ctx, &mut raw);
-    }
+    combine_rows(ctx, coarse, nodes, y0, y1, sc, sink, counts);
     counts.ops.fetch_add((rows * w * n_acc) as u64, Ordering::Relaxed);
-    sc.raw = raw;
 }
 
 /// Scatters the full-resolution sources that reach rows `[y0, y1)` (exact stencils and
@@ -229,7 +246,7 @@ fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, y1: usize, 
 
 /// Resolves the stripe accumulators row by row, adds the coarse levels and combines:
 /// `A` everywhere; in the band `q·A + (1-q)·B` plus the centre correction (official) or the
-/// depth groups (physical, [`physical::split_row`]). Writes `raw`.
+/// depth groups (physical, [`physical::split_row`]). Hands each row to `sink`.
 // Out of line, like scan_sources: profiles show the combine apart.
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
@@ -240,12 +257,13 @@ fn combine_rows(
     y0: usize,
     y1: usize,
     sc: &mut Scratch,
-    raw: &mut [f32],
+    sink: &mut Sink,
     counts: &Counts,
 ) {
     const RAW: usize = raw::CHANNELS;
     let w = ctx.w;
     let (row_a, row_b, row_h, row_u, tmp) = (&mut sc.row_a, &mut sc.row_b, &mut sc.row_h, &mut sc.row_u, &mut sc.tmp);
+    let out = &mut sc.raw;
     let mut split = 0u64;
     for r in 0..y1 - y0 {
         let y = y0 + r;
@@ -256,53 +274,57 @@ fn combine_rows(
             c.grid.add_upsampled_row(y, c.factor, row_a, tmp);
         }
         let q = &sc.q[r * w..(r + 1) * w];
-        let out = &mut raw[r * w * RAW..(r + 1) * w * RAW];
-        // A cat's eye's targets normalize the light that reaches them (every pass alike).
-        if ctx.cat_gains.is_some() {
-            for (x, v) in row_a.chunks_exact_mut(4).enumerate() {
-                let g = ctx.gain(x, y);
-                v.iter_mut().for_each(|c| *c *= g);
-            }
-        }
-        for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
-            o[..4].copy_from_slice(&row_a[x * 4..x * 4 + 4]);
-            o[raw::VISIBILITY] = sc.vis[r * w + x];
-        }
-        let Some(nodes) = nodes else { continue };
-        // The row's band targets: the band sums are needed there only.
-        sc.band_x.clear();
-        sc.band_x.extend((0..w).filter(|&x| q[x] < 1.0));
-        let Some(&last) = sc.band_x.last() else { continue };
-        let rows = BandRow { ctx, coarse, accs: &sc.accs, nodes, r, y, targets: &sc.band_x, end: last + 1, a: row_a };
-        // The front passes interpolated at each band target, in row_b.
-        rows.side(Side::Front, row_b, row_u, tmp);
-        if ctx.s.profile == Profile::Physical {
-            rows.side(Side::Behind, row_h, row_u, tmp);
+        out.clear();
+        out.resize(w * RAW, 0.0);
+        'row: {
+            // A cat's eye's targets normalize the light that reaches them (every pass alike).
             if ctx.cat_gains.is_some() {
-                for &x in &sc.band_x {
+                for (x, v) in row_a.chunks_exact_mut(4).enumerate() {
                     let g = ctx.gain(x, y);
-                    row_b[x * 4..x * 4 + 4].iter_mut().chain(&mut row_h[x * 4..x * 4 + 4]).for_each(|c| *c *= g);
+                    v.iter_mut().for_each(|c| *c *= g);
                 }
             }
-            split += physical::split_row(ctx, y, q, row_b, row_h, out);
-            continue;
-        }
-        for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
-            let qi = q[x];
-            if qi >= 1.0 {
-                continue;
+            for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
+                o[..4].copy_from_slice(&row_a[x * 4..x * 4 + 4]);
+                o[raw::VISIBILITY] = sc.vis[r * w + x];
             }
-            let i = y * w + x;
-            let di = ctx.d(i);
-            // The centre tap has occlusion 1, not q + (1-q)·g(0) as in A and B.
-            let corr = ctx.base(i).map(|v| {
-                let e = energy(ctx.sigma[i], 0.0, ctx.unit) * (1.0 - qi) * (1.0 - in_front(di, di));
-                v.map(|c| c * e)
-            });
-            for c in 0..4 {
-                o[c] = qi * row_a[x * 4 + c] + (1.0 - qi) * row_b[x * 4 + c] + corr.map_or(0.0, |v| v[c]);
+            let Some(nodes) = nodes else { break 'row };
+            // The row's band targets: the band sums are needed there only.
+            sc.band_x.clear();
+            sc.band_x.extend((0..w).filter(|&x| q[x] < 1.0));
+            let Some(&last) = sc.band_x.last() else { break 'row };
+            let rows = BandRow { ctx, coarse, accs: &sc.accs, nodes, r, y, targets: &sc.band_x, end: last + 1, a: row_a };
+            // The front passes interpolated at each band target, in row_b.
+            rows.side(Side::Front, row_b, row_u, tmp);
+            if ctx.s.profile == Profile::Physical {
+                rows.side(Side::Behind, row_h, row_u, tmp);
+                if ctx.cat_gains.is_some() {
+                    for &x in &sc.band_x {
+                        let g = ctx.gain(x, y);
+                        row_b[x * 4..x * 4 + 4].iter_mut().chain(&mut row_h[x * 4..x * 4 + 4]).for_each(|c| *c *= g);
+                    }
+                }
+                split += physical::split_row(ctx, y, q, row_b, row_h, out);
+                break 'row;
+            }
+            for (x, o) in out.chunks_exact_mut(RAW).enumerate() {
+                let qi = q[x];
+                if qi >= 1.0 {
+                    continue;
+                }
+                let i = y * w + x;
+                let di = ctx.d(i);
+                // The centre tap has occlusion 1, not q + (1-q)·g(0) as in A and B.
+                let corr = ctx.base(i).map(|v| {
+                    let e = energy(ctx.sigma[i], 0.0, ctx.unit) * (1.0 - qi) * (1.0 - in_front(di, di));
+                    v.map(|c| c * e)
+                });
+                for c in 0..4 {
+                    o[c] = qi * row_a[x * 4 + c] + (1.0 - qi) * row_b[x * 4 + c] + corr.map_or(0.0, |v| v[c]);
+                }
             }
         }
+        sink.row(r, out);
     }
     if split > 0 {
         counts.groups.fetch_add(split, Ordering::Relaxed);
