@@ -391,10 +391,6 @@ fn main() -> ExitCode {
         // the function).
         drbokeh::resources::reuse_large_allocations();
     }
-    if matches!(cli.command, Command::Render(_)) {
-        // One image's workers reuse each other's freed buffers (see the function).
-        drbokeh::resources::few_allocator_arenas();
-    }
     let result = std::panic::catch_unwind(|| match cli.command {
         Command::Render(args) => render(args).map(|()| ExitCode::SUCCESS),
         Command::Trace(args) => cli_bench::trace(args).map(|()| ExitCode::SUCCESS),
@@ -599,6 +595,10 @@ pub(crate) fn print_json<T: serde::Serialize>(value: &T) -> anyhow::Result<()> {
 }
 
 fn render(args: RenderArgs) -> anyhow::Result<()> {
+    // One image's workers reuse each other's freed buffers (see the function); before any
+    // worker starts.
+    let threads = args.opts.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |c| c.get()));
+    drbokeh::resources::share_allocator_arenas(threads);
     set_threads(args.opts.threads)?;
     // SIGINT/SIGTERM: nothing is worth finishing; remove the temporary output file, exit 130.
     let _ = ctrlc::set_handler(|| {

@@ -33,26 +33,35 @@ pub fn reuse_large_allocations() {
     }
 }
 
-/// How many glibc malloc arenas a one-image run shares among its threads.
-pub const ONE_IMAGE_ARENAS: i32 = 2;
+/// Threads of a one-image run per glibc malloc arena ([`share_allocator_arenas`]).
+pub const THREADS_PER_ARENA: usize = 4;
 
-/// Lets a one-image run's threads share [`ONE_IMAGE_ARENAS`] malloc arenas instead of one
+/// The malloc arenas a one-image run of `threads` workers gets: one per
+/// [`THREADS_PER_ARENA`] threads, at least 2.
+pub fn arenas_for(threads: usize) -> usize {
+    threads.div_ceil(THREADS_PER_ARENA).max(2)
+}
+
+/// Lets a one-image run's `threads` workers share [`arenas_for`] malloc arenas instead of one
 /// each (glibc on Linux; elsewhere it does nothing). By default glibc gives each thread its
 /// own arena, up to 8 per core, and a block freed in one arena serves only the threads of
 /// that arena: the buffers one stage's workers free stay resident beside the next stage's,
-/// allocated by other workers in other arenas. With [`reuse_large_allocations`] nothing is
-/// handed back, so the 12.2 MP render command's peak grew with the threads: on 2 cores at
-/// `--threads 16`, 1.40-1.51 GB (four runs) against 1.05 GB at one thread, and 1.14-1.20 GB
-/// with two arenas, at the same speed (2.51-2.56 s against 2.56-2.59 s; `--threads 2`:
-/// 2.31-2.37 s against 2.36-2.51 s; four alternated runs each). One arena measured the same
-/// here; two halve what contention a many-core machine could show. Not for a batch: its
-/// images in flight run on threads of their own and each reuses what its thread freed.
-pub fn few_allocator_arenas() {
+/// allocated by other workers in other arenas, and with [`reuse_large_allocations`] nothing
+/// is handed back. The 12.2 MP render command at `--threads 16` on 2 cores peaked at
+/// 1.40-1.51 GB (four runs) against 1.02 GB at one thread; with 4 arenas, 1.22-1.34 GB
+/// (three runs), with 2, 1.14-1.20 GB (four), at the same speed here. Sharing costs lock
+/// waits where the threads run at once: on the lent 16-core machine (2026-11-26, 16 threads,
+/// two runs each) 4 arenas ran as fast as the default (1.10-1.12 s against 1.10-1.11 s), 2
+/// took 1.16-1.24 s and 1 took 1.48-1.54 s; hence four threads per arena. Not for a batch:
+/// its images in flight run on threads of their own, each reusing what its thread freed.
+pub fn share_allocator_arenas(threads: usize) {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: `mallopt` only sets an allocator parameter; called before any thread starts.
+    // SAFETY: `mallopt` only sets an allocator parameter; called before the workers start.
     unsafe {
-        libc::mallopt(libc::M_ARENA_MAX, ONE_IMAGE_ARENAS);
+        libc::mallopt(libc::M_ARENA_MAX, arenas_for(threads).min(libc::c_int::MAX as usize) as libc::c_int);
     }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    let _ = threads;
 }
 
 /// Peak bytes per pixel of one photo + depth (+ matte) render with the classical stages:
@@ -155,6 +164,15 @@ pub fn check_threads(n: usize, flag: &str) -> Result<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Four threads per arena (what the lent 16-core machine ran at full speed), never fewer
+    /// than two arenas.
+    #[test]
+    fn arenas_are_one_per_four_threads_and_at_least_two() {
+        for (threads, arenas) in [(1, 2), (2, 2), (8, 2), (9, 3), (16, 4), (17, 5), (64, 16)] {
+            assert_eq!(arenas_for(threads), arenas, "{threads} threads");
+        }
+    }
 
     #[test]
     fn memory_check_names_both_sizes() {
