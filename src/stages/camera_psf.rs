@@ -47,43 +47,48 @@ const PERCENTILE: f32 = 0.15;
 /// The pixel's box filter's variance along any direction, px².
 const PIXEL_VARIANCE: f32 = 1.0 / 12.0;
 
-/// The PSF σ (pixels) of `rgb` (linear RGB) from its sharpest edges, leaving out pixels with
-/// `skip` set (clipped samples and their neighbours: their profile is cut off), or `None`
+/// The PSF σ (pixels) of `rgb` (linear RGB) from its sharpest edges, leaving out edges whose
+/// window lies within `margin` pixels of a sample with `clipped` set (non-zero: their
+/// profile is cut off), or `None`
 /// when the photo has too few clean edges. Cost: one gradient pass over the frame (parallel by
-/// rows), then at most [`MAX_EDGES`] small fits.
-pub fn estimate(rgb: &Image, skip: &[bool]) -> Option<f32> {
+/// bands of rows, each with its own few rows of luminance: a frame-sized luminance plane was
+/// a 49 MB allocation whose first touch, at 12 MP, cost as much as the pass), then at most
+/// [`MAX_EDGES`] small fits.
+pub fn estimate(rgb: &Image, clipped: &[u8], margin: f32) -> Option<f32> {
     let (w, h) = (rgb.width, rgb.height);
     if w < 2 * HALF + 3 || h < 2 * HALF + 3 {
         return None;
     }
-    // Blocks of pixels in parallel (a pixel-by-pixel parallel collect was twice as slow).
-    const PIXELS: usize = 1 << 14;
-    let mut lum = vec![0f32; w * h];
-    lum.par_chunks_mut(PIXELS).zip(rgb.data.par_chunks(3 * PIXELS)).for_each(|(l, px)| {
-        l.iter_mut().zip(px.chunks_exact(3)).for_each(|(l, p)| *l = super::highlights::luminance(p));
-    });
     // Candidates: local maxima of the gradient along its direction, strong enough. Magnitudes
     // are compared squared (libm's careful hypot was most of this frame-wide pass).
-    let grad = |x: usize, y: usize| -> (f32, f32) {
-        let at = |x: usize, y: usize| lum[y * w + x];
-        (0.5 * (at(x + 1, y) - at(x - 1, y)), 0.5 * (at(x, y + 1) - at(x, y - 1)))
-    };
     let norm2 = |(gx, gy): (f32, f32)| gx * gx + gy * gy;
     let least = (MIN_STEP / 4.0) * (MIN_STEP / 4.0);
-    let mut cands: Vec<(usize, usize, f32)> = (HALF + 1..h - HALF - 1)
+    let (top, bottom) = (HALF + 1, h - HALF - 1);
+    let mut cands: Vec<(usize, usize, f32)> = (top..bottom)
+        .step_by(BAND_ROWS)
+        .collect::<Vec<_>>()
         .into_par_iter()
-        .flat_map_iter(|y| {
-            let grad = &grad;
-            (HALF + 1..w - HALF - 1).filter_map(move |x| {
-                let (gx, gy) = grad(x, y);
-                let g2 = norm2((gx, gy));
-                if g2 < least {
-                    return None;
-                }
-                // Along the gradient's main axis, the neighbours must not be stronger.
-                let (dx, dy) = if gx.abs() >= gy.abs() { (1, 0) } else { (0, 1) };
-                (g2 >= norm2(grad(x + dx, y + dy)) && g2 > norm2(grad(x - dx, y - dy))).then(|| (x, y, g2.sqrt()))
-            })
+        .flat_map_iter(|y0| {
+            let y1 = (y0 + BAND_ROWS).min(bottom);
+            // The band's rows and the two above and below that its gradients read.
+            let lum = Luminance { rgb, rows: y0 - 2..y1 + 2 }.rows();
+            let at = |x: usize, y: usize| lum[(y + 2 - y0) * w + x];
+            let grad = |x: usize, y: usize| -> (f32, f32) { (0.5 * (at(x + 1, y) - at(x - 1, y)), 0.5 * (at(x, y + 1) - at(x, y - 1))) };
+            let band: Vec<_> = (y0..y1)
+                .flat_map(|y| {
+                    (HALF + 1..w - HALF - 1).filter_map(move |x| {
+                        let (gx, gy) = grad(x, y);
+                        let g2 = norm2((gx, gy));
+                        if g2 < least {
+                            return None;
+                        }
+                        // Along the gradient's main axis, the neighbours must not be stronger.
+                        let (dx, dy) = if gx.abs() >= gy.abs() { (1, 0) } else { (0, 1) };
+                        (g2 >= norm2(grad(x + dx, y + dy)) && g2 > norm2(grad(x - dx, y - dy))).then(|| (x, y, g2.sqrt()))
+                    })
+                })
+                .collect();
+            band
         })
         .collect();
     // The strongest (a pool of 8 per edge fitted, partly selected: a full sort of a 12 MP
@@ -94,10 +99,12 @@ pub fn estimate(rgb: &Image, skip: &[bool]) -> Option<f32> {
         cands.select_nth_unstable_by(pool - 1, |a, b| b.2.total_cmp(&a.2));
         cands.truncate(pool);
     }
-    cands.retain(|&(x, y, _)| !(y - HALF..=y + HALF).any(|yy| (x - HALF..=x + HALF).any(|xx| skip[yy * w + xx])));
+    let clipped_at = |i: usize| clipped[i] != 0;
+    cands.retain(|&(x, y, _)| !super::mask::any_within(clipped_at, w, h, (x - HALF, y - HALF, x + HALF, y + HALF), margin));
     cands.sort_by(|a, b| b.2.total_cmp(&a.2));
     let stride = (cands.len() / MAX_EDGES).max(1);
-    let mut widths: Vec<f32> = cands.par_iter().step_by(stride).take(MAX_EDGES).filter_map(|&(x, y, _)| fit_edge(&lum, w, x, y)).collect();
+    let lum = |x: usize, y: usize| super::highlights::luminance(&rgb.data[(y * w + x) * 3..][..3]);
+    let mut widths: Vec<f32> = cands.par_iter().step_by(stride).take(MAX_EDGES).filter_map(|&(x, y, _)| fit_edge(&lum, x, y)).collect();
     if widths.len() < MIN_EDGES {
         return None;
     }
@@ -106,12 +113,29 @@ pub fn estimate(rgb: &Image, skip: &[bool]) -> Option<f32> {
     Some((width * width - PIXEL_VARIANCE).max(0.0).sqrt())
 }
 
+/// Rows of the candidate pass per band (each band computes its rows' luminance and two more
+/// above and below).
+const BAND_ROWS: usize = 64;
+
+/// The luminance of rows `rows` of `rgb`, one plane of `rows.len()` rows.
+struct Luminance<'a> {
+    rgb: &'a Image,
+    rows: std::ops::Range<usize>,
+}
+
+impl Luminance<'_> {
+    fn rows(self) -> Vec<f32> {
+        let w = self.rgb.width;
+        self.rgb.data[self.rows.start * w * 3..self.rows.end * w * 3].chunks_exact(3).map(super::highlights::luminance).collect()
+    }
+}
+
 /// Fits `a + b·Φ((s - s0) / w)` to the window around (x, y), `s` each pixel centre's signed
 /// distance along the luminance gradient's direction; returns w when the fit explains at
 /// least [`MIN_EXPLAINED`] of the window's variance and the step is at least [`MIN_STEP`].
-fn fit_edge(lum: &[f32], w: usize, x: usize, y: usize) -> Option<f32> {
+fn fit_edge(lum: &impl Fn(usize, usize) -> f32, x: usize, y: usize) -> Option<f32> {
     // The direction from a 3x3 Sobel (less noisy than the central difference).
-    let at = |dx: isize, dy: isize| lum[(y as isize + dy) as usize * w + (x as isize + dx) as usize];
+    let at = |dx: isize, dy: isize| lum(x.wrapping_add_signed(dx), y.wrapping_add_signed(dy));
     let gx = at(1, -1) + 2.0 * at(1, 0) + at(1, 1) - at(-1, -1) - 2.0 * at(-1, 0) - at(-1, 1);
     let gy = at(-1, 1) + 2.0 * at(0, 1) + at(1, 1) - at(-1, -1) - 2.0 * at(0, -1) - at(1, -1);
     let g = gx.hypot(gy);
@@ -231,7 +255,7 @@ mod tests {
                     rgb.pixel_mut(x, y).copy_from_slice(&[v, v, v]);
                 }
             }
-            let got = estimate(&rgb, &vec![false; w * h]).expect("edges found");
+            let got = estimate(&rgb, &vec![0; w * h], 2.0).expect("edges found");
             assert!((got - sigma).abs() <= 0.12, "σ {sigma}: estimated {got}");
         }
     }
@@ -253,10 +277,10 @@ mod tests {
                 rgb.pixel_mut(x, y).copy_from_slice(&[v, v, v]);
             }
         }
-        let got = estimate(&rgb, &vec![false; w * h]).expect("a square's edges are enough");
+        let got = estimate(&rgb, &vec![0; w * h], 2.0).expect("a square's edges are enough");
         assert!((got - sigma).abs() <= 0.12, "estimated {got}");
         // Nothing but flat grey: no edge, no estimate.
-        assert_eq!(estimate(&Image::filled(w, h, 3, 0.3), &vec![false; w * h]), None);
+        assert_eq!(estimate(&Image::filled(w, h, 3, 0.3), &vec![0; w * h], 2.0), None);
     }
 
     #[test]

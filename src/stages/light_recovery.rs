@@ -134,6 +134,9 @@ pub const MAX_RADIANCE: f32 = 64.0;
 /// Pixels of surroundings around a blob's bounding box that the fit sees: the glow of a PSF of
 /// σ ≤ [`PSF_GRID`]'s largest (2 px) has fallen below 1% of the light 5 px from its edge.
 const MARGIN: usize = 6;
+/// An edge the camera's PSF is read from stays this far (pixels) from clipped samples: their
+/// neighbours' profile is cut off too.
+const CLIPPED_MARGIN: f32 = 2.0;
 /// Surroundings at least this far (Chebyshev, pixels) outside the blob's bounding box give the
 /// background level the light is seen against (median per channel).
 const RING: usize = 4;
@@ -464,8 +467,7 @@ fn recover_lights(rgb: &Image, clip: f32, opts: &HighlightsOptions, occluders: O
     sample.truncate(PSF_SAMPLE);
     // The camera's PSF from the photo's sharpest edges; from the lights' own fits when the
     // photo has too few clean edges.
-    let near_clipped = crate::stages::mask::dilate(&mask.par_iter().map(|&m| m != 0).collect::<Vec<_>>(), w, h, 2.0);
-    let sigma = super::camera_psf::estimate(rgb, &near_clipped).unwrap_or_else(|| photo_psf(&sample, clip));
+    let sigma = super::camera_psf::estimate(rgb, &mask, CLIPPED_MARGIN).unwrap_or_else(|| photo_psf(&sample, clip));
     let fits: Vec<Option<Fit>> = found
         .par_iter()
         .zip(&seen)

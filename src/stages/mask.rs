@@ -405,6 +405,31 @@ fn by_stencil(radius: f32) -> bool {
     radius <= STENCIL_MAX
 }
 
+/// Whether [`dilate`] by `radius` of the pixels for which `set(index)` holds would cover any
+/// pixel of the box `(x0, y0, x1, y1)` (inclusive) of a plane `width` x `height`: whether
+/// such a pixel lies within `radius` of the box. Reads the box grown by `radius`, nothing
+/// frame-sized: for the few boxes of a sparse question a dilated plane costs far more.
+pub fn any_within(
+    set: impl Fn(usize) -> bool,
+    width: usize,
+    height: usize,
+    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    radius: f32,
+) -> bool {
+    let rows = disc_rows(radius);
+    let r = rows.len() / 2;
+    // A pixel's nearest point of the box is along each axis the box's nearest row / column:
+    // it is covered when that offset lies in the disc.
+    let outside = |v: usize, lo: usize, hi: usize| lo.saturating_sub(v).max(v.saturating_sub(hi));
+    (y0.saturating_sub(r)..=(y1 + r).min(height - 1)).any(|y| {
+        let dy = outside(y, y0, y1);
+        dy <= r && {
+            let hw = rows[r + dy].1;
+            (x0.saturating_sub(hw)..=(x1 + hw).min(width - 1)).any(|x| set(y * width + x))
+        }
+    })
+}
+
 /// The disc of offsets whose distance ([`root`] of `dx² + dy²`) is at most `radius`, as one
 /// `(dy, half-width)` per row: `|dx| ≤ half-width`.
 fn disc_rows(radius: f32) -> Vec<(isize, usize)> {
@@ -800,6 +825,31 @@ mod tests {
                             let ok = if e <= (limit * limit) as u32 { c == e } else { c > (limit * limit) as u32 };
                             assert!(ok, "{w}x{h} {win:?} {value} limit {limit} cell {i}: exact {e}, capped {c}");
                         }
+                    }
+                }
+            }
+        }
+    }
+
+    /// A box test against the dilated plane it stands for: every box of small random masks
+    /// (edges of the frame included), radii below, at and between the integers.
+    #[test]
+    fn any_within_is_the_dilated_plane_read_over_the_box() {
+        let mut s = 5u64;
+        for (w, h, per_mille) in [(1, 1, 500), (7, 1, 150), (1, 9, 150), (13, 11, 20), (12, 10, 2), (9, 9, 0)] {
+            let mask: Vec<bool> = (0..w * h)
+                .map(|_| {
+                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                    (s >> 33) % 1000 < per_mille
+                })
+                .collect();
+            for radius in [0.0, 1.0, 1.5, 2.0, 2.3, 3.0] {
+                let grown = dilate(&mask, w, h, radius);
+                for (y0, y1) in (0..h).flat_map(|y0| (y0..h).map(move |y1| (y0, y1))) {
+                    for (x0, x1) in (0..w).flat_map(|x0| (x0..w).map(move |x1| (x0, x1))) {
+                        let want = (y0..=y1).any(|y| (x0..=x1).any(|x| grown[y * w + x]));
+                        let got = any_within(|i| mask[i], w, h, (x0, y0, x1, y1), radius);
+                        assert_eq!(got, want, "{w}x{h} radius {radius} box {:?}", (x0, y0, x1, y1));
                     }
                 }
             }
