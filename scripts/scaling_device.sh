@@ -21,7 +21,8 @@ import os, subprocess, sys, time
 w = sys.argv[1]
 cmd = ["devbin/new/drbokeh", "render", f"{w}/image.png", "--depth", f"{w}/depth.exr", "--matte", f"{w}/matte.png",
        "--focus", "1", "--blur", "64", "-o", f"{w}/arena.png", "--threads", "16"]
-for arenas in [None, "4", "2", "1"]:
+# default: render's own rule (one arena per four threads); 128: one per thread (glibc's default)
+for arenas in [None, "128", "8", "4", "2"]:
     env = dict(os.environ, **({"MALLOC_ARENA_MAX": arenas} if arenas else {}))
     for _ in range(2):
         t = time.perf_counter()

@@ -54,7 +54,13 @@ pub fn arenas_for(threads: usize) -> usize {
 /// two runs each) 4 arenas ran as fast as the default (1.10-1.12 s against 1.10-1.11 s), 2
 /// took 1.16-1.24 s and 1 took 1.48-1.54 s; hence four threads per arena. Not for a batch:
 /// its images in flight run on threads of their own, each reusing what its thread freed.
+/// An arena limit the user set (`MALLOC_ARENA_MAX`, or `glibc.malloc.arena_max` in
+/// `GLIBC_TUNABLES`) is left as it is.
 pub fn share_allocator_arenas(threads: usize) {
+    let env = |name: &str| std::env::var_os(name).map(|v| v.to_string_lossy().into_owned());
+    if arena_limit_set(env("MALLOC_ARENA_MAX").as_deref(), env("GLIBC_TUNABLES").as_deref()) {
+        return;
+    }
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: `mallopt` only sets an allocator parameter; called before the workers start.
     unsafe {
@@ -62,6 +68,12 @@ pub fn share_allocator_arenas(threads: usize) {
     }
     #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
     let _ = threads;
+}
+
+/// Whether the environment sets glibc's arena limit: `MALLOC_ARENA_MAX`, or
+/// `glibc.malloc.arena_max` among the `GLIBC_TUNABLES` (`name=value` pairs joined by `:`).
+fn arena_limit_set(malloc_arena_max: Option<&str>, tunables: Option<&str>) -> bool {
+    malloc_arena_max.is_some() || tunables.is_some_and(|t| t.split(':').any(|kv| kv.split('=').next() == Some("glibc.malloc.arena_max")))
 }
 
 /// Peak bytes per pixel of one photo + depth (+ matte) render with the classical stages:
@@ -167,6 +179,15 @@ mod tests {
 
     /// Four threads per arena (what the lent 16-core machine ran at full speed), never fewer
     /// than two arenas.
+    #[test]
+    fn a_users_arena_limit_is_kept() {
+        assert!(!arena_limit_set(None, None));
+        assert!(arena_limit_set(Some("1"), None));
+        assert!(arena_limit_set(None, Some("glibc.malloc.arena_max=2")));
+        assert!(arena_limit_set(None, Some("glibc.malloc.tcache_count=0:glibc.malloc.arena_max=8")));
+        assert!(!arena_limit_set(None, Some("glibc.malloc.arena_test=2:glibc.malloc.hugetlb=1")));
+    }
+
     #[test]
     fn arenas_are_one_per_four_threads_and_at_least_two() {
         for (threads, arenas) in [(1, 2), (2, 2), (8, 2), (9, 3), (16, 4), (17, 5), (64, 16)] {
