@@ -161,7 +161,7 @@ pub fn foreground_estimate(disp: &Image, alpha: &Image, e: &EdgeWidths, radius: 
         return Ok(None);
     }
     let (w, h) = (disp.width, disp.height);
-    let some: Vec<bool> = alpha.data.iter().map(|&a| a > 0.0).collect();
+    let some: Vec<bool> = alpha.data.par_iter().map(|&a| a > 0.0).collect();
     // The background's disparity is read beyond the ramp outside the subject.
     let hidden = super::mask::dilate(&some, w, h, e.outside_px + 1.0);
     let mut bg = disp.clone();
@@ -171,16 +171,20 @@ pub fn foreground_estimate(disp: &Image, alpha: &Image, e: &EdgeWidths, radius: 
         &hidden,
         super::inpaint::TeleaOptions { max_distance: Some(reach), ..super::inpaint::TeleaOptions::new(radius) },
     )?;
-    let weighted = Image::from_vec(w, h, 1, alpha.data.iter().zip(&bg.data).map(|(&a, &b)| (1.0 - a) * b).collect()).expect("size");
+    let weighted = Image::from_vec(w, h, 1, alpha.data.par_iter().zip(&bg.data).map(|(&a, &b)| (1.0 - a) * b).collect()).expect("size");
     let (ga, gb) = rayon::join(|| super::mask::gaussian_blur(alpha, sigma), || super::mask::gaussian_blur(&weighted, sigma));
     let mut est = disp.clone();
     let mut valid = vec![false; w * h];
-    for (i, ok) in valid.iter_mut().enumerate() {
-        if alpha.data[i] >= 0.5 && ga.data[i] >= MIN_WEIGHT {
-            est.data[i] = ((disp.data[i] - gb.data[i]) / ga.data[i]).clamp(0.0, 1.0);
-            *ok = true;
+    // Rows in parallel (a serial pass per plane was a serial stretch of the peel, issue 39).
+    est.data.par_chunks_mut(w).zip(valid.par_chunks_mut(w)).enumerate().for_each(|(y, (est, valid))| {
+        for (x, (e, ok)) in est.iter_mut().zip(valid).enumerate() {
+            let i = y * w + x;
+            if alpha.data[i] >= 0.5 && ga.data[i] >= MIN_WEIGHT {
+                *e = ((disp.data[i] - gb.data[i]) / ga.data[i]).clamp(0.0, 1.0);
+                *ok = true;
+            }
         }
-    }
+    });
     Ok(Some((est, valid)))
 }
 
