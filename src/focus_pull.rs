@@ -210,6 +210,10 @@ mod tests {
     fn checks_name_the_flag() {
         let p = FocusPull { from: 0.2, to: 0.8, frames: 5, blur: None, easing: Easing::Linear };
         assert!(p.check().is_ok());
+        // The range's ends are allowed: one frame, and MAX_FRAMES.
+        for frames in [1, MAX_FRAMES] {
+            assert!(FocusPull { frames, ..p.clone() }.check().is_ok(), "{frames} frames");
+        }
         for (bad, flag) in [
             (FocusPull { from: f32::NAN, ..p.clone() }, "--focus-from"),
             (FocusPull { to: f32::INFINITY, ..p.clone() }, "--focus-to"),
