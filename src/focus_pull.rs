@@ -204,6 +204,12 @@ mod tests {
         assert_eq!(s.build_settings(10.0), (0.8, 12.0));
         let near = FocusPull { from: 0.5, to: 1.0, frames: 3, blur: None, easing: Easing::Linear };
         assert_eq!(near.build_settings(7.0), (1.0, 7.0));
+        // The reach is K·max(f, 1 − f), a product: focus 1 at K 6 reaches 6 px, focus 0.5 at
+        // K 10 only 5 (a sum of the two would pick the latter), and the farthest frame is
+        // the first, not the last.
+        let pull = FocusPull { from: 1.0, to: 0.5, frames: 2, blur: Some((6.0, 10.0)), easing: Easing::Linear };
+        assert_eq!(pull.frame(1, 0.0), (0.5, 10.0));
+        assert_eq!(pull.build_settings(0.0), (1.0, 6.0));
     }
 
     #[test]
