@@ -151,7 +151,9 @@ pub fn interpolate_keyframes(keys: &[Option<f32>]) -> Option<Vec<f32>> {
                 if i >= last_i {
                     return last_f;
                 }
-                while known[next + 1].0 < i {
+                // A keyframe starts the next segment: its own frame takes its focus exactly
+                // (as the end of a segment, `fa + (fb − fa)` can round off `fb`).
+                while known[next + 1].0 <= i {
                     next += 1;
                 }
                 let ((a, fa), (b, fb)) = (known[next], known[next + 1]);
@@ -255,6 +257,9 @@ mod tests {
         assert_eq!(interpolate_keyframes(&[Some(0.5), None, None]).unwrap(), vec![0.5; 3]);
         let f = interpolate_keyframes(&[Some(0.0), None, Some(1.0), None, Some(0.0)]).unwrap();
         assert_eq!(f, vec![0.0, 0.5, 1.0, 0.5, 0.0]);
+        // Every keyframe's frame has its focus exactly: 0.7 + (0.1 - 0.7) is 0.100000024 in f32.
+        let f = interpolate_keyframes(&[Some(0.7), None, Some(0.1), None, Some(0.5)]).unwrap();
+        assert_eq!([f[0], f[2], f[4]], [0.7, 0.1, 0.5]);
     }
 
     #[test]
