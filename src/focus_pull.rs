@@ -273,5 +273,11 @@ mod tests {
         assert!(worst(&jittery) > 0.08 && worst(&s[5..55]) < 0.02, "{} -> {}", worst(&jittery), worst(&s[5..55]));
         // The ramp itself is kept in the middle.
         assert!((s[30] - (0.2 + 0.30)).abs() < 0.02, "{}", s[30]);
+        // The shortest sequence that can be smoothed, two frames: each moves toward the other
+        // by the weight e^(-1/2) of its neighbour; one frame stays as it is.
+        let two = smooth_foci(&[0.0, 1.0], 1.0);
+        let k = (-0.5f64).exp();
+        assert!((two[0] as f64 - k / (1.0 + k)).abs() < 1e-6 && (two[1] as f64 - 1.0 / (1.0 + k)).abs() < 1e-6, "{two:?}");
+        assert_eq!(smooth_foci(&[0.4], 2.0), vec![0.4]);
     }
 }
