@@ -280,4 +280,26 @@ mod tests {
         assert!((two[0] as f64 - k / (1.0 + k)).abs() < 1e-6 && (two[1] as f64 - 1.0 / (1.0 + k)).abs() < 1e-6, "{two:?}");
         assert_eq!(smooth_foci(&[0.4], 2.0), vec![0.4]);
     }
+
+    /// Each smoothed focus is the Gaussian-weighted mean of the foci within 3σ frames (the
+    /// weights renormalized where the sequence ends), written out here from the definition.
+    #[test]
+    fn smoothing_is_a_gaussian_mean_over_three_sigma() {
+        let foci: Vec<f32> = (0..40).map(|i| if i < 20 { 0.1 } else { 0.9 } + 0.003 * (i % 7) as f32).collect();
+        for sigma in [1.3f32, 3.0] {
+            let reach = (3.0 * sigma).ceil() as i64;
+            let got = smooth_foci(&foci, sigma);
+            for (i, &g) in got.iter().enumerate() {
+                let (mut sum, mut norm) = (0.0f64, 0.0f64);
+                for (j, &f) in foci.iter().enumerate() {
+                    let d = i as i64 - j as i64;
+                    if d.abs() <= reach {
+                        let wt = (-(d as f64).powi(2) / (2.0 * (sigma as f64).powi(2))).exp();
+                        (sum, norm) = (sum + wt * f as f64, norm + wt);
+                    }
+                }
+                assert!((g as f64 - sum / norm).abs() < 1e-6, "sigma {sigma}, frame {i}: {g} against {}", sum / norm);
+            }
+        }
+    }
 }
