@@ -597,7 +597,7 @@ pub(crate) fn print_json<T: serde::Serialize>(value: &T) -> anyhow::Result<()> {
 fn render(args: RenderArgs) -> anyhow::Result<()> {
     // One image's workers reuse each other's freed buffers (see the function); before any
     // worker starts.
-    let threads = args.opts.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |c| c.get()));
+    let threads = args.opts.threads.unwrap_or_else(drbokeh::resources::cores);
     drbokeh::resources::share_allocator_arenas(threads);
     set_threads(args.opts.threads)?;
     // SIGINT/SIGTERM: nothing is worth finishing; remove the temporary output file, exit 130.

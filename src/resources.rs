@@ -158,9 +158,14 @@ fn check_memory_against(what: &str, needed: u64, available: Option<u64>) -> Resu
 /// huge count spent minutes creating threads before any work).
 pub const MAX_THREADS_PER_CORE: usize = 16;
 
+/// The machine's cores as the system reports them to this process (1 when it does not say).
+pub fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |c| c.get())
+}
+
 /// The most worker threads a run accepts: max(64, 16 × cores); and the core count.
 pub fn max_threads() -> (usize, usize) {
-    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let cores = cores();
     ((MAX_THREADS_PER_CORE * cores).max(64), cores)
 }
 
@@ -177,8 +182,8 @@ pub fn check_threads(n: usize, flag: &str) -> Result<usize> {
 mod tests {
     use super::*;
 
-    /// Four threads per arena (what the lent 16-core machine ran at full speed), never fewer
-    /// than two arenas.
+    /// `MALLOC_ARENA_MAX`, or the arena limit among other glibc tunables, is the user's
+    /// choice; other tunables are not.
     #[test]
     fn a_users_arena_limit_is_kept() {
         assert!(!arena_limit_set(None, None));
@@ -188,6 +193,8 @@ mod tests {
         assert!(!arena_limit_set(None, Some("glibc.malloc.arena_test=2:glibc.malloc.hugetlb=1")));
     }
 
+    /// Four threads per arena (what the lent 16-core machine ran at full speed), never fewer
+    /// than two arenas.
     #[test]
     fn arenas_are_one_per_four_threads_and_at_least_two() {
         for (threads, arenas) in [(1, 2), (2, 2), (8, 2), (9, 3), (16, 4), (17, 5), (64, 16)] {

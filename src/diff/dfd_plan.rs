@@ -105,8 +105,7 @@ pub struct DfdPlan {
 impl DfdPlan {
     /// Estimated wall seconds on `threads` threads (at most the machine's cores).
     pub fn seconds(&self, threads: usize) -> f64 {
-        let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
-        self.cpu_seconds / threads.clamp(1, cores) as f64
+        self.cpu_seconds / threads.clamp(1, crate::resources::cores()) as f64
     }
 }
 

@@ -49,8 +49,7 @@ const PIXEL_VARIANCE: f32 = 1.0 / 12.0;
 
 /// The PSF σ (pixels) of `rgb` (linear RGB) from its sharpest edges, leaving out edges whose
 /// window lies within `margin` pixels of a sample with `clipped` set (non-zero: their
-/// profile is cut off), or `None`
-/// when the photo has too few clean edges. Cost: one gradient pass over the frame (parallel by
+/// profile is cut off), or `None` when the photo has too few clean edges. Cost: one gradient pass over the frame (parallel by
 /// bands of rows, each with its own few rows of luminance: a frame-sized luminance plane was
 /// a 49 MB allocation whose first touch, at 12 MP, cost as much as the pass), then at most
 /// [`MAX_EDGES`] small fits.
@@ -65,16 +64,15 @@ pub fn estimate(rgb: &Image, clipped: &[u8], margin: f32) -> Option<f32> {
     let least = (MIN_STEP / 4.0) * (MIN_STEP / 4.0);
     let (top, bottom) = (HALF + 1, h - HALF - 1);
     let mut cands: Vec<(usize, usize, f32)> = (top..bottom)
-        .step_by(BAND_ROWS)
-        .collect::<Vec<_>>()
         .into_par_iter()
+        .step_by(BAND_ROWS)
         .flat_map_iter(|y0| {
             let y1 = (y0 + BAND_ROWS).min(bottom);
             // The band's rows and the two above and below that its gradients read.
-            let lum = Luminance { rgb, rows: y0 - 2..y1 + 2 }.rows();
+            let lum = luminance_rows(rgb, y0 - 2..y1 + 2);
             let at = |x: usize, y: usize| lum[(y + 2 - y0) * w + x];
             let grad = |x: usize, y: usize| -> (f32, f32) { (0.5 * (at(x + 1, y) - at(x - 1, y)), 0.5 * (at(x, y + 1) - at(x, y - 1))) };
-            let band: Vec<_> = (y0..y1)
+            (y0..y1)
                 .flat_map(|y| {
                     (HALF + 1..w - HALF - 1).filter_map(move |x| {
                         let (gx, gy) = grad(x, y);
@@ -87,8 +85,7 @@ pub fn estimate(rgb: &Image, clipped: &[u8], margin: f32) -> Option<f32> {
                         (g2 >= norm2(grad(x + dx, y + dy)) && g2 > norm2(grad(x - dx, y - dy))).then(|| (x, y, g2.sqrt()))
                     })
                 })
-                .collect();
-            band
+                .collect::<Vec<_>>()
         })
         .collect();
     // The strongest (a pool of 8 per edge fitted, partly selected: a full sort of a 12 MP
@@ -118,16 +115,9 @@ pub fn estimate(rgb: &Image, clipped: &[u8], margin: f32) -> Option<f32> {
 const BAND_ROWS: usize = 64;
 
 /// The luminance of rows `rows` of `rgb`, one plane of `rows.len()` rows.
-struct Luminance<'a> {
-    rgb: &'a Image,
-    rows: std::ops::Range<usize>,
-}
-
-impl Luminance<'_> {
-    fn rows(self) -> Vec<f32> {
-        let w = self.rgb.width;
-        self.rgb.data[self.rows.start * w * 3..self.rows.end * w * 3].chunks_exact(3).map(super::highlights::luminance).collect()
-    }
+fn luminance_rows(rgb: &Image, rows: std::ops::Range<usize>) -> Vec<f32> {
+    let w = rgb.width;
+    rgb.data[rows.start * w * 3..rows.end * w * 3].chunks_exact(3).map(super::highlights::luminance).collect()
 }
 
 /// Fits `a + b·Φ((s - s0) / w)` to the window around (x, y), `s` each pixel centre's signed
