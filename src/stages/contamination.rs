@@ -122,6 +122,27 @@ mod tests {
         assert_eq!(window_median(&img, (0, 0), 1, |j| j != 0, &mut scratch), Some([3.0, 5.0, 5.0]));
     }
 
+    /// The distance to the mixes is to the segment `b + t·(f − b)`, `t` in [`MIN_MIX`, 1]:
+    /// zero on it, the perpendicular distance beside it, the nearest end's past either end;
+    /// where `f` is `b` the one mix is `b` (no 0/0). Found by mutants of the segment's squared
+    /// length (`x·x` → `x + x`) and of its zero test (`>` → `>=`: NaN) that no test met.
+    #[test]
+    fn distance_to_the_mixes_is_to_the_segment() {
+        let (b, f) = ([0.1f32, 0.2, 0.3], [0.9f32, 0.6, 0.3]);
+        let at = |t: f32| -> [f32; 3] { std::array::from_fn(|k| b[k] + t * (f[k] - b[k])) };
+        assert!(sq_dist_to_mix(at(0.5), b, f) < 1e-12);
+        // 0.1 off the segment along z, perpendicular to f − b = (0.8, 0.4, 0).
+        let beside = {
+            let p = at(0.6);
+            [p[0], p[1], p[2] + 0.1]
+        };
+        assert!((sq_dist_to_mix(beside, b, f) - 0.01).abs() < 1e-6, "{}", sq_dist_to_mix(beside, b, f));
+        assert!((sq_dist_to_mix(at(1.5), b, f) - sq_dist(at(1.5), f)).abs() < 1e-6);
+        assert!((sq_dist_to_mix(b, b, f) - sq_dist(b, at(MIN_MIX))).abs() < 1e-7);
+        let c = [0.5f32, 0.5, 0.5];
+        assert_eq!(sq_dist_to_mix(c, b, b), sq_dist(c, b));
+    }
+
     #[test]
     fn mixes_and_non_mixes() {
         let (b, f) = ([0.2, 0.3, 0.2], [0.8, 0.1, 0.1]);
