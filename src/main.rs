@@ -323,7 +323,7 @@ pub(crate) struct ApertureArgs {
     chromatic: Option<f32>,
     /// Optical vignetting ("cat's eye") in [0, 1]: toward the frame's corners the bokeh is cut
     /// by a second circle displaced toward the centre, as a real lens's barrel clips its
-    /// pupil (disc and blades) [default: 0, off].
+    /// pupil (any shape: disc, blades, an image, with or without --bubble) [default: 0, off].
     #[arg(long, value_name = "S", allow_negative_numbers = true)]
     cat_eye: Option<f32>,
 }

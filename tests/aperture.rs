@@ -469,6 +469,11 @@ fn cat_cases() -> Vec<(&'static str, Aperture)> {
     vec![
         ("disc cat's eye 1", Aperture::DISC.with_cat_eye(1.0).unwrap()),
         ("pentagon cat's eye 0.6", aperture("blades:5,rotation=90", 1.0).with_cat_eye(0.6).unwrap()),
+        ("bubble 0.5 disc cat's eye 1", Aperture::with_bubble(&ShapeSpec::Disc, 1.0, 0.5, "--bubble").unwrap().with_cat_eye(1.0).unwrap()),
+        ("star image cat's eye 0.8", {
+            let (n, star) = common::star_mask();
+            Aperture::from_mask(n, n, &star, 1.0, "star").unwrap().with_cat_eye(0.8).unwrap()
+        }),
     ]
 }
 

@@ -605,7 +605,8 @@ fn chromatic_aberration_matches_random_directions() {
 }
 
 /// Apertures other than the disc (issue 36): a hexagon, a 5-point star image, a rounded
-/// anamorphic 7-blade with a bubble and a 9-blade cat's eye. The hexagon is turned 15° so no
+/// anamorphic 7-blade with a bubble, a 9-blade cat's eye, and a cat's eye on a bubble disc
+/// and on the star image. The hexagon is turned 15° so no
 /// edge is parallel to the pixel rows or columns: such an edge makes every tap's coverage
 /// kinked in the CoC wherever it crosses a side of the coverage's sub-squares (a hexagon at 0°
 /// crosses one every ~1e-3 of a direction here), and the differences then measure a mean of
@@ -641,6 +642,11 @@ fn shaped_apertures_match_directional_differences() {
                 .with_cat_eye(0.8)
                 .unwrap(),
         ),
+        (
+            "disc, bubble -0.5, cat's eye 0.8",
+            aperture::Aperture::with_bubble(&aperture::ShapeSpec::Disc, 1.0, -0.5, "test").unwrap().with_cat_eye(0.8).unwrap(),
+        ),
+        ("star image, cat's eye 0.7", aperture::Aperture::from_mask(n, n, &star, 1.0, "star").unwrap().with_cat_eye(0.7).unwrap()),
     ];
     for (k, (name, a)) in shapes.into_iter().enumerate() {
         let seed = 41 + k as u64;
