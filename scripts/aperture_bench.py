@@ -11,7 +11,7 @@ docs/aperture-bench/seedS/SHAPE/ (report.md, report.csv).
 
     scripts/aperture_bench.py            # run the benches, then write the table
     scripts/aperture_bench.py --table    # rewrite the table from the stored reports
-    scripts/aperture_bench.py --only "--chromatic 0.05"   # run one shape's benches, then the table
+    scripts/aperture_bench.py --only "--chromatic 0.05"   # run one shape's benches (repeatable), then the table
 """
 import csv, os, subprocess, sys
 
@@ -29,6 +29,8 @@ SHAPES = [
     ("--cat-eye 1", ["--cat-eye", "1"]),
     ("--bubble 0.5", ["--bubble", "0.5"]),
     ("--bubble -0.5", ["--bubble", "-0.5"]),
+    ("--cat-eye 1 --bubble 0.5", ["--cat-eye", "1", "--bubble", "0.5"]),
+    ("image:star.png --cat-eye 1", ["--aperture", "image:" + os.path.relpath(STAR, ROOT), "--cat-eye", "1"]),
 ]
 SEEDS = [1, 2]
 
@@ -72,7 +74,7 @@ def run(only=None):
     star()
     for seed in SEEDS:
         for name, flags in SHAPES:
-            if only is not None and name != only:
+            if only is not None and name not in only:
                 continue
             out = os.path.join(OUT, f"seed{seed}", tag(name))
             cmd = [os.path.join(ROOT, "target", "release", "drbokeh"), "bench", "--methods", "sliced", "--scenes", "12", "--size", "128x128",
@@ -112,7 +114,8 @@ def table():
 
 if __name__ == "__main__":
     if "--only" in sys.argv:
-        run(sys.argv[sys.argv.index("--only") + 1])
+        # Repeatable: --only A --only B runs both.
+        run([a for k, a in zip(sys.argv, sys.argv[1:]) if k == "--only"])
     elif "--table" not in sys.argv:
         run()
     table()
