@@ -143,6 +143,65 @@ mod tests {
         assert_eq!(sq_dist_to_mix(c, b, b), sq_dist(c, b));
     }
 
+    /// The rule's two bounds, met exactly: a colour 1% of its mean from a background colour
+    /// is clean (`≤`), though it lies on the mixes; a colour whose distance to the mixes is
+    /// exactly [`BETTER`] times its distance to the background is not a mix (`<`). Found by
+    /// mutants of the 1% bound and of the comparison that no test met.
+    #[test]
+    fn the_bounds_of_the_rule_are_as_stated() {
+        let b = [0.5f32, 0.5, 0.5];
+        let f = [0.53f32, 0.5, 0.5];
+        // On the mixes (t ≈ 0.17) at 1% of its own mean from `b`: clean, and a mix 2% away.
+        let delta = 0.005 / (1.0 - 0.01 / 3.0);
+        assert!(!is_mix([0.5 + delta, 0.5, 0.5], f, &[b]), "1% from the background");
+        assert!(is_mix([0.5 + 2.0 * delta, 0.5, 0.5], f, &[b]), "2% from the background");
+        assert!(!is_mix([0.5 + 0.9 * delta, 0.5, 0.5], f, &[b]), "0.9% from the background");
+        // Past the foreground colour: the nearest mix is `f` itself, 1 away, and `b` 2 away.
+        assert!(!is_mix([2.0, 0.0, 0.0], [1.0, 0.0, 0.0], &[[0.0; 3]]), "exactly BETTER times");
+        assert!(is_mix([1.9, 0.0, 0.0], [1.0, 0.0, 0.0], &[[0.0; 3]]), "below BETTER times");
+    }
+
+    /// `contaminated` on one band pixel at (12, 10) of a 40 × 30 frame whose other pixels are
+    /// neither solid foreground nor clean background but for the ones placed (offsets from
+    /// it): `F` comes from `band_width + 3` px around it and no further, the background from
+    /// `2·band_width + 3` (band width 3: 6 and 9 px), both windows centred on the pixel's own
+    /// column and row, and colours are read channel by channel. Found by mutants of the two
+    /// radii, of the pixel's row (`i / w` → `i % w`) and of a colour's channel index that no
+    /// test met.
+    #[test]
+    fn windows_reach_their_stated_radii() {
+        let (w, h, (x, y)) = (40usize, 30usize, (12usize, 10usize));
+        let (filler, red, green, blue) = ([0.3f32, 0.6, 0.9], [0.9f32, 0.1, 0.05], [0.1f32, 0.7, 0.2], [0.1f32, 0.2, 0.9]);
+        // `placed`: (dx, dy, colour, solid foreground; else clean background).
+        let run = |centre: [f32; 3], placed: &[(isize, isize, [f32; 3], bool)]| -> bool {
+            let mut rgb = Image::new(w, h, 3);
+            (0..w * h).for_each(|j| rgb.data[j * 3..j * 3 + 3].copy_from_slice(&filler));
+            let mut alpha = Image::new(w, h, 1);
+            let mut clean = vec![false; w * h];
+            rgb.pixel_mut(x, y).copy_from_slice(&centre);
+            for &(dx, dy, c, solid) in placed {
+                let j = (y as isize + dy) as usize * w + (x as isize + dx) as usize;
+                rgb.data[j * 3..j * 3 + 3].copy_from_slice(&c);
+                if solid {
+                    alpha.data[j] = 1.0;
+                } else {
+                    clean[j] = true;
+                }
+            }
+            contaminated(&rgb, &alpha, |j| clean[j], &[y * w + x], 3.0)[0]
+        };
+        // The background colour itself 9 px above: clean. 12 px right: no background, so
+        // contaminated.
+        assert!(!run(blue, &[(-1, 0, red, true), (0, -9, blue, false)]), "background 9 px above");
+        assert!(run(blue, &[(-1, 0, red, true), (12, 0, blue, false)]), "background 12 px right");
+        // The foreground 6 px away makes a half-red pixel a mix; 8 px away none is found and
+        // a blue one counts as contaminated, as it would not with that foreground.
+        let half = std::array::from_fn(|k| 0.5 * (red[k] + green[k]));
+        assert!(run(half, &[(6, 0, red, true), (-2, 0, green, false)]), "foreground 6 px right");
+        assert!(run(blue, &[(8, 0, red, true), (-2, 0, green, false)]), "foreground 8 px right");
+        assert!(!is_mix(blue, red, &[green]));
+    }
+
     #[test]
     fn mixes_and_non_mixes() {
         let (b, f) = ([0.2, 0.3, 0.2], [0.8, 0.1, 0.1]);
