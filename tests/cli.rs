@@ -2184,15 +2184,24 @@ fn aperture_shapes_and_their_bad_values() {
         let a = with(&["--cat-eye", value], "bad.png");
         s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["--cat-eye"]);
     }
+    // With an image aperture and with a bubble it is taken (named, finite, not the uncut
+    // render); with the official profile (the disc only) it is refused.
     io::write_png(&s.path("open.png"), &Image::from_vec(4, 4, 1, vec![1.0; 16]).unwrap(), 8, Transfer::Linear).unwrap();
-    for extra in [
-        &["--cat-eye", "0.5", "--aperture", "image:open.png"][..],
-        &["--cat-eye", "0.5", "--bubble", "0.5"],
-        &["--cat-eye", "0.5", "--profile", "official"],
+    for (extra, plain, label) in [
+        (&["--aperture", "image:open.png"][..], "uncut_image.png", "image:open.png,cat_eye=0.5"),
+        (&["--bubble", "0.5"], "uncut_bubble.png", "disc,bubble=0.5,cat_eye=0.5"),
     ] {
-        let a = with(extra, "bad.png");
-        s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["cat"]);
+        let uncut = with(extra, plain);
+        s.json(&uncut.iter().map(String::as_str).collect::<Vec<_>>());
+        let extra: Vec<&str> = extra.iter().copied().chain(["--cat-eye", "0.5"]).collect();
+        let a = with(&extra, "cut.png");
+        assert_eq!(s.json(&a.iter().map(String::as_str).collect::<Vec<_>>())["params"]["aperture"], label);
+        let cut = read("cut.png");
+        assert!(cut.all_finite());
+        assert_ne!(cut.data, read(plain).data, "{extra:?}: the cat's eye changed nothing");
     }
+    let a = with(&["--cat-eye", "0.5", "--profile", "official"], "bad.png");
+    s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["cat"]);
     std::fs::write(s.path("chroma.toml"), "[aperture]\nchromatic = 0.7\n").unwrap();
     let a = with(&["--config", "chroma.toml"], "bad.png");
     s.bad(&a.iter().map(String::as_str).collect::<Vec<_>>(), &["chroma.toml", "aperture.chromatic"]);
