@@ -57,7 +57,8 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
     }
     // The widest full-resolution footprint: a disk (or bright disk) and its ramp; a shape's
     // tent reaches a pixel further.
-    let edge = if ctx.s.aperture.is_disc() { EDGE } else { 1.0 };
+    let is_disc = ctx.s.aperture.is_disc();
+    let edge = if is_disc { EDGE } else { 1.0 };
     let pad0 = ctx.pad(ctx.full_max.max(ctx.bright_max) + edge);
     let stencil_p = ctx.stencil.p;
     let (y0i, y1i) = (y0 as i64, y1 as i64);
@@ -71,6 +72,13 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
             let j = ctx.clamp_index(sx, sy);
             // Footprint from the drawn radius, flux norm from the true one.
             let (r, true_r) = (ctx.drawn(ctx.sigma[j]), ctx.sigma[j]);
+            // A disc's footprint (stencil, binned or exact disk, bright or not) ends at
+            // `r + EDGE`: a source that far from the stripe's rows or the image's columns adds
+            // nothing. The pad is sized for the widest source, so most sources in it are such
+            // (a third of a 2 MP preview's scan at background focus).
+            if is_disc && (y0i - sy).max(sy + 1 - y1i).max(-sx).max(sx + 1 - w as i64) as f32 >= r + EDGE {
+                continue;
+            }
             if r >= 2.0 * pr.r0 && r > ctx.bright_max {
                 continue;
             }
@@ -106,6 +114,15 @@ pub(super) fn scan_sources(ctx: &Ctx, nodes: Option<(usize, usize)>, y0: usize, 
             }
             if r < pr.stencil_max {
                 n_st += own;
+                if r < 0.5 && r == true_r {
+                    // In focus: its own pixel alone, weight `(r + ½) / disk_norm(r)`, exactly 1
+                    // (the stencil's one tap); spares a stencil per source on a focused ramp.
+                    for &(slot, f) in &sc.dests {
+                        sc.accs[slot].tap_row(sx, sy, &[1.0], v.map(|c| c * f));
+                    }
+                    ops += sc.dests.len() as u64;
+                    continue;
+                }
                 if true_r != sc.stencil_sigma || sc.stencil_w.is_empty() {
                     ctx.stencil.coverage_weights(r, disk_norm(true_r), &mut sc.stencil_w);
                     sc.stencil_sigma = true_r;
