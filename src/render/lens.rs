@@ -715,6 +715,26 @@ mod tests {
     }
 
     #[test]
+    fn a_source_adds_its_weight_split_by_group() {
+        // Group k gains `wt·split[k]` of coverage and that times the colour, per channel; a
+        // second source adds to what is there.
+        let mut groups = [[0.5, 0.25, 0.125, 1.0], [0.0; 4], [1.0, 2.0, 3.0, 0.5]];
+        let rgb = [0.2f32, 0.4, 0.8];
+        add_to_groups(&mut groups, 0.5, [0.25, 0.75, 0.0], &rgb);
+        let want = [[0.525, 0.3, 0.225, 1.125], [0.075, 0.15, 0.3, 0.375], [1.0, 2.0, 3.0, 0.5]];
+        for (g, w) in groups.iter().zip(&want) {
+            for (a, b) in g.iter().zip(w) {
+                assert!((a - b).abs() < 1e-7, "{groups:?} vs {want:?}");
+            }
+        }
+        // A group the split leaves out is not touched.
+        let before = groups;
+        add_to_groups(&mut groups, 1.0, [0.0, 1.0, 0.0], &[4.0, 0.0, 0.0]);
+        assert_eq!((groups[0], groups[2]), (before[0], before[2]));
+        assert_eq!(groups[1], [before[1][0] + 4.0, before[1][1], before[1][2], before[1][3] + 1.0]);
+    }
+
+    #[test]
     fn occlusion_terms() {
         // Same-depth neighbour of an in-focus target: 0.5 - 0.5 tanh(1).
         assert!((occlusion(0.0, 0.3, 0.3) - 0.119_203).abs() < 1e-6);
