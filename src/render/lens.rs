@@ -225,6 +225,8 @@ pub fn disk_coverage_smooth(r: f32, rho: f32, width: f32) -> f32 {
 /// Exactly `r + ½` below half a pixel (the centre alone); up to [`NORM_TABLE_MAX`] the exact
 /// lattice sum from a table of the lattice's distances (O(log n), see [`LatticeRings`]);
 /// beyond, the area `π·(r² + 1/12)` of the ramped disk (relative error < 1e-4 there).
+// Inline: called per source of a depth ramp by the fast kernel's stencils (another module).
+#[inline]
 pub fn disk_norm(r: f32) -> f32 {
     if r < 0.5 {
         return r + 0.5;
