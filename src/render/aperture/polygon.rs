@@ -303,9 +303,14 @@ impl Sectors {
             let mid = cy.atan2(cx);
             let rel = |x: f64, y: f64| {
                 let d = y.atan2(x) - mid;
-                d - (2.0 * PI) * (d / (2.0 * PI)).round()
+                // `d / 2π` lies in [−1, 1]: its `round()` (a libm call on baseline x86-64)
+                // is one of −1, 0, 1, as here.
+                let q = d / (2.0 * PI);
+                d - (2.0 * PI) * ((q >= 0.5) as i8 - (q <= -0.5) as i8) as f64
             };
-            let corners = [rel(x0, y0), rel(x1, y0), rel(x1, y1), rel(x0, y1)];
+            // A point (a gauge's) is its own centre: every corner's angle is 0 (`0.5·(x + x)`
+            // is `x` exactly), without four more `atan2`.
+            let corners = if x0 == x1 && y0 == y1 { [0.0; 4] } else { [rel(x0, y0), rel(x1, y0), rel(x1, y1), rel(x0, y1)] };
             let (lo, hi) =
                 (corners.iter().copied().fold(f64::INFINITY, f64::min), corners.iter().copied().fold(f64::NEG_INFINITY, f64::max));
             if hi - lo > 0.5 * PI {
