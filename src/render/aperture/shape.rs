@@ -737,14 +737,24 @@ impl Geometry {
                 // asks for pixels at small scales of the shape; a cut bubble's 12 times over).
                 let disjoint = x1 <= bbox[0] || x0 >= bbox[1] || y1 <= bbox[2] || y0 >= bbox[3];
                 if whole || !disjoint && (x1 - x0).max(y1 - y0) > 0.5 * radii[1] && rect_reach(rect).1 >= radii[0] * radii[0] {
-                    let mut poly = pts.clone();
-                    let mut next = Vec::with_capacity(pts.len() + 4);
-                    for side in [[-1.0, 0.0, -x0], [1.0, 0.0, x1], [0.0, -1.0, -y0], [0.0, 1.0, y1]] {
+                    // Only by the sides that cross the shape's box: the others clip nothing
+                    // (none when the rectangle holds the shape, as at a cut bubble's small
+                    // scales).
+                    let sides = [
+                        ([-1.0, 0.0, -x0], x0 > bbox[0]),
+                        ([1.0, 0.0, x1], x1 < bbox[1]),
+                        ([0.0, -1.0, -y0], y0 > bbox[2]),
+                        ([0.0, 1.0, y1], y1 < bbox[3]),
+                    ];
+                    let (mut poly, mut next) = (Vec::new(), Vec::with_capacity(pts.len() + 4));
+                    let mut clipped = false;
+                    for (side, _) in sides.into_iter().filter(|&(_, crosses)| crosses) {
                         next.clear();
-                        clip_half_plane(&poly, side, &mut next);
+                        clip_half_plane(if clipped { &poly } else { pts }, side, &mut next);
                         std::mem::swap(&mut poly, &mut next);
+                        clipped = true;
                     }
-                    return Area::Part(in_cut(&poly));
+                    return Area::Part(in_cut(if clipped { &poly } else { pts }));
                 }
                 if cut.is_none() {
                     return polygon_rect_area(planes, bbox, *radii, sectors, rect);
