@@ -1215,7 +1215,9 @@ impl Mask {
     /// constant value).
     fn sat_at(&self, t: &[f64], u: f64, v: f64) -> f64 {
         let (u, v) = (u.clamp(0.0, self.w as f64), v.clamp(0.0, self.h as f64));
-        let (i, j) = ((u.floor() as usize).min(self.w - 1), (v.floor() as usize).min(self.h - 1));
+        // Truncation is the floor of these non-negative numbers, without libm's `floor` (8%
+        // of a cut image aperture's render on baseline x86-64).
+        let (i, j) = ((u as usize).min(self.w - 1), (v as usize).min(self.h - 1));
         let (fu, fv) = (u - i as f64, v - j as f64);
         let at = |a: usize, b: usize| t[b * (self.w + 1) + a];
         let top = at(i, j) * (1.0 - fu) + at(i + 1, j) * fu;
@@ -1273,7 +1275,8 @@ impl Mask {
         let per_unit = CIRCLE_BANDS_PER_UNIT.max(8.0 / (yb - ya));
         // Cells per unit; rows run down from `hh`.
         let (ku, kv) = (self.w as f64 / (2.0 * self.hw), self.h as f64 / (2.0 * self.hh));
-        let (first, last) = (((self.hh - yb) * kv).floor() as usize, (((self.hh - ya) * kv).ceil() as usize).min(self.h));
+        // `yb ≤ hh`: truncation is the floor.
+        let (first, last) = (((self.hh - yb) * kv) as usize, (((self.hh - ya) * kv).ceil() as usize).min(self.h));
         let mut sum = 0.0;
         for row in first..last {
             // The row's part of [ya, yb], in bands.
@@ -1300,7 +1303,8 @@ impl Mask {
     fn row_sum(&self, t: &[f64], row: usize, u0: f64, u1: f64) -> f64 {
         let stride = self.w + 1;
         let at = |u: f64| {
-            let i = (u.floor() as usize).min(self.w - 1);
+            // `u ≥ 0` (the callers clip to the mask's left edge): truncation is its floor.
+            let i = (u as usize).min(self.w - 1);
             let f = u - i as f64;
             let col = |k: usize| t[(row + 1) * stride + k] - t[row * stride + k];
             col(i) + (col(i + 1) - col(i)) * f
