@@ -48,7 +48,7 @@ done
 if [ ${#files[@]} -eq 0 ]; then
     for f in src/stages/highlight_completion.rs src/stages/fill_depth.rs src/stages/contamination.rs \
         src/stages/highlights.rs src/stages/light_recovery.rs src/stages/background.rs src/render/lens.rs src/render/composite.rs \
-        src/diff/loss.rs src/batch.rs src/io/atomic.rs src/io/guard.rs src/io/dynamic_depth.rs src/io/xmp.rs \
+        src/diff/loss.rs src/batch/mod.rs src/batch/schedule.rs src/io/atomic.rs src/io/guard.rs src/io/dynamic_depth.rs src/io/xmp.rs \
         src/focus_pull.rs src/view.rs src/diff/dfd_confidence.rs src/io/heif.rs src/io/heif_depth.rs; do
         files+=(--file "$f")
     done
