@@ -472,6 +472,128 @@ mod tests {
         assert_eq!(region(full).reach(&alpha, Reach::Seen(2.0)), super::super::mask::marching_reach(2.0));
     }
 
+    /// Which band pixels a render could show (the rule `BandReach::Render` states): those
+    /// strictly closer to the covered region than the foreground's largest CoC plus ½ (a disk
+    /// of radius r lights nothing at r + ½), and those out of focus themselves; all of them
+    /// when that reach spans the band, or when the render is unknown. One row: covered x < 5,
+    /// the band x = 5..=9 (distances 1 to 5), K = 10.
+    #[test]
+    fn the_band_a_render_shows_is_within_the_blur_or_out_of_focus() {
+        let (w, h, k) = (12, 1, 10.0);
+        let covered: Vec<bool> = (0..w).map(|x| x < 5).collect();
+        let band: Vec<usize> = (5..10).collect();
+        // Foreground at `fg`, the band in focus at 0.5 but for x = 9 (CoC 1 px).
+        let at = |x: usize, fg: f32| match x {
+            0..5 => fg,
+            9 => 0.6,
+            _ => 0.5,
+        };
+        let scene = |fg: f32| Image::from_vec(w, h, 1, (0..w).map(|x| at(x, fg)).collect()).unwrap();
+        let shown = |disparity: &Image, band_width: f32| {
+            BandReach::Render { disparity, focus: 0.5, blur: k }.shown(&band, &covered, (w, h), band_width)
+        };
+        // CoC 2.5: distances 1 and 2 are lit, 3 (= r + ½) is not.
+        let d = scene(0.75);
+        assert_eq!(shown(&d, 10.0), vec![5, 6, 9]);
+        // A reach as wide as the band: all of it, without the dilation.
+        assert_eq!(shown(&d, 2.9), band);
+        // The foreground in focus: only the band's own out-of-focus pixel.
+        assert_eq!(shown(&scene(0.5), 10.0), vec![9]);
+        // Behind the focal plane as in front: the CoC is |d - focus|·K.
+        assert_eq!(shown(&scene(0.25), 10.0), vec![5, 6, 9]);
+        assert_eq!(BandReach::Any.shown(&band, &covered, (w, h), 10.0), band);
+    }
+
+    /// `fill_region`'s masks against their stated rules, on a red square over a grey ground:
+    /// the edge band (within `dilate` = 3 px of the covered pixels) replaced whole
+    /// (`"replaced"`), kept (`"kept"`), or replaced where a pixel is a mix with the subject's
+    /// colour (`"tested"`, the default: one such pixel); the disparity re-synthesized a soft
+    /// depth edge's width plus one beyond the outline when that width is above a pixel; a
+    /// point highlight within Telea's reach of the mask kept out of the sources unless
+    /// `"included"`.
+    #[test]
+    fn the_fill_region_follows_the_band_depth_edge_and_highlight_rules() {
+        let (w, h) = (24, 24);
+        let inside = |i: usize| (8..16).contains(&(i % w)) && (8..16).contains(&(i / w));
+        let alpha = Image::from_vec(w, h, 1, (0..w * h).map(|i| if inside(i) { 1.0 } else { 0.0 }).collect()).unwrap();
+        let mut rgb = Image::filled(w, h, 3, 0.3);
+        for i in (0..w * h).filter(|&i| inside(i)) {
+            rgb.data[i * 3..i * 3 + 3].copy_from_slice(&[1.0, 0.0, 0.0]);
+        }
+        let (mix, light) = (12 * w + 16, 12 * w + 4);
+        rgb.data[mix * 3..mix * 3 + 3].copy_from_slice(&[0.65, 0.15, 0.15]);
+        // Lights as bright as `light` on the subject and beyond Telea's reach (6 px): neither
+        // is a source the fill could read, so neither is kept.
+        for i in [light, 12 * w + 12, 23 * w] {
+            rgb.data[i * 3..i * 3 + 3].fill(20.0);
+        }
+        // Dim pixels with a sample above white (a recovered light's rim) and at white.
+        let (rim, white) = (4 * w + 12, 19 * w + 12);
+        rgb.data[rim * 3..rim * 3 + 3].copy_from_slice(&[0.3, 0.3, 1.2]);
+        rgb.data[white * 3..white * 3 + 3].copy_from_slice(&[0.3, 0.3, 1.0]);
+        let covered: Vec<bool> = (0..w * h).map(inside).collect();
+        let grown = dilate(&covered, w, h, 3.0);
+        let band = (0..w * h).filter(|&i| grown[i] && !covered[i]).count();
+        let region_above = |edge_band, highlights, ramp, lights_above| {
+            let opts = InpaintOptions { edge_band, highlights, lights_above, ..Default::default() };
+            fill_region(&rgb, &alpha, &opts, ramp, BandReach::Any)
+        };
+        let region = |edge_band, highlights, ramp| region_above(edge_band, highlights, ramp, None);
+        let kept = |r: &FillRegion| ((0..w * h).filter(|&i| r.highlights[i]).collect::<Vec<_>>(), r.highlights_kept);
+        let with = |extra: &[usize]| -> Vec<bool> { (0..w * h).map(|i| covered[i] || extra.contains(&i)).collect() };
+        let r = region(EdgeBand::Replaced, HighlightSources::Completed, 0.0);
+        assert_eq!((r.band, r.band_replaced), (band, band));
+        assert_eq!(r.mask, grown);
+        let r = region(EdgeBand::Kept, HighlightSources::Completed, 0.0);
+        assert_eq!((r.band, r.band_replaced), (band, 0));
+        assert_eq!(r.mask, covered);
+        let r = region(EdgeBand::Tested, HighlightSources::Completed, 1.0);
+        assert_eq!((r.band, r.band_replaced), (band, 1));
+        assert_eq!(r.mask, with(&[mix]));
+        assert_eq!(r.grown, grown);
+        // A depth edge of one pixel: nothing beyond the mask; of 2.5, within 3.5 of the square.
+        assert_eq!(r.depth_mask, r.mask);
+        let far = dilate(&covered, w, h, 3.5);
+        let r = region(EdgeBand::Tested, HighlightSources::Completed, 2.5);
+        assert_eq!(r.depth_mask, (0..w * h).map(|i| far[i] || r.mask[i]).collect::<Vec<_>>());
+        // The point light 4 px left of the square: kept out of the sources, alone.
+        assert_eq!(kept(&r), (vec![light], 1));
+        assert_eq!(r.colour_holes(), with(&[mix, light]));
+        // After the highlights stage (`lights_above` white) the rim too, not the white pixel.
+        assert_eq!(kept(&region_above(EdgeBand::Tested, HighlightSources::Completed, 0.0, Some(1.0))), (vec![rim, light], 2));
+        let r = region(EdgeBand::Tested, HighlightSources::Included, 0.0);
+        assert_eq!((r.highlights_kept, r.highlights.iter().any(|&h| h)), (0, false));
+    }
+
+    /// What the fill must leave alone: pixels deeper under the subject than the reach keep
+    /// their input (no blur can show them), and a kept point light stays the visible
+    /// background it is, colour and depth, while the fill next to it does not read it.
+    #[test]
+    fn the_fill_stops_at_its_reach_and_leaves_kept_lights_as_they_are() {
+        let (w, h) = (40, 40);
+        let inside = |i: usize| (10..30).contains(&(i % w)) && (10..30).contains(&(i / w));
+        let alpha = Image::from_vec(w, h, 1, (0..w * h).map(|i| if inside(i) { 1.0 } else { 0.0 }).collect()).unwrap();
+        let mut rgb = Image::filled(w, h, 3, 0.3);
+        let mut disp = Image::filled(w, h, 1, 0.2);
+        for i in (0..w * h).filter(|&i| inside(i)) {
+            rgb.data[i * 3..i * 3 + 3].copy_from_slice(&[1.0, 0.0, 0.0]);
+            disp.data[i] = 0.8;
+        }
+        let light = 20 * w + 5;
+        rgb.data[light * 3..light * 3 + 3].fill(20.0);
+        disp.data[light] = 0.9;
+        let opts = InpaintOptions { highlights: HighlightSources::Excluded, ..Default::default() };
+        let bg = inpaint_background(&rgb, &disp, &alpha, &opts, Reach::Pixels(3.0), (0.0, BandReach::Any)).unwrap();
+        assert_eq!(bg.highlights_kept, 1);
+        assert!(bg.filled > 0 && bg.skipped > 0, "filled {}, skipped {}", bg.filled, bg.skipped);
+        let centre = 20 * w + 20;
+        assert_eq!((bg.rgb.pixel(20, 20), bg.disparity.data[centre]), (&[1.0, 0.0, 0.0][..], 0.8), "beyond the reach");
+        assert_eq!((bg.rgb.pixel(5, 20), bg.disparity.data[light]), (&[20.0; 3][..], 0.9), "the kept light");
+        // The subject's first column, 5 px from the light (Telea's radius): the ground's grey
+        // (the light's depth is a source of the depth fill: it is visible background).
+        assert!(bg.rgb.pixel(10, 20).iter().all(|&v| (v - 0.3).abs() < 1e-3), "{:?}", bg.rgb.pixel(10, 20));
+    }
+
     /// The whole fill on a disc of radiance 20 half behind a solid subject: by default the
     /// hidden half comes back in the background layer (light within 15% of the disc's), with
     /// `"excluded"` it does not; the visible background is the photo's either way.
