@@ -306,6 +306,29 @@ mod tests {
         assert_eq!(gradient_smoothness(&flat).value, 0.0);
     }
 
+    /// The smoothness prior is a mean over every horizontal and vertical neighbour pair: a
+    /// 3x2 map with one unit step between its last two columns has 7 pairs, 2 across the
+    /// step, so the loss is 2/7 and each pixel at the step is pulled by 1/7 per pair (finite
+    /// differences cannot see the normalization: value and gradient share it).
+    #[test]
+    fn smoothness_is_the_mean_over_neighbour_pairs() {
+        let map = Image::from_vec(3, 2, 1, vec![0.0, 0.0, 1.0, 0.0, 0.0, 1.0]).unwrap();
+        let lg = gradient_smoothness(&map);
+        assert!((lg.value - 2.0 / 7.0).abs() < 1e-12, "{}", lg.value);
+        let s = (1.0f64 / 7.0) as f32;
+        assert_eq!(lg.grad.data, [0.0, -s, s, 0.0, -s, s]);
+        // Taller than two rows, the step at the last pixel: 3 + 4 pairs, 2 across it.
+        let tall = Image::from_vec(2, 3, 1, vec![0.0, 0.0, 0.0, 0.0, 0.0, 1.0]).unwrap();
+        let lg = gradient_smoothness(&tall);
+        assert!((lg.value - 2.0 / 7.0).abs() < 1e-12, "{}", lg.value);
+        assert_eq!(lg.grad.data, [0.0, 0.0, 0.0, -s, -s, 2.0 * s]);
+        // A column and a row: pairs along the one side only.
+        let col = Image::from_vec(1, 3, 1, vec![0.0, 2.0, 2.0]).unwrap();
+        assert!((gradient_smoothness(&col).value - 1.0).abs() < 1e-12);
+        let row = Image::from_vec(3, 1, 1, vec![0.0, 0.0, 3.0]).unwrap();
+        assert!((gradient_smoothness(&row).value - 1.5).abs() < 1e-12);
+    }
+
     /// A clipped sample bounds the render from below only; unclipped samples compare both ways.
     #[test]
     fn censor_takes_a_clipped_sample_as_a_lower_bound() {
