@@ -504,6 +504,18 @@ mod tests {
         assert_eq!(BandReach::Any.shown(&band, &covered, (w, h), 10.0), band);
     }
 
+    /// A solid red subject, the square `side × side`, on a grey (0.3) ground: its pixels, the
+    /// matte and the linear RGB photo.
+    fn red_square(w: usize, h: usize, side: std::ops::Range<usize>) -> (Vec<bool>, Image, Image) {
+        let covered: Vec<bool> = (0..w * h).map(|i| side.contains(&(i % w)) && side.contains(&(i / w))).collect();
+        let alpha = Image::from_vec(w, h, 1, covered.iter().map(|&c| if c { 1.0 } else { 0.0 }).collect()).unwrap();
+        let mut rgb = Image::filled(w, h, 3, 0.3);
+        for i in (0..w * h).filter(|&i| covered[i]) {
+            rgb.data[i * 3..i * 3 + 3].copy_from_slice(&[1.0, 0.0, 0.0]);
+        }
+        (covered, alpha, rgb)
+    }
+
     /// `fill_region`'s masks against their stated rules, on a red square over a grey ground:
     /// the edge band (within `dilate` = 3 px of the covered pixels) replaced whole
     /// (`"replaced"`), kept (`"kept"`), or replaced where a pixel is a mix with the subject's
@@ -514,12 +526,7 @@ mod tests {
     #[test]
     fn the_fill_region_follows_the_band_depth_edge_and_highlight_rules() {
         let (w, h) = (24, 24);
-        let inside = |i: usize| (8..16).contains(&(i % w)) && (8..16).contains(&(i / w));
-        let alpha = Image::from_vec(w, h, 1, (0..w * h).map(|i| if inside(i) { 1.0 } else { 0.0 }).collect()).unwrap();
-        let mut rgb = Image::filled(w, h, 3, 0.3);
-        for i in (0..w * h).filter(|&i| inside(i)) {
-            rgb.data[i * 3..i * 3 + 3].copy_from_slice(&[1.0, 0.0, 0.0]);
-        }
+        let (covered, alpha, mut rgb) = red_square(w, h, 8..16);
         let (mix, light) = (12 * w + 16, 12 * w + 4);
         rgb.data[mix * 3..mix * 3 + 3].copy_from_slice(&[0.65, 0.15, 0.15]);
         // Lights as bright as `light` on the subject and beyond Telea's reach (6 px): neither
@@ -531,7 +538,6 @@ mod tests {
         let (rim, white) = (4 * w + 12, 19 * w + 12);
         rgb.data[rim * 3..rim * 3 + 3].copy_from_slice(&[0.3, 0.3, 1.2]);
         rgb.data[white * 3..white * 3 + 3].copy_from_slice(&[0.3, 0.3, 1.0]);
-        let covered: Vec<bool> = (0..w * h).map(inside).collect();
         let grown = dilate(&covered, w, h, 3.0);
         let band = (0..w * h).filter(|&i| grown[i] && !covered[i]).count();
         let region_above = |edge_band, highlights, ramp, lights_above| {
@@ -571,14 +577,8 @@ mod tests {
     #[test]
     fn the_fill_stops_at_its_reach_and_leaves_kept_lights_as_they_are() {
         let (w, h) = (40, 40);
-        let inside = |i: usize| (10..30).contains(&(i % w)) && (10..30).contains(&(i / w));
-        let alpha = Image::from_vec(w, h, 1, (0..w * h).map(|i| if inside(i) { 1.0 } else { 0.0 }).collect()).unwrap();
-        let mut rgb = Image::filled(w, h, 3, 0.3);
-        let mut disp = Image::filled(w, h, 1, 0.2);
-        for i in (0..w * h).filter(|&i| inside(i)) {
-            rgb.data[i * 3..i * 3 + 3].copy_from_slice(&[1.0, 0.0, 0.0]);
-            disp.data[i] = 0.8;
-        }
+        let (covered, alpha, mut rgb) = red_square(w, h, 10..30);
+        let mut disp = Image::from_vec(w, h, 1, covered.iter().map(|&c| if c { 0.8 } else { 0.2 }).collect()).unwrap();
         let light = 20 * w + 5;
         rgb.data[light * 3..light * 3 + 3].fill(20.0);
         disp.data[light] = 0.9;
