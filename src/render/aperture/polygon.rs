@@ -155,23 +155,45 @@ pub(super) fn polygon_circle_area(pts: &[[f64; 2]], centre: [f64; 2], radius: f6
 
 /// Appends to `out` the convex polygon `poly` clipped to the half-plane `n·p ≤ c`
 /// (Sutherland–Hodgman, one plane).
-pub(super) fn clip_half_plane(poly: &[[f64; 2]], [nx, ny, c]: [f64; 3], out: &mut impl Extend<[f64; 2]>) {
+pub(super) fn clip_half_plane(poly: &[[f64; 2]], [nx, ny, c]: [f64; 3], out: &mut impl PushPoint) {
     let m = poly.len();
     for i in 0..m {
         let (a, b) = (poly[i], poly[(i + 1) % m]);
         let (da, db) = (nx * a[0] + ny * a[1] - c, nx * b[0] + ny * b[1] - c);
         if da <= 0.0 {
-            out.extend([a]);
+            out.push_point(a);
         }
         if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
             let t = da / (da - db);
-            out.extend([[a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]]);
+            out.push_point([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
         }
     }
 }
 
-/// A small polygon on the stack (a rectangle clipped by a few planes).
-pub(super) type Poly = SmallVec<[[f64; 2]; 12]>;
+/// A growable list of points: what [`clip_half_plane`] writes to, one point at a time
+/// (`Extend` with a one-element array went through a reserve per point).
+pub(super) trait PushPoint {
+    fn push_point(&mut self, p: [f64; 2]);
+}
+
+impl PushPoint for Vec<[f64; 2]> {
+    #[inline]
+    fn push_point(&mut self, p: [f64; 2]) {
+        self.push(p);
+    }
+}
+
+impl PushPoint for Poly {
+    #[inline]
+    fn push_point(&mut self, p: [f64; 2]) {
+        self.push(p);
+    }
+}
+
+/// A small polygon on the stack: a rectangle clipped by a few planes, or by the run of a
+/// curved outline's edges (256 vertices) that crosses it (with room for 12 these spilled to
+/// the heap: the bundled example at `--blur 4 --bubble 0.5 --cat-eye 1` took ~8% longer).
+pub(super) type Poly = SmallVec<[[f64; 2]; 40]>;
 
 /// What [`clip_convex`] did.
 #[derive(Clone, Copy, PartialEq, Debug)]

@@ -746,15 +746,21 @@ impl Geometry {
                         ([0.0, -1.0, -y0], y0 > bbox[2]),
                         ([0.0, 1.0, y1], y1 < bbox[3]),
                     ];
-                    let (mut poly, mut next) = (Vec::new(), Vec::with_capacity(pts.len() + 4));
-                    let mut clipped = false;
-                    for (side, _) in sides.into_iter().filter(|&(_, crosses)| crosses) {
-                        next.clear();
-                        clip_half_plane(if clipped { &poly } else { pts }, side, &mut next);
-                        std::mem::swap(&mut poly, &mut next);
-                        clipped = true;
+                    if !sides.iter().any(|&(_, crosses)| crosses) {
+                        return Area::Part(in_cut(pts));
                     }
-                    return Area::Part(in_cut(if clipped { &poly } else { pts }));
+                    // Per-thread scratch: a small bubble's profile asks for millions of these.
+                    thread_local!(static SCRATCH: std::cell::RefCell<[Vec<[f64; 2]>; 2]> = const { std::cell::RefCell::new([Vec::new(), Vec::new()]) });
+                    return SCRATCH.with_borrow_mut(|[poly, next]| {
+                        let mut clipped = false;
+                        for (side, _) in sides.into_iter().filter(|&(_, crosses)| crosses) {
+                            next.clear();
+                            clip_half_plane(if clipped { poly } else { pts }, side, next);
+                            std::mem::swap(poly, next);
+                            clipped = true;
+                        }
+                        Area::Part(in_cut(poly))
+                    });
                 }
                 if cut.is_none() {
                     return polygon_rect_area(planes, bbox, *radii, sectors, rect);
