@@ -590,6 +590,28 @@ mod tests {
         }
     }
 
+    /// The highlights' components are 8-connected within the frame: lights on its four sides
+    /// are their own components, not joined across a side (a neighbour one column left of
+    /// column 0 is the row above's last pixel in a flat index), and one with no mask pixel
+    /// around it is left out. (cargo-mutants: `&&` → `||` in the neighbours' bounds joined
+    /// the left and right sides' lights; every light of the other tests was inside the frame.)
+    #[test]
+    fn components_stay_inside_the_frame() {
+        let (w, h) = (8usize, 6usize);
+        let at = |x: usize, y: usize| y * w + x;
+        let (mut hl, mut mask) = (vec![false; w * h], vec![false; w * h]);
+        // Top, right, left and bottom sides, a diagonal pair inside, a corner with no mask.
+        let lights = [(3, 0), (7, 1), (0, 2), (5, 3), (6, 4), (3, 5), (0, 5)];
+        for (x, y) in lights {
+            hl[at(x, y)] = true;
+        }
+        for (x, y) in [(3, 1), (6, 1), (1, 2), (7, 5), (3, 4)] {
+            mask[at(x, y)] = true;
+        }
+        let want = vec![vec![at(3, 0)], vec![at(7, 1)], vec![at(0, 2)], vec![at(5, 3), at(6, 4)], vec![at(3, 5)]];
+        assert_eq!(touching_components(&hl, &mask, w, h), want);
+    }
+
     /// A highlight that does not touch the mask, and a bright area larger than a point, are
     /// left alone; extreme radiance stays finite.
     #[test]
